@@ -1,0 +1,74 @@
+# nudge — the one entry point for set-up, tests, lint, benches and the demo.
+# README and CI (.ci/run) call these targets; every target does its own set-up on a fresh machine.
+
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(VENV)/bin/pip
+STAMP := $(VENV)/.nudge-stamp
+DATA ?= ../shared/data/ngsim
+CARGO ?= cargo
+
+.PHONY: help venv build test test-rust test-python lint fmt bench bench-table demo data goldens ci clean
+
+help:
+	@echo "make demo     set up and run the main job on the shipped defaults"
+	@echo "make test     set up and run every test (Rust + Python + golden drift check)"
+	@echo "make lint     rustfmt, clippy -D warnings, rustdoc -D warnings"
+	@echo "make bench    criterion benches (one thread) + the PyTorch-vs-Rust table"
+	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
+
+# ---- set-up ---------------------------------------------------------------------------------
+$(STAMP): python/train/pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install --disable-pip-version-check -q --upgrade pip
+	$(PIP) install --disable-pip-version-check -q -e "python/train[dev]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+build:
+	$(CARGO) build --release --workspace
+
+# ---- tests ----------------------------------------------------------------------------------
+test: venv test-rust test-python
+
+test-rust:
+	$(CARGO) test --workspace --release
+
+test-python: venv
+	$(PY) -m pytest -q python/train/tests
+
+# ---- quality --------------------------------------------------------------------------------
+fmt:
+	$(CARGO) fmt --all
+
+lint:
+	$(CARGO) fmt --all -- --check
+	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --workspace --no-deps
+
+# ---- benches (one thread, as in the paper) ---------------------------------------------------
+bench: venv
+	RAYON_NUM_THREADS=1 $(CARGO) bench --bench predictor -- --warm-up-time 1 --measurement-time 3
+	$(MAKE) bench-table
+
+bench-table: venv
+	$(PY) python/train/scripts/bench_torch.py --markdown docs/results/inference.md
+
+# ---- data, models, demo ---------------------------------------------------------------------
+goldens: venv
+	$(PY) python/train/scripts/make_goldens.py
+
+data: venv
+	$(VENV)/bin/nudge-train data build --data-root $(DATA)
+
+demo: build
+	$(CARGO) run --release --bin nudge -- demo
+
+ci: lint test
+
+clean:
+	$(CARGO) clean
+	rm -rf $(VENV)

@@ -1,0 +1,1 @@
+"""nudge_train: training, data pipeline and evaluation for the nudge planner."""

@@ -1,0 +1,3 @@
+//! The `nudge` command-line tool.
+
+fn main() {}
