@@ -10,7 +10,7 @@ STAMP := $(VENV)/.nudge-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv build test test-rust test-python lint fmt bench bench-table demo data goldens ci clean
+.PHONY: help venv develop build test test-rust test-python lint fmt bench bench-table demo data goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -28,6 +28,10 @@ $(STAMP): python/train/pyproject.toml
 
 venv: $(STAMP)
 
+# Builds the Rust extension nudge._native into the venv (editable install of python/nudge).
+develop: $(STAMP)
+	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release -q
+
 build:
 	$(CARGO) build --release --workspace
 
@@ -37,8 +41,8 @@ test: venv test-rust test-python
 test-rust:
 	$(CARGO) test --workspace --release
 
-test-python: venv
-	$(PY) -m pytest -q python/train/tests
+test-python: develop
+	$(PY) -m pytest -q
 
 # ---- quality --------------------------------------------------------------------------------
 fmt:
@@ -64,8 +68,13 @@ goldens: venv
 data: venv
 	$(VENV)/bin/nudge-train data build --data-root $(DATA)
 
-demo: build
-	$(CARGO) run --release --bin nudge -- demo
+# The main job: closed-loop lane changes on the shipped real NGSIM scenes, planned with the
+# shipped student, the teacher moving the other vehicles; per-step table of one run, summary over
+# all, records (CSV/JSON) and a picture in out/demo/.
+demo: venv build
+	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor student \
+		--world teacher --seed 0 --runs 20 --threads 2 --out out/demo --verbose-run
+	$(PY) python/train/scripts/plot_runs.py out/demo --scenes assets/scenes --png out/demo/runs.png
 
 ci: lint test
 

@@ -1,4 +1,30 @@
 //! # nudge-planner
 //!
-//! Interaction-aware ADMM MPC (Clarabel QPs for steering and acceleration, projected gradient
-//! descent with network-checked safety for the states) and a closed-loop simulator.
+//! The interaction-aware planner of the paper (Algorithm 1): an MPC over T = 6 steps of
+//! 0.3 s solved by ADMM, whose steering and acceleration updates are Clarabel QPs and whose
+//! state update is projected gradient descent with every trial point checked for safety by
+//! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory. Plus the
+//! scenario reader ("nudge.scenario/1" safetensors files) and the closed-loop simulator.
+//!
+//! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
+//! 0 = +x), speed v (m/s); agent 0 is the ego.
+
+mod admm;
+mod error;
+mod model;
+mod qp;
+mod safety;
+mod scenario;
+mod settings;
+mod sim;
+
+pub use admm::{EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem};
+pub use error::{PlannerError, ScenarioError, SettingsError, SimError};
+pub use model::{Bicycle, Jac4, Linearisation, State};
+pub use safety::{Ellipse, OrientedBox};
+pub use scenario::{SCHEMA, Scenario};
+pub use settings::PlannerSettings;
+pub use sim::{
+    PredictorPair, RunRecord, RunSpec, SimConfig, StepRecord, WorldMode, simulate, simulate_many,
+    target_lane,
+};

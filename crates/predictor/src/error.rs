@@ -41,6 +41,17 @@ pub enum PredictorError {
         /// The kind found in the metadata.
         kind: String,
     },
+    /// The file holds a valid network of the other kind (e.g. a student file given to
+    /// `Teacher::from_file`).
+    #[error("{path}: holds a {got} network, expected a {expected}")]
+    WrongModelKind {
+        /// File that failed.
+        path: PathBuf,
+        /// Kind the caller asked for.
+        expected: &'static str,
+        /// Kind found in the config.
+        got: &'static str,
+    },
     /// A tensor required by the config is absent.
     #[error("{path}: missing tensor {tensor:?}")]
     MissingTensor {

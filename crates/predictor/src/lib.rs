@@ -10,18 +10,54 @@
 //!
 //! All three implement [`Predictor`]. Networks load from `.safetensors` files exported by the
 //! PyTorch code in `python/train` (PyTorch `state_dict` names, float32, config JSON in the
-//! metadata) and compute in f32, matching PyTorch to ≤ 1e-5.
+//! metadata; see [`weights`]) or via [`load_predictor`], which picks the kind from the file.
+//!
+//! Numerics: the networks run in f32 with weights repacked at load time (spatial embeddings
+//! folded into the LSTM input weights and the pooling's first layer, LSTM biases summed, the
+//! pooling's first layer split into a per-agent term plus a per-pair 2-column product), while
+//! positions stay in f64: only differences (displacements, offsets between agents) are rounded
+//! to f32, and predicted positions accumulate in f64. On the golden cases
+//! (`tests/golden`, a float64 evaluation of the PyTorch model rounded to float32) the largest
+//! error is about 2e-6 m, the goldens' own float32 rounding; the [`reference`](mod@reference) module holds a
+//! literal f64 implementation used to test the fast path. Results are bit-reproducible for a
+//! given build (FMA is used only when the build targets it, e.g. `-C target-cpu=x86-64-v3`).
+//!
+//! Work that depends only on the history is cached per scene: the teacher's τ = 1 generator
+//! call and the non-ego part of its τ = 2 call, the student's encoder, pooling, context and
+//! first decoder step. `predict` allocates nothing; buffers grow in `set_scene` only.
 //!
 //! Conventions: metres in the road frame (x along travel, y lateral positive left), one step
 //! = 0.3 s, [`T_OBS`] = 8 observed steps, agent 0 is the ego, 1..=[`MAX_AGENTS`] agents.
 
 mod constant_velocity;
 mod error;
+mod generator;
 mod history;
+mod nn;
+pub mod reference;
+mod student;
+mod teacher;
+pub mod weights;
 
 pub use constant_velocity::ConstantVelocity;
 pub use error::{PredictorError, Result};
 pub use history::History;
+pub use student::Student;
+pub use teacher::Teacher;
+pub use weights::{ModelConfig, ModelKind, ModelWeights};
+
+/// Loads a [`Teacher`] or a [`Student`] from a `.safetensors` weights file, whichever its
+/// config's `kind` names.
+///
+/// # Errors
+/// Any loading error of [`ModelWeights::from_file`].
+pub fn load_predictor(path: impl AsRef<std::path::Path>) -> Result<Box<dyn Predictor>> {
+    let weights = ModelWeights::from_file(path)?;
+    Ok(match weights.config().kind {
+        ModelKind::Teacher => Box::new(Teacher::from_weights(&weights)?),
+        ModelKind::Student => Box::new(Student::from_weights(&weights)?),
+    })
+}
 
 /// Observed steps fed to every predictor (8 × 0.3 s = 2.4 s).
 pub const T_OBS: usize = 8;

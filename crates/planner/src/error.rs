@@ -1,0 +1,210 @@
+//! The typed errors of `nudge-planner`: one enum per concern (settings, scenario files,
+//! planning, simulation), each variant naming the offending item.
+
+use std::path::PathBuf;
+
+use nudge_predictor::PredictorError;
+
+/// A [`crate::PlannerSettings`] field holds a value the planner cannot work with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SettingsError {
+    /// One field is out of its admissible range.
+    #[error("invalid planner setting `{field}` = {value}: {reason}")]
+    Invalid {
+        /// Name of the field (as in the serde representation).
+        field: &'static str,
+        /// The value found, formatted.
+        value: String,
+        /// What the value must satisfy.
+        reason: &'static str,
+    },
+}
+
+/// A scenario file ("nudge.scenario/1") cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ScenarioError {
+    /// The file could not be read.
+    #[error("cannot read scenario file {path}: {source}")]
+    Io {
+        /// File that failed.
+        path: PathBuf,
+        /// Underlying I/O error.
+        source: std::io::Error,
+    },
+    /// The bytes are not a valid safetensors file.
+    #[error("{path}: not a valid safetensors file: {reason}")]
+    NotSafetensors {
+        /// File (or `<memory>`) that failed.
+        path: PathBuf,
+        /// What the safetensors parser said.
+        reason: String,
+    },
+    /// The metadata has no "schema" entry or names another schema.
+    #[error("{path}: schema is {found:?}, expected \"nudge.scenario/1\"")]
+    WrongSchema {
+        /// File that failed.
+        path: PathBuf,
+        /// The schema string found (`None` when absent).
+        found: Option<String>,
+    },
+    /// A metadata entry is missing or cannot be parsed.
+    #[error("{path}: bad metadata {key:?}: {reason}")]
+    BadMetadata {
+        /// File that failed.
+        path: PathBuf,
+        /// Metadata key.
+        key: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A required tensor is absent.
+    #[error("{path}: missing tensor {tensor:?}")]
+    MissingTensor {
+        /// File that failed.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: &'static str,
+    },
+    /// A tensor has the wrong dtype.
+    #[error("{path}: tensor {tensor:?} has dtype {got}, expected {expected}")]
+    WrongDtype {
+        /// File that failed.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: &'static str,
+        /// Dtype required by the schema.
+        expected: &'static str,
+        /// Dtype found.
+        got: String,
+    },
+    /// A tensor has the wrong shape.
+    #[error("{path}: tensor {tensor:?} has shape {got:?}, expected {expected}")]
+    WrongShape {
+        /// File that failed.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: &'static str,
+        /// Shape required by the schema, human readable.
+        expected: String,
+        /// Shape found.
+        got: Vec<usize>,
+    },
+    /// A tensor holds NaN or infinity.
+    #[error("{path}: tensor {tensor:?} holds non-finite value {value} at flat index {index}")]
+    NonFinite {
+        /// File that failed.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: &'static str,
+        /// Flat (row-major) index of the first bad element.
+        index: usize,
+        /// The value found.
+        value: f64,
+    },
+    /// A value is finite but impossible (non-positive size, unordered lanes, bad lane index...).
+    #[error("{path}: tensor {tensor:?}: {reason}")]
+    BadValue {
+        /// File that failed.
+        path: PathBuf,
+        /// Tensor name.
+        tensor: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The ego's bounding box already overlaps another vehicle's at the last observed step.
+    #[error("{path}: ego overlaps agent {agent} (source id {id}) at the last observed step")]
+    EgoOverlap {
+        /// File that failed.
+        path: PathBuf,
+        /// Index of the overlapped agent in the scenario (1..n).
+        agent: usize,
+        /// Its source vehicle id.
+        id: i64,
+    },
+}
+
+/// One MPC call failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlannerError {
+    /// The settings do not validate.
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// The predictor failed (bad scene, bad candidate, ...).
+    #[error("predictor failed: {0}")]
+    Predictor(#[from] PredictorError),
+    /// The predictor's horizon differs from the planner's.
+    #[error("predictor horizon {predictor} differs from the planner horizon {planner}")]
+    HorizonMismatch {
+        /// Predictor horizon (steps).
+        predictor: usize,
+        /// `PlannerSettings::horizon`.
+        planner: usize,
+    },
+    /// The planning problem handed to the planner is malformed.
+    #[error("bad planning problem: {field}: {reason}")]
+    BadProblem {
+        /// The offending field.
+        field: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Clarabel could not set up a QP.
+    #[error("Clarabel setup of the {qp} QP failed: {reason}")]
+    QpSetup {
+        /// Which QP (`"delta"`, `"alpha"`, `"joint"`).
+        qp: &'static str,
+        /// Clarabel's message.
+        reason: String,
+    },
+    /// Clarabel returned a status other than Solved/AlmostSolved, also after the
+    /// equilibration-off retry.
+    #[error("Clarabel failed on the {qp} QP at ADMM iteration {iteration}: status {status}")]
+    QpFailed {
+        /// Which QP (`"delta"`, `"alpha"`, `"joint"`).
+        qp: &'static str,
+        /// ADMM iteration (0-based) at which it failed.
+        iteration: usize,
+        /// Clarabel's status, formatted.
+        status: String,
+    },
+}
+
+/// A closed-loop simulation could not run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimError {
+    /// The scenario offers no lane adjacent to the ego's.
+    #[error("scenario {scene}: no lane adjacent to the ego's lane {ego_lane} (lanes: {lanes})")]
+    NoAdjacentLane {
+        /// Scenario name.
+        scene: String,
+        /// The ego's lane index.
+        ego_lane: usize,
+        /// Number of lanes.
+        lanes: usize,
+    },
+    /// The scenario cannot be turned into a planning problem.
+    #[error("scenario {scene}: {source}")]
+    Predictor {
+        /// Scenario name.
+        scene: String,
+        /// The predictor's complaint (history shape, agent count...).
+        source: PredictorError,
+    },
+    /// The planner failed in a way the simulator cannot recover from (not a QP failure).
+    #[error("scenario {scene}, step {step}: {source}")]
+    Planner {
+        /// Scenario name.
+        scene: String,
+        /// Closed-loop step (0-based).
+        step: usize,
+        /// The planner's error.
+        source: PlannerError,
+    },
+    /// The settings do not validate.
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+}

@@ -1,0 +1,417 @@
+//! Reader of "nudge.scenario/1" scenario files (one real scene per `.safetensors` file).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use nudge_predictor::{MAX_AGENTS, T_OBS};
+use safetensors::{Dtype, SafeTensors};
+
+use crate::error::ScenarioError;
+use crate::safety::OrientedBox;
+
+/// The schema string the reader accepts.
+pub const SCHEMA: &str = "nudge.scenario/1";
+
+/// One real scene: the ego (agent 0) and its neighbours, their 8-step history, sizes, logged
+/// futures and the lane layout, in the road frame (x along travel, y lateral positive left,
+/// metres; one step = 0.3 s).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scenario {
+    /// Short name (file stem).
+    pub name: String,
+    /// Number of agents n (ego included, 1..=47).
+    pub n_agents: usize,
+    /// Observed positions `[n, 8, 2]` (m), oldest first.
+    pub history: Vec<f64>,
+    /// Heading at the last observed step `[n]` (rad).
+    pub heading: Vec<f64>,
+    /// Speed at the last observed step `[n]` (m/s).
+    pub speed: Vec<f64>,
+    /// (length, width) `[n]` (m).
+    pub size: Vec<[f64; 2]>,
+    /// Logged future steps F (≥ 6).
+    pub n_future: usize,
+    /// Logged future positions `[n, F, 2]` (m), steps 1..=F.
+    pub future: Vec<f64>,
+    /// Whether each future position is real data `[n, F]`.
+    pub future_valid: Vec<bool>,
+    /// Lane-centre y, ascending `[L]` (m).
+    pub lane_centres: Vec<f64>,
+    /// Lane-boundary y, ascending `[L + 1]` (m); first and last are the road edges.
+    pub lane_bounds: Vec<f64>,
+    /// Index of the ego's lane in `lane_centres`.
+    pub ego_lane: usize,
+    /// Source vehicle ids `[n]`.
+    pub agent_ids: Vec<i64>,
+    /// String metadata (source, scene, split, t0_s, dt, provenance, ...).
+    pub metadata: HashMap<String, String>,
+}
+
+struct Reader<'a> {
+    path: &'a Path,
+    st: SafeTensors<'a>,
+}
+
+impl Reader<'_> {
+    fn view(
+        &self,
+        tensor: &'static str,
+        dtype: Dtype,
+        expected: &[Option<usize>],
+    ) -> Result<(Vec<usize>, &[u8]), ScenarioError> {
+        let v = self
+            .st
+            .tensor(tensor)
+            .map_err(|_| ScenarioError::MissingTensor {
+                path: self.path.to_path_buf(),
+                tensor,
+            })?;
+        if v.dtype() != dtype {
+            return Err(ScenarioError::WrongDtype {
+                path: self.path.to_path_buf(),
+                tensor,
+                expected: if dtype == Dtype::F64 {
+                    "F64"
+                } else if dtype == Dtype::U8 {
+                    "U8"
+                } else {
+                    "I64"
+                },
+                got: format!("{:?}", v.dtype()),
+            });
+        }
+        let shape = v.shape().to_vec();
+        let ok = shape.len() == expected.len()
+            && shape
+                .iter()
+                .zip(expected)
+                .all(|(s, e)| e.is_none_or(|e| *s == e));
+        if !ok {
+            let exp: Vec<String> = expected
+                .iter()
+                .map(|e| e.map_or_else(|| "?".to_string(), |e| e.to_string()))
+                .collect();
+            return Err(ScenarioError::WrongShape {
+                path: self.path.to_path_buf(),
+                tensor,
+                expected: format!("[{}]", exp.join(", ")),
+                got: shape,
+            });
+        }
+        Ok((shape, v.data()))
+    }
+
+    fn f64s(
+        &self,
+        tensor: &'static str,
+        expected: &[Option<usize>],
+    ) -> Result<(Vec<usize>, Vec<f64>), ScenarioError> {
+        let (shape, data) = self.view(tensor, Dtype::F64, expected)?;
+        let vals: Vec<f64> = data
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+            .collect();
+        if let Some((index, &value)) = vals.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(ScenarioError::NonFinite {
+                path: self.path.to_path_buf(),
+                tensor,
+                index,
+                value,
+            });
+        }
+        Ok((shape, vals))
+    }
+
+    fn i64s(
+        &self,
+        tensor: &'static str,
+        expected: &[Option<usize>],
+    ) -> Result<Vec<i64>, ScenarioError> {
+        let (_, data) = self.view(tensor, Dtype::I64, expected)?;
+        Ok(data
+            .chunks_exact(8)
+            .map(|c| i64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+            .collect())
+    }
+
+    fn bad(&self, tensor: &'static str, reason: String) -> ScenarioError {
+        ScenarioError::BadValue {
+            path: self.path.to_path_buf(),
+            tensor,
+            reason,
+        }
+    }
+}
+
+fn ascending(v: &[f64]) -> bool {
+    v.windows(2).all(|w| w[0] < w[1])
+}
+
+impl Scenario {
+    /// Reads and validates a scenario file.
+    ///
+    /// # Errors
+    /// [`ScenarioError::Io`] when the file cannot be read, otherwise as
+    /// [`Scenario::from_bytes`].
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, ScenarioError> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(|source| ScenarioError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Parses and validates the bytes of a scenario file; `path` names it in errors and gives
+    /// [`Scenario::name`] (its stem).
+    ///
+    /// # Errors
+    /// [`ScenarioError::NotSafetensors`], [`ScenarioError::WrongSchema`],
+    /// [`ScenarioError::BadMetadata`], [`ScenarioError::MissingTensor`],
+    /// [`ScenarioError::WrongDtype`], [`ScenarioError::WrongShape`],
+    /// [`ScenarioError::NonFinite`], [`ScenarioError::BadValue`] (sizes ≤ 0, negative speed,
+    /// unordered lanes, ego lane out of range, fewer than 6 future steps),
+    /// [`ScenarioError::EgoOverlap`] (the ego's box overlaps another vehicle's now).
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ScenarioError> {
+        let p = || path.to_path_buf();
+        let st = SafeTensors::deserialize(bytes).map_err(|e| ScenarioError::NotSafetensors {
+            path: p(),
+            reason: e.to_string(),
+        })?;
+        let (_, meta) =
+            SafeTensors::read_metadata(bytes).map_err(|e| ScenarioError::NotSafetensors {
+                path: p(),
+                reason: e.to_string(),
+            })?;
+        let metadata: HashMap<String, String> = meta.metadata().clone().unwrap_or_default();
+        let schema = metadata.get("schema").cloned();
+        if schema.as_deref() != Some(SCHEMA) {
+            return Err(ScenarioError::WrongSchema {
+                path: p(),
+                found: schema,
+            });
+        }
+        if let Some(dt) = metadata.get("dt") {
+            let ok = dt
+                .trim()
+                .parse::<f64>()
+                .is_ok_and(|d| (d - 0.3).abs() < 1e-9);
+            if !ok {
+                return Err(ScenarioError::BadMetadata {
+                    path: p(),
+                    key: "dt",
+                    reason: format!("{dt:?} is not 0.3"),
+                });
+            }
+        }
+        let r = Reader { path, st };
+        let (hshape, history) = r.f64s("history", &[None, Some(T_OBS), Some(2)])?;
+        let n = hshape[0];
+        if n == 0 || n > MAX_AGENTS {
+            return Err(r.bad("history", format!("{n} agents; supported 1..={MAX_AGENTS}")));
+        }
+        let (_, heading) = r.f64s("heading", &[Some(n)])?;
+        let (_, speed) = r.f64s("speed", &[Some(n)])?;
+        if let Some(i) = speed.iter().position(|&v| v < 0.0) {
+            return Err(r.bad(
+                "speed",
+                format!("agent {i} has negative speed {}", speed[i]),
+            ));
+        }
+        let (_, size_flat) = r.f64s("size", &[Some(n), Some(2)])?;
+        if let Some(i) = size_flat.iter().position(|&v| v <= 0.0) {
+            return Err(r.bad(
+                "size",
+                format!(
+                    "agent {} has a non-positive dimension {}",
+                    i / 2,
+                    size_flat[i]
+                ),
+            ));
+        }
+        let size: Vec<[f64; 2]> = size_flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let (fshape, future) = r.f64s("future", &[Some(n), None, Some(2)])?;
+        let nf = fshape[1];
+        if nf < 6 {
+            return Err(r.bad("future", format!("{nf} future steps; at least 6 required")));
+        }
+        let (_, fv) = r.view("future_valid", Dtype::U8, &[Some(n), Some(nf)])?;
+        let future_valid: Vec<bool> = fv.iter().map(|&b| b != 0).collect();
+        let (lshape, lane_centres) = r.f64s("lane_centres", &[None])?;
+        let nl = lshape[0];
+        if nl == 0 || !ascending(&lane_centres) {
+            return Err(r.bad(
+                "lane_centres",
+                format!("{lane_centres:?} is empty or not strictly ascending"),
+            ));
+        }
+        let (_, lane_bounds) = r.f64s("lane_bounds", &[Some(nl + 1)])?;
+        if !ascending(&lane_bounds) {
+            return Err(r.bad(
+                "lane_bounds",
+                format!("{lane_bounds:?} is not strictly ascending"),
+            ));
+        }
+        for (i, c) in lane_centres.iter().enumerate() {
+            if !(lane_bounds[i] < *c && *c < lane_bounds[i + 1]) {
+                return Err(r.bad(
+                    "lane_centres",
+                    format!("centre {i} ({c}) lies outside its bounds"),
+                ));
+            }
+        }
+        let ego_lane = r.i64s("ego_lane", &[Some(1)])?[0];
+        if ego_lane < 0 || ego_lane as usize >= nl {
+            return Err(r.bad(
+                "ego_lane",
+                format!("{ego_lane} is not a lane index in 0..{nl}"),
+            ));
+        }
+        let agent_ids = r.i64s("agent_ids", &[Some(n)])?;
+        let name = path.file_stem().map_or_else(
+            || "<memory>".to_string(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        let sc = Self {
+            name,
+            n_agents: n,
+            history,
+            heading,
+            speed,
+            size,
+            n_future: nf,
+            future,
+            future_valid,
+            lane_centres,
+            lane_bounds,
+            ego_lane: ego_lane as usize,
+            agent_ids,
+            metadata,
+        };
+        let ego = sc.vehicle_box(0);
+        for i in 1..n {
+            if ego.overlaps(&sc.vehicle_box(i)) {
+                return Err(ScenarioError::EgoOverlap {
+                    path: p(),
+                    agent: i,
+                    id: sc.agent_ids[i],
+                });
+            }
+        }
+        Ok(sc)
+    }
+
+    /// Position `[x, y]` (m) of `agent` at observed step `t` (0 = oldest, 7 = now).
+    #[must_use]
+    pub fn position(&self, agent: usize, t: usize) -> [f64; 2] {
+        let k = (agent * T_OBS + t) * 2;
+        [self.history[k], self.history[k + 1]]
+    }
+
+    /// The bounding box of `agent` at the last observed step.
+    #[must_use]
+    pub fn vehicle_box(&self, agent: usize) -> OrientedBox {
+        let p = self.position(agent, T_OBS - 1);
+        OrientedBox {
+            x: p[0],
+            y: p[1],
+            heading: self.heading[agent],
+            length: self.size[agent][0],
+            width: self.size[agent][1],
+        }
+    }
+
+    /// Road edges (right, left) y (m).
+    #[must_use]
+    pub fn road(&self) -> [f64; 2] {
+        [
+            self.lane_bounds[0],
+            self.lane_bounds[self.lane_bounds.len() - 1],
+        ]
+    }
+
+    /// Logged future position of `agent` at future step `k` (1-based), if real data.
+    #[must_use]
+    pub fn future_at(&self, agent: usize, k: usize) -> Option<[f64; 2]> {
+        if k == 0 || k > self.n_future || !self.future_valid[agent * self.n_future + k - 1] {
+            return None;
+        }
+        let i = (agent * self.n_future + k - 1) * 2;
+        Some([self.future[i], self.future[i + 1]])
+    }
+
+    /// A copy keeping the ego and its `keep` nearest neighbours at the last observed step
+    /// (nearest first). Used to build scenes of a chosen size for benchmarks.
+    #[must_use]
+    pub fn nearest(&self, keep: usize) -> Self {
+        let e = self.position(0, T_OBS - 1);
+        let mut order: Vec<usize> = (1..self.n_agents).collect();
+        order.sort_by(|&a, &b| {
+            let da = dist2(self.position(a, T_OBS - 1), e);
+            let db = dist2(self.position(b, T_OBS - 1), e);
+            da.total_cmp(&db).then(a.cmp(&b))
+        });
+        order.truncate(keep);
+        let mut idx = vec![0];
+        idx.extend(order);
+        let nf = self.n_future;
+        let pick = |v: &[f64], per: usize| -> Vec<f64> {
+            idx.iter()
+                .flat_map(|&i| v[i * per..(i + 1) * per].iter().copied())
+                .collect()
+        };
+        Self {
+            name: format!("{}-n{}", self.name, idx.len()),
+            n_agents: idx.len(),
+            history: pick(&self.history, T_OBS * 2),
+            heading: pick(&self.heading, 1),
+            speed: pick(&self.speed, 1),
+            size: idx.iter().map(|&i| self.size[i]).collect(),
+            n_future: nf,
+            future: pick(&self.future, nf * 2),
+            future_valid: idx
+                .iter()
+                .flat_map(|&i| self.future_valid[i * nf..(i + 1) * nf].iter().copied())
+                .collect(),
+            lane_centres: self.lane_centres.clone(),
+            lane_bounds: self.lane_bounds.clone(),
+            ego_lane: self.ego_lane,
+            agent_ids: idx.iter().map(|&i| self.agent_ids[i]).collect(),
+            metadata: self.metadata.clone(),
+        }
+    }
+
+    /// Every `.safetensors` file in `dir`, sorted by name, read and validated; files that fail
+    /// are returned with their error.
+    ///
+    /// # Errors
+    /// [`ScenarioError::Io`] when the directory cannot be listed.
+    #[allow(clippy::type_complexity)]
+    pub fn load_dir(
+        dir: impl AsRef<Path>,
+    ) -> Result<(Vec<Self>, Vec<(PathBuf, ScenarioError)>), ScenarioError> {
+        let dir = dir.as_ref();
+        let rd = std::fs::read_dir(dir).map_err(|source| ScenarioError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let mut paths: Vec<PathBuf> = rd
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "safetensors"))
+            .collect();
+        paths.sort();
+        let mut ok = Vec::new();
+        let mut bad = Vec::new();
+        for p in paths {
+            match Self::from_file(&p) {
+                Ok(s) => ok.push(s),
+                Err(e) => bad.push((p, e)),
+            }
+        }
+        Ok((ok, bad))
+    }
+}
+
+fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
+}

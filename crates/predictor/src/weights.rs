@@ -1,0 +1,538 @@
+//! Loading and validating network weights exported by `python/train` as `.safetensors`.
+//!
+//! A weights file holds the PyTorch `state_dict` of one generator (float32, `W` stored
+//! `(out, in)` row-major) and string metadata:
+//!
+//! * `"config"`: the JSON [`ModelConfig`] (required);
+//! * `"format"`: `"nudge.weights/1"` (optional; any other value is rejected);
+//! * `"trained"`: `"true"` / `"false"` (optional, informative);
+//! * `"provenance"`: free-form JSON (optional, ignored).
+//!
+//! [`ModelWeights::from_file`] / [`ModelWeights::from_bytes`] check, in this order: the file is
+//! safetensors; the config is present, valid JSON, of a known kind, has exactly the fields of
+//! [`ModelConfig`] (unknown fields are **rejected**: a field the Rust side does not understand
+//! could change the network, so it must not be silently ignored) and sane values; then every
+//! tensor the config calls for, in [`expected_tensors`] order, exists, is F32, has the expected
+//! shape and finite values; finally no other tensor is present. The first problem found is
+//! returned as the matching [`PredictorError`] variant naming the file and tensor.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use safetensors::{Dtype, SafeTensors};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{PredictorError, Result};
+use crate::{DT, T_OBS};
+
+/// Value of the `"format"` metadata entry this crate reads.
+pub const WEIGHTS_FORMAT: &str = "nudge.weights/1";
+
+/// Which network a weights file holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// The large Social-GAN generator used recursively (one step per call, 6 calls).
+    Teacher,
+    /// The small distilled network predicting the whole horizon in one pass.
+    Student,
+}
+
+impl ModelKind {
+    /// `"teacher"` or `"student"`, as in the config JSON.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Teacher => "teacher",
+            Self::Student => "student",
+        }
+    }
+}
+
+/// The network configuration stored as JSON under the `"config"` metadata key.
+///
+/// Mirrors the Python dataclass `ModelConfig` field for field. Sizes are element counts,
+/// `dt` is seconds, step counts are 0.3 s steps. Unknown JSON fields are rejected.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// Teacher or student.
+    pub kind: ModelKind,
+    /// Observed steps fed to the encoder; must equal [`T_OBS`] (8).
+    pub obs_len: usize,
+    /// Steps predicted by one generator call: 1 for the teacher, `t_plan` for the student.
+    pub pred_len: usize,
+    /// Planning horizon in steps (6): the number of predicted positions per agent.
+    pub t_plan: usize,
+    /// Step length in seconds; must equal [`DT`] (0.3).
+    pub dt: f64,
+    /// Width E of every spatial embedding `Linear(2, E)`.
+    pub embedding_dim: usize,
+    /// Hidden size He of the encoder LSTM.
+    pub encoder_h_dim: usize,
+    /// Hidden size Hd of the decoder LSTM.
+    pub decoder_h_dim: usize,
+    /// Hidden width M of the context (and decoder) mlp.
+    pub mlp_dim: usize,
+    /// Output width B of the pooling module.
+    pub bottleneck_dim: usize,
+    /// Hidden width P of the pooling mlp (Social-GAN's hard-coded 512).
+    pub pool_hidden_dim: usize,
+    /// Size Z of the noise vector appended to the decoder's initial state (0: none).
+    pub noise_dim: usize,
+    /// Whether the decoder pools (and refines h with its mlp) after every step.
+    pub pool_every_timestep: bool,
+    /// Activation of every mlp; only `"relu"` is supported.
+    pub activation: String,
+    /// Discriminator encoder size (training only; not used for inference).
+    pub d_encoder_h_dim: usize,
+    /// Discriminator mlp width (training only; not used for inference).
+    pub d_mlp_dim: usize,
+    /// Seed of the weight initialisation (informative).
+    pub seed: u64,
+    /// Seed of the stored `fixed_noise` (informative).
+    pub noise_seed: u64,
+}
+
+impl ModelConfig {
+    /// The shipped teacher's sizes (MODELS.md): E 16, He 32, Hd 32, M 64, B 32, P 512, Z 8,
+    /// one step per call, no pooling in the decoder.
+    #[must_use]
+    pub fn teacher() -> Self {
+        Self {
+            kind: ModelKind::Teacher,
+            obs_len: T_OBS,
+            pred_len: 1,
+            t_plan: 6,
+            dt: DT,
+            embedding_dim: 16,
+            encoder_h_dim: 32,
+            decoder_h_dim: 32,
+            mlp_dim: 64,
+            bottleneck_dim: 32,
+            pool_hidden_dim: 512,
+            noise_dim: 8,
+            pool_every_timestep: false,
+            activation: "relu".to_owned(),
+            d_encoder_h_dim: 48,
+            d_mlp_dim: 64,
+            seed: 0,
+            noise_seed: 1,
+        }
+    }
+
+    /// The shipped student's sizes (MODELS.md): E 16, He 16, Hd 16, M 16, B 16, P 16, no
+    /// noise, 6 steps per call, pooling after every decoder step.
+    #[must_use]
+    pub fn student() -> Self {
+        Self {
+            kind: ModelKind::Student,
+            pred_len: 6,
+            encoder_h_dim: 16,
+            decoder_h_dim: 16,
+            mlp_dim: 16,
+            bottleneck_dim: 16,
+            pool_hidden_dim: 16,
+            noise_dim: 0,
+            pool_every_timestep: true,
+            d_encoder_h_dim: 24,
+            d_mlp_dim: 16,
+            ..Self::teacher()
+        }
+    }
+}
+
+/// A `.safetensors` image in the export format with seeded random weights for `config`:
+/// every tensor uniform in ±1/√fan_in (PyTorch's default `Linear`/`LSTM` initialisation
+/// range; fan_in = last dimension, 1 for vectors) and `fixed_noise` roughly standard normal.
+/// For tests and benchmarks that must run without the Python side; not bit-identical to
+/// PyTorch's initialisation.
+///
+/// # Errors
+/// [`PredictorError::NotSafetensors`] if serialisation fails (it does not for valid
+/// configs).
+pub fn synthetic_weights(config: &ModelConfig, seed: u64) -> Result<Vec<u8>> {
+    let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
+    let mut next = move || {
+        // splitmix64
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let tensors: Vec<(String, Vec<usize>, Vec<u8>)> = expected_tensors(config)
+        .into_iter()
+        .map(|(name, shape)| {
+            let len: usize = shape.iter().product();
+            let values: Vec<f32> = if name == "fixed_noise" {
+                // Sum of 12 uniforms minus 6: approximately N(0, 1).
+                (0..len)
+                    .map(|_| ((0..12).map(|_| next()).sum::<f64>() - 6.0) as f32)
+                    .collect()
+            } else {
+                let fan_in = if shape.len() > 1 {
+                    shape[shape.len() - 1]
+                } else {
+                    1
+                };
+                let bound = 1.0 / (fan_in as f64).sqrt();
+                (0..len)
+                    .map(|_| ((2.0 * next() - 1.0) * bound) as f32)
+                    .collect()
+            };
+            let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+            (name, shape, bytes)
+        })
+        .collect();
+    let views = tensors
+        .iter()
+        .map(|(name, shape, bytes)| {
+            safetensors::tensor::TensorView::new(Dtype::F32, shape.clone(), bytes)
+                .map(|v| (name.clone(), v))
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(|e| PredictorError::NotSafetensors {
+            path: PathBuf::from(MEMORY),
+            reason: e.to_string(),
+        })?;
+    let config_json = serde_json::to_string(config).map_err(|e| PredictorError::BadConfig {
+        path: PathBuf::from(MEMORY),
+        reason: e.to_string(),
+    })?;
+    let metadata = std::collections::HashMap::from([
+        ("config".to_owned(), config_json),
+        ("format".to_owned(), WEIGHTS_FORMAT.to_owned()),
+        ("trained".to_owned(), "false".to_owned()),
+        (
+            "provenance".to_owned(),
+            format!(
+                "{{\"generator\":\"nudge_predictor::weights::synthetic_weights\",\"seed\":{seed}}}"
+            ),
+        ),
+    ]);
+    safetensors::serialize(views, Some(metadata)).map_err(|e| PredictorError::NotSafetensors {
+        path: PathBuf::from(MEMORY),
+        reason: e.to_string(),
+    })
+}
+
+/// Largest accepted size of any one dimension (guards against absurd configs).
+const MAX_DIM: usize = 1 << 16;
+
+impl ModelConfig {
+    /// Checks the values the networks rely on; `Err(reason)` names the first bad field.
+    fn validate(&self) -> std::result::Result<(), String> {
+        if self.obs_len != T_OBS {
+            return Err(format!("obs_len is {}, expected {T_OBS}", self.obs_len));
+        }
+        if (self.dt - DT).abs() > 1e-9 {
+            return Err(format!("dt is {}, expected {DT}", self.dt));
+        }
+        if self.activation != "relu" {
+            return Err(format!(
+                "activation {:?} is not supported (only \"relu\")",
+                self.activation
+            ));
+        }
+        let dims = [
+            ("t_plan", self.t_plan),
+            ("pred_len", self.pred_len),
+            ("embedding_dim", self.embedding_dim),
+            ("encoder_h_dim", self.encoder_h_dim),
+            ("decoder_h_dim", self.decoder_h_dim),
+            ("mlp_dim", self.mlp_dim),
+            ("bottleneck_dim", self.bottleneck_dim),
+            ("pool_hidden_dim", self.pool_hidden_dim),
+        ];
+        for (name, v) in dims {
+            if v == 0 || v > MAX_DIM {
+                return Err(format!("{name} is {v}, expected 1..={MAX_DIM}"));
+            }
+        }
+        if self.noise_dim >= self.decoder_h_dim {
+            return Err(format!(
+                "noise_dim {} must be smaller than decoder_h_dim {}",
+                self.noise_dim, self.decoder_h_dim
+            ));
+        }
+        match self.kind {
+            ModelKind::Teacher if self.pred_len != 1 => Err(format!(
+                "a teacher predicts one step per call: pred_len is {}, expected 1",
+                self.pred_len
+            )),
+            ModelKind::Student if self.pred_len != self.t_plan => Err(format!(
+                "a student predicts the whole horizon: pred_len is {}, expected t_plan = {}",
+                self.pred_len, self.t_plan
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The names and shapes (PyTorch `state_dict` order) of every tensor a generator with
+/// config `cfg` holds; `W` shapes are `[out, in]`.
+#[must_use]
+pub fn expected_tensors(cfg: &ModelConfig) -> Vec<(String, Vec<usize>)> {
+    let (e, he, hd) = (cfg.embedding_dim, cfg.encoder_h_dim, cfg.decoder_h_dim);
+    let (m, b, p, z) = (
+        cfg.mlp_dim,
+        cfg.bottleneck_dim,
+        cfg.pool_hidden_dim,
+        cfg.noise_dim,
+    );
+    let mut v: Vec<(String, Vec<usize>)> = Vec::new();
+    let mut add = |name: &str, shape: &[usize]| v.push((name.to_owned(), shape.to_vec()));
+    add("encoder.spatial_embedding.weight", &[e, 2]);
+    add("encoder.spatial_embedding.bias", &[e]);
+    add("encoder.encoder.weight_ih_l0", &[4 * he, e]);
+    add("encoder.encoder.weight_hh_l0", &[4 * he, he]);
+    add("encoder.encoder.bias_ih_l0", &[4 * he]);
+    add("encoder.encoder.bias_hh_l0", &[4 * he]);
+    add("pool_net.spatial_embedding.weight", &[e, 2]);
+    add("pool_net.spatial_embedding.bias", &[e]);
+    add("pool_net.mlp_pre_pool.0.weight", &[p, e + he]);
+    add("pool_net.mlp_pre_pool.0.bias", &[p]);
+    add("pool_net.mlp_pre_pool.2.weight", &[b, p]);
+    add("pool_net.mlp_pre_pool.2.bias", &[b]);
+    add("mlp_decoder_context.0.weight", &[m, he + b]);
+    add("mlp_decoder_context.0.bias", &[m]);
+    add("mlp_decoder_context.2.weight", &[hd - z, m]);
+    add("mlp_decoder_context.2.bias", &[hd - z]);
+    add("decoder.spatial_embedding.weight", &[e, 2]);
+    add("decoder.spatial_embedding.bias", &[e]);
+    add("decoder.decoder.weight_ih_l0", &[4 * hd, e]);
+    add("decoder.decoder.weight_hh_l0", &[4 * hd, hd]);
+    add("decoder.decoder.bias_ih_l0", &[4 * hd]);
+    add("decoder.decoder.bias_hh_l0", &[4 * hd]);
+    add("decoder.hidden2pos.weight", &[2, hd]);
+    add("decoder.hidden2pos.bias", &[2]);
+    if cfg.pool_every_timestep {
+        add("decoder.pool_net.spatial_embedding.weight", &[e, 2]);
+        add("decoder.pool_net.spatial_embedding.bias", &[e]);
+        add("decoder.pool_net.mlp_pre_pool.0.weight", &[p, e + hd]);
+        add("decoder.pool_net.mlp_pre_pool.0.bias", &[p]);
+        add("decoder.pool_net.mlp_pre_pool.2.weight", &[b, p]);
+        add("decoder.pool_net.mlp_pre_pool.2.bias", &[b]);
+        add("decoder.mlp.0.weight", &[m, hd + b]);
+        add("decoder.mlp.0.bias", &[m]);
+        add("decoder.mlp.2.weight", &[hd, m]);
+        add("decoder.mlp.2.bias", &[hd]);
+    }
+    if z > 0 {
+        add("fixed_noise", &[z]);
+    }
+    v
+}
+
+/// One float32 tensor: `data` is row-major with `shape`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tensor {
+    /// Dimensions, outermost first.
+    pub shape: Vec<usize>,
+    /// Row-major values (`shape.iter().product()` of them).
+    pub data: Vec<f32>,
+}
+
+/// A validated weights file: config plus every tensor the config calls for.
+#[derive(Debug, Clone)]
+pub struct ModelWeights {
+    path: PathBuf,
+    config: ModelConfig,
+    trained: Option<bool>,
+    tensors: BTreeMap<String, Tensor>,
+}
+
+/// Name used in errors for weights read from memory.
+const MEMORY: &str = "<memory>";
+
+impl ModelWeights {
+    /// Reads and validates a `.safetensors` weights file.
+    ///
+    /// # Errors
+    /// [`PredictorError::Io`] if the file cannot be read, otherwise as
+    /// [`ModelWeights::from_bytes`] (with `path` in every error).
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(|source| PredictorError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&bytes, path.to_path_buf())
+    }
+
+    /// Validates an in-memory `.safetensors` image (errors name the file `<memory>`).
+    ///
+    /// # Errors
+    /// [`PredictorError::NotSafetensors`], [`PredictorError::BadConfig`],
+    /// [`PredictorError::UnknownModelKind`], [`PredictorError::MissingTensor`],
+    /// [`PredictorError::WrongDtype`], [`PredictorError::ShapeMismatch`],
+    /// [`PredictorError::NonFiniteWeight`], [`PredictorError::UnexpectedTensor`]; see the
+    /// module documentation for the order of the checks.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
+        Self::parse(bytes, PathBuf::from(MEMORY))
+    }
+
+    fn parse(bytes: &[u8], path: PathBuf) -> Result<Self> {
+        let st = SafeTensors::deserialize(bytes).map_err(|e| PredictorError::NotSafetensors {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
+        let (_, header) =
+            SafeTensors::read_metadata(bytes).map_err(|e| PredictorError::NotSafetensors {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+        let meta = header.metadata().clone().unwrap_or_default();
+        let bad = |reason: String| PredictorError::BadConfig {
+            path: path.clone(),
+            reason,
+        };
+        if let Some(fmt) = meta.get("format")
+            && fmt != WEIGHTS_FORMAT
+        {
+            return Err(bad(format!(
+                "metadata \"format\" is {fmt:?}, expected {WEIGHTS_FORMAT:?}"
+            )));
+        }
+        let trained = match meta.get("trained").map(String::as_str) {
+            None => None,
+            Some("true") => Some(true),
+            Some("false") => Some(false),
+            Some(other) => {
+                return Err(bad(format!(
+                    "metadata \"trained\" is {other:?}, expected \"true\" or \"false\""
+                )));
+            }
+        };
+        let raw = meta
+            .get("config")
+            .ok_or_else(|| bad("no \"config\" metadata entry".to_owned()))?;
+        let value: serde_json::Value =
+            serde_json::from_str(raw).map_err(|e| bad(format!("config is not JSON: {e}")))?;
+        match value.get("kind") {
+            None => return Err(bad("config has no \"kind\" field".to_owned())),
+            Some(serde_json::Value::String(k)) if k == "teacher" || k == "student" => {}
+            Some(serde_json::Value::String(k)) => {
+                return Err(PredictorError::UnknownModelKind {
+                    path,
+                    kind: k.clone(),
+                });
+            }
+            Some(other) => {
+                return Err(PredictorError::UnknownModelKind {
+                    path,
+                    kind: other.to_string(),
+                });
+            }
+        }
+        let config: ModelConfig =
+            serde_json::from_value(value).map_err(|e| bad(format!("config: {e}")))?;
+        config.validate().map_err(bad)?;
+
+        let expected = expected_tensors(&config);
+        let mut tensors = BTreeMap::new();
+        for (name, shape) in &expected {
+            let view = st.tensor(name).map_err(|_| PredictorError::MissingTensor {
+                path: path.clone(),
+                tensor: name.clone(),
+            })?;
+            if view.dtype() != Dtype::F32 {
+                return Err(PredictorError::WrongDtype {
+                    path,
+                    tensor: name.clone(),
+                    got: format!("{:?}", view.dtype()),
+                });
+            }
+            if view.shape() != shape.as_slice() {
+                return Err(PredictorError::ShapeMismatch {
+                    path,
+                    tensor: name.clone(),
+                    expected: shape.clone(),
+                    got: view.shape().to_vec(),
+                });
+            }
+            // The data may be unaligned: decode byte-wise, little endian.
+            let data: Vec<f32> = view
+                .data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            if let Some(index) = data.iter().position(|v| !v.is_finite()) {
+                return Err(PredictorError::NonFiniteWeight {
+                    path,
+                    tensor: name.clone(),
+                    index,
+                });
+            }
+            tensors.insert(
+                name.clone(),
+                Tensor {
+                    shape: shape.clone(),
+                    data,
+                },
+            );
+        }
+        let mut names = st.names();
+        names.sort_unstable();
+        if let Some(extra) = names.into_iter().find(|n| !tensors.contains_key(*n)) {
+            return Err(PredictorError::UnexpectedTensor {
+                path,
+                tensor: extra.to_owned(),
+                kind: config.kind.as_str().to_owned(),
+            });
+        }
+        Ok(Self {
+            path,
+            config,
+            trained,
+            tensors,
+        })
+    }
+
+    /// The file the weights came from (`<memory>` for [`ModelWeights::from_bytes`]).
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The model configuration.
+    #[must_use]
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// The `"trained"` metadata flag, if present.
+    #[must_use]
+    pub fn trained(&self) -> Option<bool> {
+        self.trained
+    }
+
+    /// The tensor called `name` (PyTorch `state_dict` name), if the config calls for it.
+    #[must_use]
+    pub fn tensor(&self, name: &str) -> Option<&Tensor> {
+        self.tensors.get(name)
+    }
+
+    /// Values of a tensor that validation guaranteed to exist.
+    pub(crate) fn get(&self, name: &str) -> &[f32] {
+        self.tensors
+            .get(name)
+            .map(|t| t.data.as_slice())
+            .unwrap_or_else(|| panic!("validated weights lack tensor {name}"))
+    }
+
+    /// Checks the kind, for constructors of one specific network.
+    pub(crate) fn expect_kind(&self, kind: ModelKind) -> Result<()> {
+        if self.config.kind == kind {
+            Ok(())
+        } else {
+            Err(PredictorError::WrongModelKind {
+                path: self.path.clone(),
+                expected: kind.as_str(),
+                got: self.config.kind.as_str(),
+            })
+        }
+    }
+}

@@ -1,0 +1,110 @@
+//! The Python exception hierarchy and the mapping of every Rust error onto it.
+//!
+//! ```text
+//! NudgeError
+//! ├── WeightsError    bad or missing weights file
+//! ├── InputError      wrong shape / dtype / non-finite values / agent count
+//! ├── SettingsError   invalid planner settings (unknown key, bad value)
+//! ├── ScenarioError   bad or missing scenario file
+//! └── SolverError     a QP solve or planning step failed
+//! ```
+
+use nudge_planner::{
+    PlannerError, ScenarioError as RsScenarioError, SettingsError as RsSettingsError, SimError,
+};
+use nudge_predictor::PredictorError;
+use pyo3::PyErr;
+use pyo3::Python;
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+
+create_exception!(
+    nudge,
+    NudgeError,
+    PyException,
+    "Base class of every nudge error."
+);
+create_exception!(
+    nudge,
+    WeightsError,
+    NudgeError,
+    "A weights file is missing, malformed or inconsistent with its config."
+);
+create_exception!(
+    nudge,
+    InputError,
+    NudgeError,
+    "An input array has the wrong shape or dtype, or holds NaN/inf."
+);
+create_exception!(
+    nudge,
+    SettingsError,
+    NudgeError,
+    "Planner settings are invalid (unknown key, impossible value)."
+);
+create_exception!(
+    nudge,
+    ScenarioError,
+    NudgeError,
+    "A scenario file is missing or malformed."
+);
+create_exception!(
+    nudge,
+    SolverError,
+    NudgeError,
+    "An optimisation step failed."
+);
+
+/// Maps a predictor error to the matching Python exception, keeping the Rust message.
+pub fn predictor_err(err: PredictorError) -> PyErr {
+    let msg = err.to_string();
+    match err {
+        PredictorError::AgentCount { .. }
+        | PredictorError::InputShape { .. }
+        | PredictorError::NonFiniteInput { .. }
+        | PredictorError::NoScene => InputError::new_err(msg),
+        _ => WeightsError::new_err(msg),
+    }
+}
+
+/// An exception of the same class as `err` with message `msg`.
+fn same_class(err: &PyErr, msg: String) -> PyErr {
+    Python::attach(|py| PyErr::from_type(err.get_type(py), msg))
+}
+
+/// Maps a settings error.
+pub fn settings_err(err: RsSettingsError) -> PyErr {
+    SettingsError::new_err(err.to_string())
+}
+
+/// Maps a scenario error.
+pub fn scenario_err(err: RsScenarioError) -> PyErr {
+    ScenarioError::new_err(err.to_string())
+}
+
+/// Maps a planner error.
+pub fn planner_err(err: PlannerError) -> PyErr {
+    let msg = err.to_string();
+    match err {
+        PlannerError::Settings(e) => settings_err(e),
+        // Keep the planner's context ("predictor failed: ...") in the message.
+        PlannerError::Predictor(e) => same_class(&predictor_err(e), msg),
+        PlannerError::BadProblem { .. } | PlannerError::HorizonMismatch { .. } => {
+            InputError::new_err(msg)
+        }
+        _ => SolverError::new_err(msg),
+    }
+}
+
+/// Maps a simulation error.
+pub fn sim_err(err: SimError) -> PyErr {
+    let msg = err.to_string();
+    match err {
+        SimError::Settings(_) => SettingsError::new_err(msg),
+        SimError::NoAdjacentLane { .. } => ScenarioError::new_err(msg),
+        SimError::Predictor { source, .. } => same_class(&predictor_err(source), msg),
+        SimError::Planner { source, .. } => same_class(&planner_err(source), msg),
+        #[allow(unreachable_patterns)]
+        _ => NudgeError::new_err(msg),
+    }
+}

@@ -1,0 +1,264 @@
+//! `nudge._native.Planner`: one ADMM MPC call at a time, on a scenario or on raw arrays.
+
+use std::sync::Mutex;
+
+use nudge_planner::{EgoState, Plan, Planner, PlannerSettings, PlanningProblem};
+use nudge_predictor::{History, T_OBS};
+use numpy::{IntoPyArray, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::arrays::{check_shape, to_f64};
+use crate::errors::{InputError, NudgeError, planner_err, predictor_err, sim_err};
+use crate::predict::PyPredictor;
+use crate::scenario::PyScenario;
+use crate::settings::PySettings;
+
+/// The interaction-aware MPC planner bound to one predictor. Keeps its previous solution as
+/// the warm start of the next call (`reset()` forgets it).
+#[pyclass(name = "Planner", module = "nudge._native", frozen)]
+pub struct PyPlanner {
+    planner: Mutex<Planner>,
+    predictor: Py<PyPredictor>,
+}
+
+/// A finite float or `InputError` naming it.
+fn finite(what: &str, v: f64) -> PyResult<f64> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(InputError::new_err(format!("{what}: non-finite value {v}")))
+    }
+}
+
+/// The plan as a dict of numpy arrays and scalars.
+pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let t = plan.delta.len();
+    let states: Vec<f64> = plan.states.iter().flatten().copied().collect();
+    d.set_item("delta", plan.delta.clone().into_pyarray(py))?;
+    d.set_item("accel", plan.accel.clone().into_pyarray(py))?;
+    d.set_item(
+        "states",
+        states
+            .into_pyarray(py)
+            .reshape([t, 4])
+            .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))?,
+    )?;
+    d.set_item("cost", plan.cost)?;
+    d.set_item("iterations", plan.iterations)?;
+    d.set_item("predictor_calls", plan.predictor_calls)?;
+    d.set_item("qp_solves", plan.qp_solves)?;
+    d.set_item("primal_residual", plan.primal_residual)?;
+    d.set_item("change_residual", plan.change_residual)?;
+    d.set_item("min_safety", plan.min_safety)?;
+    d.set_item("checked", plan.checked)?;
+    d.set_item("status", format!("{:?}", plan.status))?;
+    let tm = PyDict::new(py);
+    tm.set_item("delta_s", plan.timings.delta_s)?;
+    tm.set_item("alpha_s", plan.timings.alpha_s)?;
+    tm.set_item("z_s", plan.timings.z_s)?;
+    tm.set_item("total_s", plan.timings.total_s)?;
+    tm.set_item(
+        "z_updates_s",
+        plan.timings.z_updates_s.clone().into_pyarray(py),
+    )?;
+    d.set_item("timings", tm)?;
+    Ok(d)
+}
+
+impl PyPlanner {
+    #[allow(clippy::too_many_arguments)]
+    fn run<'py>(
+        &self,
+        py: Python<'py>,
+        history: History,
+        sizes: Vec<[f64; 2]>,
+        ego: EgoState,
+        y_target: f64,
+        v_ref: f64,
+        road: [f64; 2],
+        last: (f64, f64),
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let pred = self.predictor.get();
+        let result = py.detach(|| {
+            let problem = PlanningProblem {
+                ego,
+                last_delta: last.0,
+                last_accel: last.1,
+                history: &history,
+                sizes: &sizes,
+                y_target,
+                v_ref,
+                road,
+            };
+            let mut planner = self
+                .planner
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let mut p = pred.lock();
+            planner.plan(&problem, p.as_mut())
+        });
+        let plan = result.map_err(planner_err)?;
+        plan_to_dict(py, &plan)
+    }
+}
+
+#[pymethods]
+impl PyPlanner {
+    /// A planner with `settings` (default: `PlannerSettings.default()`) predicting with
+    /// `predictor` (its horizon must equal `settings.horizon`).
+    #[new]
+    #[pyo3(signature = (settings, predictor))]
+    fn new(settings: Option<Bound<'_, PySettings>>, predictor: Py<PyPredictor>) -> PyResult<Self> {
+        let settings = settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
+        let planner = Planner::new(settings).map_err(planner_err)?;
+        Ok(Self {
+            planner: Mutex::new(planner),
+            predictor,
+        })
+    }
+
+    /// The settings in use.
+    #[getter]
+    fn settings(&self) -> PySettings {
+        let p = self
+            .planner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        PySettings {
+            inner: p.settings().clone(),
+        }
+    }
+
+    /// The predictor in use.
+    #[getter]
+    fn predictor(&self, py: Python<'_>) -> Py<PyPredictor> {
+        self.predictor.clone_ref(py)
+    }
+
+    /// Forgets the warm start.
+    fn reset(&self) {
+        self.planner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .reset();
+    }
+
+    /// One MPC call on raw arrays.
+    ///
+    /// `history` `[n, 8, 2]` (m, agent 0 = ego), `sizes` `[n, 2]` (length, width, m),
+    /// `ego` `[4]` = (x, y, ψ, v) (m, m, rad, m/s), `y_target` (m), `v_ref` (m/s),
+    /// `road` = (right, left) edge y (m), previous inputs `last_delta` (rad), `last_accel`
+    /// (m/s²). Returns a dict: `delta` `[T]`, `accel` `[T]`, `states` `[T, 4]`, `cost`,
+    /// `iterations`, `predictor_calls`, `qp_solves`, `primal_residual`, `change_residual`,
+    /// `min_safety` (float or None), `checked`, `status`, `timings` (dict, seconds).
+    #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn plan<'py>(
+        &self,
+        py: Python<'py>,
+        history: &Bound<'py, PyAny>,
+        sizes: &Bound<'py, PyAny>,
+        ego: &Bound<'py, PyAny>,
+        y_target: f64,
+        v_ref: f64,
+        road: (f64, f64),
+        last_delta: f64,
+        last_accel: f64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let (hist, hshape) = to_f64("history", history)?;
+        check_shape("history", &hshape, &[None, Some(T_OBS), Some(2)])?;
+        let n = hshape[0];
+        let (sz, sshape) = to_f64("sizes", sizes)?;
+        check_shape("sizes", &sshape, &[Some(n), Some(2)])?;
+        if let Some(bad) = sz.iter().find(|v| !v.is_finite() || **v <= 0.0) {
+            return Err(InputError::new_err(format!(
+                "sizes: every length and width must be finite and positive, got {bad}"
+            )));
+        }
+        let (e, eshape) = to_f64("ego", ego)?;
+        check_shape("ego", &eshape, &[Some(4)])?;
+        for (what, v) in [
+            ("ego[x]", e[0]),
+            ("ego[y]", e[1]),
+            ("ego[psi]", e[2]),
+            ("ego[v]", e[3]),
+        ] {
+            finite(what, v)?;
+        }
+        finite("y_target", y_target)?;
+        finite("v_ref", v_ref)?;
+        finite("road[0]", road.0)?;
+        finite("road[1]", road.1)?;
+        finite("last_delta", last_delta)?;
+        finite("last_accel", last_accel)?;
+        let history = History::new(hist, n).map_err(predictor_err)?;
+        let sizes: Vec<[f64; 2]> = sz.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let ego = EgoState {
+            x: e[0],
+            y: e[1],
+            psi: e[2],
+            v: e[3],
+        };
+        self.run(
+            py,
+            history,
+            sizes,
+            ego,
+            y_target,
+            v_ref,
+            [road.0, road.1],
+            (last_delta, last_accel),
+        )
+    }
+
+    /// One MPC call at a scenario's start, as the simulator's first step: ego state from the
+    /// last observed step, `v_ref` = its speed, target = the centre of `target_lane` (default:
+    /// the lane the simulator draws for `seed`).
+    #[pyo3(signature = (scenario, target_lane = None, seed = 0))]
+    fn plan_scenario<'py>(
+        &self,
+        py: Python<'py>,
+        scenario: &PyScenario,
+        target_lane: Option<usize>,
+        seed: u64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let sc = &scenario.inner;
+        let lane = match target_lane {
+            Some(l) if l < sc.lane_centres.len() => l,
+            Some(l) => {
+                return Err(InputError::new_err(format!(
+                    "target_lane {l} out of range: the scenario has {} lanes",
+                    sc.lane_centres.len()
+                )));
+            }
+            None => nudge_planner::target_lane(sc, seed).map_err(sim_err)?,
+        };
+        let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;
+        let p0 = sc.position(0, T_OBS - 1);
+        let ego = EgoState {
+            x: p0[0],
+            y: p0[1],
+            psi: sc.heading[0],
+            v: sc.speed[0].max(0.0),
+        };
+        let d = self.run(
+            py,
+            history,
+            sc.size.clone(),
+            ego,
+            sc.lane_centres[lane],
+            sc.speed[0],
+            sc.road(),
+            (0.0, 0.0),
+        )?;
+        d.set_item("target_lane", lane)?;
+        d.set_item("y_target", sc.lane_centres[lane])?;
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Planner(predictor={:?})", self.predictor.get().name())
+    }
+}

@@ -1,0 +1,173 @@
+//! `nudge._native.Scenario`: a "nudge.scenario/1" scene file, read by the Rust reader.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use nudge_planner::Scenario;
+use nudge_predictor::T_OBS;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
+use pyo3::prelude::*;
+
+use crate::errors::{NudgeError, scenario_err};
+
+/// One real scene (agent 0 = ego), road frame, metres, 0.3 s steps.
+#[pyclass(name = "Scenario", module = "nudge._native", frozen)]
+#[derive(Debug, Clone)]
+pub struct PyScenario {
+    /// The parsed scenario.
+    pub inner: Arc<Scenario>,
+    /// The file it was read from.
+    pub path: PathBuf,
+}
+
+fn reshape_err(e: impl std::fmt::Display) -> PyErr {
+    NudgeError::new_err(format!("reshape failed: {e}"))
+}
+
+#[pymethods]
+impl PyScenario {
+    /// Reads and validates a scenario file (raises `ScenarioError` naming the problem).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let sc = py
+            .detach(|| Scenario::from_file(&path))
+            .map_err(scenario_err)?;
+        Ok(Self {
+            inner: Arc::new(sc),
+            path,
+        })
+    }
+
+    /// File stem.
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
+    }
+
+    /// The file path.
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    /// Agents n (ego included).
+    #[getter]
+    fn n_agents(&self) -> usize {
+        self.inner.n_agents
+    }
+
+    /// Observed positions `[n, 8, 2]` (m).
+    #[getter]
+    fn history<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        self.inner
+            .history
+            .clone()
+            .into_pyarray(py)
+            .reshape([self.inner.n_agents, T_OBS, 2])
+            .map_err(reshape_err)
+    }
+
+    /// Heading at the last observed step `[n]` (rad).
+    #[getter]
+    fn heading<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.heading.clone().into_pyarray(py)
+    }
+
+    /// Speed at the last observed step `[n]` (m/s).
+    #[getter]
+    fn speed<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.speed.clone().into_pyarray(py)
+    }
+
+    /// (length, width) `[n, 2]` (m).
+    #[getter]
+    fn size<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let flat: Vec<f64> = self.inner.size.iter().flatten().copied().collect();
+        flat.into_pyarray(py)
+            .reshape([self.inner.n_agents, 2])
+            .map_err(reshape_err)
+    }
+
+    /// Logged future positions `[n, F, 2]` (m); see `future_valid`.
+    #[getter]
+    fn future<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        self.inner
+            .future
+            .clone()
+            .into_pyarray(py)
+            .reshape([self.inner.n_agents, self.inner.n_future, 2])
+            .map_err(reshape_err)
+    }
+
+    /// Whether each logged future position is real data `[n, F]`.
+    #[getter]
+    fn future_valid<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<bool>>> {
+        self.inner
+            .future_valid
+            .clone()
+            .into_pyarray(py)
+            .reshape([self.inner.n_agents, self.inner.n_future])
+            .map_err(reshape_err)
+    }
+
+    /// Lane-centre y `[L]` (m), ascending.
+    #[getter]
+    fn lane_centres<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.lane_centres.clone().into_pyarray(py)
+    }
+
+    /// Lane-boundary y `[L + 1]` (m), ascending; first and last are the road edges.
+    #[getter]
+    fn lane_bounds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.lane_bounds.clone().into_pyarray(py)
+    }
+
+    /// The ego's lane index.
+    #[getter]
+    fn ego_lane(&self) -> usize {
+        self.inner.ego_lane
+    }
+
+    /// Source vehicle ids `[n]`.
+    #[getter]
+    fn agent_ids<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i64>> {
+        self.inner.agent_ids.clone().into_pyarray(py)
+    }
+
+    /// File metadata (schema, source, split, provenance, ...).
+    #[getter]
+    fn metadata(&self) -> HashMap<String, String> {
+        self.inner.metadata.clone()
+    }
+
+    /// Road edges (right, left) y (m).
+    #[getter]
+    fn road(&self) -> (f64, f64) {
+        let r = self.inner.road();
+        (r[0], r[1])
+    }
+
+    /// The target lane the simulator draws for `seed` (an adjacent lane of the ego's).
+    fn target_lane(&self, seed: u64) -> PyResult<usize> {
+        nudge_planner::target_lane(&self.inner, seed).map_err(crate::errors::sim_err)
+    }
+
+    /// The ego and its `keep` nearest neighbours (nearest first).
+    fn nearest(&self, keep: usize) -> Self {
+        Self {
+            inner: Arc::new(self.inner.nearest(keep)),
+            path: self.path.clone(),
+        }
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Scenario(name={:?}, n_agents={}, lanes={}, ego_lane={})",
+            self.inner.name,
+            self.inner.n_agents,
+            self.inner.lane_centres.len(),
+            self.inner.ego_lane
+        )
+    }
+}

@@ -1,0 +1,193 @@
+"""Type stubs of the Rust extension ``nudge._native`` (crates/pybind). Keep in sync: a test
+checks that every public name of the module appears here."""
+
+from os import PathLike
+from pathlib import Path
+from typing import Any, Literal, TypedDict
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+T_OBS: int
+MAX_AGENTS: int
+DT: float
+
+class NudgeError(Exception):
+    """Base class of every nudge error."""
+
+class WeightsError(NudgeError):
+    """A weights file is missing, malformed or inconsistent with its config."""
+
+class InputError(NudgeError):
+    """An input array has the wrong shape or dtype, or holds NaN/inf."""
+
+class SettingsError(NudgeError):
+    """Planner settings are invalid (unknown key, impossible value)."""
+
+class ScenarioError(NudgeError):
+    """A scenario file is missing or malformed."""
+
+class SolverError(NudgeError):
+    """An optimisation step failed."""
+
+_F64 = npt.NDArray[np.float64]
+_F32 = npt.NDArray[np.float32]
+_I64 = npt.NDArray[np.int64]
+_Bool = npt.NDArray[np.bool_]
+_Path = str | PathLike[str]
+
+class Predictor:
+    """Teacher, student (from a .safetensors file) or constant-velocity baseline."""
+
+    @staticmethod
+    def load(path: _Path) -> Predictor: ...
+    @staticmethod
+    def constant_velocity(horizon: int = 6) -> Predictor: ...
+    @property
+    def name(self) -> Literal["teacher", "student", "constant_velocity"]: ...
+    @property
+    def horizon(self) -> int: ...
+    def predict(self, history: npt.ArrayLike, candidates: npt.ArrayLike) -> _F64:
+        """history [agents, 8, 2], candidates [batch, horizon, 2] (float64/float32, m)
+        -> [batch, agents - 1, horizon, 2] float64."""
+
+class PlannerSettings:
+    """Planner settings; fields are readable as attributes (``s.horizon``)."""
+
+    def __init__(self, **overrides: int | float | bool) -> None: ...
+    @staticmethod
+    def default() -> PlannerSettings: ...
+    @staticmethod
+    def from_dict(d: dict[str, int | float | bool]) -> PlannerSettings: ...
+    def to_dict(self) -> dict[str, int | float | bool]: ...
+    @staticmethod
+    def from_json(text: str) -> PlannerSettings: ...
+    def to_json(self) -> str: ...
+    def replace(self, **overrides: int | float | bool) -> PlannerSettings: ...
+    def __getattr__(self, name: str) -> int | float | bool: ...
+    def __eq__(self, other: object) -> bool: ...
+
+class Scenario:
+    """A "nudge.scenario/1" scene (agent 0 = ego), road frame, metres."""
+
+    @staticmethod
+    def load(path: _Path) -> Scenario: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def path(self) -> Path: ...
+    @property
+    def n_agents(self) -> int: ...
+    @property
+    def history(self) -> _F64:
+        """[n, 8, 2] m."""
+    @property
+    def heading(self) -> _F64:
+        """[n] rad."""
+    @property
+    def speed(self) -> _F64:
+        """[n] m/s."""
+    @property
+    def size(self) -> _F64:
+        """[n, 2] (length, width) m."""
+    @property
+    def future(self) -> _F64:
+        """[n, F, 2] m."""
+    @property
+    def future_valid(self) -> _Bool:
+        """[n, F]."""
+    @property
+    def lane_centres(self) -> _F64: ...
+    @property
+    def lane_bounds(self) -> _F64: ...
+    @property
+    def ego_lane(self) -> int: ...
+    @property
+    def agent_ids(self) -> _I64: ...
+    @property
+    def metadata(self) -> dict[str, str]: ...
+    @property
+    def road(self) -> tuple[float, float]: ...
+    def target_lane(self, seed: int) -> int: ...
+    def nearest(self, keep: int) -> Scenario: ...
+
+class Timings(TypedDict):
+    delta_s: float
+    alpha_s: float
+    z_s: float
+    total_s: float
+    z_updates_s: _F64
+
+class PlanResult(TypedDict, total=False):
+    delta: _F64  # [T] rad
+    accel: _F64  # [T] m/s^2
+    states: _F64  # [T, 4] (x, y, psi, v)
+    cost: float
+    iterations: int
+    predictor_calls: int
+    qp_solves: int
+    primal_residual: float
+    change_residual: float
+    min_safety: float | None
+    checked: int
+    status: str  # Converged, MaxIterations, Unsafe or Fallback
+    timings: Timings
+    target_lane: int  # plan_scenario only
+    y_target: float  # plan_scenario only
+
+class Planner:
+    """The ADMM MPC planner bound to one predictor (keeps a warm start; see reset)."""
+
+    def __init__(self, settings: PlannerSettings | None, predictor: Predictor) -> None: ...
+    @property
+    def settings(self) -> PlannerSettings: ...
+    @property
+    def predictor(self) -> Predictor: ...
+    def reset(self) -> None: ...
+    def plan(
+        self,
+        history: npt.ArrayLike,
+        sizes: npt.ArrayLike,
+        ego: npt.ArrayLike,
+        y_target: float,
+        v_ref: float,
+        road: tuple[float, float],
+        last_delta: float = 0.0,
+        last_accel: float = 0.0,
+    ) -> PlanResult: ...
+    def plan_scenario(self, scenario: Scenario, target_lane: int | None = None, seed: int = 0) -> PlanResult: ...
+
+def simulate(
+    scene_paths: list[_Path],
+    predictor: str,
+    *,
+    world: Literal["log_replay", "predictor"] = "log_replay",
+    world_predictor: str | None = None,
+    seed: int = 0,
+    scene_seeds: list[int] | None = None,
+    runs: int = 1,
+    threads: int | None = None,
+    settings: PlannerSettings | None = None,
+    max_steps: int = 30,
+    record: bool = False,
+    on_error: Literal["raise", "skip"] = "raise",
+) -> dict[str, dict[str, Any]]:
+    """Closed-loop runs over scenario files on ``threads`` rayon threads; run ``r`` of scene ``i``
+    draws its target lane from seed ``scene_seeds[i] + r`` (default ``seed + r``).
+
+    Returns ``{"runs": ..., "steps": ...}`` (+ ``"examples"`` when ``record``):
+
+    - runs (one row per (scene, seed)): scenario list[str], scene_index i64, seed u64,
+      predictor list[str], world list[str], n_agents i64, target_lane i64 (-1 on error),
+      y_target f64, success bool, steps_to_target i64 (-1 = never), collision bool,
+      n_steps i64, error list[str | None];
+    - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
+      iterations i64, predictor_calls i64, cost f64, primal_residual f64, min_b f64 (NaN = none
+      checked), collision bool, status list[str], delta f64, accel f64, ego f64 [S, 4]
+      (x, y, psi, v after the step), z_updates i64, z_s f64;
+    - examples (every distinct candidate the planning predictor evaluated, float32 m):
+      history [H, 8, 2], context_offsets i64 [C + 1], context_run i64 [C],
+      example_context i64 [E], candidate [E, T, 2], prediction [P, T, 2],
+      prediction_offsets i64 [E + 1], duplicates int.
+    """

@@ -1,0 +1,5 @@
+"""NGSIM data pipeline: readers -> tidy track tables -> 0.3 s windows -> splits -> safetensors
+shards + manifest, planner scenarios ("nudge.scenario/1") and the dataset report.
+
+Formats: docs/data_schema.md. CLI: ``nudge-train data build|report|scenes``.
+"""

@@ -1,0 +1,159 @@
+"""Export and load generator weights as ``.safetensors`` (format ``nudge.weights/1``).
+
+File layout: every tensor of ``TrajectoryGenerator.state_dict()`` under its PyTorch name, float32,
+little-endian; metadata (all strings):
+
+* ``format``: ``"nudge.weights/1"``
+* ``config``: :meth:`ModelConfig.to_json` (sizes, kind, seeds, ...)
+* ``trained``: ``"true"`` or ``"false"`` (random initialisation)
+* ``provenance``: JSON object, free form (data, run, commit, ...)
+
+The Rust predictor reads the same files; docs/models.md lists every name and shape.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save as save_bytes
+
+from nudge_train.config import ModelConfig
+from nudge_train.models import TrajectoryGenerator, build_model
+
+__all__ = [
+    "WEIGHTS_FORMAT",
+    "WeightsFile",
+    "export_generator",
+    "load_generator",
+    "read_weights",
+    "save_safetensors",
+]
+
+WEIGHTS_FORMAT = "nudge.weights/1"
+
+
+def save_safetensors(tensors: dict[str, torch.Tensor], path: Path, metadata: dict[str, str]) -> Path:
+    """``safetensors.torch.save_file`` with byte-for-byte reproducible output.
+
+    The safetensors library writes the ``__metadata__`` entries in hash-map order, which changes
+    from one process to the next; this rewrites the header with the metadata keys sorted (tensor
+    entries and data untouched), so regenerating a file gives identical bytes.
+    """
+    raw = save_bytes({k: tensors[k] for k in sorted(tensors)}, metadata=metadata)
+    header_len = int.from_bytes(raw[:8], "little")
+    header = json.loads(raw[8 : 8 + header_len].decode("utf-8"))
+    meta = header.pop("__metadata__", None)
+    canonical: dict[str, Any] = {}
+    if meta is not None:
+        canonical["__metadata__"] = {k: meta[k] for k in sorted(meta)}
+    for name in sorted(header, key=lambda k: (header[k]["data_offsets"], k)):
+        canonical[name] = header[name]
+    text = json.dumps(canonical, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+    text += b" " * (-len(text) % 8)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(len(text).to_bytes(8, "little") + text + raw[8 + header_len :])
+    return path
+
+
+class WeightsFile:
+    """Tensors and parsed metadata of one weights file (see :func:`read_weights`)."""
+
+    def __init__(
+        self, config: ModelConfig, trained: bool, provenance: dict[str, Any], tensors: dict[str, torch.Tensor]
+    ) -> None:
+        self.config = config
+        self.trained = trained
+        self.provenance = provenance
+        self.tensors = tensors
+
+
+def export_generator(
+    gen: TrajectoryGenerator,
+    cfg: ModelConfig,
+    path: Path,
+    trained: bool,
+    provenance: dict[str, Any],
+) -> Path:
+    """Writes ``gen``'s state_dict (float32, CPU, contiguous) with the metadata above.
+
+    Raises:
+        ValueError: ``cfg`` differs from the generator's own config, or a tensor is not finite.
+    """
+    cfg.validate()
+    if gen.cfg != cfg:
+        raise ValueError(f"config: generator was built with {gen.cfg}, asked to export as {cfg}")
+    tensors: dict[str, torch.Tensor] = {}
+    for name, value in gen.state_dict().items():
+        tensor = value.detach().to("cpu", torch.float32).contiguous().clone()
+        if not torch.isfinite(tensor).all():
+            raise ValueError(f"{name}: contains NaN or infinite values")
+        tensors[name] = tensor
+    metadata = {
+        "format": WEIGHTS_FORMAT,
+        "config": cfg.to_json(),
+        "trained": "true" if trained else "false",
+        "provenance": json.dumps(provenance, sort_keys=True, separators=(",", ":")),
+    }
+    return save_safetensors(tensors, Path(path), metadata)
+
+
+def read_weights(path: Path) -> WeightsFile:
+    """Reads a weights file and parses its metadata (no model is built).
+
+    Raises:
+        ValueError: missing/wrong metadata or tensors that are not float32.
+        FileNotFoundError: no such file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"weights file not found: {path}")
+    with safe_open(str(path), framework="pt", device="cpu") as f:
+        metadata = f.metadata() or {}
+        tensors = {name: f.get_tensor(name) for name in f.keys()}  # noqa: SIM118 (safe_open API)
+    for key in ("format", "config", "trained", "provenance"):
+        if key not in metadata:
+            raise ValueError(f"{path}: metadata key {key!r} missing")
+    if metadata["format"] != WEIGHTS_FORMAT:
+        raise ValueError(f"{path}: format {metadata['format']!r}, expected {WEIGHTS_FORMAT!r}")
+    if metadata["trained"] not in ("true", "false"):
+        raise ValueError(f"{path}: trained must be 'true' or 'false', got {metadata['trained']!r}")
+    try:
+        provenance = json.loads(metadata["provenance"])
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: provenance is not JSON ({err})") from err
+    if not isinstance(provenance, dict):
+        raise ValueError(f"{path}: provenance must be a JSON object")
+    config = ModelConfig.from_json(metadata["config"])
+    for name, tensor in tensors.items():
+        if tensor.dtype != torch.float32:
+            raise ValueError(f"{path}: tensor {name} has dtype {tensor.dtype}, expected float32")
+    return WeightsFile(config, metadata["trained"] == "true", provenance, tensors)
+
+
+def load_generator(path: Path, device: torch.device | str = "cpu") -> TrajectoryGenerator:
+    """Rebuilds the generator from the file's config and loads its tensors (in eval mode).
+
+    Raises:
+        ValueError: naming the first missing, unexpected or mis-shaped tensor.
+    """
+    weights = read_weights(path)
+    gen, _ = build_model(weights.config, "cpu")
+    expected = gen.state_dict()
+    for name, ref in expected.items():
+        if name not in weights.tensors:
+            raise ValueError(f"{path}: tensor {name} missing (expected shape {list(ref.shape)})")
+        got = weights.tensors[name]
+        if got.shape != ref.shape:
+            raise ValueError(
+                f"{path}: tensor {name} has shape {list(got.shape)}, expected {list(ref.shape)}"
+            )
+    unexpected = sorted(set(weights.tensors) - set(expected))
+    if unexpected:
+        raise ValueError(f"{path}: unexpected tensor {unexpected[0]}")
+    gen.load_state_dict(weights.tensors, strict=True)
+    return gen.to(device).eval()

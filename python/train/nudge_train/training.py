@@ -1,0 +1,436 @@
+"""Training of the Social-GAN generators: best-of-k variety loss + optional adversarial loss.
+
+One command trains one configuration (``python -m nudge_train.training --config FILE``):
+
+* the config is a TOML file with a ``[model]`` table (any :class:`ModelConfig` field) and a
+  ``[train]`` table (:class:`TrainConfig`); unknown keys and impossible values are refused;
+* L_G = k_var · L_var + I_adv · L_adv (paper eq. 5). L_var: ``k_samples`` draws of z per scene, per
+  draw the scene's summed squared displacement error over its agents and decoded steps, minimum
+  over draws, divided by agents × steps, mean over scenes. L_adv: the non-saturating generator
+  loss against a per-agent discriminator on the whole (observed + future) displacement sequence;
+* Adam, gradient clipping, seeded shuffling and noise; a checkpoint (``last.pt``) after every epoch
+  and ``best.pt`` on every validation improvement; ``--resume`` continues from ``last.pt``; early
+  stopping on validation ADE (single sample, fixed z); ``metrics.jsonl`` logs every epoch.
+
+The teacher decodes ``train_steps`` (6) steps from one call during training so that every future
+step supervises it, while the planner calls it recursively with one step; both uses share every
+weight. The student is trained the same way on the distillation set (ego imposed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.nn import functional as F
+from tqdm import tqdm
+
+from nudge_train.config import ModelConfig, student_config, teacher_config
+from nudge_train.models import TrajectoryDiscriminator, TrajectoryGenerator, build_model, positions_to_rel
+from nudge_train.windows_data import Batch, WindowSet, load_split
+
+__all__ = ["TrainConfig", "load_config", "train", "variety_loss", "main"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation settings of one training run."""
+
+    data: str = "data/processed"
+    """Processed-data directory (holds manifest.json) or the manifest itself."""
+    out_dir: str = "runs/teacher"
+    """Where checkpoints, metrics and the exported weights go."""
+    k_var: float = 1.0
+    """Weight of the variety loss."""
+    i_adv: int = 0
+    """1 = add the adversarial loss (trains a discriminator), 0 = regression only."""
+    k_samples: int = 20
+    """Draws of z per scene in the best-of-k variety loss (1 for a noise-free student)."""
+    lr: float = 1e-3
+    """Adam learning rate of the generator (and discriminator) at the first epoch."""
+    lr_schedule: str = "cosine"
+    """``"cosine"``: lr decays over ``epochs`` to ``lr_final_fraction`` · lr; ``"constant"``."""
+    lr_final_fraction: float = 0.05
+    """Final lr as a fraction of ``lr`` for the cosine schedule."""
+    batch_size: int = 64
+    """Scenes per batch."""
+    epochs: int = 60
+    """Maximum epochs."""
+    patience: int = 10
+    """Early stopping: epochs without a validation-ADE improvement."""
+    train_steps: int = 6
+    """Future steps decoded (and supervised) per training call."""
+    val_metric: str = "ade"
+    """Early-stopping / selection metric on the validation split: ``"ade"`` (single-sample ADE
+    over ``train_steps`` decoded steps) or ``"recursive_fde"`` (single-sample FDE at 1.8 s of the
+    planner's recursive use: 6 one-step calls, egos on their logged future)."""
+    clip_grad: float = 1.0
+    """Gradient-norm clipping threshold (0 = off)."""
+    seed: int = 0
+    """Seed of shuffling, noise and initialisation offsets."""
+    device: str = "auto"
+    """``"auto"`` (CUDA when present, else CPU), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ..."""
+    max_train_windows: int = 0
+    """Use only the first N training windows (0 = all): for smoke runs."""
+    max_val_windows: int = 0
+    """Use only the first N validation windows (0 = all)."""
+    threads: int = 0
+    """torch CPU threads (0 = torch default)."""
+
+    def validate(self) -> TrainConfig:
+        """Raises ValueError naming the first impossible field."""
+        checks = [
+            ("k_var", self.k_var >= 0 and math.isfinite(self.k_var)),
+            ("i_adv", self.i_adv in (0, 1)),
+            ("k_samples", self.k_samples >= 1),
+            ("lr", self.lr > 0 and math.isfinite(self.lr)),
+            ("lr_schedule", self.lr_schedule in ("cosine", "constant")),
+            ("lr_final_fraction", 0 < self.lr_final_fraction <= 1),
+            ("batch_size", self.batch_size >= 1),
+            ("epochs", self.epochs >= 1),
+            ("patience", self.patience >= 1),
+            ("train_steps", 1 <= self.train_steps <= 6),
+            ("clip_grad", self.clip_grad >= 0),
+            ("val_metric", self.val_metric in ("ade", "recursive_fde")),
+            ("max_train_windows", self.max_train_windows >= 0),
+            ("max_val_windows", self.max_val_windows >= 0),
+            ("threads", self.threads >= 0),
+        ]
+        for name, ok in checks:
+            if not ok:
+                raise ValueError(f"train.{name}: impossible value {getattr(self, name)!r}")
+        if self.k_var == 0 and self.i_adv == 0:
+            raise ValueError("train: k_var = 0 and i_adv = 0 leave nothing to minimise")
+        return self
+
+
+def load_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
+    """Reads a TOML training config: ``[model]`` (``kind`` picks the teacher/student defaults,
+    other keys override sizes) and ``[train]``. Unknown tables or keys raise ValueError."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"training config not found: {path}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"{path}: invalid TOML: {err}") from None
+    unknown = set(raw) - {"model", "train"}
+    if unknown:
+        raise ValueError(f"{path}: unknown table(s) {sorted(unknown)} (expected [model] and [train])")
+    model = dict(raw.get("model", {}))
+    kind = model.pop("kind", "teacher")
+    base = {"teacher": teacher_config, "student": student_config}.get(kind)
+    if base is None:
+        raise ValueError(f"{path}: model.kind must be 'teacher' or 'student', got {kind!r}")
+    fields = {f.name for f in dataclasses.fields(ModelConfig)}
+    bad = set(model) - fields
+    if bad:
+        raise ValueError(f"{path}: unknown [model] key(s) {sorted(bad)}")
+    try:
+        mcfg = base().replace(**model).validate()
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: [model]: {err}") from None
+    train_raw = raw.get("train", {})
+    tfields = {f.name for f in dataclasses.fields(TrainConfig)}
+    bad = set(train_raw) - tfields
+    if bad:
+        raise ValueError(f"{path}: unknown [train] key(s) {sorted(bad)}")
+    try:
+        tcfg = TrainConfig(**train_raw).validate()
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: [train]: {err}") from None
+    return mcfg, tcfg
+
+
+def resolve_device(name: str) -> torch.device:
+    """``"auto"`` → CUDA if available else CPU; anything else as given."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def variety_loss(pred: Tensor, fut: Tensor, seq_start_end: Tensor) -> Tensor:
+    """Best-of-k loss.
+
+    Args:
+        pred: ``[k, K, A, 2]`` k sampled predictions of K steps (m).
+        fut: ``[K, A, 2]`` ground truth (m).
+        seq_start_end: ``[S, 2]`` scene ranges.
+
+    Returns:
+        scalar: mean over scenes of min over samples of (Σ_agents,steps ‖error‖²) / (agents × K).
+    """
+    err = ((pred - fut.unsqueeze(0)) ** 2).sum(dim=-1).sum(dim=1)  # [k, A]
+    sizes = (seq_start_end[:, 1] - seq_start_end[:, 0]).to(err.device)
+    scene_of = torch.repeat_interleave(torch.arange(len(sizes), device=err.device), sizes)
+    per_scene = torch.zeros(err.shape[0], len(sizes), device=err.device, dtype=err.dtype)
+    per_scene.index_add_(1, scene_of, err)  # [k, S]
+    best = per_scene.min(dim=0).values / (sizes.to(err.dtype) * pred.shape[1])
+    return best.mean()
+
+
+def _sample_predictions(
+    gen: TrajectoryGenerator, batch: Batch, k: int, steps: int, rng: torch.Generator | None
+) -> tuple[Tensor, Tensor]:
+    """k predictions ``[k, steps, A, 2]`` (positions) and displacements.
+
+    The history-only context is computed once; the k draws are decoded in ONE call by stacking k
+    copies of the batch as separate scenes (same result as k calls, far fewer kernel launches).
+    """
+    a = batch.obs.shape[1]
+    scenes = gen.scene_index(batch.seq_start_end, a)
+    ctx = gen.context(batch.obs, scenes)
+    s = scenes.num_scenes
+    shift = (torch.arange(k, device=batch.seq_start_end.device) * a).view(k, 1, 1)
+    sse_k = (batch.seq_start_end.unsqueeze(0) + shift).reshape(k * s, 2)
+    scenes_k = gen.scene_index(sse_k, k * a)
+    ego_future = None
+    if gen.cfg.kind == "student":
+        ego_future = batch.fut[:steps, scenes.ego].repeat(1, k, 1)
+    noise = None
+    if gen.cfg.noise_dim > 0:
+        noise = torch.randn(k * s, gen.cfg.noise_dim, generator=rng).to(ctx.device)
+    p, r = gen.decode(
+        ctx.repeat(k, 1), batch.obs.repeat(1, k, 1), scenes_k, noise=noise, ego_future=ego_future, steps=steps
+    )
+    return p.view(steps, k, a, 2).transpose(0, 1), r.view(steps, k, a, 2).transpose(0, 1)
+
+
+def _full_rel(obs: Tensor, fut_rel: Tensor) -> Tensor:
+    return torch.cat([positions_to_rel(obs), fut_rel], dim=0)
+
+
+@torch.inference_mode()
+def validation_ade(gen: TrajectoryGenerator, data: WindowSet, steps: int, device: torch.device) -> float:
+    """Single-sample (fixed z) ADE over ``steps`` decoded steps, all agents (m)."""
+    gen.eval()
+    total, count = 0.0, 0
+    for batch in data.batches(256, shuffle=False):
+        batch = batch.to(device)
+        scenes = gen.scene_index(batch.seq_start_end, batch.obs.shape[1])
+        ctx = gen.context(batch.obs, scenes)
+        ego_future = batch.fut[:steps, scenes.ego] if gen.cfg.kind == "student" else None
+        pred, _ = gen.decode(ctx, batch.obs, scenes, ego_future=ego_future, steps=steps)
+        err = torch.linalg.norm(pred - batch.fut[:steps], dim=-1)  # [K, A]
+        if gen.cfg.kind == "student":
+            keep = torch.ones(err.shape[1], dtype=torch.bool, device=err.device)
+            keep[scenes.ego] = False
+            err = err[:, keep]
+        total += float(err.sum())
+        count += err.numel()
+    gen.train()
+    return total / max(count, 1)
+
+
+def epoch_lr(tcfg: TrainConfig, epoch: int) -> float:
+    """Learning rate of ``epoch`` (0-based) under ``tcfg.lr_schedule``."""
+    if tcfg.lr_schedule == "constant" or tcfg.epochs == 1:
+        return tcfg.lr
+    frac = epoch / (tcfg.epochs - 1)
+    low = tcfg.lr * tcfg.lr_final_fraction
+    return low + 0.5 * (tcfg.lr - low) * (1.0 + math.cos(math.pi * frac))
+
+
+def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)
+
+
+def _load_checkpoint(path: Path) -> dict[str, Any]:
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupted file
+        raise RuntimeError(f"cannot resume: checkpoint {path} is corrupted or unreadable ({err})") from None
+
+
+def train(
+    mcfg: ModelConfig,
+    tcfg: TrainConfig,
+    resume: bool = False,
+    train_set: WindowSet | None = None,
+    val_set: WindowSet | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Trains one configuration; returns a summary (best epoch, best validation ADE, paths).
+
+    ``train_set``/``val_set`` default to the ``train``/``val`` splits of ``tcfg.data``.
+    Resuming needs ``out_dir/last.pt``; a corrupted checkpoint raises RuntimeError naming it.
+    """
+    tcfg.validate()
+    mcfg.validate()
+    if tcfg.threads:
+        torch.set_num_threads(tcfg.threads)
+    device = resolve_device(tcfg.device)
+    out = Path(tcfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if train_set is None:
+        train_set = load_split(Path(tcfg.data), "train", tcfg.max_train_windows or None)
+    if val_set is None:
+        val_set = load_split(Path(tcfg.data), "val", tcfg.max_val_windows or None)
+
+    gen, disc = build_model(mcfg, device)
+    opt_g = torch.optim.Adam(gen.parameters(), lr=tcfg.lr)
+    opt_d = torch.optim.Adam(disc.parameters(), lr=tcfg.lr)
+    rng = torch.Generator().manual_seed(tcfg.seed)
+    start_epoch, best_ade, best_epoch, stale = 0, math.inf, -1, 0
+    metrics_path = out / "metrics.jsonl"
+    last = out / "last.pt"
+    if resume:
+        if not last.exists():
+            raise FileNotFoundError(f"cannot resume: no checkpoint at {last}")
+        state = _load_checkpoint(last)
+        gen.load_state_dict(state["generator"])
+        disc.load_state_dict(state["discriminator"])
+        opt_g.load_state_dict(state["opt_g"])
+        opt_d.load_state_dict(state["opt_d"])
+        rng.set_state(state["rng"])
+        start_epoch = int(state["epoch"]) + 1
+        best_ade, best_epoch, stale = float(state["best_ade"]), int(state["best_epoch"]), int(state["stale"])
+    elif metrics_path.exists():
+        metrics_path.unlink()
+    (out / "config.json").write_text(
+        json.dumps({"model": mcfg.to_dict(), "train": dataclasses.asdict(tcfg)}, indent=2)
+    )
+
+    gen.train()
+    disc.train()
+    n_batches = math.ceil(len(train_set) / tcfg.batch_size)
+    for epoch in range(start_epoch, tcfg.epochs):
+        if stale >= tcfg.patience:
+            break
+        t0 = time.perf_counter()
+        lr = epoch_lr(tcfg, epoch)
+        for opt in (opt_g, opt_d):
+            for group in opt.param_groups:
+                group["lr"] = lr
+        sums = {"loss_var": 0.0, "loss_adv": 0.0, "loss_d": 0.0}
+        bar = tqdm(
+            train_set.batches(tcfg.batch_size, shuffle=True, generator=rng),
+            total=n_batches,
+            desc=f"epoch {epoch + 1}/{tcfg.epochs}",
+            disable=not progress,
+            leave=False,
+        )
+        for i, batch in enumerate(bar):
+            batch = batch.to(device)
+            pred, rel = _sample_predictions(gen, batch, tcfg.k_samples, tcfg.train_steps, rng)
+            fut = batch.fut[: tcfg.train_steps]
+            loss_var = variety_loss(pred, fut, batch.seq_start_end)
+            loss = tcfg.k_var * loss_var
+            loss_adv = torch.zeros((), device=device)
+            if tcfg.i_adv:
+                fake_logits = disc(_full_rel(batch.obs, rel[0]))
+                loss_adv = F.binary_cross_entropy_with_logits(fake_logits, torch.ones_like(fake_logits))
+                loss = loss + loss_adv
+            opt_g.zero_grad(set_to_none=True)
+            loss.backward()
+            if tcfg.clip_grad > 0:
+                torch.nn.utils.clip_grad_norm_(gen.parameters(), tcfg.clip_grad)
+            opt_g.step()
+            if tcfg.i_adv:
+                real_rel = _full_rel(batch.obs, positions_to_rel(torch.cat([batch.obs[-1:], fut]))[1:])
+                real = disc(real_rel)
+                fake = disc(_full_rel(batch.obs, rel[0].detach()))
+                loss_d = F.binary_cross_entropy_with_logits(
+                    real, torch.ones_like(real)
+                ) + F.binary_cross_entropy_with_logits(fake, torch.zeros_like(fake))
+                opt_d.zero_grad(set_to_none=True)
+                loss_d.backward()
+                if tcfg.clip_grad > 0:
+                    torch.nn.utils.clip_grad_norm_(disc.parameters(), tcfg.clip_grad)
+                opt_d.step()
+                sums["loss_d"] += float(loss_d.detach())
+            sums["loss_var"] += float(loss_var.detach())
+            sums["loss_adv"] += float(loss_adv.detach())
+            bar.set_postfix(var=f"{sums['loss_var'] / (i + 1):.4f}", adv=f"{sums['loss_adv'] / (i + 1):.3f}")
+        if tcfg.val_metric == "recursive_fde":
+            from nudge_train.evaluate import evaluate_generator
+
+            val_ade = evaluate_generator(gen, val_set, mode="recursive").fde6
+            gen.train()
+        else:
+            val_ade = validation_ade(gen, val_set, tcfg.train_steps, device)
+        improved = val_ade < best_ade
+        if improved:
+            best_ade, best_epoch, stale = val_ade, epoch, 0
+            torch.save({"generator": gen.state_dict(), "epoch": epoch}, out / "best.pt")
+        else:
+            stale += 1
+        row = {
+            "epoch": epoch,
+            **{k: v / max(n_batches, 1) for k, v in sums.items()},
+            "val_ade": val_ade,
+            "best_val_ade": best_ade,
+            "lr": lr,
+            "seconds": time.perf_counter() - t0,
+        }
+        with metrics_path.open("a") as fh:
+            fh.write(json.dumps(row) + "\n")
+        if progress:
+            tqdm.write(
+                f"epoch {epoch + 1}: var {row['loss_var']:.4f} adv {row['loss_adv']:.3f} "
+                f"val ADE {val_ade:.4f} m{' *' if improved else ''} ({row['seconds']:.1f} s)"
+            )
+        _save_checkpoint(
+            last,
+            {
+                "generator": gen.state_dict(),
+                "discriminator": disc.state_dict(),
+                "opt_g": opt_g.state_dict(),
+                "opt_d": opt_d.state_dict(),
+                "rng": rng.get_state(),
+                "epoch": epoch,
+                "best_ade": best_ade,
+                "best_epoch": best_epoch,
+                "stale": stale,
+            },
+        )
+    summary = {"best_epoch": best_epoch, "best_val_ade": best_ade, "out_dir": str(out)}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def load_best(out_dir: Path, mcfg: ModelConfig, device: torch.device | str = "cpu") -> TrajectoryGenerator:
+    """The best-validation generator of a finished run."""
+    gen, _ = build_model(mcfg, device)
+    path = Path(out_dir) / "best.pt"
+    state = _load_checkpoint(path)
+    gen.load_state_dict(state["generator"])
+    gen.eval()
+    return gen
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI: ``python -m nudge_train.training --config FILE [--resume] [--out-dir DIR]``."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--config", type=Path, required=True)
+    parser.add_argument("--resume", action="store_true", help="continue from OUT_DIR/last.pt")
+    parser.add_argument("--out-dir", type=str, default=None, help="override train.out_dir")
+    parser.add_argument("--data", type=str, default=None, help="override train.data")
+    parser.add_argument("--epochs", type=int, default=None, help="override train.epochs")
+    args = parser.parse_args(argv)
+    try:
+        mcfg, tcfg = load_config(args.config)
+        over = {k: v for k, v in (("out_dir", args.out_dir), ("data", args.data), ("epochs", args.epochs)) if v is not None}
+        tcfg = dataclasses.replace(tcfg, **over).validate()
+        summary = train(mcfg, tcfg, resume=args.resume)
+    except (ValueError, FileNotFoundError, RuntimeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,162 @@
+"""Training windows in memory: the processed shards of one split, batched into scenes.
+
+A :class:`WindowSet` holds every window of one split as flat arrays (the layout of the processed
+shards, docs/data_schema.md): ``positions`` ``[A, 14, 2]`` (m, road frame, 0.3 s steps, 8 observed
++ 6 future), ``offsets`` ``[W + 1]`` (window ``w`` = agents ``offsets[w]:offsets[w+1]``, its first
+agent is its ego), ``interactive`` ``[W]``. Batches are translated so that every window's ego sits
+at the origin at its last observed step: the networks are translation invariant and float32 keeps
+more precision near 0.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.numpy import load_file
+
+__all__ = ["Batch", "WindowSet", "load_split"]
+
+OBS_LEN = 8
+PRED_LEN = 6
+
+
+@dataclass(frozen=True)
+class Batch:
+    """One batch of scenes, ready for the generator.
+
+    ``obs`` ``[8, A, 2]`` and ``fut`` ``[6, A, 2]`` positions (m), ``seq_start_end`` ``[S, 2]``,
+    ``interactive`` ``[S]`` bool, ``window`` ``[S]`` indices into the :class:`WindowSet`.
+    """
+
+    obs: torch.Tensor
+    fut: torch.Tensor
+    seq_start_end: torch.Tensor
+    interactive: torch.Tensor
+    window: np.ndarray
+
+    def to(self, device: torch.device | str) -> Batch:
+        """The batch on ``device``."""
+        return Batch(
+            self.obs.to(device),
+            self.fut.to(device),
+            self.seq_start_end.to(device),
+            self.interactive.to(device),
+            self.window,
+        )
+
+
+@dataclass
+class WindowSet:
+    """All windows of one split (see module doc for the layout)."""
+
+    positions: np.ndarray
+    offsets: np.ndarray
+    interactive: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.positions.ndim != 3 or self.positions.shape[1:] != (OBS_LEN + PRED_LEN, 2):
+            raise ValueError(f"positions: expected [A, 14, 2], got {list(self.positions.shape)}")
+        if self.offsets.ndim != 1 or self.offsets[0] != 0 or self.offsets[-1] != len(self.positions):
+            raise ValueError("offsets: must start at 0 and end at the agent count")
+        if np.any(np.diff(self.offsets) <= 0):
+            raise ValueError("offsets: every window needs at least one agent")
+        if len(self.interactive) != len(self):
+            raise ValueError("interactive: one flag per window expected")
+        if not np.all(np.isfinite(self.positions)):
+            raise ValueError("positions: non-finite values")
+
+    def __len__(self) -> int:
+        return len(self.offsets) - 1
+
+    @property
+    def n_agents(self) -> int:
+        """Total agents over all windows."""
+        return int(self.offsets[-1])
+
+    def subset(self, windows: np.ndarray) -> WindowSet:
+        """The windows at the given indices, in that order."""
+        parts = [self.positions[self.offsets[w] : self.offsets[w + 1]] for w in windows]
+        sizes = np.array([len(p) for p in parts], dtype=np.int64)
+        return WindowSet(
+            positions=np.concatenate(parts) if parts else np.zeros((0, 14, 2), np.float32),
+            offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+            interactive=self.interactive[windows].copy(),
+        )
+
+    def batch(self, windows: np.ndarray) -> Batch:
+        """Scenes ``windows`` as one :class:`Batch`, each translated so its ego ends at (0, 0)."""
+        parts = []
+        sse = []
+        start = 0
+        for w in windows:
+            p = self.positions[self.offsets[w] : self.offsets[w + 1]].astype(np.float32)
+            p = p - p[0, OBS_LEN - 1]
+            parts.append(p)
+            sse.append((start, start + len(p)))
+            start += len(p)
+        traj = torch.from_numpy(np.concatenate(parts)).transpose(0, 1).contiguous()  # [14, A, 2]
+        return Batch(
+            obs=traj[:OBS_LEN].contiguous(),
+            fut=traj[OBS_LEN:].contiguous(),
+            seq_start_end=torch.tensor(sse, dtype=torch.int64),
+            interactive=torch.from_numpy(self.interactive[windows].astype(bool)),
+            window=np.asarray(windows),
+        )
+
+    def batches(self, batch_size: int, shuffle: bool, generator: torch.Generator | None = None) -> Iterator[Batch]:
+        """Batches of ``batch_size`` scenes (the last may be smaller); seeded shuffle."""
+        order = (
+            torch.randperm(len(self), generator=generator).numpy() if shuffle else np.arange(len(self))
+        )
+        for i in range(0, len(order), batch_size):
+            yield self.batch(order[i : i + batch_size])
+
+
+def load_split(manifest_path: Path, split: str, max_windows: int | None = None) -> WindowSet:
+    """Reads every shard of ``split`` listed in the processed-data manifest.
+
+    Raises:
+        FileNotFoundError: the manifest or a shard is missing (the path is in the message).
+        ValueError: the manifest has no such split or a shard is malformed.
+    """
+    manifest_path = Path(manifest_path)
+    if manifest_path.is_dir():
+        manifest_path = manifest_path / "manifest.json"
+    if not manifest_path.exists():
+        raise FileNotFoundError(f"processed-data manifest not found: {manifest_path} (run `make data`)")
+    manifest = json.loads(manifest_path.read_text())
+    shards = _shards_of(manifest, split, manifest_path)
+    pos, offs, inter = [], [np.zeros(1, np.int64)], []
+    base = 0
+    for rel in shards:
+        path = manifest_path.parent / rel
+        if not path.exists():
+            raise FileNotFoundError(f"shard listed in {manifest_path} is missing: {path}")
+        t = load_file(str(path))
+        for key in ("positions", "offsets", "interactive"):
+            if key not in t:
+                raise ValueError(f"{path}: missing tensor {key!r}")
+        pos.append(t["positions"].astype(np.float32))
+        offs.append(t["offsets"][1:].astype(np.int64) + base)
+        inter.append(t["interactive"].astype(np.uint8))
+        base += len(t["positions"])
+    if not pos:
+        raise ValueError(f"{manifest_path}: split {split!r} has no shards")
+    ws = WindowSet(np.concatenate(pos), np.concatenate(offs), np.concatenate(inter))
+    if max_windows is not None and len(ws) > max_windows:
+        ws = ws.subset(np.arange(max_windows))
+    return ws
+
+
+def _shards_of(manifest: dict, split: str, path: Path) -> list[str]:
+    splits = manifest.get("splits")
+    if not isinstance(splits, dict):
+        raise ValueError(f"{path}: no 'splits' table (not a nudge processed-data manifest?)")
+    if split not in splits:
+        raise ValueError(f"{path}: no split {split!r} (has {sorted(splits)})")
+    return [entry["file"] for entry in splits[split].get("shards", [])]

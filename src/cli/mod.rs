@@ -1,0 +1,3 @@
+//! Subcommands of the `nudge` tool.
+
+pub mod simulate;

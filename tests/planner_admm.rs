@@ -1,0 +1,280 @@
+//! ADMM MPC anchors (PLANNER.md "Correctness anchors") on synthetic straight-road scenes:
+//! agreement with the joint Clarabel QP, exact bounds, safety of returned plans,
+//! determinism, typed errors on bad input, and property tests.
+#![allow(clippy::unwrap_used)]
+
+use nudge::planner::{
+    EgoState, Ellipse, PlanStatus, Planner, PlannerError, PlannerSettings, PlanningProblem,
+};
+use nudge::predictor::{ConstantVelocity, History, Predictor, T_OBS};
+use proptest::prelude::*;
+
+/// Ego at (0, y0) with speed v; others `(dx, y, speed)`; all driving along +x.
+fn scene(v: f64, y0: f64, others: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
+    let n = 1 + others.len();
+    let mut pos = Vec::with_capacity(n * T_OBS * 2);
+    for &(x, y, s) in std::iter::once(&(0.0, y0, v)).chain(others) {
+        for t in 0..T_OBS {
+            let back = (T_OBS - 1 - t) as f64 * 0.3;
+            pos.push(x - s * back);
+            pos.push(y);
+        }
+    }
+    (History::new(pos, n).unwrap(), vec![[4.5, 1.9]; n])
+}
+
+fn problem<'a>(
+    h: &'a History,
+    sizes: &'a [[f64; 2]],
+    v: f64,
+    y0: f64,
+    yt: f64,
+) -> PlanningProblem<'a> {
+    PlanningProblem {
+        ego: EgoState {
+            x: 0.0,
+            y: y0,
+            psi: 0.0,
+            v,
+        },
+        last_delta: 0.0,
+        last_accel: 0.0,
+        history: h,
+        sizes,
+        y_target: yt,
+        v_ref: v,
+        road: [-1.85, 9.25],
+    }
+}
+
+/// Checks every box/rate bound of a plan exactly.
+fn assert_bounds(s: &PlannerSettings, delta: &[f64], accel: &[f64], states: &[[f64; 4]]) {
+    let mut pd = 0.0;
+    let mut pa = 0.0;
+    for (d, a) in delta.iter().zip(accel) {
+        assert!(d.abs() <= s.delta_max, "delta {d}");
+        assert!(
+            (d - pd).abs() <= s.ddelta_max + 1e-12,
+            "steering rate {d} after {pd}"
+        );
+        assert!(*a >= s.a_min && *a <= s.a_max, "accel {a}");
+        assert!((a - pa).abs() <= s.da_max + 1e-12, "jerk {a} after {pa}");
+        pd = *d;
+        pa = *a;
+    }
+    for z in states {
+        assert!(z[3] >= 0.0 && z[3] <= s.v_max, "speed {}", z[3]);
+        assert!(z[1] >= -1.85 && z[1] <= 9.25, "y {} off the road", z[1]);
+    }
+}
+
+/// With no vehicle in range ADMM converges to the joint QP's solution; tolerance 1e-3 on
+/// every state component (m, rad, m/s) and 1e-3 on the inputs.
+#[test]
+fn admm_matches_joint_qp_without_vehicles() {
+    let settings = PlannerSettings {
+        max_iter: 3000,
+        eps_primal: 1e-7,
+        eps_change: 1e-7,
+        ..PlannerSettings::default()
+    };
+    // One far vehicle, outside check_range: the safety constraint is inactive.
+    let (h, sizes) = scene(12.0, 0.0, &[(200.0, 3.7, 12.0)]);
+    let p = problem(&h, &sizes, 12.0, 0.0, 3.7);
+    let mut planner = Planner::new(settings).unwrap();
+    let reference = planner.reference_qp(&p).unwrap();
+    let mut cv = ConstantVelocity::new(6);
+    let plan = planner.plan(&p, &mut cv).unwrap();
+    assert_eq!(plan.status, PlanStatus::Converged);
+    assert_eq!(plan.checked, 0);
+    assert_eq!(plan.predictor_calls, 0);
+    for (a, b) in plan.states.iter().zip(&reference.states) {
+        for j in 0..4 {
+            assert!((a[j] - b[j]).abs() < 1e-3, "state {a:?} vs {b:?}");
+        }
+    }
+    for (a, b) in plan
+        .delta
+        .iter()
+        .zip(&reference.delta)
+        .chain(plan.accel.iter().zip(&reference.accel))
+    {
+        assert!((a - b).abs() < 1e-3, "input {a} vs {b}");
+    }
+    assert!((plan.cost - reference.cost).abs() < 1e-2 * reference.cost.max(1.0));
+}
+
+/// A wrapper that records the minimum b of the last prediction it served for the given plan.
+fn min_b_under(
+    pred: &mut dyn Predictor,
+    h: &History,
+    sizes: &[[f64; 2]],
+    states: &[[f64; 4]],
+    s: &PlannerSettings,
+) -> f64 {
+    pred.set_scene(h).unwrap();
+    let cand: Vec<f64> = states.iter().flat_map(|z| [z[0], z[1]]).collect();
+    let n = h.n_agents();
+    let mut out = vec![0.0; (n - 1) * 6 * 2];
+    pred.predict(&cand, &mut out).unwrap();
+    let mut m = f64::INFINITY;
+    for i in 1..n {
+        let e = Ellipse::new(sizes[0], sizes[i], s.ellipse_scale, s.margin_x, s.margin_y);
+        for (k, st) in states.iter().enumerate().take(6) {
+            let b = (i - 1) * 12 + 2 * k;
+            m = m.min(e.value([st[0], st[1]], [out[b], out[b + 1]]));
+        }
+    }
+    m
+}
+
+#[test]
+fn plans_are_safe_bounded_and_deterministic_with_traffic() {
+    let s = PlannerSettings::default();
+    // A slower car ahead in the ego lane, a car in the target lane slightly behind.
+    let (h, sizes) = scene(
+        12.0,
+        0.0,
+        &[(14.0, 0.0, 9.0), (-9.0, 3.7, 12.5), (25.0, 3.7, 12.0)],
+    );
+    let p = problem(&h, &sizes, 12.0, 0.0, 3.7);
+    let mut a = Planner::new(s.clone()).unwrap();
+    let mut b = Planner::new(s.clone()).unwrap();
+    let mut cv = ConstantVelocity::new(6);
+    let pa = a.plan(&p, &mut cv).unwrap();
+    let pb = b.plan(&p, &mut cv).unwrap();
+    assert_ne!(pa.status, PlanStatus::Unsafe);
+    assert!(pa.predictor_calls > 0);
+    assert_bounds(&s, &pa.delta, &pa.accel, &pa.states);
+    let mb = min_b_under(&mut cv, &h, &sizes, &pa.states, &s);
+    assert!(mb > 0.0, "returned plan unsafe: min b = {mb}");
+    assert_eq!(pa.min_safety.unwrap().to_bits(), mb.to_bits());
+    // Determinism: bit-identical plans from identical inputs.
+    for (x, y) in pa.states.iter().flatten().zip(pb.states.iter().flatten()) {
+        assert_eq!(x.to_bits(), y.to_bits());
+    }
+    for (x, y) in pa.delta.iter().zip(&pb.delta) {
+        assert_eq!(x.to_bits(), y.to_bits());
+    }
+}
+
+#[test]
+fn invalid_settings_are_typed_errors() {
+    let bad = [
+        PlannerSettings {
+            w_y: -1.0,
+            ..PlannerSettings::default()
+        },
+        PlannerSettings {
+            horizon: 0,
+            ..PlannerSettings::default()
+        },
+        PlannerSettings {
+            a_min: 3.0,
+            a_max: 3.0,
+            ..PlannerSettings::default()
+        },
+        PlannerSettings {
+            delta_max: 0.0,
+            ..PlannerSettings::default()
+        },
+        PlannerSettings {
+            rho: f64::NAN,
+            ..PlannerSettings::default()
+        },
+        PlannerSettings {
+            max_iter: 0,
+            ..PlannerSettings::default()
+        },
+    ];
+    let fields = ["w_y", "horizon", "a_max", "delta_max", "rho", "max_iter"];
+    for (s, f) in bad.into_iter().zip(fields) {
+        match Planner::new(s) {
+            Err(PlannerError::Settings(e)) => {
+                assert!(e.to_string().contains(f), "{e} should name {f}")
+            }
+            other => panic!("expected a settings error naming {f}, got {other:?}"),
+        }
+    }
+    assert!(PlannerSettings::from_json(r#"{"w_y": 2.0, "bogus": 1}"#).is_err());
+    let ok = PlannerSettings::from_json(r#"{"w_y": 2.0}"#).unwrap();
+    assert_eq!(ok.w_y, 2.0);
+    assert_eq!(ok.horizon, 6);
+}
+
+#[test]
+fn bad_problems_are_typed_errors() {
+    let (h, sizes) = scene(12.0, 0.0, &[(14.0, 0.0, 9.0)]);
+    let mut planner = Planner::new(PlannerSettings::default()).unwrap();
+    let mut cv = ConstantVelocity::new(6);
+    let mut p = problem(&h, &sizes, 12.0, 0.0, 3.7);
+    p.ego.v = f64::NAN;
+    assert!(matches!(
+        planner.plan(&p, &mut cv),
+        Err(PlannerError::BadProblem { field: "ego.v", .. })
+    ));
+    let p2 = PlanningProblem {
+        sizes: &sizes[..1],
+        ..problem(&h, &sizes, 12.0, 0.0, 3.7)
+    };
+    assert!(matches!(
+        planner.plan(&p2, &mut cv),
+        Err(PlannerError::BadProblem { field: "sizes", .. })
+    ));
+    let mut cv5 = ConstantVelocity::new(5);
+    let p3 = problem(&h, &sizes, 12.0, 0.0, 3.7);
+    assert!(matches!(
+        planner.plan(&p3, &mut cv5),
+        Err(PlannerError::HorizonMismatch { .. })
+    ));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: 16,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(5), ..ProptestConfig::default() })]
+
+    /// Random initial states, traffic and settings: no panic, plans within every bound, and a
+    /// returned plan not marked Unsafe is safe under the predictor.
+    #[test]
+    fn plans_respect_bounds(
+        v in 0.0f64..25.0,
+        y0 in -0.5f64..4.0,
+        psi in -0.1f64..0.1,
+        last_delta in -0.2f64..0.2,
+        last_accel in -6.0f64..4.0,
+        dx in 10.0f64..40.0,
+        w_y in 0.0f64..30.0,
+        rho in 10.0f64..2000.0,
+        delta_max in 0.05f64..0.3,
+    ) {
+        let s = PlannerSettings { w_y, rho, delta_max, max_iter: 20, ..PlannerSettings::default() };
+        let (h, sizes) = scene(v, y0, &[(dx, 3.7, v * 0.8), (-dx, 0.0, v)]);
+        let mut p = problem(&h, &sizes, v, y0, 3.7);
+        p.ego.psi = psi;
+        p.last_delta = last_delta;
+        p.last_accel = last_accel;
+        let mut planner = Planner::new(s.clone()).unwrap();
+        let mut cv = ConstantVelocity::new(6);
+        let plan = planner.plan(&p, &mut cv).unwrap();
+        // Bounds with the clamped last inputs.
+        let mut pd = last_delta.clamp(-s.delta_max, s.delta_max);
+        let mut pa = last_accel.clamp(s.a_min, s.a_max);
+        for (d, a) in plan.delta.iter().zip(&plan.accel) {
+            prop_assert!(d.abs() <= s.delta_max);
+            prop_assert!((d - pd).abs() <= s.ddelta_max + 1e-12);
+            prop_assert!(*a >= s.a_min && *a <= s.a_max);
+            prop_assert!((a - pa).abs() <= s.da_max + 1e-12);
+            pd = *d;
+            pa = *a;
+        }
+        for z in &plan.states {
+            prop_assert!(z[3] >= 0.0 && z[3] <= s.v_max.max(v));
+        }
+        if plan.status != PlanStatus::Unsafe {
+            if let Some(b) = plan.min_safety {
+                prop_assert!(b > 0.0);
+            }
+        }
+    }
+}
