@@ -69,11 +69,13 @@ data: venv
 	$(VENV)/bin/nudge-train data build --data-root $(DATA)
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes, planned with the
-# shipped student, the teacher moving the other vehicles; per-step table of one run, summary over
-# all, records (CSV/JSON) and a picture in out/demo/.
+# shipped trained teacher, the teacher also moving the other vehicles; per-step table of one run,
+# summary over all, records (CSV/JSON) and a picture in out/demo/. (The student joins once it is
+# distilled: PREDICTOR=student.)
+PREDICTOR ?= teacher
 demo: venv build
-	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor student \
-		--world teacher --seed 0 --runs 20 --threads 2 --out out/demo --verbose-run
+	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
+		--world teacher --seed 0 --runs 10 --threads 2 --out out/demo --verbose-run
 	$(PY) python/train/scripts/plot_runs.py out/demo --scenes assets/scenes --png out/demo/runs.png
 
 ci: lint test

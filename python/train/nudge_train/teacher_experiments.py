@@ -229,7 +229,7 @@ def _paper_table(results: dict[str, dict[str, Any]]) -> list[str]:
 
 
 def _training_table(results: dict[str, dict[str, Any]]) -> list[str]:
-    out = ["\n### Training runs\n", "| config | best epoch | best val ADE (6-step decoder) | val recursive FDE@1.8s | wall time (s) |", "|---|---|---|---|---|"]
+    out = ["\n### Training runs\n", "| config | best epoch | best val metric (train.val_metric) | val recursive FDE@1.8s | wall time of this invocation (s) |", "|---|---|---|---|---|"]
     for name, rec in results.items():
         s = rec["summary"]
         out.append(

@@ -71,7 +71,9 @@ def test_config_rejects_unknown_keys_and_bad_sizes(tmp_path: Path) -> None:
 
 
 def test_shipped_teacher_configs_parse() -> None:
-    configs = sorted((REPO / "python" / "train" / "configs").glob("teacher_*.toml"))
+    planner_cfg = load_config(REPO / "python" / "train" / "configs" / "teacher_planner.toml")
+    assert planner_cfg[1].train_steps == 1 and planner_cfg[1].val_metric == "recursive_fde"
+    configs = sorted((REPO / "python" / "train" / "configs").glob("teacher_k*_adv*.toml"))
     assert len(configs) == 5
     pairs = set()
     for path in configs:
