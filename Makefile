@@ -10,7 +10,7 @@ STAMP := $(VENV)/.nudge-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv develop build test test-rust test-python lint fmt bench bench-table demo data goldens ci clean
+.PHONY: help venv develop build test test-rust test-python lint fmt bench bench-planner bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -18,6 +18,8 @@ help:
 	@echo "make lint     rustfmt, clippy -D warnings, rustdoc -D warnings"
 	@echo "make bench    criterion benches (one thread) + the PyTorch-vs-Rust table"
 	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
+	@echo "make teacher  train the paper's teacher configurations, write docs/results/teacher.md"
+	@echo "make student  generate the distillation set with the planner + teacher, distil the student"
 
 # ---- set-up ---------------------------------------------------------------------------------
 $(STAMP): python/train/pyproject.toml
@@ -56,7 +58,11 @@ lint:
 # ---- benches (one thread, as in the paper) ---------------------------------------------------
 bench: venv
 	RAYON_NUM_THREADS=1 $(CARGO) bench --bench predictor -- --warm-up-time 1 --measurement-time 3
-	$(MAKE) bench-table
+	$(MAKE) bench-table bench-planner
+
+bench-planner: venv
+	RAYON_NUM_THREADS=1 $(CARGO) bench --bench planner -- --warm-up-time 1 --measurement-time 4
+	$(PY) python/train/scripts/planner_bench_table.py
 
 bench-table: venv
 	$(PY) python/train/scripts/bench_torch.py --markdown docs/results/inference.md
@@ -68,11 +74,27 @@ goldens: venv
 data: venv
 	$(VENV)/bin/nudge-train data build --data-root $(DATA)
 
+# Teacher experiments (Table I): trains every python/train/configs/teacher_*.toml (resumable),
+# evaluates on the test split, writes docs/results/teacher.md. EXPORT=1 also exports the chosen
+# teacher to assets/models/teacher.safetensors (which invalidates the distillation set).
+teacher: venv
+	test -f data/processed/manifest.json || $(MAKE) data
+	$(PY) -m nudge_train.teacher_experiments $(if $(EXPORT),,--no-export)
+
+# Distillation set (the planner run with the shipped teacher; resumable) and the student.
+DISTILL_SIZE ?= train=48,val=8,test=8
+distill: develop
+	test -f data/processed/manifest.json || $(MAKE) data
+	$(PY) -m nudge_train.distill --size $(DISTILL_SIZE)
+
+student: distill
+	$(PY) -m nudge_train.student_experiments
+
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes, planned with the
-# shipped trained teacher, the teacher also moving the other vehicles; per-step table of one run,
-# summary over all, records (CSV/JSON) and a picture in out/demo/. (The student joins once it is
-# distilled: PREDICTOR=student.)
-PREDICTOR ?= teacher
+# shipped distilled student (PREDICTOR=teacher|constant-velocity for the others), the trained
+# teacher moving the other vehicles; per-step table of one run, summary over all, records
+# (CSV/JSON) and a picture in out/demo/.
+PREDICTOR ?= student
 demo: venv build
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
 		--world teacher --seed 0 --runs 10 --threads 2 --out out/demo --verbose-run

@@ -65,10 +65,8 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
     check(&rec);
 }
 
-/// The teacher as planning predictor and as world model (the shipped weights; at the time of
-/// writing they are untrained: one-step error ~5 m vs 0.14 m for constant velocity, so other
-/// vehicles move erratically). A scene where the lane change is physically possible under that
-/// world: it must succeed without collision.
+/// The shipped trained teacher as planning predictor and as world model (the other vehicles
+/// react to the ego as the teacher predicts): the lane change must settle without collision.
 #[test]
 #[cfg_attr(
     debug_assertions,
@@ -95,4 +93,44 @@ fn teacher_lane_change_on_real_scene() {
     assert_eq!(rec.world, "teacher");
     assert!(!rec.collision, "collision with the teacher world");
     assert!(rec.success, "lane change with the teacher did not settle");
+}
+
+/// The shipped student plans, the teacher moves the world (the paper's set-up after
+/// distillation): the lane change must settle without collision. Skipped while the shipped
+/// student is the random placeholder (metadata `trained = "false"`).
+#[test]
+#[cfg_attr(
+    debug_assertions,
+    ignore = "predictor-in-the-loop is slow without optimisation; run with --release"
+)]
+fn student_lane_change_with_teacher_world() {
+    let student_path = repo().join("assets/models/student.safetensors");
+    let weights = nudge::predictor::ModelWeights::from_file(&student_path).unwrap();
+    if weights.trained() != Some(true) {
+        eprintln!("skipping: {} is not trained", student_path.display());
+        return;
+    }
+    let mut plan = load_predictor(&student_path).unwrap();
+    let mut world = load_predictor(repo().join("assets/models/teacher.safetensors")).unwrap();
+    let sc = scene("us101-20_1-t04.5-ego462");
+    let cfg = SimConfig {
+        world: WorldMode::Predictor,
+        ..SimConfig::default()
+    };
+    let rec = simulate(
+        &sc,
+        &PlannerSettings::default(),
+        &cfg,
+        3,
+        plan.as_mut(),
+        Some(world.as_mut()),
+    )
+    .unwrap();
+    assert_eq!(rec.world, "teacher");
+    assert!(rec.steps.iter().all(|s| s.iterations >= 1 && s.mpc_s > 0.0));
+    assert!(
+        !rec.collision,
+        "collision with the student planning in a teacher world"
+    );
+    assert!(rec.success, "lane change with the student did not settle");
 }

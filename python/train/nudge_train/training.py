@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 from torch.nn import functional as F
@@ -83,7 +84,10 @@ class TrainConfig:
     max_train_windows: int = 0
     """Use only the first N training windows (0 = all): for smoke runs."""
     max_val_windows: int = 0
-    """Use only the first N validation windows (0 = all)."""
+    """Validate on N evenly spaced validation windows (0 = all)."""
+    samples_per_epoch: int = 0
+    """Windows drawn (seeded, without replacement) per epoch; 0 = every training window. For sets
+    of many near-duplicate windows such as the distillation set (~100 candidates per context)."""
     threads: int = 0
     """torch CPU threads (0 = torch default)."""
 
@@ -104,6 +108,7 @@ class TrainConfig:
             ("val_metric", self.val_metric in ("ade", "recursive_fde")),
             ("max_train_windows", self.max_train_windows >= 0),
             ("max_val_windows", self.max_val_windows >= 0),
+            ("samples_per_epoch", self.samples_per_epoch >= 0),
             ("threads", self.threads >= 0),
         ]
         for name, ok in checks:
@@ -277,7 +282,9 @@ def train(
     if train_set is None:
         train_set = load_split(Path(tcfg.data), "train", tcfg.max_train_windows or None)
     if val_set is None:
-        val_set = load_split(Path(tcfg.data), "val", tcfg.max_val_windows or None)
+        val_set = load_split(Path(tcfg.data), "val")
+    if tcfg.max_val_windows and len(val_set) > tcfg.max_val_windows:
+        val_set = val_set.subset(np.linspace(0, len(val_set) - 1, tcfg.max_val_windows).round().astype(np.int64))
 
     gen, disc = build_model(mcfg, device)
     opt_g = torch.optim.Adam(gen.parameters(), lr=tcfg.lr)
@@ -305,7 +312,8 @@ def train(
 
     gen.train()
     disc.train()
-    n_batches = math.ceil(len(train_set) / tcfg.batch_size)
+    per_epoch = min(tcfg.samples_per_epoch or len(train_set), len(train_set))
+    n_batches = math.ceil(per_epoch / tcfg.batch_size)
     for epoch in range(start_epoch, tcfg.epochs):
         if stale >= tcfg.patience:
             break
@@ -316,7 +324,7 @@ def train(
                 group["lr"] = lr
         sums = {"loss_var": 0.0, "loss_adv": 0.0, "loss_d": 0.0}
         bar = tqdm(
-            train_set.batches(tcfg.batch_size, shuffle=True, generator=rng),
+            train_set.batches(tcfg.batch_size, shuffle=True, generator=rng, limit=per_epoch),
             total=n_batches,
             desc=f"epoch {epoch + 1}/{tcfg.epochs}",
             disable=not progress,

@@ -19,10 +19,11 @@ import numpy as np
 import torch
 from safetensors.numpy import load_file
 
-__all__ = ["Batch", "WindowSet", "load_split"]
+__all__ = ["Batch", "WindowSet", "load_distill_split", "load_split"]
 
 OBS_LEN = 8
 PRED_LEN = 6
+DISTILL_SCHEMA = "nudge.distill/1"
 
 
 @dataclass(frozen=True)
@@ -108,17 +109,23 @@ class WindowSet:
             window=np.asarray(windows),
         )
 
-    def batches(self, batch_size: int, shuffle: bool, generator: torch.Generator | None = None) -> Iterator[Batch]:
-        """Batches of ``batch_size`` scenes (the last may be smaller); seeded shuffle."""
+    def batches(
+        self, batch_size: int, shuffle: bool, generator: torch.Generator | None = None, limit: int | None = None
+    ) -> Iterator[Batch]:
+        """Batches of ``batch_size`` scenes (the last may be smaller); seeded shuffle. ``limit``:
+        only the first ``limit`` windows of the (shuffled) order, a random subset per call."""
         order = (
             torch.randperm(len(self), generator=generator).numpy() if shuffle else np.arange(len(self))
         )
+        if limit is not None:
+            order = order[:limit]
         for i in range(0, len(order), batch_size):
             yield self.batch(order[i : i + batch_size])
 
 
 def load_split(manifest_path: Path, split: str, max_windows: int | None = None) -> WindowSet:
-    """Reads every shard of ``split`` listed in the processed-data manifest.
+    """Reads every shard of ``split`` listed in the processed-data manifest (``nudge.dataset/1``)
+    or in a distillation-set manifest (``nudge.distill/1``, see :func:`load_distill_split`).
 
     Raises:
         FileNotFoundError: the manifest or a shard is missing (the path is in the message).
@@ -130,6 +137,11 @@ def load_split(manifest_path: Path, split: str, max_windows: int | None = None) 
     if not manifest_path.exists():
         raise FileNotFoundError(f"processed-data manifest not found: {manifest_path} (run `make data`)")
     manifest = json.loads(manifest_path.read_text())
+    if manifest.get("schema") == DISTILL_SCHEMA:
+        ws = load_distill_split(manifest_path, manifest, split)
+        if max_windows is not None and len(ws) > max_windows:
+            ws = ws.subset(np.arange(max_windows))
+        return ws
     shards = _shards_of(manifest, split, manifest_path)
     pos, offs, inter = [], [np.zeros(1, np.int64)], []
     base = 0
@@ -160,3 +172,59 @@ def _shards_of(manifest: dict, split: str, path: Path) -> list[str]:
     if split not in splits:
         raise ValueError(f"{path}: no split {split!r} (has {sorted(splits)})")
     return [entry["file"] for entry in splits[split].get("shards", [])]
+
+
+def load_distill_split(manifest_path: Path, manifest: dict, split: str) -> WindowSet:
+    """The distillation examples of ``split`` as windows (docs/distill.md).
+
+    Example ``e`` of context ``c`` becomes one window of the context's agents (ego first):
+    observed = the context's ``history`` ``[n, 8, 2]``; "future" = the ego candidate (row 0) and
+    the teacher's prediction of the other ``n - 1`` agents under it. A student trained on these
+    windows with the ego imposed (``ego_future`` = the candidate) learns the teacher's reaction.
+    ``interactive`` is the flag of the example's scene. Only the shards listed as complete in the
+    manifest are read.
+
+    Raises:
+        FileNotFoundError: a listed shard is missing. ValueError: the split is absent or empty, or
+        a shard's tensors are inconsistent.
+    """
+    shards = _shards_of(manifest, split, manifest_path)
+    parts: list[np.ndarray] = []
+    offs: list[np.ndarray] = [np.zeros(1, np.int64)]
+    inter: list[np.ndarray] = []
+    base = 0
+    for rel in shards:
+        path = manifest_path.parent / rel
+        if not path.exists():
+            raise FileNotFoundError(f"shard listed in {manifest_path} is missing: {path}")
+        t = load_file(str(path))
+        need = ("history", "context_offsets", "context_run", "example_context", "candidate", "prediction",
+                "prediction_offsets", "run_scene", "scene_interactive")
+        for key in need:
+            if key not in t:
+                raise ValueError(f"{path}: missing tensor {key!r}")
+        if len(t["example_context"]) == 0:
+            continue
+        hist, coff = t["history"].astype(np.float32), t["context_offsets"].astype(np.int64)
+        ex_ctx, poff = t["example_context"].astype(np.int64), t["prediction_offsets"].astype(np.int64)
+        n_ctx = coff[1:] - coff[:-1]  # agents per context
+        n_ex = n_ctx[ex_ctx]  # agents per example
+        if not np.array_equal(poff[1:] - poff[:-1], n_ex - 1):
+            raise ValueError(f"{path}: prediction_offsets do not match the context sizes")
+        # Row r of the output = agent (r - start of its example) of the example's context.
+        starts = np.concatenate([[0], np.cumsum(n_ex)])
+        ex_of_row = np.repeat(np.arange(len(ex_ctx)), n_ex)
+        local = np.arange(starts[-1]) - starts[ex_of_row]
+        pos = np.empty((starts[-1], OBS_LEN + PRED_LEN, 2), np.float32)
+        pos[:, :OBS_LEN] = hist[coff[ex_ctx][ex_of_row] + local]
+        ego = local == 0
+        pos[ego, OBS_LEN:] = t["candidate"].astype(np.float32)
+        pos[~ego, OBS_LEN:] = t["prediction"].astype(np.float32)[poff[ex_of_row[~ego]] + local[~ego] - 1]
+        parts.append(pos)
+        offs.append(starts[1:] + base)
+        scene = t["run_scene"][t["context_run"][ex_ctx]]
+        inter.append(t["scene_interactive"][scene].astype(np.uint8))
+        base += starts[-1]
+    if not parts:
+        raise ValueError(f"{manifest_path}: split {split!r} has no examples yet")
+    return WindowSet(np.concatenate(parts), np.concatenate(offs), np.concatenate(inter))

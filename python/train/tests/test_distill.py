@@ -218,3 +218,25 @@ def test_ray_shards_equal_single_process(tmp_path: Path, scenes_root: Path) -> N
     a = json.loads((tmp_path / "ray" / "manifest.json").read_text())["splits"]
     b = json.loads((tmp_path / "single" / "manifest.json").read_text())["splits"]
     assert a == b
+
+
+def test_distill_set_loads_as_student_windows(tmp_path: Path, scenes_root: Path) -> None:
+    """``load_split`` on a distillation manifest: every window is (context history, candidate,
+    teacher prediction), checked against a fresh teacher call on the window itself."""
+    from nudge_train.windows_data import load_split
+
+    cfg = _cfg(tmp_path / "d", scenes_root)
+    m = generate(cfg, log=lambda _: None)
+    ws = load_split(cfg.out, "test")
+    assert len(ws) == m["splits"]["test"]["examples"] > 0
+    teacher = nudge.Predictor.load(str(cfg.teacher))
+    rng = np.random.default_rng(0)
+    for w in rng.choice(len(ws), size=min(25, len(ws)), replace=False):
+        win = ws.positions[ws.offsets[w] : ws.offsets[w + 1]]
+        obs, fut = win[:, :8].astype(np.float64), win[:, 8:]
+        pred = teacher.predict(obs, fut[:1].astype(np.float64))[0]  # [n-1, 6, 2]
+        np.testing.assert_allclose(pred, fut[1:], atol=2e-4)
+    # Interactive flags come from the scenes; a missing split is a clear error.
+    assert set(np.unique(ws.interactive)) <= {0, 1}
+    with pytest.raises(ValueError, match="no split 'train'"):
+        load_split(cfg.out, "train")

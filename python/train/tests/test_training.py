@@ -79,8 +79,12 @@ def test_shipped_teacher_configs_parse() -> None:
     for path in configs:
         mcfg, tcfg = load_config(path)
         assert mcfg.kind == "teacher" and mcfg.pool_hidden_dim == 512
+        assert tcfg.k_samples == 20 and tcfg.train_steps == 1
         pairs.add((tcfg.k_var, tcfg.i_adv))
     assert pairs == {(1, 1), (1, 0), (30, 1), (64, 1), (64, 0)}
+    smcfg, stcfg = load_config(REPO / "python" / "train" / "configs" / "student.toml")
+    assert smcfg.kind == "student" and smcfg.noise_dim == 0 and smcfg.pool_every_timestep
+    assert stcfg.k_samples == 1 and stcfg.train_steps == 6 and stcfg.data == "data/distill"
 
 
 def _small_train_cfg(tmp_path: Path, **kw: object) -> TrainConfig:
@@ -140,3 +144,36 @@ def test_best_of_k_is_monotone_in_k() -> None:
     # Same seed: the 8 draws extend the 4, so each scene's minimum can only go down.
     assert best8.ade6 <= best4.ade6 + 1e-12
     assert best8.agents == best4.agents == data.n_agents - len(data)
+
+
+def test_samples_per_epoch_draws_a_seeded_subset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``samples_per_epoch`` visits that many distinct training windows per epoch, a different
+    seeded subset each epoch."""
+    import nudge_train.training as training_mod
+
+    data = _windows(40)
+    val = _windows(6, seed=1)
+    seen: list[list[int]] = []
+    orig_batches, orig_lr = WindowSet.batches, training_mod.epoch_lr
+
+    def spy(self: WindowSet, *a: object, **k: object):  # type: ignore[no-untyped-def]
+        for b in orig_batches(self, *a, **k):  # type: ignore[arg-type]
+            if self is data:
+                seen[-1].extend(b.window.tolist())
+            yield b
+
+    def new_epoch(t: TrainConfig, e: int) -> float:
+        seen.append([])
+        return orig_lr(t, e)
+
+    monkeypatch.setattr(WindowSet, "batches", spy)
+    monkeypatch.setattr(training_mod, "epoch_lr", new_epoch)
+    mcfg = teacher_config().replace(pool_hidden_dim=16)
+    train(mcfg, _small_train_cfg(tmp_path, epochs=2, samples_per_epoch=12), train_set=data, val_set=val,
+          progress=False)
+    assert len(seen) == 2
+    for epoch in seen:
+        assert len(epoch) == 12 and len(set(epoch)) == 12
+    assert seen[0] != seen[1]
+    with pytest.raises(ValueError, match="samples_per_epoch"):
+        TrainConfig(samples_per_epoch=-1).validate()
