@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {report}")
     if not args.no_export:
         prov = {
-            "data": str(distill),
+            "data": str(distill.resolve().relative_to(REPO)) if distill.resolve().is_relative_to(REPO) else str(distill),
             "distill_manifest_sha256": _sha(distill / "manifest.json"),
             "teacher_sha256": teacher_sha,
             "split": "distillation train (selected on distillation val)",
