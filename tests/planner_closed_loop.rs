@@ -65,22 +65,16 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
     check(&rec);
 }
 
-/// The shipped trained teacher as planning predictor and as world model (the other vehicles
-/// react to the ego as the teacher predicts): the lane change must settle without collision.
-#[test]
-#[cfg_attr(
-    debug_assertions,
-    ignore = "teacher-in-the-loop is slow without optimisation; run with --release"
-)]
-fn teacher_lane_change_on_real_scene() {
-    let path = repo().join("assets/models/teacher.safetensors");
-    let mut plan = load_predictor(&path).unwrap();
-    let mut world = load_predictor(&path).unwrap();
-    let sc = scene("us101-20_1-t04.5-ego462");
+/// One seeded lane change on a real scene, `plan_weights` planning and the shipped teacher moving
+/// the other vehicles (they react to the ego as the teacher predicts).
+fn lane_change_in_teacher_world(plan_weights: &str) -> RunRecord {
+    let mut plan = load_predictor(repo().join(plan_weights)).unwrap();
+    let mut world = load_predictor(repo().join("assets/models/teacher.safetensors")).unwrap();
     let cfg = SimConfig {
         world: WorldMode::Predictor,
         ..SimConfig::default()
     };
+    let sc = scene("us101-20_1-t04.5-ego462");
     let rec = simulate(
         &sc,
         &PlannerSettings::default(),
@@ -91,6 +85,19 @@ fn teacher_lane_change_on_real_scene() {
     )
     .unwrap();
     assert_eq!(rec.world, "teacher");
+    assert!(rec.steps.iter().all(|s| s.iterations >= 1 && s.mpc_s > 0.0));
+    rec
+}
+
+/// The shipped trained teacher as planning predictor and as world model: the lane change must
+/// settle without collision.
+#[test]
+#[cfg_attr(
+    debug_assertions,
+    ignore = "teacher-in-the-loop is slow without optimisation; run with --release"
+)]
+fn teacher_lane_change_on_real_scene() {
+    let rec = lane_change_in_teacher_world("assets/models/teacher.safetensors");
     assert!(!rec.collision, "collision with the teacher world");
     assert!(rec.success, "lane change with the teacher did not settle");
 }
@@ -104,30 +111,13 @@ fn teacher_lane_change_on_real_scene() {
     ignore = "predictor-in-the-loop is slow without optimisation; run with --release"
 )]
 fn student_lane_change_with_teacher_world() {
-    let student_path = repo().join("assets/models/student.safetensors");
-    let weights = nudge::predictor::ModelWeights::from_file(&student_path).unwrap();
+    let student = "assets/models/student.safetensors";
+    let weights = nudge::predictor::ModelWeights::from_file(repo().join(student)).unwrap();
     if weights.trained() != Some(true) {
-        eprintln!("skipping: {} is not trained", student_path.display());
+        eprintln!("skipping: {student} is not trained");
         return;
     }
-    let mut plan = load_predictor(&student_path).unwrap();
-    let mut world = load_predictor(repo().join("assets/models/teacher.safetensors")).unwrap();
-    let sc = scene("us101-20_1-t04.5-ego462");
-    let cfg = SimConfig {
-        world: WorldMode::Predictor,
-        ..SimConfig::default()
-    };
-    let rec = simulate(
-        &sc,
-        &PlannerSettings::default(),
-        &cfg,
-        3,
-        plan.as_mut(),
-        Some(world.as_mut()),
-    )
-    .unwrap();
-    assert_eq!(rec.world, "teacher");
-    assert!(rec.steps.iter().all(|s| s.iterations >= 1 && s.mpc_s > 0.0));
+    let rec = lane_change_in_teacher_world(student);
     assert!(
         !rec.collision,
         "collision with the student planning in a teacher world"

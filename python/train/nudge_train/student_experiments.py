@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -31,41 +30,14 @@ import torch
 
 from nudge_train.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
 from nudge_train.export import export_generator, load_generator
-from nudge_train.teacher_experiments import _git_commit
+from nudge_train.reporting import REPO, git_commit, plot_curves, read_metrics, repo_relative, sha256_file
 from nudge_train.training import load_best, load_config, train
 from nudge_train.windows_data import load_split
 
-REPO = Path(__file__).resolve().parents[3]
-
-
-def _sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "missing"
 
 
 def _row(name: str, m: Metrics) -> str:
     return f"| {name} | {m.ade1:.3f} | {m.ade6:.3f} | {m.fde6:.3f} | {m.scenes} | {m.agents} |"
-
-
-def _plot(out: Path, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines() if line]
-    ep = [r["epoch"] + 1 for r in rows]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    axes[0].plot(ep, [r["loss_var"] for r in rows])
-    axes[0].set(xlabel="epoch", ylabel="train L2 loss vs teacher (m²)", yscale="log")
-    axes[1].plot(ep, [r["val_ade"] for r in rows])
-    axes[1].set(xlabel="epoch", ylabel="val ADE vs teacher, 6 steps (m)")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    fig.suptitle("Student distillation (train: planner-generated set, val: its val split)")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     tcfg = dataclasses.replace(tcfg, **over).validate()
     distill = Path(args.distill)
     manifest = json.loads((distill / "manifest.json").read_text())
-    teacher_sha = _sha(Path(args.teacher))
+    teacher_sha = sha256_file(Path(args.teacher))
     if manifest["teacher"]["sha256"] != teacher_sha:
         raise SystemExit(
             f"error: {distill} was generated with teacher sha256 {manifest['teacher']['sha256'][:12]}..., "
@@ -107,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         summary = train(mcfg, tcfg, resume=(out / "last.pt").exists(), train_set=train_set, val_set=val_set)
     wall = time.perf_counter() - t0
-    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines() if line]
+    rows = read_metrics(out)
     train_seconds = sum(r["seconds"] for r in rows)
     student = load_best(out, mcfg)
     teacher = load_generator(Path(args.teacher))
@@ -157,7 +129,13 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "![student training](../figures/student_curves.png)",
     ]
-    _plot(out, REPO / "docs" / "figures" / "student_curves.png")
+    plot_curves(
+        {"student": out},
+        REPO / "docs" / "figures" / "student_curves.png",
+        "Student distillation (train: planner-generated set, val: its val split)",
+        "train L2 loss vs teacher (m²)",
+        "val ADE vs teacher, 6 steps (m)",
+    )
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text("\n".join(lines) + "\n")
@@ -165,15 +143,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {report}")
     if not args.no_export:
         prov = {
-            "data": str(distill.resolve().relative_to(REPO)) if distill.resolve().is_relative_to(REPO) else str(distill),
-            "distill_manifest_sha256": _sha(distill / "manifest.json"),
+            "data": repo_relative(distill),
+            "distill_manifest_sha256": sha256_file(distill / "manifest.json"),
             "teacher_sha256": teacher_sha,
             "split": "distillation train (selected on distillation val)",
             "config": args.config.name,
             "train": dataclasses.asdict(tcfg),
             "best_epoch": summary["best_epoch"],
             "best_val_ade": summary["best_val_ade"],
-            "commit": _git_commit(),
+            "commit": git_commit(),
             "hardware": f"{torch.get_num_threads()} CPU threads"
             if not torch.cuda.is_available()
             else torch.cuda.get_device_name(),

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -27,10 +26,10 @@ import torch
 
 from nudge_train.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
 from nudge_train.export import export_generator
+from nudge_train.reporting import REPO, git_commit, plot_curves, read_metrics, repo_relative, sha256_file
 from nudge_train.training import load_best, load_config, train
 from nudge_train.windows_data import WindowSet, load_split
 
-REPO = Path(__file__).resolve().parents[3]
 CONFIGS = REPO / "python" / "train" / "configs"
 
 PAPER_TABLE_I = {  # (k_var, I_adv): (ADE@1, FDE@1, ADE@6, FDE@6), metres per the paper
@@ -42,51 +41,18 @@ PAPER_TABLE_I = {  # (k_var, I_adv): (ADE@1, FDE@1, ADE@6, FDE@6), metres per th
 }
 
 
-def _git_commit() -> str:
-    try:
-        return subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def _label(rec: dict[str, Any]) -> str:
     return f"k_var={rec['k_var']:g}, I_adv={rec['i_adv']}, k={rec['tcfg'].k_samples}"
 
 
 def _train_seconds(out: Path) -> tuple[int, float]:
     """Epochs run and summed epoch wall time (s) from a run's ``metrics.jsonl``."""
-    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines() if line]
+    rows = read_metrics(out)
     return len(rows), float(sum(r["seconds"] for r in rows))
 
 
 def _fmt(m: Metrics) -> str:
     return f"{m.ade1:.3f} | {m.ade6:.3f} | {m.fde6:.3f}"
-
-
-def _plot_curves(runs: dict[str, Path], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for name, out in runs.items():
-        rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines() if line]
-        ep = [r["epoch"] + 1 for r in rows]
-        axes[0].plot(ep, [r["loss_var"] for r in rows], label=name)
-        axes[1].plot(ep, [r["val_ade"] for r in rows], label=name)
-    axes[0].set(xlabel="epoch", ylabel="train variety loss (m², best of k)", yscale="log")
-    axes[1].set(xlabel="epoch", ylabel="validation metric, fixed z (m)\n(recursive FDE@1.8s, or ADE)", yscale="log")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle("Teacher training on NGSIM (train split), validation on the val split")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -172,7 +138,13 @@ def main(argv: list[str] | None = None) -> int:
     lines += _reading(results)
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
-    _plot_curves(runs, REPO / "docs" / "figures" / "teacher_curves.png")
+    plot_curves(
+        runs,
+        REPO / "docs" / "figures" / "teacher_curves.png",
+        "Teacher training on NGSIM (train split), validation on the val split",
+        "train variety loss (m², best of k)",
+        "validation metric, fixed z (m)\n(recursive FDE@1.8s, or ADE)",
+    )
     lines.append("\n![training curves](../figures/teacher_curves.png)\n")
     report.write_text("\n".join(lines) + "\n")
     print(f"wrote {report}")
@@ -181,32 +153,20 @@ def main(argv: list[str] | None = None) -> int:
         rec = results[chosen]
         gen = load_best(runs[chosen], rec["mcfg"])
         prov = {
-            "data": _repo_relative(Path(args.data)),
-            "manifest_sha256": _sha(Path(args.data) / "manifest.json"),
+            "data": repo_relative(Path(args.data)),
+            "manifest_sha256": sha256_file(Path(args.data) / "manifest.json"),
             "split": "train (selected on val)",
             "config": chosen,
             "train": dataclasses.asdict(rec["tcfg"]),
             "best_epoch": rec["summary"]["best_epoch"],
             "best_val_ade": rec["summary"]["best_val_ade"],
             "val_recursive_fde6": rec["val_recursive_fde6"],
-            "commit": _git_commit(),
+            "commit": git_commit(),
             "hardware": f"{torch.get_num_threads()} CPU threads" if not torch.cuda.is_available() else torch.cuda.get_device_name(),
         }
         export_generator(gen, rec["mcfg"], Path(args.export), trained=True, provenance=prov)
         print(f"exported {chosen} to {args.export}")
     return 0
-
-
-def _repo_relative(path: Path) -> str:
-    """``path`` relative to the repository when inside it (provenance must not name a machine)."""
-    full = path.resolve()
-    return str(full.relative_to(REPO)) if full.is_relative_to(REPO) else str(path)
-
-
-def _sha(path: Path) -> str:
-    import hashlib
-
-    return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "missing"
 
 
 def _report_header(train_set: WindowSet, val_set: WindowSet, test_set: WindowSet, inter: np.ndarray, chosen: str) -> list[str]:

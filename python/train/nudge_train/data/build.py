@@ -6,13 +6,14 @@ gives byte-identical shards and manifest (sha256 of each shard in the manifest).
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+
+from nudge_train.reporting import sha256_file
 
 from .coifman import CoifmanConfig, read_coifman
 from .errors import DataError
@@ -106,14 +107,6 @@ def _pack(windows: list[tuple[Window, int]]) -> dict[str, np.ndarray]:
         "agent_ids": np.concatenate([w.ids for w, _ in windows]).astype(np.int64),
         "agent_flags": np.concatenate([w.flags for w, _ in windows]).astype(np.int64),
     }
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _jsonable(obj: object) -> object:

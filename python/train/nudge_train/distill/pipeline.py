@@ -10,7 +10,6 @@ thread counts or where it ran), so Ray and single-process runs write identical s
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
@@ -24,6 +23,8 @@ from safetensors.numpy import load_file, save
 from tqdm import tqdm
 
 import nudge
+
+from nudge_train.reporting import sha256_file
 
 from .config import DistillConfig
 from .scenes import scene_interactive, scene_seed, split_scenes
@@ -43,14 +44,6 @@ class ShardSpec:
     @property
     def file(self) -> str:
         return f"{self.split}-{self.index:05d}.safetensors"
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def plan_shards(cfg: DistillConfig) -> dict[str, list[ShardSpec]]:
