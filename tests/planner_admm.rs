@@ -4,7 +4,8 @@
 #![allow(clippy::unwrap_used)]
 
 use nudge::planner::{
-    EgoState, Ellipse, PlanStatus, Planner, PlannerError, PlannerSettings, PlanningProblem,
+    EgoState, Ellipse, OrientedBox, PlanStatus, Planner, PlannerError, PlannerSettings,
+    PlanningProblem, motion_heading,
 };
 use nudge::predictor::{ConstantVelocity, History, Predictor, T_OBS};
 use proptest::prelude::*;
@@ -104,28 +105,59 @@ fn admm_matches_joint_qp_without_vehicles() {
     assert!((plan.cost - reference.cost).abs() < 1e-2 * reference.cost.max(1.0));
 }
 
-/// A wrapper that records the minimum b of the last prediction it served for the given plan.
+/// The minimum b of `states` under the predictor's prediction, each ellipse sized by the ego's
+/// planned heading and the other's predicted heading of motion, and whether any predicted
+/// bounding box overlaps the ego's.
 fn min_b_under(
     pred: &mut dyn Predictor,
     h: &History,
     sizes: &[[f64; 2]],
     states: &[[f64; 4]],
     s: &PlannerSettings,
-) -> f64 {
+) -> (f64, bool) {
     pred.set_scene(h).unwrap();
     let cand: Vec<f64> = states.iter().flat_map(|z| [z[0], z[1]]).collect();
     let n = h.n_agents();
     let mut out = vec![0.0; (n - 1) * 6 * 2];
     pred.predict(&cand, &mut out).unwrap();
     let mut m = f64::INFINITY;
+    let mut overlap = false;
     for i in 1..n {
-        let e = Ellipse::new(sizes[0], sizes[i], s.ellipse_scale, s.margin_x, s.margin_y);
+        let last = h.at(i, 7);
+        let mut prev = [last[0], last[1]];
         for (k, st) in states.iter().enumerate().take(6) {
             let b = (i - 1) * 12 + 2 * k;
-            m = m.min(e.value([st[0], st[1]], [out[b], out[b + 1]]));
+            let other = [out[b], out[b + 1]];
+            let heading = motion_heading(prev, other, 0.0);
+            prev = other;
+            let e = Ellipse::with_headings(
+                sizes[0],
+                st[2],
+                sizes[i],
+                heading,
+                s.ellipse_scale,
+                s.margin_x,
+                s.margin_y,
+            );
+            m = m.min(e.value([st[0], st[1]], other));
+            let ego_box = OrientedBox {
+                x: st[0],
+                y: st[1],
+                heading: st[2],
+                length: sizes[0][0],
+                width: sizes[0][1],
+            };
+            let other_box = OrientedBox {
+                x: other[0],
+                y: other[1],
+                heading,
+                length: sizes[i][0],
+                width: sizes[i][1],
+            };
+            overlap |= ego_box.overlaps(&other_box);
         }
     }
-    m
+    (m, overlap)
 }
 
 #[test]
@@ -146,9 +178,14 @@ fn plans_are_safe_bounded_and_deterministic_with_traffic() {
     assert_ne!(pa.status, PlanStatus::Unsafe);
     assert!(pa.predictor_calls > 0);
     assert_bounds(&s, &pa.delta, &pa.accel, &pa.states);
-    let mb = min_b_under(&mut cv, &h, &sizes, &pa.states, &s);
+    let (mb, overlap) = min_b_under(&mut cv, &h, &sizes, &pa.states, &s);
     assert!(mb > 0.0, "returned plan unsafe: min b = {mb}");
-    assert_eq!(pa.min_safety.unwrap().to_bits(), mb.to_bits());
+    assert!(!overlap, "a predicted box overlaps the plan's");
+    let reported = pa.min_safety.unwrap();
+    assert!(
+        (reported - mb).abs() < 1e-9,
+        "min_safety {reported} vs {mb}"
+    );
     // Determinism: bit-identical plans from identical inputs.
     for (x, y) in pa.states.iter().flatten().zip(pb.states.iter().flatten()) {
         assert_eq!(x.to_bits(), y.to_bits());
@@ -186,8 +223,20 @@ fn invalid_settings_are_typed_errors() {
             max_iter: 0,
             ..PlannerSettings::default()
         },
+        PlannerSettings {
+            plan_buffer: -0.1,
+            ..PlannerSettings::default()
+        },
     ];
-    let fields = ["w_y", "horizon", "a_max", "delta_max", "rho", "max_iter"];
+    let fields = [
+        "w_y",
+        "horizon",
+        "a_max",
+        "delta_max",
+        "rho",
+        "max_iter",
+        "plan_buffer",
+    ];
     for (s, f) in bad.into_iter().zip(fields) {
         match Planner::new(s) {
             Err(PlannerError::Settings(e)) => {

@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use nudge::planner::{PlannerSettings, RunRecord, Scenario, SimConfig, WorldMode, simulate};
+use nudge::planner::{
+    PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, WorldMode, simulate, target_lane,
+};
 use nudge::predictor::{ConstantVelocity, load_predictor};
 
 fn repo() -> PathBuf {
@@ -123,4 +125,81 @@ fn student_lane_change_with_teacher_world() {
         "collision with the student planning in a teacher world"
     );
     assert!(rec.success, "lane change with the student did not settle");
+}
+
+/// The real scene `name` with every other vehicle replaced by a convoy in the seeded target
+/// lane: vehicles of 4.5 m every `spacing` metres alongside the ego at the ego's speed, no
+/// logged future (they keep their speed).
+fn convoy_scene(name: &str, seed: u64, spacing: f64) -> (Scenario, f64, f64) {
+    let base = scene(name);
+    let lane = target_lane(&base, seed).unwrap();
+    let y_lane = base.lane_centres[lane];
+    let p = base.position(0, 7);
+    let v = base.speed[0];
+    let offsets: Vec<f64> = (-3..=3).map(|k| f64::from(k) * spacing).collect();
+    let n = 1 + offsets.len();
+    let mut history = Vec::with_capacity(n * 16);
+    for t in 0..8 {
+        let back = f64::from(7 - t) * 0.3 * v;
+        history.extend_from_slice(&[p[0] - back, p[1]]);
+    }
+    for dx in &offsets {
+        for t in 0..8 {
+            let back = f64::from(7 - t) * 0.3 * v;
+            history.extend_from_slice(&[p[0] + dx - back, y_lane]);
+        }
+    }
+    let mut size = vec![base.size[0]];
+    size.extend(std::iter::repeat_n([4.5, 1.8], offsets.len()));
+    let sc = Scenario {
+        name: format!("{name}-convoy"),
+        n_agents: n,
+        history,
+        heading: vec![0.0; n],
+        speed: vec![v; n],
+        size,
+        n_future: base.n_future,
+        future: vec![0.0; n * base.n_future * 2],
+        future_valid: vec![false; n * base.n_future],
+        agent_ids: (0..n as i64).collect(),
+        ..base.clone()
+    };
+    (sc, y_lane, base.lane_centres[base.ego_lane])
+}
+
+#[test]
+fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
+    let (sc, y_target, y_own) = convoy_scene("us101-11_1-t02.1-ego144", 0, 11.0);
+    for abort_after in [2, 0] {
+        let cfg = SimConfig {
+            world: WorldMode::LogReplay,
+            abort_after,
+            ..SimConfig::default()
+        };
+        let mut cv = ConstantVelocity::new(6);
+        let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
+        assert!(!rec.collision, "collision with abort_after {abort_after}");
+        assert!(!rec.success, "a lane change through a closed convoy");
+        if abort_after == 0 {
+            assert_eq!(rec.aborts, 0);
+            assert!(rec.steps.iter().all(|s| s.y_goal == y_target));
+        } else {
+            // The lane change finds no safe plan, aborts, returns to the own lane's centre
+            // while the abort holds and retries afterwards.
+            assert!(rec.aborts >= 1, "no abort");
+            let held: Vec<&StepRecord> = rec.steps.iter().filter(|s| s.y_goal == y_own).collect();
+            assert!(held.len() >= cfg.abort_hold);
+            let closest = held
+                .iter()
+                .map(|s| (s.ego[1] - y_own).abs())
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                closest < 0.1,
+                "back to within {closest} m of the own lane's centre"
+            );
+            let first_hold = rec.steps.iter().position(|s| s.y_goal == y_own).unwrap();
+            assert!(first_hold >= cfg.abort_after);
+            assert!(rec.steps[first_hold..].iter().any(|s| s.y_goal == y_target));
+        }
+    }
 }

@@ -101,6 +101,8 @@ def simulate(
     threads: int | None = None,
     settings: PlannerSettings | None = None,
     max_steps: int = 30,
+    abort_after: int = 4,
+    abort_hold: int = 3,
     record: bool = False,
     on_error: str = "raise",
 ) -> dict[str, Any]:
@@ -117,6 +119,8 @@ def simulate(
         threads=threads,
         settings=settings,
         max_steps=max_steps,
+        abort_after=abort_after,
+        abort_hold=abort_hold,
         record=record,
         on_error=on_error,
     )

@@ -170,22 +170,30 @@ def simulate(
     threads: int | None = None,
     settings: PlannerSettings | None = None,
     max_steps: int = 30,
+    abort_after: int = 4,
+    abort_hold: int = 3,
     record: bool = False,
     on_error: Literal["raise", "skip"] = "raise",
 ) -> dict[str, dict[str, Any]]:
     """Closed-loop runs over scenario files on ``threads`` rayon threads; run ``r`` of scene ``i``
     draws its target lane from seed ``scene_seeds[i] + r`` (default ``seed + r``).
 
+    Lane-change aborts: after ``abort_after`` consecutive steps without a safe plan (status
+    ``Fallback``, ``Unsafe`` or a Clarabel failure) while the ego is not yet wholly inside the
+    target lane, the ego aims at its own lane's centre for ``abort_hold`` steps, then retries
+    (``abort_after = 0`` disables aborts).
+
     Returns ``{"runs": ..., "steps": ...}`` (+ ``"examples"`` when ``record``):
 
     - runs (one row per (scene, seed)): scenario list[str], scene_index i64, seed u64,
       predictor list[str], world list[str], n_agents i64, target_lane i64 (-1 on error),
       y_target f64, success bool, steps_to_target i64 (-1 = never), collision bool,
-      n_steps i64, error list[str | None];
+      aborts i64, n_steps i64, error list[str | None];
     - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
       iterations i64, predictor_calls i64, cost f64, primal_residual f64, min_b f64 (NaN = none
       checked), collision bool, status list[str], delta f64, accel f64, ego f64 [S, 4]
-      (x, y, psi, v after the step), z_updates i64, z_s f64;
+      (x, y, psi, v after the step), z_updates i64, z_s f64, y_goal f64 (the lateral position
+      aimed at: the target lane's centre, or the ego's own lane's during an abort);
     - examples (every distinct candidate the planning predictor evaluated, float32 m):
       history [H, 8, 2], context_offsets i64 [C + 1], context_run i64 [C],
       example_context i64 [E], candidate [E, T, 2], prediction [P, T, 2],

@@ -64,6 +64,13 @@ pub struct SimulateArgs {
     /// Most planning steps per run.
     #[arg(long, default_value_t = 30)]
     pub max_steps: usize,
+    /// Abort a lane change after this many consecutive steps without a safe plan while the ego
+    /// is not yet inside the target lane (it aims at its own lane, then retries); 0 disables.
+    #[arg(long, default_value_t = SimConfig::default().abort_after)]
+    pub abort_after: usize,
+    /// Steps an aborted lane change keeps to the ego's own lane before retrying.
+    #[arg(long, default_value_t = SimConfig::default().abort_hold)]
+    pub abort_hold: usize,
     /// Output directory for steps.csv, runs.csv and records.json.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -121,7 +128,7 @@ fn step_table(r: &RunRecord) -> String {
     );
     let _ = writeln!(
         s,
-        "{:>4} {:>9} {:>9} {:>5} {:>6} {:>10} {:>9} {:>7} {:>7} {:>8} {:>8} {:>6} {:>6} {:>4} status",
+        "{:>4} {:>9} {:>9} {:>5} {:>6} {:>10} {:>9} {:>7} {:>7} {:>8} {:>8} {:>6} {:>6} {:>6} {:>4} status",
         "step",
         "mpc_ms",
         "zmed_ms",
@@ -134,6 +141,7 @@ fn step_table(r: &RunRecord) -> String {
         "accel",
         "x",
         "y",
+        "y_goal",
         "v",
         "coll"
     );
@@ -141,7 +149,7 @@ fn step_table(r: &RunRecord) -> String {
         let mut z = st.z_updates_s.clone();
         let _ = writeln!(
             s,
-            "{:>4} {:>9.2} {:>9.3} {:>5} {:>6} {:>10.2} {:>9.2e} {:>7} {:>7.3} {:>8.2} {:>8.1} {:>6.2} {:>6.2} {:>4} {}",
+            "{:>4} {:>9.2} {:>9.3} {:>5} {:>6} {:>10.2} {:>9.2e} {:>7} {:>7.3} {:>8.2} {:>8.1} {:>6.2} {:>6.2} {:>6.2} {:>4} {}",
             st.step,
             st.mpc_s * 1e3,
             quantile(&mut z, 0.5) * 1e3,
@@ -155,6 +163,7 @@ fn step_table(r: &RunRecord) -> String {
             st.accel,
             st.ego[0],
             st.ego[1],
+            st.y_goal,
             st.ego[3],
             if st.collision { "YES" } else { "no" },
             st.status
@@ -162,8 +171,8 @@ fn step_table(r: &RunRecord) -> String {
     }
     let _ = writeln!(
         s,
-        "success {} after {:?} steps, collision {}",
-        r.success, r.steps_to_target, r.collision
+        "success {} after {:?} steps, collision {}, lane-change aborts {}",
+        r.success, r.steps_to_target, r.collision, r.aborts
     );
     s
 }
@@ -172,6 +181,8 @@ fn summary(records: &[RunRecord], failed: usize) -> String {
     let n = records.len();
     let succ = records.iter().filter(|r| r.success).count();
     let coll = records.iter().filter(|r| r.collision).count();
+    let aborts: usize = records.iter().map(|r| r.aborts).sum();
+    let aborted_runs = records.iter().filter(|r| r.aborts > 0).count();
     let steps: Vec<f64> = records
         .iter()
         .filter_map(|r| r.steps_to_target.map(|s| s as f64))
@@ -215,6 +226,7 @@ fn summary(records: &[RunRecord], failed: usize) -> String {
         ss * 0.3
     );
     let _ = writeln!(out, "runs with a collision: {coll}");
+    let _ = writeln!(out, "lane-change aborts: {aborts} in {aborted_runs} runs");
     let _ = writeln!(
         out,
         "planning time per step: median {:.2} ms, p90 {:.2} ms; Z-update median {:.3} ms",
@@ -233,15 +245,15 @@ fn summary(records: &[RunRecord], failed: usize) -> String {
 fn write_outputs(dir: &Path, records: &[RunRecord]) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let mut steps = String::from(
-        "run,scenario,seed,predictor,world,step,mpc_s,z_update_median_s,z_updates,iterations,predictor_calls,cost,primal_residual,min_b,collision,status,delta,accel,x,y,psi,v\n",
+        "run,scenario,seed,predictor,world,step,mpc_s,z_update_median_s,z_updates,iterations,predictor_calls,cost,primal_residual,min_b,collision,status,delta,accel,x,y,psi,v,y_goal\n",
     );
     let mut runs = String::from(
-        "run,scenario,seed,predictor,world,n_agents,target_lane,y_target,success,steps_to_target,collision,steps\n",
+        "run,scenario,seed,predictor,world,n_agents,target_lane,y_target,success,steps_to_target,collision,aborts,steps\n",
     );
     for (i, r) in records.iter().enumerate() {
         let _ = writeln!(
             runs,
-            "{i},{},{},{},{},{},{},{},{},{},{},{}",
+            "{i},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.scenario,
             r.seed,
             r.predictor,
@@ -253,13 +265,14 @@ fn write_outputs(dir: &Path, records: &[RunRecord]) -> Result<(), String> {
             r.steps_to_target
                 .map_or_else(String::new, |s| s.to_string()),
             r.collision,
+            r.aborts,
             r.steps.len()
         );
         for s in &r.steps {
             let mut z = s.z_updates_s.clone();
             let _ = writeln!(
                 steps,
-                "{i},{},{},{},{},{},{},{},{},{},{},{},{},{},{},\"{}\",{},{},{},{},{},{}",
+                "{i},{},{},{},{},{},{},{},{},{},{},{},{},{},{},\"{}\",{},{},{},{},{},{},{}",
                 r.scenario,
                 r.seed,
                 r.predictor,
@@ -280,7 +293,8 @@ fn write_outputs(dir: &Path, records: &[RunRecord]) -> Result<(), String> {
                 s.ego[0],
                 s.ego[1],
                 s.ego[2],
-                s.ego[3]
+                s.ego[3],
+                s.y_goal
             );
         }
     }
@@ -323,6 +337,8 @@ pub fn run(a: &SimulateArgs) -> Result<(), String> {
     make_pair(a).map_err(|e| e.to_string())?;
     let cfg = SimConfig {
         max_steps: a.max_steps,
+        abort_after: a.abort_after,
+        abort_hold: a.abort_hold,
         world: match a.world {
             WorldKind::Teacher => WorldMode::Predictor,
             WorldKind::LogReplay => WorldMode::LogReplay,

@@ -46,7 +46,7 @@ def _check_plan(plan: dict, horizon: int = 6) -> None:
     assert plan["states"].shape == (horizon, 4)
     assert plan["delta"].shape == plan["accel"].shape == (horizon,)
     assert np.isfinite(plan["states"]).all()
-    assert plan["status"] in ("Converged", "MaxIterations", "Unsafe", "Fallback")
+    assert plan["status"] in ("Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback")
     assert plan["iterations"] >= 1
     assert plan["timings"]["total_s"] > 0
     assert plan["timings"]["z_updates_s"].shape == (plan["iterations"],) or plan["timings"]["z_updates_s"].ndim == 1

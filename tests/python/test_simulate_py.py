@@ -35,7 +35,7 @@ def test_columns_and_lengths(scenes: list[Path]) -> None:
     assert int(runs["n_steps"].sum()) == len(steps["run"])
     assert steps["ego"].shape == (len(steps["run"]), 4)
     assert (steps["mpc_s"] > 0).all() and (runs["n_steps"] <= 4).all() and (runs["n_steps"] >= 1).all()
-    assert set(steps["status"]) <= {"Converged", "MaxIterations", "Unsafe", "Fallback"} | {s for s in steps["status"] if s.startswith("QpFailed")}
+    assert set(steps["status"]) <= {"Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback"} | {s for s in steps["status"] if s.startswith("QpFailed")}
     for run in range(6):
         np.testing.assert_array_equal(steps["step"][steps["run"] == run], np.arange(runs["n_steps"][run]))
     assert "examples" not in r
@@ -148,3 +148,30 @@ def test_limits(scenes: list[Path]) -> None:
         nudge.simulate(scenes[:1], "constant_velocity", max_steps=10**9)
     with pytest.raises(nudge.InputError, match="max_steps"):
         nudge.simulate(scenes[:1], "constant_velocity", max_steps=0)
+
+
+def test_abort_columns_and_switch(scenes: list[Path]) -> None:
+    """`aborts` / `y_goal` are reported; with aborts disabled the goal is always the target lane,
+    and with them the goal only ever leaves the target for the ego's own lane after a run of
+    unsafe planning steps."""
+    off = nudge.simulate(scenes, "constant_velocity", seed=3, threads=2, abort_after=0, max_steps=12)
+    runs, steps = off["runs"], off["steps"]
+    assert (runs["aborts"] == 0).all()
+    np.testing.assert_array_equal(steps["y_goal"], runs["y_target"][steps["run"]])
+    on = nudge.simulate(scenes, "constant_velocity", seed=3, threads=2, abort_after=1, abort_hold=2, max_steps=12)
+    runs, steps = on["runs"], on["steps"]
+    for r in range(len(runs["scenario"])):
+        rows = np.nonzero(steps["run"] == r)[0]
+        goal = steps["y_goal"][rows]
+        away = np.nonzero(goal != runs["y_target"][r])[0]
+        assert (len(away) > 0) == (runs["aborts"][r] > 0)
+        for k in away:
+            # Each hold starts right after a step without a safe plan, or continues a hold.
+            assert k >= 1
+            status = steps["status"][rows[k - 1]]
+            assert status in ("Fallback", "Unsafe") or status.startswith("QpFailed") or goal[k - 1] != runs["y_target"][r]
+
+
+def test_bad_abort_settings_raise(scenes: list[Path]) -> None:
+    with pytest.raises(nudge.InputError, match="abort_after"):
+        nudge.simulate(scenes[:1], "constant_velocity", abort_after=10_000)

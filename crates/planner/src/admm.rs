@@ -13,7 +13,7 @@ use crate::qp::{
     BoxRateQp, RateBox, box_rate_rows, clarabel_settings, triplets_csc, upper_csc, usable,
     zero_cone,
 };
-use crate::safety::Ellipse;
+use crate::safety::{Ellipse, motion_direction};
 use crate::settings::PlannerSettings;
 
 /// The ego's measured state in the road frame.
@@ -62,8 +62,12 @@ pub enum PlanStatus {
     /// The states could not be made safe (feasibility restoration failed); the plan is the
     /// least-violating one found.
     Unsafe,
-    /// The roll-out of the ADMM inputs was unsafe (ADMM stopped before F ≈ 0); the plan is the
-    /// least-violating fallback input sequence and its roll-out.
+    /// The roll-out of the ADMM inputs was unsafe (Z sat on the constraint boundary, or ADMM
+    /// stopped before F ≈ 0); the plan is the ADMM inputs pulled towards the shifted previous
+    /// plan (by 3/4, 1/2 or 1/4) until the roll-out was safe, and that roll-out.
+    Backtracked,
+    /// The roll-out of the ADMM inputs was unsafe and backtracking did not help; the plan is
+    /// the cheapest safe (else the least-violating) simple input sequence and its roll-out.
     Fallback,
 }
 
@@ -411,23 +415,21 @@ impl Planner {
         let lin = &su.lin;
         let n = problem.history.n_agents();
 
-        // Checked vehicles and their ellipses.
+        // Checked vehicles: size, last observed position and heading direction from the last
+        // observed motion (used when a predicted step shows too little forward motion).
         let ego_size = problem.sizes[0];
-        let mut checked: Vec<(usize, Ellipse)> = Vec::new();
+        let mut checked: Vec<CheckedVehicle> = Vec::new();
         for i in 1..n {
             let p = problem.history.at(i, T_OBS - 1);
             let d = ((p[0] - su.origin[0]).powi(2) + (p[1] - su.origin[1]).powi(2)).sqrt();
             if d <= s.check_range {
-                checked.push((
-                    i,
-                    Ellipse::new(
-                        ego_size,
-                        problem.sizes[i],
-                        s.ellipse_scale,
-                        s.margin_x,
-                        s.margin_y,
-                    ),
-                ));
+                let q = problem.history.at(i, T_OBS - 2);
+                checked.push(CheckedVehicle {
+                    index: i,
+                    size: problem.sizes[i],
+                    last: [p[0], p[1]],
+                    dir: motion_direction([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
+                });
             }
         }
         if !checked.is_empty() {
@@ -459,7 +461,11 @@ impl Planner {
             origin: su.origin,
             horizon: t,
             checked: &checked,
-            safety_min: s.safety_min,
+            ego_size,
+            ego_dir: vec![[1.0, 0.0]; t],
+            scale: s.ellipse_scale,
+            margins: [s.margin_x, s.margin_y],
+            safety_min: s.safety_min + s.plan_buffer,
         };
 
         // QPs: Hessians fixed for this call.
@@ -519,6 +525,8 @@ impl Planner {
 
         let (mut cur_min_b, mut cur_viol) = safety.eval(predictor, &z)?;
         cur_rgrad.copy_from_slice(&safety.rgrad);
+        // The Z-update's tightened threshold.
+        let zmin = s.safety_min + s.plan_buffer;
         let mut timings = PhaseTimings::default();
         let mut status = PlanStatus::MaxIterations;
         let mut iterations = 0;
@@ -583,7 +591,7 @@ impl Planner {
                 if let Some(hp) = hinv_pin.as_ref() {
                     mat_vec(hp, &grad, &mut dirp);
                 }
-                let safe_now = cur_min_b.is_none_or(|b| b > s.safety_min);
+                let safe_now = cur_min_b.is_none_or(|b| b > zmin);
                 let mut moved = false;
                 if safe_now {
                     let mut tries: [(u8, f64); 3] = [(0, 1.0), (1, 1.0), (2, 1.0 / lip)];
@@ -611,7 +619,7 @@ impl Planner {
                             let g_t = gval(&trial, &mut w);
                             if g_t < g_cur {
                                 let (mb, _) = safety.eval(predictor, &trial)?;
-                                if mb.is_none_or(|b| b > s.safety_min) {
+                                if mb.is_none_or(|b| b > zmin) {
                                     z.copy_from_slice(&trial);
                                     g_cur = g_t;
                                     cur_min_b = mb;
@@ -711,42 +719,79 @@ impl Planner {
             status = PlanStatus::Unsafe;
         }
         // Execution check: the vehicle follows the nonlinear roll-out of (Δ, α), not Z. When
-        // ADMM stopped before F ≈ 0 the two differ; if the roll-out is unsafe, fall back to
-        // the least-violating of a few simple input sequences (the shifted previous plan,
-        // steering back to straight with constant accelerations).
+        // ADMM stopped before F ≈ 0 the two differ, and Z tends to sit on the constraint
+        // boundary, so the roll-out can dip below it. Then (1) backtrack: pull (Δ, α) towards
+        // the nominal (the shifted previous plan) by θ = 3/4, 1/2, 1/4 and take the first safe
+        // roll-out; else (2) fall back to the cheapest safe (else the least-violating) of a few
+        // simple input sequences (the nominal, steering straight with constant
+        // accelerations, and steering towards the lateral goal with those accelerations).
         let mut rollout = vec![State::zeros(); t];
         rollout_clamped(&self.model, &su.z0, &delta, &accel, &mut rollout);
         let (mut rollout_min_b, rviol) = safety.eval(predictor, &rollout)?;
-        if s.rollout_check && !rollout_min_b.is_none_or(|b| b > s.safety_min) {
-            let mut best_viol = rviol;
-            let mut chosen: Option<(Vec<f64>, Vec<f64>, Option<f64>)> = None;
-            let mut cands = vec![(su.nom_delta.clone(), su.nom_accel.clone())];
-            for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
-                let mut d = vec![0.0; t];
+        let is_safe = |b: Option<f64>| b.is_none_or(|b| b > s.safety_min);
+        if s.rollout_check && !is_safe(rollout_min_b) {
+            let mut chosen: Option<Repair> = None;
+            for theta in [0.75, 0.5, 0.25] {
+                let mix = |u: &[f64], nom: &[f64]| -> Vec<f64> {
+                    u.iter()
+                        .zip(nom)
+                        .map(|(u, n)| n + theta * (u - n))
+                        .collect()
+                };
+                let mut d = mix(&delta, &su.nom_delta);
+                let mut a = mix(&accel, &su.nom_accel);
                 crate::qp::repair_box_rate(&mut d, su.dbox);
-                let mut a = vec![a_cmd; t];
                 crate::qp::repair_box_rate(&mut a, su.abox);
-                cands.push((d, a));
-            }
-            for (d, a) in cands {
                 rollout_clamped(&self.model, &su.z0, &d, &a, &mut trial);
-                let (mb, viol) = safety.eval(predictor, &trial)?;
-                if viol < best_viol {
-                    best_viol = viol;
-                    chosen = Some((d, a, mb));
+                let (mb, _) = safety.eval(predictor, &trial)?;
+                if is_safe(mb) {
+                    chosen = Some((d, a, mb, PlanStatus::Backtracked));
+                    break;
                 }
             }
-            if let Some((d, a, mb)) = chosen {
+            if chosen.is_none() {
+                let mut cands = vec![(su.nom_delta.clone(), su.nom_accel.clone())];
+                for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
+                    let mut a = vec![a_cmd; t];
+                    crate::qp::repair_box_rate(&mut a, su.abox);
+                    let mut d = vec![0.0; t];
+                    crate::qp::repair_box_rate(&mut d, su.dbox);
+                    cands.push((d, a.clone()));
+                    let d = steer_towards(&self.model, &su.z0, &a, su.zref[1], su.dbox);
+                    cands.push((d, a));
+                }
+                // (safe, cost or violation) of the best candidate so far.
+                let mut best_key = (false, rviol);
+                for (d, a) in cands {
+                    rollout_clamped(&self.model, &su.z0, &d, &a, &mut trial);
+                    let (mb, viol) = safety.eval(predictor, &trial)?;
+                    let key = if is_safe(mb) {
+                        (true, self.cost(&su, &d, &a, &trial))
+                    } else {
+                        (false, viol)
+                    };
+                    let better = match (key.0, best_key.0) {
+                        (true, false) => true,
+                        (false, true) => false,
+                        _ => key.1 < best_key.1,
+                    };
+                    if better {
+                        best_key = key;
+                        chosen = Some((d, a, mb, PlanStatus::Fallback));
+                    }
+                }
+            }
+            if let Some((d, a, mb, st)) = chosen {
                 delta = d;
                 accel = a;
                 rollout_clamped(&self.model, &su.z0, &delta, &accel, &mut z);
                 cur_min_b = mb;
                 rollout_min_b = mb;
-                status = PlanStatus::Fallback;
+                status = st;
                 lin.residual(&delta, &accel, &z, &mut f);
             }
         }
-        let primal = if status == PlanStatus::Fallback {
+        let primal = if matches!(status, PlanStatus::Fallback | PlanStatus::Backtracked) {
             amax(&f)
         } else {
             primal
@@ -901,6 +946,30 @@ fn rollout_clamped(model: &Bicycle, z0: &State, delta: &[f64], accel: &[f64], ou
     }
 }
 
+/// A repaired input sequence: steering, acceleration, its roll-out's minimum b, the status.
+type Repair = (Vec<f64>, Vec<f64>, Option<f64>, PlanStatus);
+
+/// Steering that turns the vehicle towards the lateral goal `y_goal` (m, same frame as `z0`)
+/// while it follows `accel`: each step aims at the heading ψ* = clamp(0.05·(y_goal − y), ±0.08)
+/// rad and steers to reach it in one step, within the box and rate bounds.
+fn steer_towards(model: &Bicycle, z0: &State, accel: &[f64], y_goal: f64, bx: RateBox) -> Vec<f64> {
+    let mut z = *z0;
+    let mut prev = bx.prev.clamp(bx.lo, bx.hi);
+    let mut out = Vec::with_capacity(accel.len());
+    for a in accel {
+        let psi_goal = (0.05 * (y_goal - z[1])).clamp(-0.08, 0.08);
+        // ψ⁺ − ψ ≈ dt·v·sin β / l_r with β ≈ δ·l_r/(l_f + l_r).
+        let gain = model.dt * z[3].max(1.0) / (model.l_f + model.l_r);
+        let d =
+            ((psi_goal - z[2]) / gain).clamp(bx.lo.max(prev - bx.rate), bx.hi.min(prev + bx.rate));
+        z = model.step(&z, d, *a);
+        z[3] = z[3].max(0.0);
+        out.push(d);
+        prev = d;
+    }
+    out
+}
+
 /// `out = M v` for a flat row-major `[4T, 4T]` matrix and stacked states.
 fn mat_vec(m: &[f64], v: &[State], out: &mut [State]) {
     let n = 4 * v.len();
@@ -928,16 +997,37 @@ fn max_diff(a: &[State], b: &[State]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// Runs the predictor on candidate states and evaluates b_i for every checked vehicle and step.
+/// One vehicle the safety constraint checks.
+struct CheckedVehicle {
+    /// Agent index (≥ 1).
+    index: usize,
+    /// (length, width) (m).
+    size: [f64; 2],
+    /// Last observed position (m).
+    last: [f64; 2],
+    /// (|cos ψ|, |sin ψ|) of its last observed motion.
+    dir: [f64; 2],
+}
+
+/// Runs the predictor on candidate states and evaluates b_i for every checked vehicle and step,
+/// with each ellipse sized by both vehicles' bounding boxes at their headings (the ego's from
+/// the candidate's ψ_k, the other's from its predicted motion).
 struct SafetyEval<'c> {
     cand: Vec<f64>,
     out: Vec<f64>,
-    /// ∂(total violation)/∂(x_k, y_k) at the last evaluated point, prediction frozen.
+    /// ∂(total violation)/∂(x_k, y_k) at the last evaluated point, prediction and ellipse
+    /// sizes frozen.
     rgrad: Vec<[f64; 2]>,
     calls: usize,
     origin: [f64; 2],
     horizon: usize,
-    checked: &'c [(usize, Ellipse)],
+    checked: &'c [CheckedVehicle],
+    ego_size: [f64; 2],
+    /// (|cos ψ_k|, |sin ψ_k|) of the candidate, per step (scratch).
+    ego_dir: Vec<[f64; 2]>,
+    scale: f64,
+    /// (m_x, m_y) (m).
+    margins: [f64; 2],
     safety_min: f64,
 }
 
@@ -957,16 +1047,29 @@ impl SafetyEval<'_> {
             self.cand[2 * k] = zk[0] + self.origin[0];
             self.cand[2 * k + 1] = zk[1] + self.origin[1];
             self.rgrad[k] = [0.0; 2];
+            let (sn, cs) = zk[2].sin_cos();
+            self.ego_dir[k] = [cs.abs(), sn.abs()];
         }
         predictor.predict(&self.cand, &mut self.out)?;
         self.calls += 1;
         let mut min_b = f64::INFINITY;
         let mut viol = 0.0;
-        for &(i, ell) in self.checked {
-            let base = (i - 1) * t * 2;
+        for v in self.checked {
+            let base = (v.index - 1) * t * 2;
+            let mut prev = v.last;
             for k in 0..t {
                 let ego = [self.cand[2 * k], self.cand[2 * k + 1]];
                 let other = [self.out[base + 2 * k], self.out[base + 2 * k + 1]];
+                let ell = Ellipse::oriented(
+                    self.ego_size,
+                    self.ego_dir[k],
+                    v.size,
+                    motion_direction(prev, other, v.dir),
+                    self.scale,
+                    self.margins[0],
+                    self.margins[1],
+                );
+                prev = other;
                 let b = ell.value(ego, other);
                 min_b = min_b.min(b);
                 if b <= self.safety_min {

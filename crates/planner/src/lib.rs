@@ -21,7 +21,10 @@ mod sim;
 pub use admm::{EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem};
 pub use error::{PlannerError, ScenarioError, SettingsError, SimError};
 pub use model::{Bicycle, Jac4, Linearisation, State};
-pub use safety::{Ellipse, OrientedBox};
+pub use safety::{
+    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
+    motion_direction, motion_heading,
+};
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{

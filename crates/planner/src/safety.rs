@@ -1,9 +1,56 @@
 //! The ellipse safety constraint b_i and bounding-box collision tests.
 
-/// Ellipse semi-axes around one other vehicle: a_x = s·(L_ego + L_i)/2 + m_x,
-/// a_y = s·(W_ego + W_i)/2 + m_y (metres). With s = √2 the ellipse circumscribes the
-/// rectangle of centre offsets at which aligned bounding boxes overlap, so b > 0 excludes
-/// overlap; s = 1 is the inscribed ellipse (corners uncovered).
+/// Largest heading (rad) read from a vehicle's motion; steeper motion is clamped to it.
+pub const MAX_MOTION_HEADING: f64 = 0.5;
+/// Smallest forward displacement (m) from which a heading is read off a vehicle's motion;
+/// below it the fallback heading is used.
+pub const MIN_MOTION_DX: f64 = 0.3;
+
+/// Heading (rad) of the motion from `from` to `to` (positions in metres), clamped to
+/// ±[`MAX_MOTION_HEADING`]; `fallback` when the forward displacement is at most
+/// [`MIN_MOTION_DX`] (stopped, or moving backwards through noise).
+#[must_use]
+pub fn motion_heading(from: [f64; 2], to: [f64; 2], fallback: f64) -> f64 {
+    let (dx, dy) = (to[0] - from[0], to[1] - from[1]);
+    if dx > MIN_MOTION_DX {
+        dy.atan2(dx).clamp(-MAX_MOTION_HEADING, MAX_MOTION_HEADING)
+    } else {
+        fallback
+    }
+}
+
+/// (|cos ψ|, |sin ψ|) of [`motion_heading`] without trigonometry (the planner evaluates it
+/// for every checked vehicle at every step of every trial point).
+#[must_use]
+pub fn motion_direction(from: [f64; 2], to: [f64; 2], fallback: [f64; 2]) -> [f64; 2] {
+    let dx = to[0] - from[0];
+    if dx > MIN_MOTION_DX {
+        let dy = (to[1] - from[1]).abs().min(dx * MAX_MOTION_HEADING.tan());
+        let d = dx.hypot(dy);
+        [dx / d, dy / d]
+    } else {
+        fallback
+    }
+}
+
+/// Half extents (along x, along y) in metres of the axis-aligned box that bounds a vehicle of
+/// `size` = (length, width) (m) whose heading ψ has `dir` = (|cos ψ|, |sin ψ|).
+#[must_use]
+pub fn bounding_half_extents(size: [f64; 2], dir: [f64; 2]) -> [f64; 2] {
+    [
+        0.5 * (size[0] * dir[0] + size[1] * dir[1]),
+        0.5 * (size[0] * dir[1] + size[1] * dir[0]),
+    ]
+}
+
+/// Ellipse semi-axes around one other vehicle: a_x = s·(e_x,ego + e_x,i) + m_x,
+/// a_y = s·(e_y,ego + e_y,i) + m_y (metres), where (e_x, e_y) are the half extents of the
+/// axis-aligned box bounding each vehicle at its heading ([`bounding_half_extents`]; at
+/// heading 0 they are the half length and half width). With s = √2 the ellipse circumscribes
+/// the rectangle of centre offsets at which those bounding boxes overlap, so b > 0 excludes
+/// overlap of the real (rotated) vehicles; s = 1 is the inscribed ellipse (corners
+/// uncovered). Headings matter: a 14.6 m truck turned by 0.1 rad sweeps 0.73 m further
+/// sideways than its width.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ellipse {
     /// Longitudinal semi-axis (m).
@@ -14,13 +61,55 @@ pub struct Ellipse {
 
 impl Ellipse {
     /// The ellipse for an ego of size `ego` = (length, width) and another vehicle of size
-    /// `other`, with scale `scale` (s above) and margins `m_x`, `m_y` (metres).
+    /// `other`, both aligned with the road (heading 0), with scale `scale` (s above) and
+    /// margins `m_x`, `m_y` (metres).
     #[must_use]
     pub fn new(ego: [f64; 2], other: [f64; 2], scale: f64, m_x: f64, m_y: f64) -> Self {
+        Self::oriented(ego, [1.0, 0.0], other, [1.0, 0.0], scale, m_x, m_y)
+    }
+
+    /// The ellipse for an ego of size `ego` = (length, width) (m) with heading direction
+    /// `ego_dir` = (|cos ψ|, |sin ψ|) and another vehicle of size `other` with heading
+    /// direction `other_dir`, scale `scale` and margins `m_x`, `m_y` (metres).
+    #[must_use]
+    pub fn oriented(
+        ego: [f64; 2],
+        ego_dir: [f64; 2],
+        other: [f64; 2],
+        other_dir: [f64; 2],
+        scale: f64,
+        m_x: f64,
+        m_y: f64,
+    ) -> Self {
+        let e = bounding_half_extents(ego, ego_dir);
+        let o = bounding_half_extents(other, other_dir);
         Self {
-            a_x: scale * 0.5 * (ego[0] + other[0]) + m_x,
-            a_y: scale * 0.5 * (ego[1] + other[1]) + m_y,
+            a_x: scale * (e[0] + o[0]) + m_x,
+            a_y: scale * (e[1] + o[1]) + m_y,
         }
+    }
+
+    /// [`Ellipse::oriented`] with headings in radians.
+    #[must_use]
+    pub fn with_headings(
+        ego: [f64; 2],
+        ego_heading: f64,
+        other: [f64; 2],
+        other_heading: f64,
+        scale: f64,
+        m_x: f64,
+        m_y: f64,
+    ) -> Self {
+        let dir = |h: f64| [h.cos().abs(), h.sin().abs()];
+        Self::oriented(
+            ego,
+            dir(ego_heading),
+            other,
+            dir(other_heading),
+            scale,
+            m_x,
+            m_y,
+        )
     }
 
     /// b = ((x − x̂)/a_x)² + ((y − ŷ)/a_y)² − 1 for an ego at `ego` and the other vehicle
@@ -130,5 +219,69 @@ mod tests {
         assert!(a.overlaps(&b));
         b.y = 3.1;
         assert!(!a.overlaps(&b));
+    }
+
+    #[test]
+    fn a_turned_truck_needs_the_oriented_ellipse() {
+        // The failure this guards against: a 14.6 m truck at heading −0.109 rad whose rear
+        // swings 0.8 m sideways into a car beside it while the road-aligned ellipse of the
+        // centres says b > 0.
+        let (truck, car) = ([14.6304, 2.5908], [3.6576, 1.524]);
+        let ego = OrientedBox {
+            x: 241.385,
+            y: 1.340,
+            heading: -0.1086,
+            length: truck[0],
+            width: truck[1],
+        };
+        let other = OrientedBox {
+            x: 232.598,
+            y: 3.973,
+            heading: -0.0002,
+            length: car[0],
+            width: car[1],
+        };
+        assert!(ego.overlaps(&other));
+        let s2 = std::f64::consts::SQRT_2;
+        let aligned = Ellipse::new(truck, car, s2, 1.5, 0.3);
+        assert!(aligned.value([ego.x, ego.y], [other.x, other.y]) > 0.0);
+        let turned = Ellipse::with_headings(truck, ego.heading, car, other.heading, s2, 1.5, 0.3);
+        assert!(turned.value([ego.x, ego.y], [other.x, other.y]) < 0.0);
+        // The trigonometry-free direction agrees with the heading.
+        let d = motion_direction([0.0, 0.0], [4.0, -0.3], [1.0, 0.0]);
+        let h = motion_heading([0.0, 0.0], [4.0, -0.3], 0.0);
+        assert!((d[0] - h.cos().abs()).abs() < 1e-12 && (d[1] - h.sin().abs()).abs() < 1e-12);
+        // Clamped the same way.
+        let d = motion_direction([0.0, 0.0], [1.0, 3.0], [1.0, 0.0]);
+        let h = motion_heading([0.0, 0.0], [1.0, 3.0], 0.0);
+        assert!((h - MAX_MOTION_HEADING).abs() < 1e-12);
+        assert!((d[0] - h.cos()).abs() < 1e-12 && (d[1] - h.sin()).abs() < 1e-12);
+        // Too little forward motion: the fallback.
+        assert_eq!(
+            motion_direction([0.0, 0.0], [0.1, 0.5], [0.6, 0.8]),
+            [0.6, 0.8]
+        );
+        assert_eq!(motion_heading([0.0, 0.0], [0.1, 0.5], 0.25), 0.25);
+    }
+
+    proptest::proptest! {
+        /// With s = √2 and non-negative margins, b > 0 excludes overlap of the rotated boxes
+        /// (independent truth: the separating-axis test).
+        #[test]
+        fn positive_b_excludes_overlap(
+            l0 in 2.0f64..20.0, w0 in 1.0f64..3.0, h0 in -0.6f64..0.6,
+            l1 in 2.0f64..20.0, w1 in 1.0f64..3.0, h1 in -0.6f64..0.6,
+            dx in -25.0f64..25.0, dy in -6.0f64..6.0,
+            mx in 0.0f64..3.0, my in 0.0f64..1.0,
+        ) {
+            let e = Ellipse::with_headings(
+                [l0, w0], h0, [l1, w1], h1, std::f64::consts::SQRT_2, mx, my,
+            );
+            let a = OrientedBox { x: 0.0, y: 0.0, heading: h0, length: l0, width: w0 };
+            let b = OrientedBox { x: dx, y: dy, heading: h1, length: l1, width: w1 };
+            if e.value([0.0, 0.0], [dx, dy]) > 0.0 {
+                proptest::prop_assert!(!a.overlaps(&b));
+            }
+        }
     }
 }

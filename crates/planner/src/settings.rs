@@ -70,6 +70,11 @@ pub struct PlannerSettings {
     /// A point is safe when every checked b_i ≥ this value (≥ 0; 0 means b_i > 0 strictly
     /// up to rounding).
     pub safety_min: f64,
+    /// Constraint tightening (≥ 0, units of b): the Z-update accepts only states with every
+    /// b_i > safety_min + plan_buffer, while the executed roll-out must only keep
+    /// b_i > safety_min. Z otherwise settles on the constraint boundary and the roll-out of
+    /// the inputs, which deviates from Z by the primal residual, dips below it.
+    pub plan_buffer: f64,
 
     /// Maximum ADMM iterations per MPC call.
     pub max_iter: usize,
@@ -125,6 +130,7 @@ impl Default for PlannerSettings {
             margin_y: 0.3,
             check_range: 60.0,
             safety_min: 0.0,
+            plan_buffer: 0.0,
             max_iter: 30,
             eps_primal: 1e-2,
             eps_change: 1e-2,
@@ -266,6 +272,12 @@ impl PlannerSettings {
             "safety_min",
             self.safety_min,
             self.safety_min >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "plan_buffer",
+            self.plan_buffer,
+            self.plan_buffer >= 0.0,
             nonneg,
         )?;
         check(

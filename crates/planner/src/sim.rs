@@ -11,10 +11,10 @@ use nudge_predictor::{History, Predictor, PredictorError, T_OBS};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::admm::{EgoState, Plan, Planner, PlanningProblem};
+use crate::admm::{EgoState, Plan, PlanStatus, Planner, PlanningProblem};
 use crate::error::{PlannerError, SimError};
 use crate::model::State;
-use crate::safety::{Ellipse, OrientedBox};
+use crate::safety::{Ellipse, OrientedBox, motion_heading};
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
@@ -44,6 +44,13 @@ pub struct SimConfig {
     pub settle_steps: usize,
     /// How the others move.
     pub world: WorldMode,
+    /// Lane-change abort: after this many consecutive planning steps without a safe
+    /// lane-change plan (status `Fallback`, `Unsafe` or a Clarabel failure) while the ego is not
+    /// yet wholly inside the target lane, the ego aims back at its own lane's centre instead
+    /// of idling across the lane boundary. 0 disables aborts.
+    pub abort_after: usize,
+    /// Steps an aborted ego keeps aiming at its own lane before it tries the lane change again.
+    pub abort_hold: usize,
 }
 
 impl Default for SimConfig {
@@ -54,6 +61,8 @@ impl Default for SimConfig {
             settle_psi: 0.03,
             settle_steps: 2,
             world: WorldMode::Predictor,
+            abort_after: 4,
+            abort_hold: 3,
         }
     }
 }
@@ -91,6 +100,9 @@ pub struct StepRecord {
     pub ego: [f64; 4],
     /// The nearest other vehicle after the step: (agent index, x − x_ego, y − y_ego) (m).
     pub nearest: Option<(usize, f64, f64)>,
+    /// Lateral position the planner aimed at this step (m): the target lane's centre, or the
+    /// ego's own lane's centre while a lane-change abort holds.
+    pub y_goal: f64,
 }
 
 /// One closed-loop run.
@@ -116,6 +128,8 @@ pub struct RunRecord {
     pub steps_to_target: Option<usize>,
     /// Any step with a bounding-box collision.
     pub collision: bool,
+    /// Lane-change aborts ([`SimConfig::abort_after`]).
+    pub aborts: usize,
     /// Per-step records.
     pub steps: Vec<StepRecord>,
 }
@@ -154,14 +168,7 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
 /// they move forward (clamped to ±0.5 rad: highway traffic does not turn across the road),
 /// otherwise the scenario's heading at the start.
 fn heading_of(hist: &[[f64; 2]], fallback: f64) -> f64 {
-    let a = hist[T_OBS - 2];
-    let b = hist[T_OBS - 1];
-    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-    if dx > 0.3 {
-        dy.atan2(dx).clamp(-0.5, 0.5)
-    } else {
-        fallback
-    }
+    motion_heading(hist[T_OBS - 2], hist[T_OBS - 1], fallback)
 }
 
 /// Runs one closed-loop lane change.
@@ -222,8 +229,14 @@ pub fn simulate(
         success: false,
         steps_to_target: None,
         collision: false,
+        aborts: 0,
         steps: Vec::new(),
     };
+    // Lane-change abort state: the ego's own lane, how far from the target centre the ego is
+    // wholly inside the target lane, consecutive steps without a safe plan, hold steps left.
+    let y_own = sc.lane_centres[sc.ego_lane];
+    let inside = (0.5 * (y_target - y_own).abs() - 0.5 * sc.size[0][1]).max(cfg.settle_y);
+    let (mut unsafe_steps, mut hold) = (0_usize, 0_usize);
     let mut settled = 0;
     let mut world_out = vec![0.0; (n.max(2) - 1) * t_plan * 2];
     let mut world_cand = vec![0.0; t_plan * 2];
@@ -241,6 +254,7 @@ pub fn simulate(
             scene: sc.name.clone(),
             source,
         })?;
+        let y_goal = if hold > 0 { y_own } else { y_target };
         let problem = PlanningProblem {
             ego: EgoState {
                 x: ego[0],
@@ -252,7 +266,7 @@ pub fn simulate(
             last_accel,
             history: &history,
             sizes: &sc.size,
-            y_target,
+            y_target: y_goal,
             v_ref,
             road: sc.road(),
         };
@@ -300,6 +314,23 @@ pub fn simulate(
                 }
             };
         prev_plan = Some((delta.clone(), accel.clone(), planned.clone()));
+        // Abort a lane change that keeps finding no safe plan before the ego is inside the
+        // target lane; retry after the hold.
+        let no_safe_plan = plan
+            .as_ref()
+            .is_none_or(|p| matches!(p.status, PlanStatus::Fallback | PlanStatus::Unsafe));
+        if hold > 0 {
+            hold -= 1;
+        } else if cfg.abort_after > 0 && no_safe_plan && (ego[1] - y_target).abs() > inside {
+            unsafe_steps += 1;
+            if unsafe_steps >= cfg.abort_after {
+                hold = cfg.abort_hold;
+                unsafe_steps = 0;
+                rec.aborts += 1;
+            }
+        } else {
+            unsafe_steps = 0;
+        }
         // Apply the first input to the nonlinear model.
         let mut next = planner.model().step(&ego, delta[0], accel[0]);
         next[3] = next[3].max(0.0);
@@ -370,9 +401,11 @@ pub fn simulate(
             }
             let p = history.at(i, T_OBS - 1);
             if (p[0] - problem.ego.x).hypot(p[1] - problem.ego.y) <= settings.check_range {
-                let ell = Ellipse::new(
+                let ell = Ellipse::with_headings(
                     sc.size[0],
+                    ego[2],
                     sc.size[i],
+                    other.heading,
                     settings.ellipse_scale,
                     settings.margin_x,
                     settings.margin_y,
@@ -400,6 +433,7 @@ pub fn simulate(
             accel: accel[0],
             ego: [ego[0], ego[1], ego[2], ego[3]],
             nearest,
+            y_goal,
         });
         if (ego[1] - y_target).abs() <= cfg.settle_y && ego[2].abs() <= cfg.settle_psi {
             settled += 1;

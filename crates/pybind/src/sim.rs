@@ -68,13 +68,14 @@ fn i64s(v: impl IntoIterator<Item = usize>) -> Vec<i64> {
 /// `predictor`: `"constant_velocity"` or a teacher/student `.safetensors` path (the Python
 /// wrapper `nudge.simulate` also accepts `"teacher"` / `"student"`). `world`: `"log_replay"`
 /// (others follow the logged future) or `"predictor"` (others follow `world_predictor`,
-/// default: the planning predictor). `on_error`: `"raise"` (first failing run raises) or
+/// default: the planning predictor). `abort_after` / `abort_hold`: lane-change aborts (see
+/// `SimConfig`; `abort_after = 0` disables them). `on_error`: `"raise"` (first failing run raises) or
 /// `"skip"` (the run's `error` column holds the message).
 ///
 /// Returns `{"runs": {...}, "steps": {...}}` of numpy columns (plus `"examples"` when
 /// `record`): see the `.pyi` stub for every column.
 #[pyfunction]
-#[pyo3(signature = (scene_paths, predictor, *, world = "log_replay", world_predictor = None, seed = 0, scene_seeds = None, runs = 1, threads = None, settings = None, max_steps = 30, record = false, on_error = "raise"))]
+#[pyo3(signature = (scene_paths, predictor, *, world = "log_replay", world_predictor = None, seed = 0, scene_seeds = None, runs = 1, threads = None, settings = None, max_steps = 30, abort_after = 4, abort_hold = 3, record = false, on_error = "raise"))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate<'py>(
     py: Python<'py>,
@@ -88,6 +89,8 @@ pub fn simulate<'py>(
     threads: Option<usize>,
     settings: Option<Bound<'_, PySettings>>,
     max_steps: usize,
+    abort_after: usize,
+    abort_hold: usize,
     record: bool,
     on_error: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -118,6 +121,11 @@ pub fn simulate<'py>(
             "max_steps: must be in 1..={MAX_STEPS}, got {max_steps}"
         )));
     }
+    if abort_after > MAX_STEPS || abort_hold > MAX_STEPS {
+        return Err(InputError::new_err(format!(
+            "abort_after / abort_hold: must be at most {MAX_STEPS}, got {abort_after} / {abort_hold}"
+        )));
+    }
     if let Some(t) = threads
         && (t == 0 || t > MAX_THREADS)
     {
@@ -128,6 +136,8 @@ pub fn simulate<'py>(
     let cfg = SimConfig {
         max_steps,
         world: world_mode,
+        abort_after,
+        abort_hold,
         ..SimConfig::default()
     };
     let horizon = settings.horizon;
@@ -236,6 +246,8 @@ fn build_output<'py>(
     let mut s_ego: Vec<f64> = Vec::new();
     let mut s_nz = Vec::new();
     let mut s_zs = Vec::new();
+    let mut s_goal = Vec::new();
+    let mut aborts = Vec::new();
     // Examples.
     let mut ex = Records::default();
     let mut ctx_run: Vec<usize> = Vec::new();
@@ -256,6 +268,7 @@ fn build_output<'py>(
                         .map_or(-1, |v| i64::try_from(v).unwrap_or(-1)),
                 );
                 collision.push(rec.collision);
+                aborts.push(rec.aborts);
                 n_steps.push(rec.steps.len());
                 error.push(None);
                 for st in &rec.steps {
@@ -274,6 +287,7 @@ fn build_output<'py>(
                     s_ego.extend_from_slice(&st.ego);
                     s_nz.push(st.z_updates_s.len());
                     s_zs.push(st.z_updates_s.iter().sum::<f64>());
+                    s_goal.push(st.y_goal);
                 }
                 if let Some(mut recs) = recs {
                     let base = ex.context_agents.len();
@@ -296,6 +310,7 @@ fn build_output<'py>(
                 success.push(false);
                 steps_to_target.push(-1);
                 collision.push(false);
+                aborts.push(0);
                 n_steps.push(0);
                 error.push(Some(e.to_string()));
             }
@@ -313,6 +328,7 @@ fn build_output<'py>(
     runs.set_item("success", success.into_pyarray(py))?;
     runs.set_item("steps_to_target", steps_to_target.into_pyarray(py))?;
     runs.set_item("collision", collision.into_pyarray(py))?;
+    runs.set_item("aborts", i64s(aborts).into_pyarray(py))?;
     runs.set_item("n_steps", i64s(n_steps).into_pyarray(py))?;
     runs.set_item("error", error)?;
     let steps = PyDict::new(py);
@@ -338,6 +354,7 @@ fn build_output<'py>(
     )?;
     steps.set_item("z_updates", i64s(s_nz).into_pyarray(py))?;
     steps.set_item("z_s", s_zs.into_pyarray(py))?;
+    steps.set_item("y_goal", s_goal.into_pyarray(py))?;
     let out = PyDict::new(py);
     out.set_item("runs", runs)?;
     out.set_item("steps", steps)?;

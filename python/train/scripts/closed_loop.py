@@ -69,6 +69,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--settings", type=Path, default=None,
+                    help="planner settings JSON (missing fields take the defaults)")
+    ap.add_argument("--abort-after", type=int, default=4,
+                    help="lane-change abort after this many steps without a safe plan (0: never)")
+    ap.add_argument("--abort-hold", type=int, default=3)
     ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -82,11 +87,12 @@ def main(argv: list[str] | None = None) -> int:
     chosen = [paths[i] for i in pick]
     scene_seeds = rng.integers(0, 2**31, size=len(chosen)).tolist()
     print(f"{len(chosen)} scenes from {args.scenes} (seed {args.seed}), world = shipped teacher")
+    settings = nudge.PlannerSettings.from_json(args.settings.read_text()) if args.settings else None
     summaries: dict[str, dict] = {}
     for pred in args.predictors:
         t0 = time.perf_counter()
         res = nudge.simulate(chosen, pred, world="predictor", world_predictor="teacher", scene_seeds=scene_seeds,
-                             runs=1, threads=args.threads, on_error="skip")
+                             settings=settings, abort_after=args.abort_after, abort_hold=args.abort_hold, runs=1, threads=args.threads, on_error="skip")
         s = summarise(res, nudge.DT)
         s["wall_s"] = time.perf_counter() - t0
         summaries[pred] = s
