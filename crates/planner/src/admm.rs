@@ -453,6 +453,8 @@ impl Planner {
         let mut z_prev = vec![State::zeros(); t];
         let mut q = vec![0.0; t];
         let mut sol = vec![0.0; t];
+        // The Z-update's tightened threshold.
+        let zmin = s.safety_min + s.plan_buffer;
         let mut safety = SafetyEval {
             cand: vec![0.0; t * 2],
             out: vec![0.0; (n - 1) * t * 2],
@@ -465,7 +467,7 @@ impl Planner {
             ego_dir: vec![[1.0, 0.0]; t],
             scale: s.ellipse_scale,
             margins: [s.margin_x, s.margin_y],
-            safety_min: s.safety_min + s.plan_buffer,
+            safety_min: zmin,
         };
 
         // QPs: Hessians fixed for this call.
@@ -525,8 +527,6 @@ impl Planner {
 
         let (mut cur_min_b, mut cur_viol) = safety.eval(predictor, &z)?;
         cur_rgrad.copy_from_slice(&safety.rgrad);
-        // The Z-update's tightened threshold.
-        let zmin = s.safety_min + s.plan_buffer;
         let mut timings = PhaseTimings::default();
         let mut status = PlanStatus::MaxIterations;
         let mut iterations = 0;
@@ -751,12 +751,12 @@ impl Planner {
             }
             if chosen.is_none() {
                 let mut cands = vec![(su.nom_delta.clone(), su.nom_accel.clone())];
+                let mut straight = vec![0.0; t];
+                crate::qp::repair_box_rate(&mut straight, su.dbox);
                 for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
                     let mut a = vec![a_cmd; t];
                     crate::qp::repair_box_rate(&mut a, su.abox);
-                    let mut d = vec![0.0; t];
-                    crate::qp::repair_box_rate(&mut d, su.dbox);
-                    cands.push((d, a.clone()));
+                    cands.push((straight.clone(), a.clone()));
                     let d = steer_towards(&self.model, &su.z0, &a, su.zref[1], su.dbox);
                     cands.push((d, a));
                 }
