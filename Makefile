@@ -7,6 +7,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
 STAMP := $(VENV)/.nudge-stamp
+TRAIN := $(VENV)/bin/nudge-train
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
@@ -62,33 +63,33 @@ bench: venv
 
 bench-planner: venv
 	RAYON_NUM_THREADS=1 $(CARGO) bench --bench planner -- --warm-up-time 1 --measurement-time 4
-	$(PY) python/train/scripts/planner_bench_table.py
+	$(TRAIN) bench planner
 
 bench-table: venv
-	$(PY) python/train/scripts/bench_torch.py --markdown docs/results/inference.md
+	$(TRAIN) bench inference --markdown docs/results/inference.md
 
 # ---- data, models, demo ---------------------------------------------------------------------
 goldens: venv
-	$(PY) python/train/scripts/make_goldens.py
+	$(TRAIN) goldens
 
 data: venv
-	$(VENV)/bin/nudge-train data build --data-root $(DATA)
+	$(TRAIN) data build --data-root $(DATA)
 
 # Teacher experiments (Table I): trains every python/train/configs/teacher_*.toml (resumable),
 # evaluates on the test split, writes docs/results/teacher.md. EXPORT=1 also exports the chosen
 # teacher to assets/models/teacher.safetensors (which invalidates the distillation set).
 teacher: venv
 	test -f data/processed/manifest.json || $(MAKE) data
-	$(PY) -m nudge_train.teacher_experiments $(if $(EXPORT),,--no-export)
+	$(TRAIN) teacher $(if $(EXPORT),,--no-export)
 
 # Distillation set (the planner run with the shipped teacher; resumable) and the student.
 DISTILL_SIZE ?= train=48,val=8,test=8
 distill: develop
 	test -f data/processed/manifest.json || $(MAKE) data
-	$(PY) -m nudge_train.distill --size $(DISTILL_SIZE)
+	$(TRAIN) distill --size $(DISTILL_SIZE)
 
 student: distill
-	$(PY) -m nudge_train.student_experiments
+	$(TRAIN) student
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes, planned with the
 # shipped distilled student (PREDICTOR=teacher|constant-velocity for the others), the trained
@@ -98,7 +99,7 @@ PREDICTOR ?= student
 demo: venv build
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
 		--world teacher --seed 0 --runs 10 --threads 2 --out out/demo --verbose-run
-	$(PY) python/train/scripts/plot_runs.py out/demo --scenes assets/scenes --png out/demo/runs.png
+	$(TRAIN) figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
 
 ci: lint test
 
