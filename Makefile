@@ -7,10 +7,15 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
 STAMP := $(VENV)/.nudge-stamp
+TRAIN := $(VENV)/bin/nudge-train
+# The demo's light environment: numpy + matplotlib + the extension (no torch, no ray).
+DEMO_VENV ?= .venv-demo
+DEMO_STAMP := $(DEMO_VENV)/.nudge-stamp
+DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv develop build test test-rust test-python lint fmt bench bench-planner bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build test test-rust test-python lint fmt bench bench-planner bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -29,6 +34,20 @@ $(STAMP): python/train/pyproject.toml
 	touch $(STAMP)
 
 venv: $(STAMP)
+
+$(DEMO_STAMP): python/train/pyproject.toml
+	test -x $(DEMO_VENV)/bin/python || $(PYTHON) -m venv $(DEMO_VENV)
+	$(DEMO_VENV)/bin/pip install --disable-pip-version-check -q --upgrade pip
+	$(DEMO_VENV)/bin/pip install --disable-pip-version-check -q -e "python/train[demo]"
+	touch $(DEMO_STAMP)
+
+# The light environment with the extension nudge._native built into it (rebuilt when the Rust
+# sources change).
+$(DEMO_EXT): $(DEMO_STAMP) Cargo.lock $(shell find crates src -name '*.rs' -o -name Cargo.toml)
+	VIRTUAL_ENV=$(abspath $(DEMO_VENV)) $(DEMO_VENV)/bin/maturin develop --release -q
+	touch $(DEMO_EXT)
+
+venv-demo: $(DEMO_EXT)
 
 # Builds the Rust extension nudge._native into the venv (editable install of python/nudge).
 develop: $(STAMP)
@@ -62,46 +81,46 @@ bench: venv
 
 bench-planner: venv
 	RAYON_NUM_THREADS=1 $(CARGO) bench --bench planner -- --warm-up-time 1 --measurement-time 4
-	$(PY) python/train/scripts/planner_bench_table.py
+	$(TRAIN) bench planner
 
 bench-table: venv
-	$(PY) python/train/scripts/bench_torch.py --markdown docs/results/inference.md
+	$(TRAIN) bench inference --markdown docs/results/inference.md
 
 # ---- data, models, demo ---------------------------------------------------------------------
 goldens: venv
-	$(PY) python/train/scripts/make_goldens.py
+	$(TRAIN) goldens
 
 data: venv
-	$(VENV)/bin/nudge-train data build --data-root $(DATA)
+	$(TRAIN) data build --data-root $(DATA)
 
 # Teacher experiments (Table I): trains every python/train/configs/teacher_*.toml (resumable),
 # evaluates on the test split, writes docs/results/teacher.md. EXPORT=1 also exports the chosen
 # teacher to assets/models/teacher.safetensors (which invalidates the distillation set).
 teacher: venv
 	test -f data/processed/manifest.json || $(MAKE) data
-	$(PY) -m nudge_train.teacher_experiments $(if $(EXPORT),,--no-export)
+	$(TRAIN) teacher $(if $(EXPORT),,--no-export)
 
 # Distillation set (the planner run with the shipped teacher; resumable) and the student.
 DISTILL_SIZE ?= train=48,val=8,test=8
 distill: develop
 	test -f data/processed/manifest.json || $(MAKE) data
-	$(PY) -m nudge_train.distill --size $(DISTILL_SIZE)
+	$(TRAIN) distill --size $(DISTILL_SIZE)
 
 student: distill
-	$(PY) -m nudge_train.student_experiments
+	$(TRAIN) student
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes, planned with the
 # shipped distilled student (PREDICTOR=teacher|constant-velocity for the others), the trained
 # teacher moving the other vehicles; per-step table of one run, summary over all, records
-# (CSV/JSON) and a picture in out/demo/.
+# (CSV/JSON) and a picture in out/demo/, drawn in the light environment $(DEMO_VENV).
 PREDICTOR ?= student
-demo: venv build
+demo: venv-demo build
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
 		--world teacher --seed 0 --runs 10 --threads 2 --out out/demo --verbose-run
-	$(PY) python/train/scripts/plot_runs.py out/demo --scenes assets/scenes --png out/demo/runs.png
+	$(DEMO_VENV)/bin/nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
 
 ci: lint test
 
 clean:
 	$(CARGO) clean
-	rm -rf $(VENV)
+	rm -rf $(VENV) $(DEMO_VENV)

@@ -1,96 +1,415 @@
-"""`nudge-train` command line: `nudge-train data build|report|scenes ...`.
+"""``nudge-train``: the one command of the training package.
 
-Other subcommand groups (training) may be added next to `data`.
+    nudge-train data build|report|scenes   NGSIM pipeline: windows, dataset report, planner scenes
+    nudge-train train --config FILE        train one configuration (teacher or student)
+    nudge-train teacher                    the teacher experiments (Table I), docs/results/teacher.md
+    nudge-train distill                    the distillation set (planner + teacher), data/distill
+    nudge-train student                    distil, evaluate and export the student
+    nudge-train closed-loop                closed-loop comparison of planning predictors
+    nudge-train bench inference|planner|python   benchmark tables
+    nudge-train goldens [--check]          golden files of the Rust predictor tests
+    nudge-train figures runs|curves        figures of closed-loop runs and training curves
+
+Default paths come from :mod:`nudge_train.paths` (``NUDGE_REPO``, ``NUDGE_ASSETS``,
+``NUDGE_NGSIM``). This module imports only the standard library and the light configuration
+modules: each subcommand imports what it needs when it runs, so ``--help`` is instant and
+``figures`` works without torch.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[3]
-DEFAULT_DATA = REPO.parent / "shared" / "data" / "ngsim"
-DEFAULT_OUT = REPO / "data" / "processed"
+from nudge_train import paths
+from nudge_train.constants import BENCH_NS, SPLITS
+
+__all__ = ["build_parser", "main"]
+
+Handler = Callable[[argparse.Namespace], int]
 
 
-def _data_parser(sub: argparse._SubParsersAction) -> None:
-    data = sub.add_parser("data", help="NGSIM data pipeline")
-    dsub = data.add_subparsers(dest="data_cmd", required=True)
+class _Formatter(argparse.HelpFormatter):
+    """Help with every option's default, where it has one."""
 
-    b = dsub.add_parser("build", help="build training windows (safetensors shards + manifest)")
-    b.add_argument("--data-root", type=Path, default=DEFAULT_DATA)
-    b.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if action.option_strings and default is not None and default is not False and default != [] \
+                and default is not argparse.SUPPRESS:
+            text += " (default: %(default)s)"
+        return text
+
+
+def _command(sub: argparse._SubParsersAction, name: str, help_text: str, run: Handler) -> argparse.ArgumentParser:
+    p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=_Formatter)
+    p.set_defaults(run=run)
+    return p
+
+
+# ---- data -------------------------------------------------------------------------------------
+def _add_data(sub: argparse._SubParsersAction) -> None:
+    data = sub.add_parser("data", help="NGSIM data pipeline", description="NGSIM data pipeline")
+    dsub = data.add_subparsers(dest="data_cmd", required=True, metavar="{build,report,scenes}")
+
+    b = _command(dsub, "build", "build training windows (safetensors shards + manifest)", _run_data_build)
+    b.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
+    b.add_argument("--out", type=Path, default=paths.processed(), help="output folder")
     b.add_argument("--raw", type=Path, action="append", default=[],
                    help="extra official raw NGSIM file(s) (18- or 25-column, feet) to include")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     b.add_argument("--phases", type=str, default="0,1,2", help="0.1 s phase offsets, e.g. 0 or 0,1,2")
     b.add_argument("--no-i80", action="store_true", help="leave out the Coifman & Li I-80 set")
-    b.add_argument("--no-progress", action="store_true")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    r = dsub.add_parser("report", help="write docs/data.md and docs/figures/data_*.png from a build")
-    r.add_argument("--processed", type=Path, default=DEFAULT_OUT)
-    r.add_argument("--doc", type=Path, default=REPO / "docs" / "data.md")
-    r.add_argument("--figures", type=Path, default=REPO / "docs" / "figures")
+    r = _command(dsub, "report", "write docs/data.md and docs/figures/data_*.png from a build", _run_data_report)
+    r.add_argument("--processed", type=Path, default=paths.processed(), help="a processed build")
+    r.add_argument("--doc", type=Path, default=paths.docs() / "data.md", help="the report")
+    r.add_argument("--figures", type=Path, default=paths.figures(), help="folder of the report's figures")
 
-    s = dsub.add_parser("scenes", help="write planner scenarios (nudge.scenario/1) of a split")
-    s.add_argument("--data-root", type=Path, default=DEFAULT_DATA)
-    s.add_argument("--split", choices=("train", "val", "test"), default="test")
+    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/1) of a split", _run_data_scenes)
+    s.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
+    s.add_argument("--split", choices=SPLITS, default="test", help="the split written")
     s.add_argument("--out", type=Path, default=None,
                    help="output folder (default data/processed/scenes/<split>, or assets/scenes with --ship)")
     s.add_argument("--ship", action="store_true", help="write the small shipped selection (8-12 scenarios)")
     s.add_argument("--range", type=float, default=60.0, help="neighbour range (m)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--no-progress", action="store_true")
+    s.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _run_data_build(a: argparse.Namespace) -> int:
+    from nudge_train.data.build import BuildConfig, build
+
+    phases = tuple(int(p) for p in a.phases.split(",") if p.strip())
+    manifest = build(BuildConfig(data_root=a.data_root, out=a.out, raw=tuple(a.raw), seed=a.seed, phases=phases,
+                                 include_i80=not a.no_i80), progress=not a.no_progress)
+    print(f"wrote {a.out / 'manifest.json'}: {manifest['counts']['windows']} windows")
+    return 0
+
+
+def _run_data_report(a: argparse.Namespace) -> int:
+    from nudge_train.data.report import write_report
+
+    write_report(a.processed, a.doc, a.figures)
+    print(f"wrote {a.doc}")
+    return 0
+
+
+def _run_data_scenes(a: argparse.Namespace) -> int:
+    from nudge_train.data.scene_cmd import ScenesConfig, write_scenes
+    from nudge_train.data.splits import SplitConfig
+
+    out = a.out or (paths.shipped_scenes() if a.ship else paths.scenes(a.split))
+    written, drops = write_scenes(a.data_root, out, ScenesConfig(split=a.split, ship=a.ship, dense_range_m=a.range),
+                                  SplitConfig(seed=a.seed), progress=not a.no_progress)
+    print(f"wrote {len(written)} scenarios to {out}")
+    for k, v in sorted(drops.items()):
+        print(f"  dropped candidates ({k}): {v}")
+    return 0
+
+
+# ---- training and experiments ----------------------------------------------------------------
+def _add_train(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "train", "train one configuration (TOML with [model] and [train] tables)", _run_train)
+    p.add_argument("--config", type=Path, required=True, help="training config (TOML)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT_DIR/last.pt")
+    p.add_argument("--out-dir", type=str, default=None, help="override train.out_dir")
+    p.add_argument("--data", type=str, default=None, help="override train.data")
+    p.add_argument("--epochs", type=int, default=None, help="override train.epochs")
+
+
+def _run_train(a: argparse.Namespace) -> int:
+    from nudge_train.training.loop import run
+
+    return run(config=a.config, resume=a.resume, out_dir=a.out_dir, data=a.data, epochs=a.epochs)
+
+
+def _add_teacher(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "teacher", "teacher experiments (Table I): train, select, evaluate, report, export",
+                 _run_teacher)
+    p.add_argument("--data", default=str(paths.processed()), help="processed build")
+    p.add_argument("--runs", default=str(paths.runs()), help="one training run per config below it")
+    p.add_argument("--epochs", type=int, default=None, help="override every config's epoch count")
+    p.add_argument("--only", nargs="*", default=None, help="config names (e.g. teacher_k1_adv0)")
+    p.add_argument("--report", default=str(paths.results() / "teacher.md"), help="the report (markdown)")
+    p.add_argument("--export", default=str(paths.model_weights("teacher")), help="where the chosen teacher is exported")
+    p.add_argument("--no-export", action="store_true", help="do not export")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+
+
+def _run_teacher(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.teacher import run
+
+    return run(data=a.data, runs_dir=a.runs, epochs=a.epochs, only=a.only, report=a.report,
+               export=None if a.no_export else a.export, threads=a.threads)
+
+
+def _add_student(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "student", "distil the student from the teacher: train, evaluate, report, export",
+                 _run_student)
+    p.add_argument("--config", type=Path, default=paths.configs() / "student.toml", help="training config")
+    p.add_argument("--distill", default=str(paths.distill()), help="the distillation set")
+    p.add_argument("--data", default=str(paths.processed()), help="real NGSIM windows (test split)")
+    p.add_argument("--out-dir", default=str(paths.runs() / "student"), help="the training run")
+    p.add_argument("--epochs", type=int, default=None, help="override the config's epoch count")
+    p.add_argument("--teacher", default=str(paths.model_weights("teacher")),
+                   help="the teacher the distillation set was generated with")
+    p.add_argument("--report", default=str(paths.results() / "student.md"), help="the report (markdown)")
+    p.add_argument("--export", default=str(paths.model_weights("student")), help="where the student is exported")
+    p.add_argument("--no-export", action="store_true", help="do not export")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+
+
+def _run_student(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.student import run
+
+    return run(config=a.config, distill=a.distill, data=a.data, out_dir=a.out_dir, epochs=a.epochs,
+               teacher=a.teacher, report=a.report, export=None if a.no_export else a.export, threads=a.threads)
+
+
+def _size(text: str) -> dict[str, int | None]:
+    from nudge_train.distill.config import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _add_distill(sub: argparse._SubParsersAction) -> None:
+    from nudge_train.distill.config import DistillConfig
+
+    d = DistillConfig()
+    p = _command(sub, "distill", "generate the distillation set (planner + teacher; resumable, docs/distill.md)",
+                 _run_distill)
+    p.add_argument("--out", type=Path, default=d.out, help="output folder (shards + manifest.json)")
+    p.add_argument("--splits", default=",".join(d.splits), help="comma-separated subset of train,val,test")
+    p.add_argument("--size", type=_size, default="paper",
+                   help="scenes per split: preset (tiny, small, first, paper = ~568k/113k/116k examples, all) "
+                        "or train=N,val=N,test=N")
+    p.add_argument("--teacher", type=Path, default=d.teacher, help="teacher weights (planning and labels)")
+    p.add_argument("--scenes-root", type=Path, default=d.scenes_root,
+                   help="planner scenes, one folder per split (written from --data-root when missing)")
+    p.add_argument("--data-root", type=Path, default=d.data_root, help="raw NGSIM material")
+    p.add_argument("--runs", type=int, default=d.runs, help="closed-loop runs per scene")
+    p.add_argument("--seed", type=int, default=d.seed, help="seed of the scene order and target lanes")
+    p.add_argument("--world", choices=("predictor", "log_replay"), default=d.world,
+                   help="how the other vehicles move")
+    p.add_argument("--max-steps", type=int, default=d.max_steps, help="closed-loop steps per run")
+    p.add_argument("--scenes-per-shard", type=int, default=d.scenes_per_shard, help="scenes per shard")
+    p.add_argument("--threads", type=int, default=None, help="rayon threads (default: all cores)")
+    p.add_argument("--ray-address", default=None, help="run shards as Ray tasks on this cluster ('auto', 'ray://...')")
+    p.add_argument("--ray-local", action="store_true", help="start a local Ray instance for the shards")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--stats", action="store_true",
+                   help="only print the statistics of the set in --out (JSON and the docs/distill.md tables)")
+
+
+def _run_distill(a: argparse.Namespace) -> int:
+    import json
+    from dataclasses import replace
+
+    from nudge_train.distill.config import DistillConfig
+    from nudge_train.distill.stats import describe, markdown
+
+    if a.stats:
+        stats = describe(a.out)
+        print(json.dumps(stats, indent=1))
+        print(markdown(stats))
+        return 0
+    try:
+        cfg = replace(DistillConfig(), out=a.out, splits=tuple(s for s in a.splits.split(",") if s),
+                      teacher=a.teacher, scenes_root=a.scenes_root, data_root=a.data_root, max_scenes=a.size,
+                      runs=a.runs, seed=a.seed, world=a.world, max_steps=a.max_steps,
+                      scenes_per_shard=a.scenes_per_shard, threads=a.threads, progress=not a.no_progress)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    from nudge_train.distill.pipeline import generate
+
+    try:
+        manifest = generate(cfg, ray_address=a.ray_address, use_ray=a.ray_local)
+    except (FileNotFoundError, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(json.dumps(describe(cfg.out, manifest), indent=1))
+    return 0
+
+
+def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "closed-loop", "closed-loop comparison of planning predictors on held-out real scenes",
+                 _run_closed_loop)
+    p.add_argument("--scenes", type=Path, default=paths.scenes("test"), help="folder of scenario files")
+    p.add_argument("--n", type=int, default=120, help="scenes drawn")
+    p.add_argument("--seed", type=int, default=0, help="seed of the draw and of the target lanes")
+    p.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"],
+                   help="planning predictors compared")
+    p.add_argument("--threads", type=int, default=2, help="runs side by side")
+    p.add_argument("--settings", type=Path, default=None,
+                   help="planner settings JSON (missing fields take the defaults)")
+    p.add_argument("--abort-after", type=int, default=4,
+                   help="lane-change abort after this many steps without a safe plan (0: never)")
+    p.add_argument("--abort-hold", type=int, default=3, help="steps spent aiming back at the own lane after an abort")
+    p.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
+                   help="also write the summaries here")
+
+
+def _run_closed_loop(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.closed_loop import run
+
+    return run(scenes=a.scenes, n=a.n, seed=a.seed, predictors=a.predictors, threads=a.threads,
+               settings=a.settings, abort_after=a.abort_after, abort_hold=a.abort_hold, markdown=a.markdown,
+               json_path=a.json_path)
+
+
+# ---- benches, goldens, figures -----------------------------------------------------------------
+def _add_bench(sub: argparse._SubParsersAction) -> None:
+    bench = sub.add_parser("bench", help="benchmark tables", description="benchmark tables")
+    bsub = bench.add_subparsers(dest="bench_cmd", required=True, metavar="{inference,planner,python}")
+
+    i = _command(bsub, "inference", "PyTorch vs Rust (criterion) inference times on the same weights and inputs",
+                 _run_bench_inference)
+    i.add_argument("--repo-root", type=Path, default=None,
+                   help="read weights, bench scenes and criterion results below this root (default: nudge_train.paths)")
+    i.add_argument("--criterion-dir", type=Path, default=None, help="default: <repo-root>/target/criterion")
+    i.add_argument("--models", nargs="+", choices=("teacher", "student"), default=["teacher", "student"],
+                   help="models timed")
+    i.add_argument("--ns", nargs="+", type=int, default=list(BENCH_NS), help=f"agent counts, among {BENCH_NS}")
+    i.add_argument("--batch32", action="store_true", help="32 candidates per call (group predictor_batch32)")
+    i.add_argument("--warmup", type=int, default=10, help="untimed calls per configuration")
+    i.add_argument("--repeats", type=int, default=50, help="minimum timed calls per configuration")
+    i.add_argument("--min-seconds", type=float, default=1.0, help="minimum timing per configuration")
+    i.add_argument("--markdown", type=Path, default=None, help="also write the table as markdown here")
+
+    p = _command(bsub, "planner", "the planner benches (criterion) as a markdown table", _run_bench_planner)
+    p.add_argument("--criterion", type=Path, default=paths.criterion() / "planner",
+                   help="criterion results of the planner benches")
+    p.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+
+    y = _command(bsub, "python", "per-step planning time seen from Python vs the Rust planner's own and criterion's",
+                 _run_bench_python)
+    y.add_argument("--reps", type=int, default=30, help="timed calls per configuration")
+    y.add_argument("--ns", type=int, nargs="+", default=[2, 4, 8, 16], help="agent counts (ego included)")
+    y.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"],
+                   help="planning predictors timed")
+    y.add_argument("--criterion", type=Path, default=paths.criterion(), help="criterion results")
+
+
+def _run_bench_inference(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.bench_inference import run
+
+    try:
+        return run(repo_root=a.repo_root, criterion_dir=a.criterion_dir, models=a.models, ns=a.ns,
+                   batch32=a.batch32, warmup=a.warmup, repeats=a.repeats, min_seconds=a.min_seconds,
+                   markdown=a.markdown)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
+def _run_bench_planner(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.bench_planner import run
+
+    return run(criterion=a.criterion, markdown=a.markdown)
+
+
+def _run_bench_python(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.bench_python import run
+
+    return run(reps=a.reps, ns=a.ns, predictors=a.predictors, criterion=a.criterion)
+
+
+def _add_goldens(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "goldens", "write (or --check) the predictor golden files and the bench scenes", _run_goldens)
+    p.add_argument("--repo-root", type=Path, default=paths.repo(), help="repository root")
+    p.add_argument("--trained", action="store_true", help="also write cases against trained assets/models/*")
+    p.add_argument("--ship-random", action="store_true", help="also write random assets/models/{teacher,student}")
+    p.add_argument("--check", action="store_true", help="regenerate into a temp dir and compare bit-exactly")
+
+
+def _run_goldens(a: argparse.Namespace) -> int:
+    from nudge_train.testing.goldens import run
+
+    return run(repo_root=a.repo_root, trained=a.trained, ship_random=a.ship_random, check_only=a.check)
+
+
+def _add_figures(sub: argparse._SubParsersAction) -> None:
+    figures = sub.add_parser("figures", help="figures (light: numpy + matplotlib)", description="figures")
+    fsub = figures.add_subparsers(dest="figures_cmd", required=True, metavar="{runs,curves}")
+
+    r = _command(fsub, "runs", "draw closed-loop runs written by `nudge simulate --out DIR` as one PNG",
+                 _run_figures_runs)
+    r.add_argument("records_dir", type=Path, help="directory with records.json")
+    r.add_argument("--scenes", type=Path, default=paths.shipped_scenes(), help="folder of the runs' scenario files")
+    r.add_argument("--png", type=Path, default=None, help="output (default RECORDS_DIR/runs.png)")
+    r.add_argument("--max-runs", type=int, default=6, help="runs drawn (the first ones)")
+
+    c = _command(fsub, "curves", "draw the training curves (metrics.jsonl) of training runs as one PNG",
+                 _run_figures_curves)
+    c.add_argument("runs", nargs="+", metavar="NAME=DIR", help="a label and the run's out_dir")
+    c.add_argument("--png", type=Path, required=True, help="output")
+    c.add_argument("--title", default="training curves", help="figure title")
+    c.add_argument("--loss-label", default="train loss", help="y label of the loss panel")
+    c.add_argument("--val-label", default="validation metric (m)", help="y label of the validation panel")
+
+
+def _run_figures_runs(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.plots import plot_runs
+
+    return plot_runs(records_dir=a.records_dir, scenes=a.scenes, png=a.png, max_runs=a.max_runs)
+
+
+def _run_figures_curves(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.plots import plot_curves
+
+    runs: dict[str, Path] = {}
+    for item in a.runs:
+        name, sep, out = item.partition("=")
+        if not sep or not name or not out:
+            print(f"error: {item!r}: expected NAME=DIR", file=sys.stderr)
+            return 2
+        runs[name] = Path(out)
+    plot_curves(runs, a.png, a.title, a.loss_label, a.val_label)
+    print(f"wrote {a.png}")
+    return 0
+
+
+# ---- entry point -------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    """The ``nudge-train`` parser; every subcommand's namespace carries its handler as ``run``."""
+    parser = argparse.ArgumentParser(
+        prog="nudge-train",
+        description="nudge's data pipeline, training, experiments, benches, golden files and figures.",
+        epilog="Default paths: the repository of this checkout; NUDGE_REPO, NUDGE_ASSETS and NUDGE_NGSIM "
+               "override them.",
+    )
+    sub = parser.add_subparsers(dest="cmd", required=True,
+                                metavar="{data,train,teacher,student,distill,closed-loop,bench,goldens,figures}")
+    _add_data(sub)
+    _add_train(sub)
+    _add_teacher(sub)
+    _add_student(sub)
+    _add_distill(sub)
+    _add_closed_loop(sub)
+    _add_bench(sub)
+    _add_goldens(sub)
+    _add_figures(sub)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="nudge-train")
-    sub = parser.add_subparsers(dest="cmd", required=True)
-    _data_parser(sub)
-    args = parser.parse_args(argv)
-    from .data.errors import DataError
+    """Runs ``nudge-train`` with ``argv`` (default: the command line); returns the exit status
+    (2 for a typed data error, printed without a traceback)."""
+    args = build_parser().parse_args(argv)
+    from nudge_train.data.errors import DataError
 
     try:
-        if args.cmd == "data":
-            return _run_data(args)
-    except DataError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        return args.run(args)
+    except DataError as err:
+        print(f"error: {err}", file=sys.stderr)
         return 2
-    return 1
 
-
-def _run_data(args: argparse.Namespace) -> int:
-    from .data.splits import SplitConfig
-
-    if args.data_cmd == "scenes":
-        from .data.scene_cmd import ScenesConfig, write_scenes
-
-        out = args.out or (REPO / "assets" / "scenes" if args.ship else DEFAULT_OUT / "scenes" / args.split)
-        paths, drops = write_scenes(args.data_root, out,
-                                    ScenesConfig(split=args.split, ship=args.ship, dense_range_m=args.range),
-                                    SplitConfig(seed=args.seed), progress=not args.no_progress)
-        print(f"wrote {len(paths)} scenarios to {out}")
-        for k, v in sorted(drops.items()):
-            print(f"  dropped candidates ({k}): {v}")
-        return 0
-    if args.data_cmd == "build":
-        from .data.build import BuildConfig, build
-
-        phases = tuple(int(p) for p in args.phases.split(",") if p.strip())
-        manifest = build(BuildConfig(data_root=args.data_root, out=args.out, raw=tuple(args.raw),
-                                     seed=args.seed, phases=phases, include_i80=not args.no_i80),
-                         progress=not args.no_progress)
-        print(f"wrote {args.out / 'manifest.json'}: {manifest['counts']['windows']} windows")
-        return 0
-    if args.data_cmd == "report":
-        from .data.report import write_report
-
-        write_report(args.processed, args.doc, args.figures)
-        print(f"wrote {args.doc}")
-        return 0
-    return 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,5 +1,6 @@
 """End-to-end build on a data root assembled from the fixtures: format, splits, determinism.
-Tests marked with the shared data run on ../shared/data/ngsim when present and skip otherwise."""
+Tests marked with the shared data run on the raw NGSIM folder (``paths.ngsim()``: ../shared/data/ngsim or
+$NUDGE_NGSIM) when present and skip otherwise."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 from safetensors import safe_open
 from safetensors.numpy import load_file
 
+from nudge_train import paths
 from nudge_train.cli import main
 from nudge_train.data.build import BuildConfig, build, time_blocks
 from nudge_train.data.coifman import read_coifman
@@ -23,7 +25,7 @@ from nudge_train.data.splits import SplitConfig, assign, read_overlap_groups, sc
 from nudge_train.data.windows import WindowConfig, extract_windows
 
 FIX = Path(__file__).parent / "fixtures"
-SHARED = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "ngsim"
+SHARED = paths.ngsim()
 needs_shared = pytest.mark.skipif(not (SHARED / COIFMAN).exists(), reason="../shared/data/ngsim not present")
 
 

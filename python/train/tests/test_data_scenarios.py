@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from safetensors import safe_open
 
+from nudge_train import paths
 from nudge_train.data.commonroad import read_commonroad
 from nudge_train.data.grid import build_grid
 from nudge_train.data.scenarios import ScenarioConfig, scene_scenarios
@@ -18,7 +19,7 @@ from nudge_train.data.scene_cmd import ScenesConfig, write_scenes
 from nudge_train.data.splits import SplitConfig
 
 FIX = Path(__file__).parent / "fixtures"
-ASSETS = Path(__file__).resolve().parents[3] / "assets" / "scenes"
+ASSETS = paths.shipped_scenes()
 SPEC = {
     "history": np.float64, "heading": np.float64, "speed": np.float64, "size": np.float64,
     "future": np.float64, "future_valid": np.uint8, "lane_centres": np.float64,

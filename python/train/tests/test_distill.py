@@ -13,13 +13,12 @@ import pytest
 
 nudge = pytest.importorskip("nudge", reason="the nudge extension is not built (run `make develop`)")
 
-from nudge_train.distill import DistillConfig, generate, plan_shards, scene_interactive  # noqa: E402
+from nudge_train.cli import main as cli_main  # noqa: E402
 from nudge_train.distill import pipeline as gen_mod  # noqa: E402
-from nudge_train.distill.__main__ import main as cli_main, parse_size  # noqa: E402
-from nudge_train.distill.pipeline import load_shard  # noqa: E402
+from nudge_train.distill.config import DistillConfig, parse_size  # noqa: E402
+from nudge_train.distill.pipeline import generate, load_shard, plan_shards  # noqa: E402
+from nudge_train.distill.scenes import scene_interactive  # noqa: E402
 from nudge_train.distill.stats import describe  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")
@@ -87,6 +86,24 @@ def test_generate_writes_consistent_shards(tmp_path: Path, scenes_root: Path) ->
     st = describe(cfg.out)
     assert st["splits"]["test"]["examples"] == total and st["disk_bytes"] > 0
     assert not list(cfg.out.glob(".*tmp*"))
+
+
+def test_cli_writes_what_generate_writes_and_prints_statistics(tmp_path: Path, scenes_root: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "cli"
+    assert cli_main(["distill", "--out", str(out), "--splits", "test", "--size", "test=all", "--scenes-root",
+                     str(scenes_root), "--max-steps", "2", "--scenes-per-shard", "2", "--threads", "1",
+                     "--no-progress"]) == 0
+    ref = _cfg(tmp_path / "ref", scenes_root)
+    generate(ref, log=lambda _: None)
+    assert _files(out) == _files(ref.out)
+    capsys.readouterr()
+    assert cli_main(["distill", "--stats", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    stats, end = json.JSONDecoder().raw_decode(text)
+    assert stats == json.loads(json.dumps(describe(out)))
+    assert stats["splits"]["test"]["examples"] == json.loads((out / "manifest.json").read_text())["splits"]["test"]["examples"] > 0
+    assert "| split | scenes done |" in text[end:]
 
 
 def test_rerun_skips_complete_shards_and_regenerates_missing(tmp_path: Path, scenes_root: Path,
@@ -170,7 +187,7 @@ def test_bad_input(tmp_path: Path, scenes_root: Path) -> None:
         _cfg(tmp_path / "d", scenes_root, splits=("dev",))
     assert parse_size("train=3,val=all")["val"] is None
     with pytest.raises(SystemExit):
-        cli_main(["--size", "bogus=3"])
+        cli_main(["distill", "--size", "bogus=3"])
 
 
 def test_interactive_flag_follows_the_window_rule(scenes_root: Path, tmp_path: Path) -> None:
@@ -223,7 +240,7 @@ def test_ray_shards_equal_single_process(tmp_path: Path, scenes_root: Path) -> N
 def test_distill_set_loads_as_student_windows(tmp_path: Path, scenes_root: Path) -> None:
     """``load_split`` on a distillation manifest: every window is (context history, candidate,
     teacher prediction), checked against a fresh teacher call on the window itself."""
-    from nudge_train.windows_data import load_split
+    from nudge_train.data.loader import load_split
 
     cfg = _cfg(tmp_path / "d", scenes_root)
     m = generate(cfg, log=lambda _: None)

@@ -11,10 +11,11 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
-from nudge_train.config import ModelConfig, student_config, teacher_config
-from nudge_train.export import WEIGHTS_FORMAT, export_generator, load_generator, read_weights, save_safetensors
-from nudge_train.interactive import student_interactive, teacher_interactive
-from nudge_train.models import build_model
+from nudge_train.constants import WEIGHTS_FORMAT
+from nudge_train.models.config import ModelConfig, student_config, teacher_config
+from nudge_train.models.interactive import student_interactive, teacher_interactive
+from nudge_train.models.networks import build_model
+from nudge_train.training.export import export_generator, load_generator, read_weights, save_safetensors
 
 
 @pytest.fixture(autouse=True)

@@ -1,23 +1,24 @@
 """The committed golden files, bench scenes and shipped weights are exactly what
-python/train/scripts/make_goldens.py produces (its --check mode, run in-process)."""
+``nudge-train goldens`` (:mod:`nudge_train.testing.goldens`) produces (its --check mode, run
+in-process)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-import importlib.util
 import shutil
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 import torch
 from safetensors import safe_open
 
-from nudge_train.config import teacher_config
-from nudge_train.export import export_generator, load_generator, read_weights
-from nudge_train.interactive import student_interactive, teacher_interactive
-from nudge_train.models import build_model
+from nudge_train import paths
+from nudge_train.cli import main
+from nudge_train.models.config import teacher_config
+from nudge_train.models.interactive import student_interactive, teacher_interactive
+from nudge_train.models.networks import build_model
+from nudge_train.testing import goldens as make_goldens
+from nudge_train.training.export import export_generator, load_generator, read_weights
 
 
 @pytest.fixture(autouse=True)
@@ -28,18 +29,8 @@ def _one_thread() -> Iterator[None]:
     yield
     torch.set_num_threads(threads)
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-SCRIPT = REPO_ROOT / "python" / "train" / "scripts" / "make_goldens.py"
-
-
-@pytest.fixture(scope="module")
-def make_goldens() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("make_goldens", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["make_goldens"] = module
-    spec.loader.exec_module(module)
-    return module
+REPO_ROOT = paths.repo()
+GOLDEN = paths.GOLDEN_DIR.as_posix()  # repository-relative, as the check reports it
 
 
 def _asset_is_trained(kind: str) -> bool:
@@ -47,34 +38,34 @@ def _asset_is_trained(kind: str) -> bool:
     return path.is_file() and read_weights(path).trained
 
 
-def test_committed_files_are_reproduced_bit_exactly(make_goldens: ModuleType) -> None:
+def test_committed_files_are_reproduced_bit_exactly() -> None:
     trained = any(_asset_is_trained(k) for k in ("teacher", "student"))
     options = make_goldens.Options(trained=trained, ship_random=not trained)
     problems = make_goldens.check(REPO_ROOT, options, log=lambda _msg: None)
     assert problems == []
 
 
-def test_check_reports_a_modified_file(make_goldens: ModuleType, tmp_path: Path) -> None:
-    for rel in ("tests/golden", "benches/data"):
+def test_check_reports_a_modified_file(tmp_path: Path) -> None:
+    for rel in (GOLDEN, "benches/data"):
         shutil.copytree(REPO_ROOT / rel, tmp_path / rel)
-    target = tmp_path / "tests" / "golden" / "cases_student_random.safetensors"
+    target = tmp_path / GOLDEN / "cases_student_random.safetensors"
     raw = bytearray(target.read_bytes())
     raw[-1] ^= 0x01  # flip one bit of the last expected value
     target.write_bytes(bytes(raw))
     (tmp_path / "benches" / "data" / "scenes.safetensors").unlink()
     problems = make_goldens.check(tmp_path, make_goldens.Options(), log=lambda _msg: None)
     assert len(problems) == 2
-    assert any(p.startswith("tests/golden/cases_student_random.safetensors: n") and "values differ" in p for p in problems)
+    assert any(p.startswith(f"{GOLDEN}/cases_student_random.safetensors: n") and "values differ" in p for p in problems)
     assert any(p.startswith("benches/data/scenes.safetensors: missing") for p in problems)
-    assert make_goldens.main(["--repo-root", str(tmp_path), "--check"]) == 1
+    assert main(["goldens", "--repo-root", str(tmp_path), "--check"]) == 1
 
 
 @pytest.mark.parametrize("kind", ["teacher", "student"])
 def test_cases_format_and_pytorch_f32_agreement(kind: str) -> None:
     fn = teacher_interactive if kind == "teacher" else student_interactive
-    gen = load_generator(REPO_ROOT / "tests" / "golden" / f"weights_{kind}_random.safetensors")
+    gen = load_generator(REPO_ROOT / GOLDEN / f"weights_{kind}_random.safetensors")
     assert gen.cfg.kind == kind
-    with safe_open(str(REPO_ROOT / "tests" / "golden" / f"cases_{kind}_random.safetensors"), "pt") as f:
+    with safe_open(str(REPO_ROOT / GOLDEN / f"cases_{kind}_random.safetensors"), "pt") as f:
         meta = f.metadata()
         assert meta["weights"] == f"weights_{kind}_random.safetensors"
         assert meta["generator"] == "python/train/scripts/make_goldens.py"
@@ -105,16 +96,16 @@ def test_shipped_weights_load() -> None:
         load_generator(REPO_ROOT / "assets" / "models" / f"{kind}.safetensors")
 
 
-def test_trained_cases_and_ship_random_guard(make_goldens: ModuleType, tmp_path: Path) -> None:
+def test_trained_cases_and_ship_random_guard(tmp_path: Path) -> None:
     src, out = tmp_path / "src", tmp_path / "out"
     cfg = teacher_config()
     gen, _ = build_model(cfg.replace(seed=77))  # stands in for trained weights
     export_generator(gen, gen.cfg, src / "assets" / "models" / "teacher.safetensors", trained=True, provenance={"run": "t"})
     messages: list[str] = []
     written = make_goldens.generate(out, src, make_goldens.Options(trained=True), log=messages.append)
-    rel = Path("tests/golden/cases_teacher_trained.safetensors")
+    rel = Path(GOLDEN) / "cases_teacher_trained.safetensors"
     assert rel in written
-    assert not (out / "tests" / "golden" / "cases_student_trained.safetensors").exists()
+    assert not (out / GOLDEN / "cases_student_trained.safetensors").exists()
     assert any("student" in m and "not found" in m for m in messages)
     with safe_open(str(out / rel), "pt") as f:
         assert f.metadata()["weights"] == "assets/models/teacher.safetensors"

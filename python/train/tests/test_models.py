@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from torch import nn
 
-from nudge_train.config import ModelConfig, student_config, teacher_config
-from nudge_train.interactive import batch_scenes, student_interactive, teacher_interactive
-from nudge_train.models import PoolHiddenNet, SceneIndex, TrajectoryGenerator, build_model, positions_to_rel
+from nudge_train.models.config import ModelConfig, student_config, teacher_config
+from nudge_train.models.interactive import batch_scenes, student_interactive, teacher_interactive
+from nudge_train.models.networks import PoolHiddenNet, SceneIndex, TrajectoryGenerator, build_model, positions_to_rel
 
 
 @pytest.fixture(autouse=True)

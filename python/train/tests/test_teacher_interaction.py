@@ -8,18 +8,16 @@ recursive prediction must make the follower fall back (yield) when the ego cuts 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 from safetensors.numpy import load_file
 
-from nudge_train.export import load_generator, read_weights
-from nudge_train.interactive import teacher_interactive
+from nudge_train import paths
+from nudge_train.models.interactive import teacher_interactive
+from nudge_train.training.export import load_generator, read_weights
 
-REPO = Path(__file__).resolve().parents[3]
-TEACHER = REPO / "assets" / "models" / "teacher.safetensors"
+TEACHER = paths.model_weights("teacher")
 
 
 def _followers(scene: dict[str, np.ndarray]) -> list[tuple[int, int]]:
@@ -43,7 +41,7 @@ def test_follower_in_target_lane_yields_to_a_cut_in() -> None:
         pytest.skip("assets/models/teacher.safetensors is not a trained teacher")
     gen = load_generator(TEACHER)
     shifts = []
-    for path in sorted((REPO / "assets" / "scenes").glob("*.safetensors")):
+    for path in sorted(paths.shipped_scenes().glob("*.safetensors")):
         scene = load_file(str(path))
         h = scene["history"]
         ego, vel = h[0, -1], h[0, -1] - h[0, -2]

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from nudge_train.config import teacher_config
-from nudge_train.evaluate import evaluate_constant_velocity, evaluate_generator
-from nudge_train.models import build_model
-from nudge_train.training import TrainConfig, load_config, train, variety_loss
-from nudge_train.windows_data import WindowSet
-
-REPO = Path(__file__).resolve().parents[3]
+from nudge_train import paths
+from nudge_train.data.loader import WindowSet
+from nudge_train.models.config import teacher_config
+from nudge_train.models.networks import build_model
+from nudge_train.training.config import TrainConfig, load_config
+from nudge_train.training.evaluate import evaluate_constant_velocity, evaluate_generator
+from nudge_train.training.loop import train, variety_loss
 
 
 def _windows(n_windows: int = 24, seed: int = 0) -> WindowSet:
@@ -71,9 +71,9 @@ def test_config_rejects_unknown_keys_and_bad_sizes(tmp_path: Path) -> None:
 
 
 def test_shipped_teacher_configs_parse() -> None:
-    planner_cfg = load_config(REPO / "python" / "train" / "configs" / "teacher_planner.toml")
+    planner_cfg = load_config(paths.configs() / "teacher_planner.toml")
     assert planner_cfg[1].train_steps == 1 and planner_cfg[1].val_metric == "recursive_fde"
-    configs = sorted((REPO / "python" / "train" / "configs").glob("teacher_k*_adv*.toml"))
+    configs = sorted(paths.configs().glob("teacher_k*_adv*.toml"))
     assert len(configs) == 5
     pairs = set()
     for path in configs:
@@ -82,7 +82,7 @@ def test_shipped_teacher_configs_parse() -> None:
         assert tcfg.k_samples == 20 and tcfg.train_steps == 1
         pairs.add((tcfg.k_var, tcfg.i_adv))
     assert pairs == {(1, 1), (1, 0), (30, 1), (64, 1), (64, 0)}
-    smcfg, stcfg = load_config(REPO / "python" / "train" / "configs" / "student.toml")
+    smcfg, stcfg = load_config(paths.configs() / "student.toml")
     assert smcfg.kind == "student" and smcfg.noise_dim == 0 and smcfg.pool_every_timestep
     assert stcfg.k_samples == 1 and stcfg.train_steps == 6 and stcfg.data == "data/distill"
 
@@ -149,7 +149,7 @@ def test_best_of_k_is_monotone_in_k() -> None:
 def test_samples_per_epoch_draws_a_seeded_subset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``samples_per_epoch`` visits that many distinct training windows per epoch, a different
     seeded subset each epoch."""
-    import nudge_train.training as training_mod
+    import nudge_train.training.loop as training_mod
 
     data = _windows(40)
     val = _windows(6, seed=1)

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from nudge_train.reporting import sha256_file
+from nudge_train.constants import DATASET_SCHEMA, SPLITS, WINDOWS_SCHEMA
+from nudge_train.provenance import sha256_file
 
 from .coifman import CoifmanConfig, read_coifman
 from .errors import DataError
@@ -24,10 +25,6 @@ from .sources import COIFMAN, SourceEntry, us101_sources
 from .splits import SplitConfig, assign
 from .tracks import TrackTable
 from .windows import Window, WindowConfig, WindowStats, extract_windows
-
-WINDOWS_SCHEMA = "nudge.windows/1"
-MANIFEST_SCHEMA = "nudge.dataset/1"
-SPLITS = ("train", "val", "test")
 
 
 @dataclass(frozen=True)
@@ -183,7 +180,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
         sources.append(rec)
     total_w = sum(v["windows"] for v in splits_out.values())
     manifest = {
-        "schema": MANIFEST_SCHEMA,
+        "schema": DATASET_SCHEMA,
         "windows_schema": WINDOWS_SCHEMA,
         "config": _jsonable({
             "seed": cfg.seed, "phases": list(cfg.phases), "include_i80": cfg.include_i80,

@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 from safetensors.numpy import load_file
 
+from nudge_train.constants import DT, OBS_LEN, SPLITS
+
 from .errors import DataError
 
 KIND_NAMES = {"commonroad": "US-101 (CommonRoad)", "coifman_block": "I-80 (Coifman & Li)", "raw_block": "raw NGSIM"}
-SPLITS = ("train", "val", "test")
 
 
 def load_split(processed: Path, manifest: dict, split: str) -> dict[str, np.ndarray]:
@@ -48,9 +49,9 @@ def window_stats(d: dict[str, np.ndarray], kinds: np.ndarray) -> dict[str, dict[
         r = res[k]
         r["n_agents"].append(b - a)
         p = pos[a:b]
-        v = np.linalg.norm(p[:, 7] - p[:, 6], axis=1) / 0.3
+        v = np.linalg.norm(p[:, OBS_LEN - 1] - p[:, OBS_LEN - 2], axis=1) / DT
         r["speed"].append(v)
-        x, y = p[:, 7, 0], p[:, 7, 1]
+        x, y = p[:, OBS_LEN - 1, 0], p[:, OBS_LEN - 1, 1]
         dx = x[None, :] - x[:, None]
         dy = np.abs(y[None, :] - y[:, None])
         ahead = (dx > 0) & (dy < 1.8)

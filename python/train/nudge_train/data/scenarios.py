@@ -11,22 +11,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from .st_io import write_safetensors
+
+from nudge_train.constants import DT, OBS_LEN, PRED_LEN, SCENARIO_SCHEMA
 
 from .grid import Grid
+from .st_io import write_safetensors
 from .tracks import TrackTable
-
-SCHEMA = "nudge.scenario/1"
 
 
 @dataclass(frozen=True)
 class ScenarioConfig:
     """Scenario extraction parameters (s, m)."""
 
-    step_s: float = 0.3
-    n_hist: int = 8
+    step_s: float = DT
+    n_hist: int = OBS_LEN
     max_future: int = 30
-    min_future: int = 6
+    min_future: int = PRED_LEN
     neighbour_range_m: float = 60.0
     max_agents: int = 47
     straight_tol_m: float = 0.6
@@ -103,8 +103,8 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
         "agent_ids": grid.ids[rows].astype(np.int64),
     }
     meta = {
-        "schema": SCHEMA, "source": table.source, "scene": table.scene, "split": split,
-        "t0_s": f"{t0:.1f}", "dt": "0.3",
+        "schema": SCENARIO_SCHEMA, "source": table.source, "scene": table.scene, "split": split,
+        "t0_s": f"{t0:.1f}", "dt": str(DT),
         "provenance": (f"{provenance}; ego vehicle {int(grid.ids[ego_row])}, neighbours within "
                        f"{cfg.neighbour_range_m:g} m with full 8-step history; lanes straight within "
                        f"{dev:.2f} m over +-{cfg.straight_half_range_m:g} m"),

@@ -1,4 +1,6 @@
-"""Training windows: 10 Hz -> 0.3 s resampling, 8 observed + 6 future steps, filters, labels."""
+"""Training windows cut from the tracks: 10 Hz -> 0.3 s resampling, 8 observed + 6 future steps,
+filters, labels. :mod:`nudge_train.data.build` writes them as shards; :mod:`nudge_train.data.loader`
+reads the shards back for training."""
 
 from __future__ import annotations
 
@@ -7,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nudge_train.constants import DT, OBS_LEN, PRED_LEN
+
 from .grid import Grid
 
 
@@ -14,9 +18,9 @@ from .grid import Grid
 class WindowConfig:
     """Window extraction parameters (units: s, m, m/s, m/s^2, m/s^3)."""
 
-    step_s: float = 0.3
-    n_obs: int = 8
-    n_fut: int = 6
+    step_s: float = DT
+    n_obs: int = OBS_LEN
+    n_fut: int = PRED_LEN
     phases: tuple[int, ...] = (0, 1, 2)
     max_agents: int = 47
     neighbour_range_m: float = 60.0

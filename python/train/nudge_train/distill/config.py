@@ -7,9 +7,8 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[4]
-
-SPLITS = ("train", "val", "test")
+from nudge_train import paths
+from nudge_train.constants import DISTILL_SCHEMA, SPLITS
 
 # Scenes per split of the size presets. "paper" aims at the paper's 568k / 113k / 116k examples:
 # measured 320k / 68k / 75k examples from the first 120 / 24 / 24 scenes (docs/distill.md), scaled.
@@ -35,12 +34,12 @@ class DistillConfig:
     ``"log_replay"`` = the logged future). ``threads``: rayon threads per shard.
     """
 
-    out: Path = REPO / "data" / "distill"
+    out: Path = field(default_factory=paths.distill)
     splits: tuple[str, ...] = SPLITS
-    teacher: Path = REPO / "assets" / "models" / "teacher.safetensors"
-    scenes_root: Path = REPO / "data" / "processed" / "scenes"
-    processed: Path = REPO / "data" / "processed"
-    data_root: Path = REPO.parent / "shared" / "data" / "ngsim"
+    teacher: Path = field(default_factory=lambda: paths.model_weights("teacher"))
+    scenes_root: Path = field(default_factory=lambda: paths.processed() / "scenes")
+    processed: Path = field(default_factory=paths.processed)
+    data_root: Path = field(default_factory=paths.ngsim)
     max_scenes: dict[str, int | None] = field(default_factory=lambda: dict(SIZES["paper"]))
     runs: int = 1
     seed: int = 0
@@ -77,10 +76,28 @@ class DistillConfig:
             "world": self.world,
             "max_steps": self.max_steps,
             "scenes_per_shard": self.scenes_per_shard,
-            "schema": "nudge.distill/1",
+            "schema": DISTILL_SCHEMA,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
     def to_json(self) -> dict:
         d = asdict(self)
         return {k: (str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+
+def parse_size(text: str) -> dict[str, int | None]:
+    """Scenes per split from a preset name of :data:`SIZES` (tiny, small, first, paper, all) or
+    ``train=N,val=N,test=N`` (N or ``all``; splits not named keep the ``paper`` size).
+
+    Raises:
+        ValueError: neither a preset nor ``split=N`` items.
+    """
+    if text in SIZES:
+        return dict(SIZES[text])
+    out: dict[str, int | None] = dict(SIZES["paper"])
+    for part in text.split(","):
+        k, sep, v = part.partition("=")
+        if not sep or k.strip() not in SPLITS:
+            raise ValueError(f"bad size {part!r}: expected a preset {sorted(SIZES)} or split=N")
+        out[k.strip()] = None if v.strip() == "all" else int(v)
+    return out

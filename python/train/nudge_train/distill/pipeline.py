@@ -24,12 +24,11 @@ from tqdm import tqdm
 
 import nudge
 
-from nudge_train.reporting import sha256_file
+from nudge_train.constants import DISTILL_SCHEMA
+from nudge_train.provenance import sha256_file
 
 from .config import DistillConfig
 from .scenes import scene_interactive, scene_seed, split_scenes
-
-SCHEMA = "nudge.distill/1"
 
 
 @dataclass(frozen=True)
@@ -106,7 +105,7 @@ def compute_shard(spec: ShardSpec, teacher: str, world: str, runs: int, max_step
     }
     errors = sorted({e for e in rr["error"] if e is not None})
     meta = {
-        "schema": SCHEMA,
+        "schema": DISTILL_SCHEMA,
         "split": spec.split,
         "shard": str(spec.index),
         "content_key": content_key,
@@ -204,7 +203,7 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
     key = cfg.content_key(teacher_sha + settings.to_json())
     shards = plan_shards(cfg)
     manifest: dict = {
-        "schema": SCHEMA,
+        "schema": DISTILL_SCHEMA,
         "content_key": key,
         "teacher": {"path": teacher, "sha256": teacher_sha, "noise": "the file's fixed_noise"},
         # The planner code that produced the data (not part of the content key, so that a

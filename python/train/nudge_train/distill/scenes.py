@@ -14,6 +14,7 @@ import numpy as np
 from safetensors import safe_open
 from safetensors.numpy import load_file
 
+from ..constants import SPLITS
 from ..data.windows import WindowConfig
 from .config import DistillConfig
 
@@ -68,7 +69,7 @@ def split_scenes(cfg: DistillConfig, split: str) -> list[Path]:
     """
     folder = ensure_scenes(cfg, split)
     paths = sorted(folder.glob("*.safetensors"))
-    order = np.random.default_rng([cfg.seed, ("train", "val", "test").index(split)]).permutation(len(paths))
+    order = np.random.default_rng([cfg.seed, SPLITS.index(split)]).permutation(len(paths))
     paths = [paths[i] for i in order]
     n = cfg.max_scenes.get(split)
     if n is not None:

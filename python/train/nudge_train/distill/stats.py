@@ -69,11 +69,3 @@ def markdown(res: dict) -> str:
     lines.append(agents_histogram_table(total))
     return "\n".join(lines)
 
-
-if __name__ == "__main__":
-    import sys
-
-    out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[4] / "data" / "distill"
-    r = describe(out)
-    print(json.dumps(r, indent=1))
-    print(markdown(r))

@@ -1,6 +1,6 @@
 """The paper's teacher experiments (Table I): train five configurations, pick one, report, export.
 
-``python -m nudge_train.teacher_experiments [--data DIR] [--epochs N] [--only NAME ...]``
+``nudge-train teacher [--data DIR] [--epochs N] [--only NAME ...]``
 
 1. trains every ``python/train/configs/teacher_*.toml`` (resumable: a finished run is skipped, an
    interrupted one resumes from its ``last.pt``);
@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -24,13 +23,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from nudge_train.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
-from nudge_train.export import export_generator
-from nudge_train.reporting import REPO, git_commit, plot_curves, read_metrics, repo_relative, sha256_file
-from nudge_train.training import load_best, load_config, train
-from nudge_train.windows_data import WindowSet, load_split
-
-CONFIGS = REPO / "python" / "train" / "configs"
+from nudge_train import paths
+from nudge_train.constants import PRED_LEN
+from nudge_train.data.loader import WindowSet, load_split
+from nudge_train.experiments.plots import plot_curves
+from nudge_train.provenance import git_commit, sha256_file
+from nudge_train.training.config import load_config
+from nudge_train.training.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
+from nudge_train.training.export import export_generator
+from nudge_train.training.log import read_metrics
+from nudge_train.training.loop import load_best, train
 
 PAPER_TABLE_I = {  # (k_var, I_adv): (ADE@1, FDE@1, ADE@6, FDE@6), metres per the paper
     (1, 1): (0.02, 0.21, 0.40, 1.41),
@@ -55,35 +57,37 @@ def _fmt(m: Metrics) -> str:
     return f"{m.ade1:.3f} | {m.ade6:.3f} | {m.fde6:.3f}"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Runs the whole experiment; see the module doc."""
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", default=str(REPO / "data" / "processed"))
-    ap.add_argument("--runs", default=str(REPO / "runs"))
-    ap.add_argument("--epochs", type=int, default=None, help="override every config's epoch count")
-    ap.add_argument("--only", nargs="*", default=None, help="config names (e.g. teacher_k1_adv0)")
-    ap.add_argument("--report", default=str(REPO / "docs" / "results" / "teacher.md"))
-    ap.add_argument("--export", default=str(REPO / "assets" / "models" / "teacher.safetensors"))
-    ap.add_argument("--no-export", action="store_true")
-    ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args(argv)
-    torch.set_num_threads(args.threads)
+def run(
+    *,
+    data: str,
+    runs_dir: str,
+    epochs: int | None,
+    only: list[str] | None,
+    report: str,
+    export: str | None,
+    threads: int,
+) -> int:
+    """``nudge-train teacher``: the whole experiment (see the module doc). ``data``: processed
+    build; ``runs_dir``: one training run per config below it; ``epochs``: overrides every
+    config's epoch count; ``only``: config names to keep; ``export``: where the chosen teacher is
+    written (``None``: not exported)."""
+    torch.set_num_threads(threads)
 
-    train_set = load_split(Path(args.data), "train")
-    val_set = load_split(Path(args.data), "val")
-    test_set = load_split(Path(args.data), "test")
+    train_set = load_split(Path(data), "train")
+    val_set = load_split(Path(data), "val")
+    test_set = load_split(Path(data), "test")
     print(f"windows: train {len(train_set)}, val {len(val_set)}, test {len(test_set)}")
 
-    configs = sorted(CONFIGS.glob("teacher_*.toml"))
-    if args.only:
-        configs = [c for c in configs if c.stem in args.only]
+    configs = sorted(paths.configs().glob("teacher_*.toml"))
+    if only:
+        configs = [c for c in configs if c.stem in only]
     results: dict[str, dict[str, Any]] = {}
     runs: dict[str, Path] = {}
     for path in configs:
         mcfg, tcfg = load_config(path)
-        over: dict[str, Any] = {"out_dir": str(Path(args.runs) / path.stem), "data": args.data}
-        if args.epochs is not None:
-            over["epochs"] = args.epochs
+        over: dict[str, Any] = {"out_dir": str(Path(runs_dir) / path.stem), "data": data}
+        if epochs is not None:
+            over["epochs"] = epochs
         tcfg = dataclasses.replace(tcfg, **over).validate()
         out = Path(tcfg.out_dir)
         runs[path.stem] = out
@@ -123,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             gen = load_best(runs[name], rec["mcfg"])
             mark = " (chosen)" if name == chosen else ""
             modes = [("recursive", "recursive ×6, ego = log, non-ego")]
-            if rec["tcfg"].train_steps == 6:  # only a 6-step-trained decoder is meant to be called that way
+            if rec["tcfg"].train_steps == PRED_LEN:  # only a 6-step-trained decoder is meant to be called that way
                 modes.insert(0, ("decoder", "one call, 6 steps, all agents"))
             for mode, label in modes:
                 for samples in (1, 20):
@@ -136,25 +140,25 @@ def main(argv: list[str] | None = None) -> int:
     lines += _paper_table(results)
     lines += _training_table(results)
     lines += _reading(results)
-    report = Path(args.report)
-    report.parent.mkdir(parents=True, exist_ok=True)
+    report_path = Path(report)
+    report_path.parent.mkdir(parents=True, exist_ok=True)
     plot_curves(
         runs,
-        REPO / "docs" / "figures" / "teacher_curves.png",
+        paths.figures() / "teacher_curves.png",
         "Teacher training on NGSIM (train split), validation on the val split",
         "train variety loss (m², best of k)",
         "validation metric, fixed z (m)\n(recursive FDE@1.8s, or ADE)",
     )
     lines.append("\n![training curves](../figures/teacher_curves.png)\n")
-    report.write_text("\n".join(lines) + "\n")
-    print(f"wrote {report}")
+    report_path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {report_path}")
 
-    if not args.no_export:
+    if export is not None:
         rec = results[chosen]
         gen = load_best(runs[chosen], rec["mcfg"])
         prov = {
-            "data": repo_relative(Path(args.data)),
-            "manifest_sha256": sha256_file(Path(args.data) / "manifest.json"),
+            "data": paths.repo_relative(Path(data)),
+            "manifest_sha256": sha256_file(Path(data) / "manifest.json"),
             "split": "train (selected on val)",
             "config": chosen,
             "train": dataclasses.asdict(rec["tcfg"]),
@@ -164,8 +168,8 @@ def main(argv: list[str] | None = None) -> int:
             "commit": git_commit(),
             "hardware": f"{torch.get_num_threads()} CPU threads" if not torch.cuda.is_available() else torch.cuda.get_device_name(),
         }
-        export_generator(gen, rec["mcfg"], Path(args.export), trained=True, provenance=prov)
-        print(f"exported {chosen} to {args.export}")
+        export_generator(gen, rec["mcfg"], Path(export), trained=True, provenance=prov)
+        print(f"exported {chosen} to {export}")
     return 0
 
 
@@ -173,7 +177,7 @@ def _report_header(train_set: WindowSet, val_set: WindowSet, test_set: WindowSet
     return [
         "# Teacher results (Table I of the paper, on our NGSIM data)",
         "",
-        "Generated by `python -m nudge_train.teacher_experiments` (see README). Metres; one step = 0.3 s.",
+        "Generated by `nudge-train teacher` (see README). Metres; one step = 0.3 s.",
         f"Windows: train {len(train_set)}, val {len(val_set)}, test {len(test_set)} "
         f"({len(inter)} interactive test windows). Chosen teacher: **{chosen}** "
         "(lowest validation single-sample recursive FDE at 1.8 s).",
@@ -245,6 +249,3 @@ def _training_table(results: dict[str, dict[str, Any]]) -> list[str]:
         )
     return out
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

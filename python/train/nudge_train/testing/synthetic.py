@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from nudge_train.constants import DT, OBS_LEN, PRED_LEN
+
 __all__ = ["LANE_WIDTH", "highway_candidates", "highway_history"]
 
 LANE_WIDTH = 3.7
@@ -47,7 +49,7 @@ def _sample_x_positions(
     return xs, lanes
 
 
-def highway_history(rng: np.random.Generator, n: int, obs_len: int = 8, dt: float = 0.3) -> np.ndarray:
+def highway_history(rng: np.random.Generator, n: int, obs_len: int = OBS_LEN, dt: float = DT) -> np.ndarray:
     """History ``[n, obs_len, 2]`` float32 (m) of one scene; agent 0 is the ego.
 
     Each agent moves with constant longitudinal acceleration and constant lateral speed over the
@@ -81,7 +83,7 @@ def highway_history(rng: np.random.Generator, n: int, obs_len: int = 8, dt: floa
 
 
 def highway_candidates(
-    rng: np.random.Generator, ego_history: np.ndarray, count: int, t_plan: int = 6, dt: float = 0.3
+    rng: np.random.Generator, ego_history: np.ndarray, count: int, t_plan: int = PRED_LEN, dt: float = DT
 ) -> np.ndarray:
     """``count`` ego candidate futures ``[count, t_plan, 2]`` float32 (m) from ``ego_history``
     ``[obs_len, 2]``.

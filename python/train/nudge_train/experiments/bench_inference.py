@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Times the PyTorch reference predictors on the same weights and inputs as the Rust benchmark
 and prints them next to the Rust (criterion) medians.
 
@@ -12,14 +11,11 @@ configuration gets a warm-up, then many individually timed repeats, and the medi
 Rust medians are read from target/criterion/<group>/<model>/<N>/new/estimates.json
 (``median.point_estimate``, ns) when present; run ``cargo bench --bench predictor`` first.
 
-Usage (from the repository root):
-    .venv/bin/python python/train/scripts/bench_torch.py [--markdown docs/bench_torch.md]
+    nudge-train bench inference [--markdown docs/results/inference.md]
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import platform
 import statistics
 import sys
@@ -31,16 +27,13 @@ from pathlib import Path
 import torch
 from safetensors import safe_open
 
-try:
-    import nudge_train  # noqa: F401
-except ModuleNotFoundError:  # running from a checkout without an install of python/train
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from nudge_train import paths
+from nudge_train.constants import BENCH_NS
+from nudge_train.experiments.criterion import median_ms
+from nudge_train.models.interactive import student_interactive, teacher_interactive
+from nudge_train.models.networks import TrajectoryGenerator
+from nudge_train.training.export import load_generator
 
-from nudge_train.export import load_generator
-from nudge_train.interactive import student_interactive, teacher_interactive
-from nudge_train.models import TrajectoryGenerator
-
-NS = (2, 4, 8, 16, 32)
 MODELS = ("teacher", "student")
 Predict = Callable[[TrajectoryGenerator, torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -75,19 +68,6 @@ def time_median_ms(fn: Callable[[], object], warmup: int, repeats: int, min_seco
     return statistics.median(samples) / 1e6
 
 
-def rust_median_ms(criterion_dir: Path, group: str, model: str, n: int) -> float | None:
-    """Criterion's median for ``group/model/n`` in ms, or None if that bench has not been run."""
-    path = criterion_dir / group / model / str(n) / "new" / "estimates.json"
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text())
-        return float(data["median"]["point_estimate"]) / 1e6
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
-        print(f"warning: cannot read {path}: {err}", file=sys.stderr)
-        return None
-
-
 def _fmt(value: float | None, digits: int = 3) -> str:
     return "—" if value is None else f"{value:.{digits}f}"
 
@@ -118,67 +98,73 @@ def cpu_name() -> str:
     return platform.processor() or "unknown CPU"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """CLI entry point; returns the exit status."""
-    root_default = Path(__file__).resolve().parents[3]
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repo-root", type=Path, default=root_default, help="repository root")
-    parser.add_argument("--criterion-dir", type=Path, default=None, help="default: <repo-root>/target/criterion")
-    parser.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
-    parser.add_argument("--ns", nargs="+", type=int, default=list(NS), help=f"agent counts, among {NS}")
-    parser.add_argument("--batch32", action="store_true", help="32 candidates per call (group predictor_batch32)")
-    parser.add_argument("--warmup", type=int, default=10)
-    parser.add_argument("--repeats", type=int, default=50, help="minimum timed calls per configuration")
-    parser.add_argument("--min-seconds", type=float, default=1.0, help="minimum timing per configuration")
-    parser.add_argument("--markdown", type=Path, default=None, help="also write the table as markdown here")
-    args = parser.parse_args(argv)
-    if args.warmup < 0 or args.repeats < 1 or args.min_seconds < 0:
-        parser.error("--warmup must be >= 0, --repeats >= 1, --min-seconds >= 0")
-    bad = [n for n in args.ns if n not in NS]
-    if bad:
-        parser.error(f"--ns: {bad} not in the bench scenes {NS}")
+def run(
+    *,
+    repo_root: Path | None,
+    criterion_dir: Path | None,
+    models: list[str],
+    ns: list[int],
+    batch32: bool,
+    warmup: int,
+    repeats: int,
+    min_seconds: float,
+    markdown: Path | None,
+) -> int:
+    """``nudge-train bench inference``: times ``models`` at the agent counts ``ns`` (among
+    :data:`~nudge_train.constants.BENCH_NS`), prints the table beside criterion's medians from
+    ``criterion_dir`` and writes it to ``markdown`` when given. Weights, bench scenes and
+    criterion results are read below ``repo_root`` when given, else from :mod:`nudge_train.paths`.
 
-    root: Path = args.repo_root.resolve()
-    criterion_dir: Path = args.criterion_dir or root / "target" / "criterion"
-    scenes_path = root / "benches" / "data" / "scenes.safetensors"
+    Raises:
+        ValueError: a timing parameter out of range or an agent count without a bench scene.
+    """
+    if warmup < 0 or repeats < 1 or min_seconds < 0:
+        raise ValueError("--warmup must be >= 0, --repeats >= 1, --min-seconds >= 0")
+    bad = [n for n in ns if n not in BENCH_NS]
+    if bad:
+        raise ValueError(f"--ns: {bad} not in the bench scenes {BENCH_NS}")
+
+    if repo_root is not None:
+        root = repo_root.resolve()
+        models_dir, criterion_dir = root / "assets" / "models", criterion_dir or root / "target" / "criterion"
+    else:
+        root = paths.repo()
+        models_dir, criterion_dir = paths.assets() / "models", criterion_dir or paths.criterion()
+    scenes_path = root / paths.BENCH_SCENES
     if not scenes_path.is_file():
-        print(f"error: {scenes_path} not found (run python/train/scripts/make_goldens.py)", file=sys.stderr)
+        print(f"error: {scenes_path} not found (run nudge-train goldens)", file=sys.stderr)
         return 1
     torch.set_num_threads(1)
-    group = "predictor_batch32" if args.batch32 else "predictor"
-    count = 32 if args.batch32 else 1
+    group = "predictor_batch32" if batch32 else "predictor"
+    count = 32 if batch32 else 1
     functions: dict[str, Predict] = {"teacher": teacher_interactive, "student": student_interactive}
 
     rows: list[Row] = []
     with safe_open(str(scenes_path), "pt") as scenes:
-        for model in args.models:
-            weights = root / "assets" / "models" / f"{model}.safetensors"
+        for model in models:
+            weights = models_dir / f"{model}.safetensors"
             try:
                 gen = load_generator(weights, "cpu")
             except (FileNotFoundError, ValueError) as err:
                 print(f"error: {err}", file=sys.stderr)
                 return 1
             fn = functions[model]
-            for n in args.ns:
+            for n in ns:
                 history = scenes.get_tensor(f"n{n}.history")
                 cands = scenes.get_tensor(f"n{n}.candidates")[:count].contiguous()
-                ms = time_median_ms(lambda: fn(gen, history, cands), args.warmup, args.repeats, args.min_seconds)
-                rows.append(Row(model, n, ms, rust_median_ms(criterion_dir, group, model, n)))
+                ms = time_median_ms(lambda: fn(gen, history, cands), warmup, repeats, min_seconds)
+                rows.append(Row(model, n, ms, median_ms(criterion_dir, group, model, str(n))))
                 print(f"  {model} N={n}: {ms:.3f} ms", file=sys.stderr)
 
     header = (
-        f"PyTorch {torch.__version__} (1 thread, inference_mode, median of ≥{args.repeats} calls after "
-        f"{args.warmup} warm-up) vs Rust criterion group `{group}` medians; {count} candidate(s) per call; "
+        f"PyTorch {torch.__version__} (1 thread, inference_mode, median of ≥{repeats} calls after "
+        f"{warmup} warm-up) vs Rust criterion group `{group}` medians; {count} candidate(s) per call; "
         f"same weights (assets/models) and scenes (benches/data/scenes.safetensors); CPU: {cpu_name()}."
     )
     print(header)
     print(table_text(rows))
-    if args.markdown is not None:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(table_markdown(rows, header))
-        print(f"wrote {args.markdown}")
+    if markdown is not None:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(table_markdown(rows, header))
+        print(f"wrote {markdown}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

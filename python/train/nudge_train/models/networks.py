@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from nudge_train.config import ModelConfig
+from nudge_train.models.config import ModelConfig
 
 __all__ = [
     "Decoder",

@@ -1,6 +1,6 @@
 """Model configuration of the prediction networks (teacher φ_T and student φ_S).
 
-Every size of the networks is a field of :class:`ModelConfig`; nothing in :mod:`nudge_train.models`
+Every size of the networks is a field of :class:`ModelConfig`; nothing in :mod:`nudge_train.models.networks`
 hard-codes a width. The JSON form (``to_dict`` / ``from_dict``) is the ``config`` metadata string of
 the exported ``.safetensors`` files and is read by the Rust loader, so its keys are exactly the
 field names below (see docs/models.md).
@@ -13,6 +13,8 @@ import json
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
+
+from nudge_train.constants import DT, OBS_LEN, PRED_LEN
 
 ModelKind = Literal["teacher", "student"]
 
@@ -30,13 +32,13 @@ class ModelConfig:
     kind: ModelKind
     """``"teacher"`` (one-step generator used recursively) or ``"student"`` (one pass, reads the
     ego candidate)."""
-    obs_len: int = 8
+    obs_len: int = OBS_LEN
     """Observed steps per agent (t_obs)."""
     pred_len: int = 1
     """Steps the generator decodes in one call (teacher 1, student = t_plan)."""
-    t_plan: int = 6
+    t_plan: int = PRED_LEN
     """Planning horizon in steps (length of an ego candidate)."""
-    dt: float = 0.3
+    dt: float = DT
     """Step length, seconds."""
     embedding_dim: int = 16
     """E: width of every spatial embedding Linear(2, E)."""
@@ -176,10 +178,10 @@ def teacher_config() -> ModelConfig:
     """φ_T of the paper: E16 He32 Hd32 M64 B32 P512 Z8, one-step generator, pool once."""
     return ModelConfig(
         kind="teacher",
-        obs_len=8,
+        obs_len=OBS_LEN,
         pred_len=1,
-        t_plan=6,
-        dt=0.3,
+        t_plan=PRED_LEN,
+        dt=DT,
         embedding_dim=16,
         encoder_h_dim=32,
         decoder_h_dim=32,
@@ -200,10 +202,10 @@ def student_config() -> ModelConfig:
     """φ_S of the paper: E16 He16 Hd16 M16 B16 P16, no noise, pooling at every decoder step."""
     return ModelConfig(
         kind="student",
-        obs_len=8,
-        pred_len=6,
-        t_plan=6,
-        dt=0.3,
+        obs_len=OBS_LEN,
+        pred_len=PRED_LEN,
+        t_plan=PRED_LEN,
+        dt=DT,
         embedding_dim=16,
         encoder_h_dim=16,
         decoder_h_dim=16,

@@ -1,9 +1,9 @@
 """Distil the student from the teacher: train, evaluate, report, export.
 
-``python -m nudge_train.student_experiments [--config FILE] [--distill DIR] [--data DIR]``
+``nudge-train student [--config FILE] [--distill DIR] [--data DIR]``
 
 1. trains ``python/train/configs/student.toml`` on the distillation set (``data/distill``, made by
-   ``python -m nudge_train.distill`` with the shipped teacher; resumable like every training run);
+   ``nudge-train distill`` with the shipped teacher; resumable like every training run);
 2. evaluates the best-validation student ONCE on held-out data, whole and interactive subset:
 
    * *fidelity*: against the teacher's own predictions on the distillation test split (the
@@ -18,7 +18,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -28,48 +27,53 @@ from typing import Any
 import numpy as np
 import torch
 
-from nudge_train.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
-from nudge_train.export import export_generator, load_generator
-from nudge_train.reporting import REPO, git_commit, plot_curves, read_metrics, repo_relative, sha256_file
-from nudge_train.training import load_best, load_config, train
-from nudge_train.windows_data import load_split
-
+from nudge_train import paths
+from nudge_train.data.loader import load_split
+from nudge_train.experiments.plots import plot_curves
+from nudge_train.provenance import git_commit, sha256_file
+from nudge_train.training.config import load_config
+from nudge_train.training.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
+from nudge_train.training.export import export_generator, load_generator
+from nudge_train.training.log import read_metrics
+from nudge_train.training.loop import load_best, train
 
 
 def _row(name: str, m: Metrics) -> str:
     return f"| {name} | {m.ade1:.3f} | {m.ade6:.3f} | {m.fde6:.3f} | {m.scenes} | {m.agents} |"
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Runs the distillation experiment; see the module doc."""
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--config", type=Path, default=REPO / "python" / "train" / "configs" / "student.toml")
-    ap.add_argument("--distill", default=str(REPO / "data" / "distill"))
-    ap.add_argument("--data", default=str(REPO / "data" / "processed"), help="real NGSIM windows (test split)")
-    ap.add_argument("--out-dir", default=str(REPO / "runs" / "student"))
-    ap.add_argument("--epochs", type=int, default=None)
-    ap.add_argument("--teacher", default=str(REPO / "assets" / "models" / "teacher.safetensors"))
-    ap.add_argument("--report", default=str(REPO / "docs" / "results" / "student.md"))
-    ap.add_argument("--export", default=str(REPO / "assets" / "models" / "student.safetensors"))
-    ap.add_argument("--no-export", action="store_true")
-    ap.add_argument("--threads", type=int, default=2)
-    args = ap.parse_args(argv)
-    torch.set_num_threads(args.threads)
+def run(
+    *,
+    config: Path,
+    distill: str,
+    data: str,
+    out_dir: str,
+    epochs: int | None,
+    teacher: str,
+    report: str,
+    export: str | None,
+    threads: int,
+) -> int:
+    """``nudge-train student``: the distillation experiment (see the module doc). ``distill``:
+    the distillation set; ``data``: the processed build (its real test windows); ``teacher``: the
+    weights the set was generated with; ``export``: where the student is written (``None``: not
+    exported)."""
+    torch.set_num_threads(threads)
 
-    mcfg, tcfg = load_config(args.config)
-    over: dict[str, Any] = {"out_dir": args.out_dir, "data": args.distill}
-    if args.epochs is not None:
-        over["epochs"] = args.epochs
+    mcfg, tcfg = load_config(config)
+    over: dict[str, Any] = {"out_dir": out_dir, "data": distill}
+    if epochs is not None:
+        over["epochs"] = epochs
     tcfg = dataclasses.replace(tcfg, **over).validate()
-    distill = Path(args.distill)
-    manifest = json.loads((distill / "manifest.json").read_text())
-    teacher_sha = sha256_file(Path(args.teacher))
+    distill_dir = Path(distill)
+    manifest = json.loads((distill_dir / "manifest.json").read_text())
+    teacher_sha = sha256_file(Path(teacher))
     if manifest["teacher"]["sha256"] != teacher_sha:
         raise SystemExit(
-            f"error: {distill} was generated with teacher sha256 {manifest['teacher']['sha256'][:12]}..., "
-            f"but {args.teacher} is {teacher_sha[:12]}...: regenerate it (python -m nudge_train.distill)"
+            f"error: {distill_dir} was generated with teacher sha256 {manifest['teacher']['sha256'][:12]}..., "
+            f"but {teacher} is {teacher_sha[:12]}...: regenerate it (nudge-train distill)"
         )
-    train_set, val_set = load_split(distill, "train"), load_split(distill, "val")
+    train_set, val_set = load_split(distill_dir, "train"), load_split(distill_dir, "val")
     print(f"distillation examples: train {len(train_set)}, val {len(val_set)}")
     out = Path(tcfg.out_dir)
     t0 = time.perf_counter()
@@ -82,17 +86,17 @@ def main(argv: list[str] | None = None) -> int:
     rows = read_metrics(out)
     train_seconds = sum(r["seconds"] for r in rows)
     student = load_best(out, mcfg)
-    teacher = load_generator(Path(args.teacher))
+    teacher_gen = load_generator(Path(teacher))
 
-    dtest = load_split(distill, "test")
-    real = load_split(Path(args.data), "test")
+    dtest = load_split(distill_dir, "test")
+    real = load_split(Path(data), "test")
     lines = [
         "# Student results (distilled from the shipped teacher)",
         "",
-        "Generated by `python -m nudge_train.student_experiments` (see README). Metres; one step = 0.3 s; "
+        "Generated by `nudge-train student` (see README). Metres; one step = 0.3 s; "
         "the ego is imposed (its candidate or its logged future) and only the other agents are scored.",
         "",
-        f"Distillation set `{distill.name}` (teacher sha256 `{teacher_sha[:16]}…`): train {len(train_set)}, "
+        f"Distillation set `{distill_dir.name}` (teacher sha256 `{teacher_sha[:16]}…`): train {len(train_set)}, "
         f"val {len(val_set)}, test {len(dtest)} examples (one example = one scene history + one ego "
         "candidate the planner evaluated + the teacher's prediction). Real test windows: "
         f"{len(real)} ({int(real.interactive.sum())} interactive).",
@@ -116,13 +120,13 @@ def main(argv: list[str] | None = None) -> int:
         lines += ["", f"### {title}", "", "| model | ADE@0.3s | ADE@1.8s | FDE@1.8s | scenes | agents |",
                   "|---|---|---|---|---|---|"]
         lines.append(_row("constant velocity", evaluate_constant_velocity(real, skip_ego=True, subset=subset)))
-        lines.append(_row("teacher (recursive ×6, fixed z)", evaluate_generator(teacher, real, mode="recursive", subset=subset)))
+        lines.append(_row("teacher (recursive ×6, fixed z)", evaluate_generator(teacher_gen, real, mode="recursive", subset=subset)))
         lines.append(_row("student (one pass)", evaluate_generator(student, real, mode="decoder", subset=subset)))
     lines += [
         "",
         "## Training",
         "",
-        f"Config `{args.config.name}`: k_var {tcfg.k_var:g}, I_adv {tcfg.i_adv}, k {tcfg.k_samples}, lr {tcfg.lr:g} "
+        f"Config `{config.name}`: k_var {tcfg.k_var:g}, I_adv {tcfg.i_adv}, k {tcfg.k_samples}, lr {tcfg.lr:g} "
         f"({tcfg.lr_schedule}), batch {tcfg.batch_size}, {len(rows)} epochs run, best epoch {summary['best_epoch'] + 1} "
         f"(val ADE vs teacher {summary['best_val_ade']:.4f} m), training wall time {train_seconds:.0f} s on "
         f"{torch.get_num_threads()} CPU threads (this invocation {wall:.0f} s).",
@@ -131,23 +135,23 @@ def main(argv: list[str] | None = None) -> int:
     ]
     plot_curves(
         {"student": out},
-        REPO / "docs" / "figures" / "student_curves.png",
+        paths.figures() / "student_curves.png",
         "Student distillation (train: planner-generated set, val: its val split)",
         "train L2 loss vs teacher (m²)",
         "val ADE vs teacher, 6 steps (m)",
     )
-    report = Path(args.report)
-    report.parent.mkdir(parents=True, exist_ok=True)
-    report.write_text("\n".join(lines) + "\n")
+    report_path = Path(report)
+    report_path.parent.mkdir(parents=True, exist_ok=True)
+    report_path.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    print(f"wrote {report}")
-    if not args.no_export:
+    print(f"wrote {report_path}")
+    if export is not None:
         prov = {
-            "data": repo_relative(distill),
-            "distill_manifest_sha256": sha256_file(distill / "manifest.json"),
+            "data": paths.repo_relative(distill_dir),
+            "distill_manifest_sha256": sha256_file(distill_dir / "manifest.json"),
             "teacher_sha256": teacher_sha,
             "split": "distillation train (selected on distillation val)",
-            "config": args.config.name,
+            "config": config.name,
             "train": dataclasses.asdict(tcfg),
             "best_epoch": summary["best_epoch"],
             "best_val_ade": summary["best_val_ade"],
@@ -156,10 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             if not torch.cuda.is_available()
             else torch.cuda.get_device_name(),
         }
-        export_generator(student, mcfg, Path(args.export), trained=True, provenance=prov)
-        print(f"exported the student to {args.export}")
+        export_generator(student, mcfg, Path(export), trained=True, provenance=prov)
+        print(f"exported the student to {export}")
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Writes the golden files the Rust predictor tests against, the benchmark scenes and (optionally)
 the randomly initialised shipped weights. Everything is seeded: rerunning gives identical bytes.
 
@@ -20,13 +19,11 @@ used, which makes them both stable across machines and the best reference for th
 ``--check`` regenerates into a temporary directory and compares bit-exactly with the committed
 files; it exits 1 naming every file that differs.
 
-Usage (from the repository root):
-    .venv/bin/python python/train/scripts/make_goldens.py [--trained] [--ship-random] [--check]
+    nudge-train goldens [--trained] [--ship-random] [--check]
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import json
 import sys
@@ -39,33 +36,25 @@ import numpy as np
 import torch
 from safetensors import safe_open
 
-try:
-    import nudge_train  # noqa: F401
-except ModuleNotFoundError:  # running from a checkout without an install of python/train
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from nudge_train.config import ModelConfig, student_config, teacher_config
-from nudge_train.export import export_generator, load_generator, read_weights, save_safetensors
-from nudge_train.interactive import student_interactive, teacher_interactive
-from nudge_train.models import TrajectoryGenerator, build_model
-from nudge_train.synthetic import highway_candidates, highway_history
+from nudge_train.constants import BENCH_NS
+from nudge_train.models.config import ModelConfig, student_config, teacher_config
+from nudge_train.models.interactive import student_interactive, teacher_interactive
+from nudge_train.models.networks import TrajectoryGenerator, build_model
+from nudge_train.paths import BENCH_SCENES, GOLDEN_DIR
+from nudge_train.testing.synthetic import highway_candidates, highway_history
+from nudge_train.training.export import export_generator, load_generator, read_weights, save_safetensors
 
 GENERATOR = "python/train/scripts/make_goldens.py"
-GOLDEN_DIR = Path("tests/golden")
-BENCH_SCENES = Path("benches/data/scenes.safetensors")
+"""The ``generator`` label recorded in every file's metadata. It names where this generator lived
+when the committed files were made; it is kept so that regenerated files stay byte-identical
+(changing it means regenerating every golden file and the Rust tests' references to it)."""
 ASSETS_DIR = Path("assets/models")
 GOLDEN_NS = (1, 2, 5, 17, 47)
 GOLDEN_CANDIDATES = 4
-BENCH_NS = (2, 4, 8, 16, 32)
 BENCH_CANDIDATES = 32
 GOLDEN_SCENE_SEED = 20_261_121
 BENCH_SCENE_SEED = 20_261_122
 KINDS = ("teacher", "student")
-
-
-def default_repo_root() -> Path:
-    """The repository holding this script (python/train/scripts/ → three levels up)."""
-    return Path(__file__).resolve().parents[3]
 
 
 def config_for(kind: str) -> ModelConfig:
@@ -219,20 +208,16 @@ def check(repo_root: Path, options: Options, log: Callable[[str], None] = print)
     return problems
 
 
-def main(argv: list[str] | None = None) -> int:
-    """CLI entry point; returns the exit status."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repo-root", type=Path, default=default_repo_root(), help="repository root")
-    parser.add_argument("--trained", action="store_true", help="also write cases against trained assets/models/*")
-    parser.add_argument("--ship-random", action="store_true", help="also write random assets/models/{teacher,student}")
-    parser.add_argument("--check", action="store_true", help="regenerate into a temp dir and compare bit-exactly")
-    args = parser.parse_args(argv)
-    options = Options(trained=args.trained, ship_random=args.ship_random)
-    root: Path = args.repo_root.resolve()
-    if args.check:
+def run(*, repo_root: Path, trained: bool, ship_random: bool, check_only: bool) -> int:
+    """``nudge-train goldens``: writes the files below ``repo_root`` (``--trained``,
+    ``--ship-random`` add the optional ones), or with ``check_only`` compares a regeneration with
+    them. Returns the exit status (1 when a file differs)."""
+    options = Options(trained=trained, ship_random=ship_random)
+    root = repo_root.resolve()
+    if check_only:
         problems = check(root, options)
         if problems:
-            print("golden files are out of date (rerun make_goldens.py without --check):", file=sys.stderr)
+            print("golden files are out of date (rerun `nudge-train goldens` without --check):", file=sys.stderr)
             for p in problems:
                 print(f"  {p}", file=sys.stderr)
             return 1
@@ -241,7 +226,3 @@ def main(argv: list[str] | None = None) -> int:
     for rel in generate(root, root, options):
         print(f"wrote {rel.as_posix()}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -4,7 +4,7 @@ criterion bench (`cargo bench --bench planner`, group ``planner/step/<predictor>
 Same problem as the bench: the densest shipped scene cut to its N nearest vehicles, target =
 the lane left of the ego (right when there is none), a cold start per call. Run::
 
-    python -m nudge.bench [--reps 30] [--ns 2 4 8 16] [--predictors student constant_velocity]
+    nudge-train bench python [--reps 30] [--ns 2 4 8 16] [--predictors student constant_velocity]
 
 For every (predictor, N) it prints the median wall time of ``Planner.plan_scenario`` measured in
 Python, the median of the planner's internal ``timings.total_s`` of the same calls (the Rust
@@ -14,8 +14,6 @@ time, measured inside the call), their ratio, and the criterion median when
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from pathlib import Path
 
@@ -23,8 +21,11 @@ import numpy as np
 
 import nudge
 
+from nudge_train.experiments.criterion import median_ms
+
 
 def bench_scene(n: int) -> nudge.Scenario:
+    """The densest shipped scene cut to its ``n`` nearest vehicles (ego included)."""
     scenes = [nudge.Scenario.load(p) for p in nudge.scene_paths()]
     big = max(scenes, key=lambda s: (s.n_agents, s.name))
     return big.nearest(n - 1)
@@ -45,34 +46,20 @@ def measure(pred: nudge.Predictor, sc: nudge.Scenario, reps: int) -> tuple[float
     return float(np.median(wall)), float(np.median(inner))
 
 
-def criterion_median(repo: Path, name: str, n: int) -> float | None:
-    p = repo / "target" / "criterion" / "planner" / f"step_{name}" / str(n) / "new" / "estimates.json"
-    if not p.exists():
-        return None
-    return float(json.loads(p.read_text())["median"]["point_estimate"]) * 1e-9
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m nudge.bench", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--reps", type=int, default=30)
-    ap.add_argument("--ns", type=int, nargs="+", default=[2, 4, 8, 16])
-    ap.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"])
-    a = ap.parse_args(argv)
-    repo = nudge.assets_dir().parent
+def run(*, reps: int, ns: list[int], predictors: list[str], criterion: Path) -> int:
+    """``nudge-train bench python``: prints the table for every predictor of ``predictors`` and
+    agent count of ``ns``, ``reps`` timed calls each, beside criterion's ``planner/step`` medians
+    read below ``criterion`` (``target/criterion``)."""
     print("| predictor | N | Python wall (ms) | Rust in-call (ms) | Python / in-call | criterion (ms) | Python / criterion |")
     print("|---|---|---|---|---|---|---|")
-    for name in a.predictors:
+    for name in predictors:
         pred = (nudge.Predictor.constant_velocity() if name == "constant_velocity"
                 else nudge.Predictor.load(nudge.model_path(name)))
-        for n in a.ns:
+        for n in ns:
             sc = bench_scene(n)
-            wall, inner = measure(pred, sc, a.reps)
-            crit = criterion_median(repo, name, n)
-            c = f"{crit * 1e3:.3f}" if crit else "-"
-            cr = f"{wall / crit:.3f}" if crit else "-"
+            wall, inner = measure(pred, sc, reps)
+            crit = median_ms(criterion, "planner", f"step_{name}", str(n))
+            c = f"{crit:.3f}" if crit else "-"
+            cr = f"{wall * 1e3 / crit:.3f}" if crit else "-"
             print(f"| {name} | {n} | {wall * 1e3:.3f} | {inner * 1e3:.3f} | {wall / inner:.3f} | {c} | {cr} |")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

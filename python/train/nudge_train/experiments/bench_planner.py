@@ -5,17 +5,16 @@ Run after ``cargo bench --bench planner`` (``make bench-planner`` does both): re
 directory names for the ids ``planner/step/<predictor>/<N>`` and ``planner/z_update/<predictor>/<N>``)
 and prints medians (ms) per N with the teacher / student Z-update ratio.
 
-    .venv/bin/python python/train/scripts/planner_bench_table.py [--markdown docs/results/planner.md]
+    nudge-train bench planner [--markdown docs/results/planner.md]
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[3]
+from nudge_train.experiments.criterion import median_ms
+
 PREDICTORS = ("teacher", "student", "constant_velocity")
 NS = (2, 4, 8, 16)
 
@@ -26,9 +25,9 @@ def medians(root: Path) -> dict[tuple[str, str, int], float]:
     for kind in ("step", "z_update"):
         for pred in PREDICTORS:
             for n in NS:
-                path = root / f"{kind}_{pred}" / str(n) / "new" / "estimates.json"
-                if path.exists():
-                    out[(kind, pred, n)] = json.loads(path.read_text())["median"]["point_estimate"] / 1e6
+                ms = median_ms(root, f"{kind}_{pred}", str(n))
+                if ms is not None:
+                    out[(kind, pred, n)] = ms
     return out
 
 
@@ -50,22 +49,17 @@ def table(rows: dict[tuple[str, str, int], float]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--criterion", type=Path, default=REPO / "target" / "criterion" / "planner")
-    ap.add_argument("--markdown", type=Path, default=None, help="also write the table here")
-    args = ap.parse_args(argv)
-    rows = medians(args.criterion)
+def run(*, criterion: Path, markdown: Path | None) -> int:
+    """``nudge-train bench planner``: prints the table of the planner benches under ``criterion``
+    (``target/criterion/planner``) and writes it to ``markdown`` when given. Returns the exit
+    status (2 when no planner bench has been run)."""
+    rows = medians(criterion)
     if not rows:
-        print(f"error: no planner bench results under {args.criterion} (run `make bench-planner`)", file=sys.stderr)
+        print(f"error: no planner bench results under {criterion} (run `make bench-planner`)", file=sys.stderr)
         return 2
     text = table(rows)
     print(text)
-    if args.markdown:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(text + "\n")
+    if markdown:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(text + "\n")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

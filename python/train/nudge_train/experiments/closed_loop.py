@@ -1,4 +1,4 @@
-"""Closed-loop comparison of planning predictors on held-out real scenes (issue: planner).
+"""Closed-loop comparison of planning predictors on held-out real scenes.
 
 Draws ``--n`` scenes (seeded) from a folder of ``nudge.scenario/1`` files (default: the test-split
 scenes the data pipeline writes, ``data/processed/scenes/test``), gives each a seeded target lane,
@@ -8,12 +8,11 @@ success, steps to target, collisions, planning time per step (median, p90: one p
 one thread; ``--threads`` runs go side by side), Z-update time, and the plan cost compared run by
 run with the teacher planner's (same scene, same target).
 
-    .venv/bin/python python/train/scripts/closed_loop.py --n 120 --markdown docs/results/closed_loop.md
+    nudge-train closed-loop --n 120 --markdown docs/results/closed_loop.md
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -23,7 +22,7 @@ import numpy as np
 
 import nudge
 
-REPO = Path(__file__).resolve().parents[3]
+from nudge_train import paths
 
 
 def summarise(res: dict, dt: float) -> dict:
@@ -62,37 +61,40 @@ def summarise(res: dict, dt: float) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", type=Path, default=REPO / "data" / "processed" / "scenes" / "test")
-    ap.add_argument("--n", type=int, default=120)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"])
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--settings", type=Path, default=None,
-                    help="planner settings JSON (missing fields take the defaults)")
-    ap.add_argument("--abort-after", type=int, default=4,
-                    help="lane-change abort after this many steps without a safe plan (0: never)")
-    ap.add_argument("--abort-hold", type=int, default=3)
-    ap.add_argument("--markdown", type=Path, default=None)
-    ap.add_argument("--json", type=Path, default=None)
-    args = ap.parse_args(argv)
-
-    paths = sorted(args.scenes.glob("*.safetensors"))
-    if not paths:
-        print(f"error: no scenario files in {args.scenes} (run `make distill` or `make data`)", file=sys.stderr)
+def run(
+    *,
+    scenes: Path,
+    n: int,
+    seed: int,
+    predictors: list[str],
+    threads: int,
+    settings: Path | None,
+    abort_after: int,
+    abort_hold: int,
+    markdown: Path | None,
+    json_path: Path | None,
+) -> int:
+    """``nudge-train closed-loop``: draws ``n`` scenes of the folder ``scenes`` with ``seed``,
+    runs every planning predictor of ``predictors`` on them (``threads`` runs side by side,
+    planner ``settings`` JSON or the defaults, lane-change aborts ``abort_after`` /
+    ``abort_hold``), prints the table and writes it to ``markdown`` and the summaries to
+    ``json_path`` when given. Returns the exit status (2 when ``scenes`` holds no scenario)."""
+    scene_files = sorted(scenes.glob("*.safetensors"))
+    if not scene_files:
+        print(f"error: no scenario files in {scenes} (run `make distill` or `make data`)", file=sys.stderr)
         return 2
-    rng = np.random.default_rng(args.seed)
-    pick = sorted(rng.permutation(len(paths))[: args.n].tolist())
-    chosen = [paths[i] for i in pick]
+    rng = np.random.default_rng(seed)
+    pick = sorted(rng.permutation(len(scene_files))[:n].tolist())
+    chosen = [scene_files[i] for i in pick]
     scene_seeds = rng.integers(0, 2**31, size=len(chosen)).tolist()
-    print(f"{len(chosen)} scenes from {args.scenes} (seed {args.seed}), world = shipped teacher")
-    settings = nudge.PlannerSettings.from_json(args.settings.read_text()) if args.settings else None
+    print(f"{len(chosen)} scenes from {scenes} (seed {seed}), world = shipped teacher")
+    planner_settings = nudge.PlannerSettings.from_json(settings.read_text()) if settings else None
     summaries: dict[str, dict] = {}
-    for pred in args.predictors:
+    for pred in predictors:
         t0 = time.perf_counter()
         res = nudge.simulate(chosen, pred, world="predictor", world_predictor="teacher", scene_seeds=scene_seeds,
-                             settings=settings, abort_after=args.abort_after, abort_hold=args.abort_hold, runs=1, threads=args.threads, on_error="skip")
+                             settings=planner_settings, abort_after=abort_after, abort_hold=abort_hold, runs=1,
+                             threads=threads, on_error="skip")
         s = summarise(res, nudge.DT)
         s["wall_s"] = time.perf_counter() - t0
         summaries[pred] = s
@@ -101,10 +103,10 @@ def main(argv: list[str] | None = None) -> int:
 
     base = summaries.get("teacher")
     lines = [
-        f"Closed loop on {len(chosen)} held-out real scenes (`{args.scenes.relative_to(REPO) if args.scenes.is_relative_to(REPO) else args.scenes}`, "
-        f"drawn with seed {args.seed}; one run each, seeded target lane), the shipped teacher moving the other "
+        f"Closed loop on {len(chosen)} held-out real scenes (`{paths.repo_relative(scenes)}`, "
+        f"drawn with seed {seed}; one run each, seeded target lane), the shipped teacher moving the other "
         f"vehicles, at most 30 steps of {nudge.DT} s. Times: one planner call on one thread "
-        f"({args.threads} runs side by side on the {args.threads}-core machine).",
+        f"({threads} runs side by side on the {threads}-core machine).",
         "",
         "| planning predictor | runs (errors) | agents / scene | success | time to target (s) | collisions | steps with min b < 0 "
         "| planning ms / step, median | p90 | Z-update ms, median | mean cost / step | cost vs teacher (paired) |",
@@ -129,15 +131,12 @@ def main(argv: list[str] | None = None) -> int:
         f"{pred}: " + ", ".join(f"{k} {v}" for k, v in s["status_counts"].items()) for pred, s in summaries.items())]
     text = "\n".join(lines)
     print(text)
-    if args.markdown:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(text + "\n")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({p: {k: v for k, v in s.items() if k not in ("mean_cost_per_run", "ok")}
+    if markdown:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(text + "\n")
+    if json_path:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps({p: {k: v for k, v in s.items() if k not in ("mean_cost_per_run", "ok")}
                                          for p, s in summaries.items()}, indent=1))
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,11 +1,14 @@
 """Training windows in memory: the processed shards of one split, batched into scenes.
 
-A :class:`WindowSet` holds every window of one split as flat arrays (the layout of the processed
-shards, docs/data_schema.md): ``positions`` ``[A, 14, 2]`` (m, road frame, 0.3 s steps, 8 observed
-+ 6 future), ``offsets`` ``[W + 1]`` (window ``w`` = agents ``offsets[w]:offsets[w+1]``, its first
-agent is its ego), ``interactive`` ``[W]``. Batches are translated so that every window's ego sits
-at the origin at its last observed step: the networks are translation invariant and float32 keeps
-more precision near 0.
+The build side (:mod:`nudge_train.data.windows`) cuts windows out of the NGSIM tracks and
+:mod:`nudge_train.data.build` writes them as shards; this module reads them back for training
+and evaluation. A :class:`WindowSet` holds every window of one split as flat arrays (the layout
+of the processed shards, docs/data_schema.md): ``positions`` ``[A, 14, 2]`` (m, road frame, 0.3 s
+steps, 8 observed + 6 future), ``offsets`` ``[W + 1]`` (window ``w`` = agents
+``offsets[w]:offsets[w+1]``, its first agent is its ego), ``interactive`` ``[W]``. The
+distillation set (``nudge.distill/1``) is read into the same layout. Batches are translated so
+that every window's ego sits at the origin at its last observed step: the networks are
+translation invariant and float32 keeps more precision near 0.
 """
 
 from __future__ import annotations
@@ -19,11 +22,9 @@ import numpy as np
 import torch
 from safetensors.numpy import load_file
 
-__all__ = ["Batch", "WindowSet", "load_distill_split", "load_split"]
+from nudge_train.constants import DISTILL_SCHEMA, OBS_LEN, PRED_LEN
 
-OBS_LEN = 8
-PRED_LEN = 6
-DISTILL_SCHEMA = "nudge.distill/1"
+__all__ = ["Batch", "WindowSet", "load_distill_split", "load_split"]
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ class WindowSet:
 
     def __post_init__(self) -> None:
         if self.positions.ndim != 3 or self.positions.shape[1:] != (OBS_LEN + PRED_LEN, 2):
-            raise ValueError(f"positions: expected [A, 14, 2], got {list(self.positions.shape)}")
+            raise ValueError(f"positions: expected [A, {OBS_LEN + PRED_LEN}, 2], got {list(self.positions.shape)}")
         if self.offsets.ndim != 1 or self.offsets[0] != 0 or self.offsets[-1] != len(self.positions):
             raise ValueError("offsets: must start at 0 and end at the agent count")
         if np.any(np.diff(self.offsets) <= 0):
@@ -84,7 +85,7 @@ class WindowSet:
         parts = [self.positions[self.offsets[w] : self.offsets[w + 1]] for w in windows]
         sizes = np.array([len(p) for p in parts], dtype=np.int64)
         return WindowSet(
-            positions=np.concatenate(parts) if parts else np.zeros((0, 14, 2), np.float32),
+            positions=np.concatenate(parts) if parts else np.zeros((0, OBS_LEN + PRED_LEN, 2), np.float32),
             offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
             interactive=self.interactive[windows].copy(),
         )

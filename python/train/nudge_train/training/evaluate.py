@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from nudge_train.models import TrajectoryGenerator
-from nudge_train.windows_data import Batch, WindowSet
+from nudge_train.data.loader import Batch, WindowSet
+from nudge_train.models.networks import TrajectoryGenerator
 
 __all__ = ["Metrics", "evaluate_generator", "evaluate_constant_velocity"]
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from nudge_train.models import TrajectoryGenerator
+from nudge_train.models.networks import TrajectoryGenerator
 
 __all__ = ["batch_scenes", "student_interactive", "teacher_interactive"]
 

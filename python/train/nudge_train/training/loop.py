@@ -1,9 +1,9 @@
 """Training of the Social-GAN generators: best-of-k variety loss + optional adversarial loss.
 
-One command trains one configuration (``python -m nudge_train.training --config FILE``):
+One command trains one configuration (``nudge-train train --config FILE``):
 
 * the config is a TOML file with a ``[model]`` table (any :class:`ModelConfig` field) and a
-  ``[train]`` table (:class:`TrainConfig`); unknown keys and impossible values are refused;
+  ``[train]`` table (:class:`TrainConfig`), see :mod:`nudge_train.training.config`;
 * L_G = k_var · L_var + I_adv · L_adv (paper eq. 5). L_var: ``k_samples`` draws of z per scene, per
   draw the scene's summed squared displacement error over its agents and decoded steps, minimum
   over draws, divided by agents × steps, mean over scenes. L_adv: the non-saturating generator
@@ -19,14 +19,11 @@ weight. The student is trained the same way on the distillation set (ego imposed
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
 import sys
 import time
-import tomllib
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,125 +33,13 @@ from torch import Tensor
 from torch.nn import functional as F
 from tqdm import tqdm
 
-from nudge_train.config import ModelConfig, student_config, teacher_config
-from nudge_train.models import TrajectoryDiscriminator, TrajectoryGenerator, build_model, positions_to_rel
-from nudge_train.windows_data import Batch, WindowSet, load_split
+from nudge_train.data.loader import Batch, WindowSet, load_split
+from nudge_train.models.config import ModelConfig
+from nudge_train.models.networks import TrajectoryGenerator, build_model, positions_to_rel
+from nudge_train.training.config import TrainConfig, load_config
+from nudge_train.training.log import METRICS_FILE
 
-__all__ = ["TrainConfig", "load_config", "train", "variety_loss", "main"]
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Optimisation settings of one training run."""
-
-    data: str = "data/processed"
-    """Processed-data directory (holds manifest.json) or the manifest itself."""
-    out_dir: str = "runs/teacher"
-    """Where checkpoints, metrics and the exported weights go."""
-    k_var: float = 1.0
-    """Weight of the variety loss."""
-    i_adv: int = 0
-    """1 = add the adversarial loss (trains a discriminator), 0 = regression only."""
-    k_samples: int = 20
-    """Draws of z per scene in the best-of-k variety loss (1 for a noise-free student)."""
-    lr: float = 1e-3
-    """Adam learning rate of the generator (and discriminator) at the first epoch."""
-    lr_schedule: str = "cosine"
-    """``"cosine"``: lr decays over ``epochs`` to ``lr_final_fraction`` · lr; ``"constant"``."""
-    lr_final_fraction: float = 0.05
-    """Final lr as a fraction of ``lr`` for the cosine schedule."""
-    batch_size: int = 64
-    """Scenes per batch."""
-    epochs: int = 60
-    """Maximum epochs."""
-    patience: int = 10
-    """Early stopping: epochs without a validation-ADE improvement."""
-    train_steps: int = 6
-    """Future steps decoded (and supervised) per training call."""
-    val_metric: str = "ade"
-    """Early-stopping / selection metric on the validation split: ``"ade"`` (single-sample ADE
-    over ``train_steps`` decoded steps) or ``"recursive_fde"`` (single-sample FDE at 1.8 s of the
-    planner's recursive use: 6 one-step calls, egos on their logged future)."""
-    clip_grad: float = 1.0
-    """Gradient-norm clipping threshold (0 = off)."""
-    seed: int = 0
-    """Seed of shuffling, noise and initialisation offsets."""
-    device: str = "auto"
-    """``"auto"`` (CUDA when present, else CPU), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ..."""
-    max_train_windows: int = 0
-    """Use only the first N training windows (0 = all): for smoke runs."""
-    max_val_windows: int = 0
-    """Validate on N evenly spaced validation windows (0 = all)."""
-    samples_per_epoch: int = 0
-    """Windows drawn (seeded, without replacement) per epoch; 0 = every training window. For sets
-    of many near-duplicate windows such as the distillation set (~100 candidates per context)."""
-    threads: int = 0
-    """torch CPU threads (0 = torch default)."""
-
-    def validate(self) -> TrainConfig:
-        """Raises ValueError naming the first impossible field."""
-        checks = [
-            ("k_var", self.k_var >= 0 and math.isfinite(self.k_var)),
-            ("i_adv", self.i_adv in (0, 1)),
-            ("k_samples", self.k_samples >= 1),
-            ("lr", self.lr > 0 and math.isfinite(self.lr)),
-            ("lr_schedule", self.lr_schedule in ("cosine", "constant")),
-            ("lr_final_fraction", 0 < self.lr_final_fraction <= 1),
-            ("batch_size", self.batch_size >= 1),
-            ("epochs", self.epochs >= 1),
-            ("patience", self.patience >= 1),
-            ("train_steps", 1 <= self.train_steps <= 6),
-            ("clip_grad", self.clip_grad >= 0),
-            ("val_metric", self.val_metric in ("ade", "recursive_fde")),
-            ("max_train_windows", self.max_train_windows >= 0),
-            ("max_val_windows", self.max_val_windows >= 0),
-            ("samples_per_epoch", self.samples_per_epoch >= 0),
-            ("threads", self.threads >= 0),
-        ]
-        for name, ok in checks:
-            if not ok:
-                raise ValueError(f"train.{name}: impossible value {getattr(self, name)!r}")
-        if self.k_var == 0 and self.i_adv == 0:
-            raise ValueError("train: k_var = 0 and i_adv = 0 leave nothing to minimise")
-        return self
-
-
-def load_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
-    """Reads a TOML training config: ``[model]`` (``kind`` picks the teacher/student defaults,
-    other keys override sizes) and ``[train]``. Unknown tables or keys raise ValueError."""
-    path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"training config not found: {path}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"{path}: invalid TOML: {err}") from None
-    unknown = set(raw) - {"model", "train"}
-    if unknown:
-        raise ValueError(f"{path}: unknown table(s) {sorted(unknown)} (expected [model] and [train])")
-    model = dict(raw.get("model", {}))
-    kind = model.pop("kind", "teacher")
-    base = {"teacher": teacher_config, "student": student_config}.get(kind)
-    if base is None:
-        raise ValueError(f"{path}: model.kind must be 'teacher' or 'student', got {kind!r}")
-    fields = {f.name for f in dataclasses.fields(ModelConfig)}
-    bad = set(model) - fields
-    if bad:
-        raise ValueError(f"{path}: unknown [model] key(s) {sorted(bad)}")
-    try:
-        mcfg = base().replace(**model).validate()
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{path}: [model]: {err}") from None
-    train_raw = raw.get("train", {})
-    tfields = {f.name for f in dataclasses.fields(TrainConfig)}
-    bad = set(train_raw) - tfields
-    if bad:
-        raise ValueError(f"{path}: unknown [train] key(s) {sorted(bad)}")
-    try:
-        tcfg = TrainConfig(**train_raw).validate()
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{path}: [train]: {err}") from None
-    return mcfg, tcfg
+__all__ = ["load_best", "run", "train", "variety_loss"]
 
 
 def resolve_device(name: str) -> torch.device:
@@ -291,7 +176,7 @@ def train(
     opt_d = torch.optim.Adam(disc.parameters(), lr=tcfg.lr)
     rng = torch.Generator().manual_seed(tcfg.seed)
     start_epoch, best_ade, best_epoch, stale = 0, math.inf, -1, 0
-    metrics_path = out / "metrics.jsonl"
+    metrics_path = out / METRICS_FILE
     last = out / "last.pt"
     if resume:
         if not last.exists():
@@ -363,7 +248,7 @@ def train(
             sums["loss_adv"] += float(loss_adv.detach())
             bar.set_postfix(var=f"{sums['loss_var'] / (i + 1):.4f}", adv=f"{sums['loss_adv'] / (i + 1):.3f}")
         if tcfg.val_metric == "recursive_fde":
-            from nudge_train.evaluate import evaluate_generator
+            from nudge_train.training.evaluate import evaluate_generator
 
             val_ade = evaluate_generator(gen, val_set, mode="recursive").fde6
             gen.train()
@@ -419,26 +304,17 @@ def load_best(out_dir: Path, mcfg: ModelConfig, device: torch.device | str = "cp
     return gen
 
 
-def main(argv: list[str] | None = None) -> int:
-    """CLI: ``python -m nudge_train.training --config FILE [--resume] [--out-dir DIR]``."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--config", type=Path, required=True)
-    parser.add_argument("--resume", action="store_true", help="continue from OUT_DIR/last.pt")
-    parser.add_argument("--out-dir", type=str, default=None, help="override train.out_dir")
-    parser.add_argument("--data", type=str, default=None, help="override train.data")
-    parser.add_argument("--epochs", type=int, default=None, help="override train.epochs")
-    args = parser.parse_args(argv)
+def run(*, config: Path, resume: bool, out_dir: str | None, data: str | None, epochs: int | None) -> int:
+    """``nudge-train train``: trains the configuration in the TOML file ``config``, with
+    ``out_dir`` / ``data`` / ``epochs`` (when given) overriding its ``[train]`` table; prints the
+    summary as JSON. Returns the exit status (2 on a bad config, missing data or checkpoint)."""
     try:
-        mcfg, tcfg = load_config(args.config)
-        over = {k: v for k, v in (("out_dir", args.out_dir), ("data", args.data), ("epochs", args.epochs)) if v is not None}
+        mcfg, tcfg = load_config(config)
+        over = {k: v for k, v in (("out_dir", out_dir), ("data", data), ("epochs", epochs)) if v is not None}
         tcfg = dataclasses.replace(tcfg, **over).validate()
-        summary = train(mcfg, tcfg, resume=args.resume)
+        summary = train(mcfg, tcfg, resume=resume)
     except (ValueError, FileNotFoundError, RuntimeError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(json.dumps(summary))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

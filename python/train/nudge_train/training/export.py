@@ -21,19 +21,17 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save as save_bytes
 
-from nudge_train.config import ModelConfig
-from nudge_train.models import TrajectoryGenerator, build_model
+from nudge_train.constants import WEIGHTS_FORMAT
+from nudge_train.models.config import ModelConfig
+from nudge_train.models.networks import TrajectoryGenerator, build_model
 
 __all__ = [
-    "WEIGHTS_FORMAT",
     "WeightsFile",
     "export_generator",
     "load_generator",
     "read_weights",
     "save_safetensors",
 ]
-
-WEIGHTS_FORMAT = "nudge.weights/1"
 
 
 def save_safetensors(tensors: dict[str, torch.Tensor], path: Path, metadata: dict[str, str]) -> Path:

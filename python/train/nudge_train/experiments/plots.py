@@ -1,0 +1,118 @@
+"""Figures: closed-loop runs over their scenes, and training curves.
+
+Imports only numpy, matplotlib (and the ``nudge`` extension to read scenario files), so that
+``make demo`` draws its runs in a light environment without torch.
+
+* :func:`plot_runs` draws runs written by ``nudge simulate --out DIR`` as one PNG. For each of the
+  first ``--max-runs`` runs: the road (lane boundaries from the scenario file), the other
+  vehicles' observed history and logged future (grey), and the ego's executed path (coloured,
+  one dot per 0.3 s planning step; red crosses where a step reported a collision).
+
+      nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
+
+* :func:`plot_curves` draws the training loss and validation metric per epoch of training runs
+  (``docs/figures/teacher_curves.png``, ``student_curves.png``; ``nudge-train figures curves``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nudge_train.training.log import read_metrics
+
+__all__ = ["plot_curves", "plot_runs"]
+
+
+def _pyplot() -> Any:
+    """``matplotlib.pyplot`` on the non-interactive Agg backend (imported on first use)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_runs(*, records_dir: Path, scenes: Path, png: Path | None, max_runs: int) -> int:
+    """``nudge-train figures runs``: the first ``max_runs`` runs of ``records_dir/records.json``
+    over their scenes (read from the folder ``scenes``) as one PNG at ``png`` (default
+    ``records_dir/runs.png``). Returns the exit status (2 when there is nothing to draw)."""
+    import nudge
+
+    plt = _pyplot()
+    records_path = records_dir / "records.json"
+    if not records_path.exists():
+        print(f"error: {records_path} not found (run `nudge simulate --out {records_dir}` first)", file=sys.stderr)
+        return 2
+    runs = json.loads(records_path.read_text())[:max_runs]
+    if not runs:
+        print(f"error: {records_path} holds no runs", file=sys.stderr)
+        return 2
+    cols = 2 if len(runs) > 1 else 1
+    rows = math.ceil(len(runs) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(7.5 * cols, 2.6 * rows), squeeze=False)
+    for ax, run in zip(axes.flat, runs, strict=False):
+        scene = nudge.Scenario.load(scenes / f"{run['scenario']}.safetensors")
+        hist, fut, valid = scene.history, scene.future, scene.future_valid.astype(bool)
+        steps = run["steps"]
+        ego = np.array([s["ego"] for s in steps]) if steps else np.zeros((0, 4))
+        x_lo = hist[:, :, 0].min() - 5
+        x_hi = max(float(ego[:, 0].max()) if len(ego) else 0.0, float(hist[0, -1, 0])) + 20
+        for yb in scene.lane_bounds:
+            ax.axhline(yb, color="0.6", lw=0.8, ls="--")
+        ax.axhline(run["y_target"], color="tab:green", lw=0.8, alpha=0.5)
+        for a in range(1, hist.shape[0]):
+            ax.plot(hist[a, :, 0], hist[a, :, 1], color="0.5", lw=1)
+            f = fut[a][valid[a]][: len(steps)]
+            ax.plot(f[:, 0], f[:, 1], color="0.8", lw=1)
+        ax.plot(hist[0, :, 0], hist[0, :, 1], color="tab:blue", lw=1.5)
+        if len(ego):
+            ax.plot(ego[:, 0], ego[:, 1], "o-", color="tab:orange", ms=3, lw=1.5, label="ego (executed)")
+            hit = np.array([s["collision"] for s in steps])
+            if hit.any():
+                ax.plot(ego[hit, 0], ego[hit, 1], "x", color="red", ms=8, label="collision")
+        ax.set_xlim(x_lo, x_hi)
+        ax.set_title(
+            f"{run['scenario']}  {run['predictor']}  target lane {run['target_lane']}  "
+            f"{'success' if run['success'] else 'no success'} in {len(steps)} steps",
+            fontsize=8,
+        )
+        ax.set_xlabel("x along road (m)")
+        ax.set_ylabel("y (m)")
+        ax.legend(fontsize=7, loc="upper left")
+    for ax in list(axes.flat)[len(runs) :]:
+        ax.axis("off")
+    fig.tight_layout()
+    png = png or records_dir / "runs.png"
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    print(f"wrote {png}")
+    return 0
+
+
+def plot_curves(runs: dict[str, Path], path: Path, title: str, loss_label: str, val_label: str) -> None:
+    """Train loss and validation metric per epoch of each training run (``name -> out_dir``,
+    log scales) as a PNG at ``path``."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for name, out in runs.items():
+        rows = read_metrics(out)
+        ep = [r["epoch"] + 1 for r in rows]
+        axes[0].plot(ep, [r["loss_var"] for r in rows], label=name)
+        axes[1].plot(ep, [r["val_ade"] for r in rows], label=name)
+    axes[0].set(xlabel="epoch", ylabel=loss_label, yscale="log")
+    axes[1].set(xlabel="epoch", ylabel=val_label, yscale="log")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
