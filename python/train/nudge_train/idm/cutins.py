@@ -328,10 +328,11 @@ def idm_fall_back(tr: Tracks, e: CutIn, params: np.ndarray, taus: np.ndarray = T
 def onset(tr: Tracks, e: CutIn, cfg: CutInConfig) -> tuple[float | None, float | None, float]:
     """(onset time, intruder edge overlap at onset, peak deceleration) of the follower.
 
-    Onset: first time in [t_ref - 2 s, t_centre + 2 s] (t_ref = edge crossing, else centre) at
-    which the follower's acceleration falls ``onset_drop`` below its mean over the 1 s before
-    t_ref - 2 s... (pre-event baseline) and stays there ``onset_hold_s``. Peak deceleration: the
-    lowest acceleration (m/s^2) over [t_ref - 1 s, t_centre + horizon]."""
+    Onset: the first time in [t_ref - 2 s, t_centre + 2 s] (t_ref = the edge crossing, else the
+    centre crossing) from which the follower's acceleration stays ``onset_drop`` below its
+    pre-event baseline (its mean over [t_ref - 3 s, t_ref - 2 s]) for ``onset_hold_s``; None if
+    it never does. Peak deceleration: the lowest acceleration (m/s^2) over [t_ref - 1 s,
+    t_centre + the observed horizon]."""
     dt = tr.dt
     t_ref = e.t_edge if e.t_edge is not None else e.t_centre
     tb = np.arange(t_ref - 3.0, t_ref - 2.0 + 1e-9, dt)

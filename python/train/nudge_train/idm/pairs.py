@@ -138,7 +138,7 @@ def read_i80_pairs(path: Path, sources: Sources | None, stats: PairStats | None 
             continue
         mid = 0.5 * (fr[0] + fr[-1])
         split = sources.i80_split(mid) if sources is not None else "train"
-        out.append(Pair(source="i80", scene="i80-0400-0415", group=f"i80-frame-{int(mid)}", split=split,
+        out.append(Pair(source="i80", scene="i80-0400-0415", group="i80", split=split,
                         follower=int(col["vehicle_id"][ii[0]]), leader=int(col["preceding"][ii[0]]),
                         frame0=int(fr[0]), dt=0.1, xf=xf, vf=col["v_vel"][ii], lead_rear=lead_rear,
                         vl=col["preceding_vel"][ii]))
