@@ -9,6 +9,8 @@
     nudge-train bench inference|planner|python   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
+    nudge-train idm fit|cutins|report|all  IDM fitted to real car-following, real cut-ins,
+                                           the IDM world's intrusion rule (docs/results/idm_fit.md)
 
 Default paths come from :mod:`nudge_train.paths` (``NUDGE_REPO``, ``NUDGE_ASSETS``,
 ``NUDGE_NGSIM``). This module imports only the standard library and the light configuration
@@ -378,6 +380,27 @@ def _run_figures_curves(a: argparse.Namespace) -> int:
     return 0
 
 
+# ---- IDM world parameters ------------------------------------------------------------------------
+def _add_idm(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "idm", "IDM fitted to real NGSIM car-following, the real cut-ins and the IDM world's "
+                 "intrusion rule (assets/worlds/idm.json, cutins.json, docs/results/idm_fit.md)", _run_idm)
+    p.add_argument("stage", choices=("fit", "cutins", "report", "all"), help="what to run")
+    p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
+    p.add_argument("--runs", type=Path, default=paths.runs() / "idm", help="intermediate results (resumable fits)")
+    p.add_argument("--assets", type=Path, default=paths.assets() / "worlds", help="where idm.json and cutins.json go")
+    p.add_argument("--doc", type=Path, default=paths.results() / "idm_fit.md", help="the report")
+    p.add_argument("--figures", type=Path, default=paths.figures(), help="figure folder")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fits and of the rule search")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _run_idm(a: argparse.Namespace) -> int:
+    from nudge_train.idm.pipeline import run_stage
+
+    return run_stage(a.stage, data_root=a.data_root, runs=a.runs, assets=a.assets, doc=a.doc,
+                     figures=a.figures, seed=a.seed, progress=not a.no_progress)
+
+
 # ---- entry point -------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     """The ``nudge-train`` parser; every subcommand's namespace carries its handler as ``run``."""
@@ -388,7 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
                "override them.",
     )
     sub = parser.add_subparsers(dest="cmd", required=True,
-                                metavar="{data,train,teacher,student,distill,closed-loop,bench,goldens,figures}")
+                                metavar="{data,train,teacher,student,distill,closed-loop,bench,goldens,figures,idm}")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
@@ -398,6 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(sub)
     _add_goldens(sub)
     _add_figures(sub)
+    _add_idm(sub)
     return parser
 
 

@@ -60,7 +60,7 @@ class Unit:
     frames: tuple[int, int] | None
 
 
-def _units(cfg: BuildConfig, progress: bool) -> tuple[list[Unit], list[SourceEntry]]:
+def collect_units(cfg: BuildConfig, progress: bool) -> tuple[list[Unit], list[SourceEntry]]:
     split_cfg = SplitConfig(seed=cfg.seed, test_frac=cfg.split.test_frac, val_frac=cfg.split.val_frac,
                             i80_block_s=cfg.split.i80_block_s, tries=cfg.split.tries)
     entries = us101_sources(cfg.data_root, split_cfg, progress=progress)
@@ -121,7 +121,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
     wcfg = WindowConfig(**{**asdict(cfg.window), "phases": tuple(cfg.phases)})
     if not cfg.phases or any(p not in (0, 1, 2) for p in cfg.phases):
         raise ValueError(f"phases must be a non-empty subset of 0,1,2: {cfg.phases}")
-    units, entries = _units(cfg, progress)
+    units, entries = collect_units(cfg, progress)
     index_of = {e.name: i for i, e in enumerate(entries)}
     per_split: dict[str, list[tuple[Window, int]]] = {s: [] for s in SPLITS}
     per_source: dict[str, dict] = {}

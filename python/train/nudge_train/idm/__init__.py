@@ -2,5 +2,5 @@
 
 Modules: ``model`` (IDM, simulators), ``sources`` (files and the pipeline's splits), ``pairs``
 (leader-follower records), ``fit`` (calibration), ``cutins`` (events and reactions), ``yielding``
-(the intrusion rule), ``pipeline`` (the stages), ``report``. Entry point: ``python -m nudge_train.idm``.
+(the intrusion rule), ``pipeline`` (the stages), ``report``. Entry point: ``nudge-train idm``.
 """

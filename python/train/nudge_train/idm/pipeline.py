@@ -1,4 +1,4 @@
-"""The three stages behind ``python -m nudge_train.idm``: fit, cut-ins, report (see docs/results/idm_fit.md).
+"""The three stages behind ``nudge-train idm``: fit, cut-ins, report (see docs/results/idm_fit.md).
 
 Intermediate results go to ``runs/idm/`` (resumable driver fits, JSON results for the report);
 the products are ``assets/worlds/idm.json`` (``nudge.idm/1``), ``assets/worlds/cutins.json``
@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from nudge_train.reporting import REPO, git_commit, repo_relative, sha256_file
+from nudge_train import paths
+from nudge_train.paths import repo_relative
+from nudge_train.provenance import git_commit, sha256_file
 
 from . import cutins as ci
 from .fit import FIT_NAMES, DriverFit, FitConfig, evaluate, fit_drivers, fit_pooled
@@ -33,11 +35,11 @@ DELTAS = (2.0, 4.0, 8.0)
 class Settings:
     """Everything the results depend on (recorded in the outputs)."""
 
-    data_root: Path = REPO.parent / "shared" / "data" / "ngsim"
-    runs: Path = REPO / "runs" / "idm"
-    assets: Path = REPO / "assets" / "worlds"
-    doc: Path = REPO / "docs" / "results" / "idm_fit.md"
-    figures: Path = REPO / "docs" / "figures"
+    data_root: Path = field(default_factory=paths.ngsim)
+    runs: Path = field(default_factory=lambda: paths.runs() / "idm")
+    assets: Path = field(default_factory=lambda: paths.assets() / "worlds")
+    doc: Path = field(default_factory=lambda: paths.results() / "idm_fit.md")
+    figures: Path = field(default_factory=paths.figures)
     i80_min_s: float = 5.0
     us101_min_s: float = 5.0
     bootstrap: int = 2000
@@ -328,3 +330,34 @@ def run_cutins(s: Settings, sources: Sources | None = None) -> dict:
     s.runs.mkdir(parents=True, exist_ok=True)
     (s.runs / "cutins.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
     return res
+
+
+def run_stage(stage: str, *, data_root: Path, runs: Path, assets: Path, doc: Path, figures: Path, seed: int,
+              progress: bool) -> int:
+    """Runs ``stage`` (``fit``, ``cutins``, ``report`` or ``all``) of ``nudge-train idm``; returns the
+    exit status (2 with a message for missing or bad data)."""
+    import sys
+    import time
+
+    from nudge_train.data.errors import DataError
+
+    from .report import main_report
+    from .sources import load_sources
+
+    d = Settings()
+    s = replace(d, data_root=data_root, runs=runs, assets=assets, doc=doc, figures=figures, seed=seed,
+                fit=replace(d.fit, seed=seed), rule=replace(d.rule, seed=seed), progress=progress)
+    t0 = time.perf_counter()
+    try:
+        sources = load_sources(s.data_root, s.progress) if stage in ("fit", "cutins", "all") else None
+        if stage in ("fit", "all"):
+            run_fit(s, sources)
+        if stage in ("cutins", "all"):
+            run_cutins(s, sources)
+        if stage in ("report", "all"):
+            main_report(s.runs, s.doc, s.figures)
+    except (DataError, FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{stage}: {time.perf_counter() - t0:.0f} s")
+    return 0

@@ -1,7 +1,7 @@
 """Source files of the IDM work and their train/val/test split, by the data pipeline's own rule.
 
 US-101 scenes inherit the split of their overlap group and I-80 time blocks theirs, exactly as
-``nudge-train data build`` assigns them (:func:`nudge_train.data.build._units` is called, not
+``nudge-train data build`` assigns them (:func:`nudge_train.data.build.collect_units` is called, not
 re-implemented), so the IDM fit and the cut-in events never hold out differently from the
 prediction models.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from nudge_train.data.build import BuildConfig, _units
+from nudge_train.data.build import BuildConfig, collect_units
 from nudge_train.data.tracks import TrackTable
 
 I80_PAIRS = "i80/durraniu_i80_0400-0415_emd_reconstructed_carfollowing_pairs.csv.gz"
@@ -52,7 +52,7 @@ class Sources:
 
 def load_sources(data_root: Path, progress: bool = False) -> Sources:
     """Read the sources and assign splits with the data pipeline's rule (seed 0 defaults)."""
-    units, _ = _units(BuildConfig(data_root=Path(data_root), out=Path(data_root) / "unused"), progress)
+    units, _ = collect_units(BuildConfig(data_root=Path(data_root), out=Path(data_root) / "unused"), progress)
     us101: list[SceneSource] = []
     blocks: list[tuple[int, int, str]] = []
     coifman: TrackTable | None = None
