@@ -25,7 +25,7 @@ def _module():  # type: ignore[no-untyped-def]
 
 def test_summary_matches_records(scenes: list[Path], tmp_path: Path) -> None:
     mod = _module()
-    res = nudge.simulate(scenes[:3], "constant_velocity", world="predictor", world_predictor="teacher",
+    res = nudge.simulate(scenes[:3], "constant_velocity", world="teacher", world_predictor="teacher",
                          seed=2, runs=1, threads=1, max_steps=30)
     s = mod.summarise(res, nudge.DT)
     runs = res["runs"]

@@ -2,7 +2,7 @@
 
 use std::sync::Mutex;
 
-use nudge_planner::{EgoState, Plan, Planner, PlannerSettings, PlanningProblem};
+use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem};
 use nudge_predictor::{History, T_OBS};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
@@ -53,7 +53,20 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
     d.set_item("change_residual", plan.change_residual)?;
     d.set_item("min_safety", plan.min_safety)?;
     d.set_item("checked", plan.checked)?;
-    d.set_item("status", format!("{:?}", plan.status))?;
+    d.set_item("rollout_min_safety", plan.rollout_min_safety)?;
+    d.set_item("status", plan.status.name())?;
+    // Which QP failed and Clarabel's status, for status "SolverFailed".
+    let failure = match plan.status {
+        PlanStatus::SolverFailed { qp, status } => Some((
+            qp.as_str(),
+            serde_json::to_value(status)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_string))
+                .unwrap_or_default(),
+        )),
+        _ => None,
+    };
+    d.set_item("solver_failure", failure)?;
     let tm = PyDict::new(py);
     tm.set_item("delta_s", plan.timings.delta_s)?;
     tm.set_item("alpha_s", plan.timings.alpha_s)?;
@@ -152,7 +165,9 @@ impl PyPlanner {
     /// `road` = (right, left) edge y (m), previous inputs `last_delta` (rad), `last_accel`
     /// (m/s²). Returns a dict: `delta` `[T]`, `accel` `[T]`, `states` `[T, 4]`, `cost`,
     /// `iterations`, `predictor_calls`, `qp_solves`, `primal_residual`, `change_residual`,
-    /// `min_safety` (float or None), `checked`, `status`, `timings` (dict, seconds).
+    /// `min_safety` and `rollout_min_safety` (float or None), `checked`, `status` (a
+    /// `PlanStatus` name), `solver_failure` (`(qp, clarabel_status)` for `"SolverFailed"`,
+    /// else None), `timings` (dict, seconds).
     #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn plan<'py>(
