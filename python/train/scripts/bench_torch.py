@@ -2,7 +2,7 @@
 """Times the PyTorch reference predictors on the same weights and inputs as the Rust benchmark
 and prints them next to the Rust (criterion) medians.
 
-Weights: assets/models/{teacher,student}.safetensors. Inputs: benches/data/scenes.safetensors
+Weights: assets/models/{teacher,student}.safetensors. Inputs: crates/predictor/benches/data/scenes.safetensors
 (``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [32, 6, 2]). One timed call is a full prediction
 from the history: the teacher's whole 6-call recursion, or the student's encoder + pooling +
 6-step decoder, for ONE candidate (``--batch32``: all 32 candidates in one call, compared with the
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
 
     root: Path = args.repo_root.resolve()
     criterion_dir: Path = args.criterion_dir or root / "target" / "criterion"
-    scenes_path = root / "benches" / "data" / "scenes.safetensors"
+    scenes_path = root / "crates" / "predictor" / "benches" / "data" / "scenes.safetensors"
     if not scenes_path.is_file():
         print(f"error: {scenes_path} not found (run python/train/scripts/make_goldens.py)", file=sys.stderr)
         return 1
@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     header = (
         f"PyTorch {torch.__version__} (1 thread, inference_mode, median of ≥{args.repeats} calls after "
         f"{args.warmup} warm-up) vs Rust criterion group `{group}` medians; {count} candidate(s) per call; "
-        f"same weights (assets/models) and scenes (benches/data/scenes.safetensors); CPU: {cpu_name()}."
+        f"same weights (assets/models) and scenes (crates/predictor/benches/data/scenes.safetensors); CPU: {cpu_name()}."
     )
     print(header)
     print(table_text(rows))

@@ -29,6 +29,8 @@ def _one_thread() -> Iterator[None]:
     torch.set_num_threads(threads)
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
+GOLDEN = Path("crates/predictor/tests/golden")
+BENCH_DATA = Path("crates/predictor/benches/data")
 SCRIPT = REPO_ROOT / "python" / "train" / "scripts" / "make_goldens.py"
 
 
@@ -55,26 +57,26 @@ def test_committed_files_are_reproduced_bit_exactly(make_goldens: ModuleType) ->
 
 
 def test_check_reports_a_modified_file(make_goldens: ModuleType, tmp_path: Path) -> None:
-    for rel in ("tests/golden", "benches/data"):
+    for rel in (GOLDEN, BENCH_DATA):
         shutil.copytree(REPO_ROOT / rel, tmp_path / rel)
-    target = tmp_path / "tests" / "golden" / "cases_student_random.safetensors"
+    target = tmp_path / GOLDEN / "cases_student_random.safetensors"
     raw = bytearray(target.read_bytes())
     raw[-1] ^= 0x01  # flip one bit of the last expected value
     target.write_bytes(bytes(raw))
-    (tmp_path / "benches" / "data" / "scenes.safetensors").unlink()
+    (tmp_path / BENCH_DATA / "scenes.safetensors").unlink()
     problems = make_goldens.check(tmp_path, make_goldens.Options(), log=lambda _msg: None)
     assert len(problems) == 2
-    assert any(p.startswith("tests/golden/cases_student_random.safetensors: n") and "values differ" in p for p in problems)
-    assert any(p.startswith("benches/data/scenes.safetensors: missing") for p in problems)
+    assert any(p.startswith(f"{GOLDEN}/cases_student_random.safetensors: n") and "values differ" in p for p in problems)
+    assert any(p.startswith(f"{BENCH_DATA}/scenes.safetensors: missing") for p in problems)
     assert make_goldens.main(["--repo-root", str(tmp_path), "--check"]) == 1
 
 
 @pytest.mark.parametrize("kind", ["teacher", "student"])
 def test_cases_format_and_pytorch_f32_agreement(kind: str) -> None:
     fn = teacher_interactive if kind == "teacher" else student_interactive
-    gen = load_generator(REPO_ROOT / "tests" / "golden" / f"weights_{kind}_random.safetensors")
+    gen = load_generator(REPO_ROOT / GOLDEN / f"weights_{kind}_random.safetensors")
     assert gen.cfg.kind == kind
-    with safe_open(str(REPO_ROOT / "tests" / "golden" / f"cases_{kind}_random.safetensors"), "pt") as f:
+    with safe_open(str(REPO_ROOT / GOLDEN / f"cases_{kind}_random.safetensors"), "pt") as f:
         meta = f.metadata()
         assert meta["weights"] == f"weights_{kind}_random.safetensors"
         assert meta["generator"] == "python/train/scripts/make_goldens.py"
@@ -92,7 +94,7 @@ def test_cases_format_and_pytorch_f32_agreement(kind: str) -> None:
 
 
 def test_bench_scenes_format() -> None:
-    with safe_open(str(REPO_ROOT / "benches" / "data" / "scenes.safetensors"), "pt") as f:
+    with safe_open(str(REPO_ROOT / BENCH_DATA / "scenes.safetensors"), "pt") as f:
         for n in (2, 4, 8, 16, 32):
             assert f.get_tensor(f"n{n}.history").shape == (n, 8, 2)
             assert f.get_tensor(f"n{n}.candidates").shape == (32, 6, 2)
@@ -112,9 +114,9 @@ def test_trained_cases_and_ship_random_guard(make_goldens: ModuleType, tmp_path:
     export_generator(gen, gen.cfg, src / "assets" / "models" / "teacher.safetensors", trained=True, provenance={"run": "t"})
     messages: list[str] = []
     written = make_goldens.generate(out, src, make_goldens.Options(trained=True), log=messages.append)
-    rel = Path("tests/golden/cases_teacher_trained.safetensors")
+    rel = GOLDEN / "cases_teacher_trained.safetensors"
     assert rel in written
-    assert not (out / "tests" / "golden" / "cases_student_trained.safetensors").exists()
+    assert not (out / GOLDEN / "cases_student_trained.safetensors").exists()
     assert any("student" in m and "not found" in m for m in messages)
     with safe_open(str(out / rel), "pt") as f:
         assert f.metadata()["weights"] == "assets/models/teacher.safetensors"
