@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     summaries: dict[str, dict] = {}
     for pred in args.predictors:
         t0 = time.perf_counter()
-        res = nudge.simulate(chosen, pred, world="predictor", world_predictor="teacher", scene_seeds=scene_seeds,
+        res = nudge.simulate(chosen, pred, world="teacher", world_predictor="teacher", scene_seeds=scene_seeds,
                              settings=settings, abort_after=args.abort_after, abort_hold=args.abort_hold, runs=1, threads=args.threads, on_error="skip")
         s = summarise(res, nudge.DT)
         s["wall_s"] = time.perf_counter() - t0

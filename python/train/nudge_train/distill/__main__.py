@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data-root", type=Path, default=d.data_root)
     p.add_argument("--runs", type=int, default=d.runs, help="closed-loop runs per scene")
     p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--world", choices=("predictor", "log_replay"), default=d.world)
+    p.add_argument("--world", choices=("teacher", "log_replay"), default=d.world)
     p.add_argument("--max-steps", type=int, default=d.max_steps)
     p.add_argument("--scenes-per-shard", type=int, default=d.scenes_per_shard)
     p.add_argument("--threads", type=int, default=None, help="rayon threads (default: all cores)")
