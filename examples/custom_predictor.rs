@@ -8,7 +8,7 @@
 //! Run from the repository root: `cargo run --release --example custom_predictor`.
 #![allow(clippy::print_stdout)]
 
-use nudge::planner::{EgoState, Planner, PlannerSettings, PlanningProblem, Scenario, target_lane};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, target_lane};
 use nudge::predictor::{
     ConstantVelocity, History, Predictor, PredictorError, T_OBS, default_assets_dir,
 };
@@ -65,22 +65,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         default_assets_dir().join("scenes/us101-11_1-t02.1-ego132.safetensors"),
     )?;
     let history = History::new(sc.history.clone(), sc.n_agents)?;
-    let p = sc.position(0, T_OBS - 1);
-    let problem = PlanningProblem {
-        ego: EgoState {
-            x: p[0],
-            y: p[1],
-            psi: sc.heading[0],
-            v: sc.speed[0],
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: &history,
-        sizes: &sc.size,
-        y_target: sc.lane_centres[target_lane(&sc, 0)?],
-        v_ref: sc.speed[0],
-        road: sc.road(),
-    };
+    let y_target = sc.lane_centres[target_lane(&sc, 0)?];
+    let problem = PlanningProblem::at_scenario_start(&sc, &history, y_target);
     let mut cautious = CuttingIn {
         horizon: 6,
         drift: 0.2,
@@ -97,7 +83,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "{name:>17}: status {:<13} lateral move {:+.2} m, speed {:.2} m/s after 1.8 s, \
              min b {:.2}, {} predictor calls",
             plan.status.name(),
-            last[1] - p[1],
+            last[1] - problem.ego.y,
             last[3],
             plan.min_safety.unwrap_or(f64::INFINITY),
             plan.predictor_calls

@@ -4,8 +4,8 @@
 //! Run from the repository root: `cargo run --release --example plan_one_step`.
 #![allow(clippy::print_stdout)]
 
-use nudge::planner::{EgoState, Planner, PlannerSettings, PlanningProblem, Scenario, target_lane};
-use nudge::predictor::{History, PredictorSpec, T_OBS, default_assets_dir};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, target_lane};
+use nudge::predictor::{History, PredictorSpec, default_assets_dir};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let assets = default_assets_dir();
@@ -15,23 +15,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // The ego at its last observed position, aiming at the centre of the lane seed 0 draws.
     let lane = target_lane(&sc, 0)?;
-    let history = History::new(sc.history.clone(), sc.n_agents)?;
-    let p = sc.position(0, T_OBS - 1);
-    let problem = PlanningProblem {
-        ego: EgoState {
-            x: p[0],
-            y: p[1],
-            psi: sc.heading[0],
-            v: sc.speed[0],
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: &history,
-        sizes: &sc.size,
-        y_target: sc.lane_centres[lane],
-        v_ref: sc.speed[0],
-        road: sc.road(),
-    };
+    let history = History::new(sc.history.clone(), sc.n_agents)?; // [n, 8, 2] m
+    let problem = PlanningProblem::at_scenario_start(&sc, &history, sc.lane_centres[lane]);
     let mut planner = Planner::new(PlannerSettings::default())?;
     let plan = planner.plan(&problem, student.as_mut())?;
 

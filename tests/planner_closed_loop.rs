@@ -1,16 +1,20 @@
 //! Closed-loop lane changes on the real shipped scenes (assets/scenes).
 #![allow(clippy::unwrap_used)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use nudge::planner::SimError;
 use nudge::planner::{
     PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, World, simulate, target_lane,
 };
-use nudge::predictor::{ConstantVelocity, load_predictor};
+use nudge::predictor::{ConstantVelocity, ModelKind, load_predictor, model_path};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn teacher_path() -> PathBuf {
+    model_path(&repo().join("assets"), ModelKind::Teacher)
 }
 
 fn scene(name: &str) -> Scenario {
@@ -70,9 +74,9 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
 
 /// One seeded lane change on a real scene, `plan_weights` planning and the shipped teacher moving
 /// the other vehicles (they react to the ego as the teacher predicts).
-fn lane_change_in_teacher_world(plan_weights: &str) -> RunRecord {
-    let mut plan = load_predictor(repo().join(plan_weights)).unwrap();
-    let mut world = load_predictor(repo().join("assets/models/teacher.safetensors")).unwrap();
+fn lane_change_in_teacher_world(plan_weights: &Path) -> RunRecord {
+    let mut plan = load_predictor(plan_weights).unwrap();
+    let mut world = load_predictor(teacher_path()).unwrap();
     let cfg = SimConfig {
         world: World::Teacher,
         ..SimConfig::default()
@@ -100,7 +104,7 @@ fn lane_change_in_teacher_world(plan_weights: &str) -> RunRecord {
     ignore = "teacher-in-the-loop is slow without optimisation; run with --release"
 )]
 fn teacher_lane_change_on_real_scene() {
-    let rec = lane_change_in_teacher_world("assets/models/teacher.safetensors");
+    let rec = lane_change_in_teacher_world(&teacher_path());
     assert!(!rec.collision, "collision with the teacher world");
     assert!(rec.success, "lane change with the teacher did not settle");
 }
@@ -113,14 +117,15 @@ fn teacher_lane_change_on_real_scene() {
     ignore = "predictor-in-the-loop is slow without optimisation; run with --release"
 )]
 fn student_lane_change_with_teacher_world() {
-    let student = "assets/models/student.safetensors";
-    let weights = nudge::predictor::ModelWeights::from_file(repo().join(student)).unwrap();
+    let student = model_path(&repo().join("assets"), ModelKind::Student);
+    let weights = nudge::predictor::ModelWeights::from_file(&student).unwrap();
     assert_eq!(
         weights.trained(),
         Some(true),
-        "{student} is not the trained student"
+        "{} is not trained",
+        student.display()
     );
-    let rec = lane_change_in_teacher_world(student);
+    let rec = lane_change_in_teacher_world(&student);
     assert!(
         !rec.collision,
         "collision with the student planning in a teacher world"
@@ -141,7 +146,8 @@ fn world_models_are_checked_against_the_world() {
         ..teacher_world
     };
     let mut cv = ConstantVelocity::new(6);
-    let mut student = load_predictor(repo().join("assets/models/student.safetensors")).unwrap();
+    let mut student =
+        load_predictor(model_path(&repo().join("assets"), ModelKind::Student)).unwrap();
     let mut other_cv = ConstantVelocity::new(6);
     let errors = [
         simulate(&sc, &s, &teacher_world, 0, &mut cv, None).unwrap_err(),

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use nudge_predictor::PredictorError;
 
-use crate::qp::{QpName, QpStatus};
+use crate::qp::{QpFailure, QpName, QpStatus};
 
 /// A [`crate::PlannerSettings`] field holds a value the planner cannot work with.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -174,6 +174,19 @@ pub enum PlannerError {
         /// Clarabel's status.
         status: QpStatus,
     },
+}
+
+impl From<QpFailure> for PlannerError {
+    fn from(f: QpFailure) -> Self {
+        match f.detail {
+            Some(reason) if f.status == QpStatus::Setup => Self::QpSetup { qp: f.qp, reason },
+            _ => Self::QpFailed {
+                qp: f.qp,
+                iteration: f.iteration,
+                status: f.status,
+            },
+        }
+    }
 }
 
 /// A [`crate::SimConfig`] field holds a value the simulator cannot work with.

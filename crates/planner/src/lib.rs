@@ -22,7 +22,7 @@ pub mod sim;
 
 pub use admm::{
     CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner,
-    PlanningProblem, SafetyConstraint,
+    PlanningProblem, SafetyConstraint, StepStatus,
 };
 pub use error::{PlannerError, ScenarioError, SettingsError, SimConfigError, SimError};
 pub use model::{Bicycle, Jac4, Linearisation, State};
@@ -34,6 +34,6 @@ pub use safety::{
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepStatus, Summary, World,
-    run_specs, simulate, simulate_many, target_lane,
+    Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary, World, run_specs,
+    simulate, simulate_many, target_lane,
 };

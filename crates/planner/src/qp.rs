@@ -116,19 +116,6 @@ impl QpFailure {
     }
 }
 
-impl From<QpFailure> for crate::error::PlannerError {
-    fn from(f: QpFailure) -> Self {
-        match f.detail {
-            Some(reason) if f.status == QpStatus::Setup => Self::QpSetup { qp: f.qp, reason },
-            _ => Self::QpFailed {
-                qp: f.qp,
-                iteration: f.iteration,
-                status: f.status,
-            },
-        }
-    }
-}
-
 /// Clarabel settings used everywhere: quiet, no presolve (q/b are updated), one thread.
 pub(crate) fn clarabel_settings(equilibrate: bool) -> DefaultSettings<f64> {
     DefaultSettings {

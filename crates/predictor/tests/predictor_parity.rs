@@ -376,8 +376,12 @@ fn teacher_noise() {
 
 #[test]
 fn shipped_models_load() {
-    for name in ["teacher", "student"] {
-        let p: &Path = &repo().join(format!("assets/models/{name}.safetensors"));
+    for kind in [
+        nudge_predictor::ModelKind::Teacher,
+        nudge_predictor::ModelKind::Student,
+    ] {
+        let name = kind.as_str();
+        let p: &Path = &nudge_predictor::model_path(&repo().join("assets"), kind);
         if !p.exists() {
             println!("NOTE: {} absent, skipped", p.display());
             continue;

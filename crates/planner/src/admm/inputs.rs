@@ -8,34 +8,8 @@ use crate::model::State;
 use crate::qp::{BoxRateQp, QpFailure, QpName, RateBox};
 use crate::settings::PlannerSettings;
 
-use super::linearised::LinearisedProblem;
+use super::linearised::{LinearisedProblem, input_hessian};
 use super::workspace::Workspace;
-
-/// Φ1 or Φ2 of an input sequence: w Σu² + w_d Σ(u_k − u_{k−1})², u_{−1} = `prev`.
-pub(crate) fn input_cost(u: &[f64], prev: f64, w: f64, wd: f64) -> f64 {
-    let mut p = prev;
-    let mut c = 0.0;
-    for &x in u {
-        c += w * x * x + wd * (x - p) * (x - p);
-        p = x;
-    }
-    c
-}
-
-/// Hessian (`[t, t]` row-major) of w Σu² + w_d Σ(u_k − u_{k−1})², plus `extra` on the
-/// diagonal.
-pub(crate) fn input_hessian(t: usize, w: f64, wd: f64, extra: &[f64]) -> Vec<f64> {
-    let mut p = vec![0.0; t * t];
-    for k in 0..t {
-        let dd = 1.0 + if k + 1 < t { 1.0 } else { 0.0 };
-        p[k * t + k] = 2.0 * (w + wd * dd) + extra[k];
-        if k + 1 < t {
-            p[k * t + k + 1] = -2.0 * wd;
-            p[(k + 1) * t + k] = -2.0 * wd;
-        }
-    }
-    p
-}
 
 /// One of the two input sequences.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -95,30 +69,55 @@ impl Input {
     }
 }
 
-impl Workspace {
-    /// The update of `input` (Δ or α) at ADMM iteration `iteration`: with F(Δ, α, Z)
-    /// recomputed, u ← the minimiser over the box/rate set of ½uᵀPu + qᵀu with
+/// The two input QPs of the call.
+pub(crate) struct InputQps {
+    /// The Δ-update.
+    pub delta: BoxRateQp,
+    /// The α-update.
+    pub accel: BoxRateQp,
+}
+
+impl InputQps {
+    /// Builds both QPs (Hessians fixed for the call).
+    ///
+    /// # Errors
+    /// The [`QpFailure`] of a QP Clarabel cannot set up.
+    pub(crate) fn new(s: &PlannerSettings, lp: &LinearisedProblem) -> Result<Self, QpFailure> {
+        Ok(Self {
+            delta: Input::Steering.build_qp(s, lp)?,
+            accel: Input::Acceleration.build_qp(s, lp)?,
+        })
+    }
+
+    /// Clarabel solves so far (retries included).
+    pub(crate) fn solves(&self) -> usize {
+        self.delta.solves + self.accel.solves
+    }
+
+    /// The update of `input` (Δ or α) at ADMM iteration `iteration` on the workspace `ws`:
+    /// with F(Δ, α, Z) recomputed, u ← the minimiser over the box/rate set of ½uᵀPu + qᵀu with
     /// q_k = (∂F_k/∂u_k)ᵀ(μ_k + ρ(F_k − (∂F_k/∂u_k) u_k)) and q_0 −= 2 w_d u_{−1}. Its wall time
     /// is added to `elapsed_s`.
     ///
     /// # Errors
     /// The [`QpFailure`] when Clarabel gives no usable solution.
-    pub(crate) fn update_input(
+    pub(crate) fn update(
         &mut self,
         input: Input,
         s: &PlannerSettings,
         lp: &LinearisedProblem,
+        ws: &mut Workspace,
         iteration: usize,
         elapsed_s: &mut f64,
     ) -> Result<(), QpFailure> {
         let t0 = Instant::now();
-        let it = &mut self.iterates;
-        let x = &mut self.scratch;
+        let it = &mut ws.iterates;
+        let x = &mut ws.scratch;
         lp.linearisation
             .residual(&it.delta, &it.accel, &it.z, &mut x.residual);
         let (u, qp) = match input {
-            Input::Steering => (&mut it.delta, &mut self.qps.delta),
-            Input::Acceleration => (&mut it.accel, &mut self.qps.accel),
+            Input::Steering => (&mut it.delta, &mut self.delta),
+            Input::Acceleration => (&mut it.accel, &mut self.accel),
         };
         for (k, (q, uk)) in x.linear.iter_mut().zip(u.iter()).enumerate() {
             let column = input.column(lp, k);

@@ -7,7 +7,6 @@ use crate::model::{Bicycle, Linearisation, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
 
-use super::inputs::input_cost;
 use super::problem::PlanningProblem;
 
 /// What one call leaves for the next: its inputs and duals, shifted by one step when used.
@@ -163,6 +162,19 @@ impl LinearisedProblem {
     pub(crate) fn clamp(&self, z: &State) -> State {
         z.sup(&self.lower).inf(&self.upper)
     }
+
+    /// Z⁺ = Π(Z − η·d) into `out`, Π clamping into the state bounds.
+    pub(crate) fn project_step(
+        &self,
+        z: &[State],
+        direction: &[State],
+        eta: f64,
+        out: &mut [State],
+    ) {
+        for ((o, zk), dk) in out.iter_mut().zip(z).zip(direction) {
+            *o = self.clamp(&(zk - eta * dk));
+        }
+    }
 }
 
 /// Lateral band (relative to `y0`, m) the ego's centre must stay in: the road less half the
@@ -178,4 +190,30 @@ fn lateral_band(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (f64, 
         high = mid;
     }
     (low.min(0.0), high.max(0.0))
+}
+
+/// Φ1 or Φ2 of an input sequence: w Σu² + w_d Σ(u_k − u_{k−1})², u_{−1} = `prev`.
+pub(crate) fn input_cost(u: &[f64], prev: f64, w: f64, wd: f64) -> f64 {
+    let mut p = prev;
+    let mut c = 0.0;
+    for &x in u {
+        c += w * x * x + wd * (x - p) * (x - p);
+        p = x;
+    }
+    c
+}
+
+/// Hessian (`[t, t]` row-major) of w Σu² + w_d Σ(u_k − u_{k−1})², plus `extra` on the
+/// diagonal.
+pub(crate) fn input_hessian(t: usize, w: f64, wd: f64, extra: &[f64]) -> Vec<f64> {
+    let mut p = vec![0.0; t * t];
+    for k in 0..t {
+        let dd = 1.0 + if k + 1 < t { 1.0 } else { 0.0 };
+        p[k * t + k] = 2.0 * (w + wd * dd) + extra[k];
+        if k + 1 < t {
+            p[k * t + k + 1] = -2.0 * wd;
+            p[(k + 1) * t + k] = -2.0 * wd;
+        }
+    }
+    p
 }

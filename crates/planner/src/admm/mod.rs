@@ -38,15 +38,15 @@ use crate::qp::QpFailure;
 use crate::settings::PlannerSettings;
 
 pub use constraint::{CheckedVehicle, SafetyConstraint};
-pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem};
+pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
 
 use constraint::SafetyEval;
 use inputs::Input;
+use inputs::InputQps;
 use linearised::{LinearisedProblem, WarmStart};
 use repair::{Candidate, Rank, Repairer};
-use workspace::{Iterates, Workspace, max_abs};
-use z_update::CurrentSafety;
+use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 
 /// The ADMM MPC planner. Keeps the previous solution to warm-start the next call; call
 /// [`Planner::reset`] between unrelated runs.
@@ -198,18 +198,19 @@ impl Planner {
         let mut timings = PhaseTimings::default();
         let iterates = Iterates::start(&lp);
         let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);
-        let admm = match Workspace::new(s, &lp, iterates, current) {
+        let mut ws = Workspace::new(s, &lp, iterates, current);
+        let admm = match InputQps::new(s, &lp) {
             // ADMM: loop {Δ-update; α-update; Z-update; dual update}.
-            Ok(mut ws) => {
+            Ok(mut qps) => {
                 let mut stop = Stop::MaxIterations;
                 let mut iterations = 0;
                 for iteration in 0..s.max_iter {
                     iterations = iteration + 1;
-                    let inputs = ws
-                        .update_input(Input::Steering, s, &lp, iteration, &mut timings.delta_s)
+                    let (delta_s, alpha_s) = (&mut timings.delta_s, &mut timings.alpha_s);
+                    let inputs = qps
+                        .update(Input::Steering, s, &lp, &mut ws, iteration, delta_s)
                         .and_then(|()| {
-                            let alpha_s = &mut timings.alpha_s;
-                            ws.update_input(Input::Acceleration, s, &lp, iteration, alpha_s)
+                            qps.update(Input::Acceleration, s, &lp, &mut ws, iteration, alpha_s)
                         });
                     if let Err(failure) = inputs {
                         stop = Stop::SolverFailed(failure);
@@ -221,9 +222,9 @@ impl Planner {
                         break;
                     }
                 }
-                ws.finish(stop, iterations)
+                AdmmResult::new(ws, stop, iterations, qps.solves())
             }
-            Err(failure) => AdmmResult::not_started(&lp, failure),
+            Err(failure) => AdmmResult::new(ws, Stop::SolverFailed(failure), 0, 0),
         };
         // Execution check: the roll-out of (Δ, α), repaired when unsafe.
         let mut repairer = Repairer {
@@ -274,30 +275,16 @@ impl Planner {
     }
 }
 
-impl Workspace {
-    /// Hands the iterates to the execution check.
-    fn finish(self, stop: Stop, iterations: usize) -> AdmmResult {
-        AdmmResult {
-            min_b: self.current.min_b,
-            iterations,
-            change_residual: self.change,
-            qp_solves: self.qps.solves(),
-            iterates: self.iterates,
-            stop,
-        }
-    }
-}
-
 impl AdmmResult {
-    /// An input QP could not even be set up: no iteration ran.
-    fn not_started(lp: &LinearisedProblem, failure: QpFailure) -> Self {
+    /// The workspace's iterates after the loop stopped.
+    fn new(ws: Workspace, stop: Stop, iterations: usize, qp_solves: usize) -> Self {
         Self {
-            iterates: Iterates::start(lp),
-            min_b: None,
-            iterations: 0,
-            change_residual: f64::INFINITY,
-            qp_solves: 0,
-            stop: Stop::SolverFailed(failure),
+            min_b: ws.current.min_b,
+            iterations,
+            change_residual: ws.change,
+            qp_solves,
+            iterates: ws.iterates,
+            stop,
         }
     }
 }

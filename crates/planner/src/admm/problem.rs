@@ -1,11 +1,12 @@
 //! What one MPC call is given ([`PlanningProblem`], [`EgoState`]) and what it returns
 //! ([`Plan`], [`PlanStatus`], [`PhaseTimings`]), with the checks a problem must pass.
 
-use nudge_predictor::History;
+use nudge_predictor::{History, T_OBS};
 use serde::{Deserialize, Serialize};
 
 use crate::error::PlannerError;
 use crate::qp::{QpName, QpStatus};
+use crate::scenario::Scenario;
 
 /// The ego's measured state in the road frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -40,6 +41,32 @@ pub struct PlanningProblem<'a> {
     pub v_ref: f64,
     /// Road edges (right, left) as lateral y (m), right < left.
     pub road: [f64; 2],
+}
+
+impl<'a> PlanningProblem<'a> {
+    /// The problem at the last observed step of scenario `sc` (the closed loop's first step):
+    /// the ego's observed position, heading and speed (the speed also the reference), no
+    /// previous inputs, `history` (the scenario's, `[n, T_OBS, 2]`), lateral target
+    /// `y_target` (m).
+    #[must_use]
+    pub fn at_scenario_start(sc: &'a Scenario, history: &'a History, y_target: f64) -> Self {
+        let p = sc.position(0, T_OBS - 1);
+        Self {
+            ego: EgoState {
+                x: p[0],
+                y: p[1],
+                psi: sc.heading[0],
+                v: sc.speed[0].max(0.0),
+            },
+            last_delta: 0.0,
+            last_accel: 0.0,
+            history,
+            sizes: &sc.size,
+            y_target,
+            v_ref: sc.speed[0],
+            road: sc.road(),
+        }
+    }
 }
 
 impl PlanningProblem<'_> {
@@ -137,14 +164,7 @@ impl PlanStatus {
     /// The variant's name (`"Converged"`, ..., `"SolverFailed"`), as in records and tables.
     #[must_use]
     pub fn name(&self) -> &'static str {
-        match self {
-            Self::Converged => "Converged",
-            Self::MaxIterations => "MaxIterations",
-            Self::Unsafe => "Unsafe",
-            Self::Backtracked => "Backtracked",
-            Self::Fallback => "Fallback",
-            Self::SolverFailed { .. } => "SolverFailed",
-        }
+        StepStatus::from(*self).as_str()
     }
 
     /// The plan is a repair or a heuristic chosen after the ADMM answer could not be used
@@ -155,6 +175,75 @@ impl PlanStatus {
             self,
             Self::Backtracked | Self::Fallback | Self::SolverFailed { .. }
         )
+    }
+}
+
+/// The name of a [`PlanStatus`] without its details, serialised as the name: how the plan
+/// applied at a closed-loop step came about (the records' `status`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum StepStatus {
+    /// ADMM converged; the plan is safe.
+    Converged,
+    /// ADMM reached `max_iter`; the plan is safe.
+    MaxIterations,
+    /// The states could not be made safe.
+    Unsafe,
+    /// The ADMM inputs were pulled towards the previous plan until their roll-out was safe.
+    Backtracked,
+    /// A simple input sequence replaced the ADMM inputs.
+    Fallback,
+    /// A QP failed; a simple input sequence is the plan.
+    SolverFailed,
+}
+
+impl StepStatus {
+    /// Every status, in declaration order.
+    pub const ALL: [Self; 6] = [
+        Self::Converged,
+        Self::MaxIterations,
+        Self::Unsafe,
+        Self::Backtracked,
+        Self::Fallback,
+        Self::SolverFailed,
+    ];
+
+    /// The name, as in records and tables.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Converged => "Converged",
+            Self::MaxIterations => "MaxIterations",
+            Self::Unsafe => "Unsafe",
+            Self::Backtracked => "Backtracked",
+            Self::Fallback => "Fallback",
+            Self::SolverFailed => "SolverFailed",
+        }
+    }
+
+    /// No safe lane-change plan was found (counts towards a lane-change abort).
+    #[must_use]
+    pub fn is_unsafe_plan(self) -> bool {
+        matches!(self, Self::Fallback | Self::Unsafe | Self::SolverFailed)
+    }
+}
+
+impl From<PlanStatus> for StepStatus {
+    fn from(s: PlanStatus) -> Self {
+        match s {
+            PlanStatus::Converged => Self::Converged,
+            PlanStatus::MaxIterations => Self::MaxIterations,
+            PlanStatus::Unsafe => Self::Unsafe,
+            PlanStatus::Backtracked => Self::Backtracked,
+            PlanStatus::Fallback => Self::Fallback,
+            PlanStatus::SolverFailed { .. } => Self::SolverFailed,
+        }
+    }
+}
+
+impl std::fmt::Display for StepStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
     }
 }
 

@@ -12,8 +12,7 @@ use crate::qp::{
 };
 use crate::settings::PlannerSettings;
 
-use super::inputs::input_hessian;
-use super::linearised::LinearisedProblem;
+use super::linearised::{LinearisedProblem, input_hessian};
 
 /// The solution of the linearised problem as one joint QP (no safety constraint).
 #[derive(Debug, Clone, PartialEq)]

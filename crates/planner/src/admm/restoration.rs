@@ -10,8 +10,7 @@ use crate::settings::PlannerSettings;
 
 use super::constraint::SafetyEval;
 use super::linearised::LinearisedProblem;
-use super::workspace::{Curvature, Scratch, mat_vec};
-use super::z_update::{CurrentSafety, project_step};
+use super::workspace::{CurrentSafety, Curvature, Scratch, mat_vec};
 
 /// A restoration move from Z.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -63,7 +62,7 @@ fn trial_point(
             } else {
                 &scratch.gradient
             };
-            project_step(lp, z, direction, eta, &mut scratch.trial);
+            lp.project_step(z, direction, eta, &mut scratch.trial);
         }
         Move::PushPositions => {
             let norm = violation_gradient
@@ -83,7 +82,7 @@ fn trial_point(
                     &mut scratch.pinned_rhs,
                 );
                 mat_vec(pinned, &scratch.pinned_rhs, &mut scratch.pinned_step);
-                project_step(lp, z, &scratch.pinned_step, 1.0, &mut scratch.trial);
+                lp.project_step(z, &scratch.pinned_step, 1.0, &mut scratch.trial);
             } else {
                 for ((trial, zk), g) in scratch.trial.iter_mut().zip(z).zip(violation_gradient) {
                     *trial = *zk;

@@ -6,12 +6,12 @@
 use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 
 use super::constraint::SafetyEval;
-use super::inputs::Input;
+use super::inputs::{Input, InputQps};
 use super::linearised::LinearisedProblem;
 use super::repair::{Repairer, simple_inputs};
 use super::restoration::restore;
-use super::workspace::{Iterates, Workspace, mat_vec};
-use super::z_update::{CurrentSafety, Lagrangian};
+use super::workspace::{CurrentSafety, Iterates, Workspace, mat_vec};
+use super::z_update::Lagrangian;
 use super::*;
 use crate::qp::{BoxRateQp, QpName, QpStatus, RateBox};
 
@@ -134,6 +134,11 @@ fn model(s: &PlannerSettings) -> Bicycle {
     }
 }
 
+/// A car 40 m behind in the target lane: checked, never in the way.
+fn car_behind_in_target_lane() -> (History, Vec<[f64; 2]>) {
+    scene(12.0, 0.0, &[(-40.0, 3.7, 12.0)])
+}
+
 /// A car 8 m ahead in the ego's lane at half the ego's speed: the constant-velocity nominal
 /// (the ego keeps its lane and speed) runs into it, so the Z-update starts from an unsafe Z.
 fn blocked_start() -> (History, Vec<[f64; 2]>) {
@@ -166,7 +171,7 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
             "{first:?}"
         );
         let current = CurrentSafety::new(first, &safety);
-        let mut ws = Workspace::new(&s, &lp, iterates, current).unwrap();
+        let mut ws = Workspace::new(&s, &lp, iterates, current);
         // The gradient and steps at Z, as the Z-update prepares them.
         let Workspace {
             iterates,
@@ -244,15 +249,16 @@ fn z_updates_restore_then_descend_safely() {
     let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
     let iterates = Iterates::start(&lp);
     let first = safety.eval(&mut cv, &iterates.z).unwrap();
-    let mut ws = Workspace::new(&s, &lp, iterates, CurrentSafety::new(first, &safety)).unwrap();
+    let mut ws = Workspace::new(&s, &lp, iterates, CurrentSafety::new(first, &safety));
+    let mut qps = InputQps::new(&s, &lp).unwrap();
     let mut timings = PhaseTimings::default();
     let mut violations = vec![first.violation];
     let mut safe_since = None;
     for it in 0..s.max_iter {
         let mut t = 0.0;
-        ws.update_input(Input::Steering, &s, &lp, it, &mut t)
+        qps.update(Input::Steering, &s, &lp, &mut ws, it, &mut t)
             .unwrap();
-        ws.update_input(Input::Acceleration, &s, &lp, it, &mut t)
+        qps.update(Input::Acceleration, &s, &lp, &mut ws, it, &mut t)
             .unwrap();
         ws.update_z(&s, &lp, &mut safety, &mut cv, &mut timings)
             .unwrap();
@@ -309,7 +315,7 @@ fn y_end(s: &PlannerSettings, p: &PlanningProblem<'_>, plan: &Plan, theta: f64) 
 #[test]
 fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
     let s = PlannerSettings::default();
-    let (h, sizes) = scene(12.0, 0.0, &[(-40.0, 3.7, 12.0)]);
+    let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let admm = reference_plan(&s, &p);
     let admm_calls = admm.predictor_calls - 1;
@@ -335,7 +341,7 @@ fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
 #[test]
 fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
     let s = PlannerSettings::default();
-    let (h, sizes) = scene(12.0, 0.0, &[(-40.0, 3.7, 12.0)]);
+    let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let admm = reference_plan(&s, &p);
     let admm_calls = admm.predictor_calls - 1;
@@ -384,7 +390,7 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
 #[test]
 fn repairer_checks_every_candidate_on_its_rollout() {
     let s = PlannerSettings::default();
-    let (h, sizes) = scene(12.0, 0.0, &[(-40.0, 3.7, 12.0)]);
+    let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
     let constraint = SafetyConstraint::new(&p, &s);

@@ -5,12 +5,10 @@
 use nalgebra::DMatrix;
 
 use crate::model::State;
-use crate::qp::{BoxRateQp, QpFailure};
 use crate::settings::PlannerSettings;
 
-use super::inputs::Input;
+use super::constraint::{Evaluation, SafetyEval};
 use super::linearised::LinearisedProblem;
-use super::z_update::{CurrentSafety, max_diff};
 
 /// The ADMM iterates (Δ, α, Z, μ) in the call's frame.
 pub(crate) struct Iterates {
@@ -113,28 +111,6 @@ pub(crate) fn mat_vec(m: &[f64], v: &[State], out: &mut [State]) {
     }
 }
 
-/// The two input QPs of the call.
-pub(crate) struct InputQps {
-    /// The Δ-update.
-    pub delta: BoxRateQp,
-    /// The α-update.
-    pub accel: BoxRateQp,
-}
-
-impl InputQps {
-    pub(crate) fn new(s: &PlannerSettings, lp: &LinearisedProblem) -> Result<Self, QpFailure> {
-        Ok(Self {
-            delta: Input::Steering.build_qp(s, lp)?,
-            accel: Input::Acceleration.build_qp(s, lp)?,
-        })
-    }
-
-    /// Clarabel solves so far (retries included).
-    pub(crate) fn solves(&self) -> usize {
-        self.delta.solves + self.accel.solves
-    }
-}
-
 /// Scratch buffers, `[T]` each.
 pub(crate) struct Scratch {
     /// F(Δ, α, Z) at the current iterates.
@@ -189,8 +165,6 @@ pub(crate) struct Workspace {
     pub iterates: Iterates,
     /// H, its bound and inverses.
     pub curvature: Curvature,
-    /// The Δ- and α-update QPs.
-    pub qps: InputQps,
     /// Safety of the current Z.
     pub current: CurrentSafety,
     /// Scratch buffers.
@@ -201,23 +175,19 @@ pub(crate) struct Workspace {
 
 impl Workspace {
     /// The workspace of one call starting from `iterates`, whose Z has safety `current`.
-    ///
-    /// # Errors
-    /// The [`QpFailure`] of an input QP Clarabel cannot set up.
     pub(crate) fn new(
         s: &PlannerSettings,
         lp: &LinearisedProblem,
         iterates: Iterates,
         current: CurrentSafety,
-    ) -> Result<Self, QpFailure> {
-        Ok(Self {
-            qps: InputQps::new(s, lp)?,
+    ) -> Self {
+        Self {
             curvature: Curvature::new(s, lp),
             iterates,
             current,
             scratch: Scratch::new(lp.horizon),
             change: f64::INFINITY,
-        })
+        }
     }
 
     /// The dual update μ ← μ + ρF(Δ, α, Z); returns whether ADMM converged
@@ -238,4 +208,37 @@ impl Workspace {
 /// ‖v‖∞ over stacked states.
 pub(crate) fn max_abs(v: &[State]) -> f64 {
     v.iter().map(|s| s.amax()).fold(0.0, f64::max)
+}
+
+/// ‖a − b‖∞ over stacked states.
+pub(crate) fn max_diff(a: &[State], b: &[State]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).amax())
+        .fold(0.0, f64::max)
+}
+
+/// The safety of the current Z, carried from one Z-update to the next.
+pub(crate) struct CurrentSafety {
+    /// Minimum b (`None` when nothing is checked).
+    pub min_b: Option<f64>,
+    /// Total violation at the Z-update's threshold.
+    pub violation: f64,
+    /// ∂(violation)/∂(x_k, y_k) `[T]`, prediction frozen.
+    pub violation_gradient: Vec<[f64; 2]>,
+}
+
+impl CurrentSafety {
+    /// The safety of the starting Z, evaluated by `safety`.
+    pub(crate) fn new(evaluation: Evaluation, safety: &SafetyEval<'_>) -> Self {
+        Self {
+            min_b: evaluation.min_b,
+            violation: evaluation.violation,
+            violation_gradient: safety.violation_gradient.clone(),
+        }
+    }
+
+    pub(crate) fn is_safe(&self, threshold: f64) -> bool {
+        self.min_b.is_none_or(|b| b > threshold)
+    }
 }

@@ -11,11 +11,11 @@ use crate::error::PlannerError;
 use crate::model::State;
 use crate::settings::PlannerSettings;
 
-use super::constraint::{Evaluation, SafetyEval};
+use super::constraint::SafetyEval;
 use super::linearised::LinearisedProblem;
 use super::problem::PhaseTimings;
 use super::restoration::restore;
-use super::workspace::{Curvature, Scratch, Workspace, mat_vec};
+use super::workspace::{CurrentSafety, Curvature, Scratch, Workspace, mat_vec, max_diff};
 
 /// The augmented Lagrangian as a function of Z, the inputs and duals fixed.
 pub(crate) struct Lagrangian<'a> {
@@ -56,52 +56,6 @@ impl Lagrangian<'_> {
             let e = zk - self.lp.reference;
             *g += 2.0 * self.lp.weights.component_mul(&e);
         }
-    }
-}
-
-/// Z⁺ = Π(Z − η·d), Π clamping into the state bounds.
-pub(crate) fn project_step(
-    lp: &LinearisedProblem,
-    z: &[State],
-    direction: &[State],
-    eta: f64,
-    out: &mut [State],
-) {
-    for ((o, zk), dk) in out.iter_mut().zip(z).zip(direction) {
-        *o = lp.clamp(&(zk - eta * dk));
-    }
-}
-
-/// ‖a − b‖∞ over stacked states.
-pub(crate) fn max_diff(a: &[State], b: &[State]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).amax())
-        .fold(0.0, f64::max)
-}
-
-/// The safety of the current Z, carried from one Z-update to the next.
-pub(crate) struct CurrentSafety {
-    /// Minimum b (`None` when nothing is checked).
-    pub min_b: Option<f64>,
-    /// Total violation at the Z-update's threshold.
-    pub violation: f64,
-    /// ∂(violation)/∂(x_k, y_k) `[T]`, prediction frozen.
-    pub violation_gradient: Vec<[f64; 2]>,
-}
-
-impl CurrentSafety {
-    /// The safety of the starting Z, evaluated by `safety`.
-    pub(crate) fn new(evaluation: Evaluation, safety: &SafetyEval<'_>) -> Self {
-        Self {
-            min_b: evaluation.min_b,
-            violation: evaluation.violation,
-            violation_gradient: safety.violation_gradient.clone(),
-        }
-    }
-
-    fn is_safe(&self, threshold: f64) -> bool {
-        self.min_b.is_none_or(|b| b > threshold)
     }
 }
 
@@ -166,7 +120,7 @@ fn descend(
         };
         let mut eta = trial.first_step(curvature);
         for _ in 0..=trial.halvings(g.s) {
-            project_step(g.lp, z, direction, eta, &mut scratch.trial);
+            g.lp.project_step(z, direction, eta, &mut scratch.trial);
             if max_diff(&scratch.trial, z) < 1e-12 {
                 return Ok(false);
             }

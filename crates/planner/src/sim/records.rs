@@ -1,80 +1,11 @@
 //! What a closed-loop run records: [`StepRecord`] per planning step, [`RunRecord`] per run,
-//! and the typed [`StepStatus`].
+//! and the typed [`StepStatus`] (the name of the step's [`crate::PlanStatus`]).
 
 use serde::{Deserialize, Serialize};
 
-use crate::admm::PlanStatus;
+pub use crate::admm::StepStatus;
 
 use super::config::World;
-
-/// How the plan applied at a closed-loop step came about (the [`PlanStatus`] without its
-/// details; serialised as its name).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[non_exhaustive]
-pub enum StepStatus {
-    /// ADMM converged; the plan is safe.
-    Converged,
-    /// ADMM reached `max_iter`; the plan is safe.
-    MaxIterations,
-    /// The states could not be made safe.
-    Unsafe,
-    /// The ADMM inputs were pulled towards the previous plan until their roll-out was safe.
-    Backtracked,
-    /// A simple input sequence replaced the ADMM inputs.
-    Fallback,
-    /// A QP failed; a simple input sequence is the plan.
-    SolverFailed,
-}
-
-impl StepStatus {
-    /// Every status, in declaration order.
-    pub const ALL: [Self; 6] = [
-        Self::Converged,
-        Self::MaxIterations,
-        Self::Unsafe,
-        Self::Backtracked,
-        Self::Fallback,
-        Self::SolverFailed,
-    ];
-
-    /// The name, as in records and tables.
-    #[must_use]
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Converged => "Converged",
-            Self::MaxIterations => "MaxIterations",
-            Self::Unsafe => "Unsafe",
-            Self::Backtracked => "Backtracked",
-            Self::Fallback => "Fallback",
-            Self::SolverFailed => "SolverFailed",
-        }
-    }
-
-    /// No safe lane-change plan was found (counts towards a lane-change abort).
-    #[must_use]
-    pub fn is_unsafe_plan(self) -> bool {
-        matches!(self, Self::Fallback | Self::Unsafe | Self::SolverFailed)
-    }
-}
-
-impl From<PlanStatus> for StepStatus {
-    fn from(s: PlanStatus) -> Self {
-        match s {
-            PlanStatus::Converged => Self::Converged,
-            PlanStatus::MaxIterations => Self::MaxIterations,
-            PlanStatus::Unsafe => Self::Unsafe,
-            PlanStatus::Backtracked => Self::Backtracked,
-            PlanStatus::Fallback => Self::Fallback,
-            PlanStatus::SolverFailed { .. } => Self::SolverFailed,
-        }
-    }
-}
-
-impl std::fmt::Display for StepStatus {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
 
 /// What happened at one closed-loop step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
