@@ -6,9 +6,9 @@
 
 use nalgebra::{SMatrix, SVector};
 
-/// A state (x, y, ψ, v).
+/// A state (x, y, ψ, v): position of the centre of gravity (m, m), heading (rad), speed (m/s).
 pub type State = SVector<f64, 4>;
-/// A 4×4 state Jacobian.
+/// A `[4, 4]` state Jacobian ∂f/∂z.
 pub type Jac4 = SMatrix<f64, 4, 4>;
 
 /// Kinematic bicycle parameters and step length.
@@ -29,7 +29,7 @@ impl Bicycle {
         (self.l_r / (self.l_f + self.l_r) * delta.tan()).atan()
     }
 
-    /// dβ/dδ.
+    /// dβ/dδ (dimensionless).
     #[must_use]
     pub fn slip_derivative(&self, delta: f64) -> f64 {
         let k = self.l_r / (self.l_f + self.l_r);
@@ -38,7 +38,9 @@ impl Bicycle {
         k * sec2 / (1.0 + k * k * t * t)
     }
 
-    /// One exact (nonlinear) step: z⁺ = f(z, δ, a).
+    /// One exact (nonlinear) step z⁺ = f(z, δ, a) of `dt` seconds, steering δ (rad),
+    /// acceleration a (m/s²); the speed may go negative (the linearisation needs the smooth
+    /// model; see [`Bicycle::advance`] for the vehicle).
     #[must_use]
     pub fn step(&self, z: &State, delta: f64, accel: f64) -> State {
         let beta = self.slip(delta);
@@ -107,13 +109,14 @@ impl Bicycle {
 /// (rows of step k, columns of state z_k, k ≥ 1).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Linearisation {
-    /// Horizon T.
+    /// Horizon T (steps).
     pub horizon: usize,
-    /// ∂f/∂z at each nominal point, k = 0..T (`jz[0]` multiplies the fixed z_0 and enters D).
+    /// ∂f/∂z at each nominal point, `[T]` of `[4, 4]`, k = 0..T (`jz[0]` multiplies the
+    /// fixed z_0 and enters D).
     pub jz: Vec<Jac4>,
-    /// ∂f/∂δ at each nominal point (A's blocks).
+    /// ∂f/∂δ at each nominal point, `[T]` of `[4]` (A's blocks).
     pub jd: Vec<State>,
-    /// ∂f/∂a (B's blocks; constant).
+    /// ∂f/∂a, `[4]` (B's blocks; constant).
     pub ja: State,
     /// The constant term D, `[T]` blocks of 4.
     pub d: Vec<State>,
@@ -160,7 +163,8 @@ impl Linearisation {
         }
     }
 
-    /// Evaluates F(Δ, α, Z) into `out` (`[T]` states); `z` holds z_1..z_T.
+    /// Evaluates F(Δ, α, Z) into `out` (`[T]` states); `delta` `[T]` (rad), `accel` `[T]`
+    /// (m/s²), `z` `[T]` holds z_1..z_T.
     pub fn residual(&self, delta: &[f64], accel: &[f64], z: &[State], out: &mut [State]) {
         for k in 0..self.horizon {
             let mut r = self.d[k] + self.jd[k] * delta[k] + self.ja * accel[k] - z[k];

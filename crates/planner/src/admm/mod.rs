@@ -48,8 +48,23 @@ use linearised::{LinearisedProblem, WarmStart};
 use repair::{Candidate, Rank, Repairer};
 use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 
-/// The ADMM MPC planner. Keeps the previous solution to warm-start the next call; call
-/// [`Planner::reset`] between unrelated runs.
+/// The ADMM MPC planner of the paper's Algorithm 1. One call of [`Planner::plan`] is
+///
+/// 1. **set-up**: the nominal trajectory (the shifted previous plan, constant velocity on a
+///    cold start), the dynamics linearised around it, the input and state bounds, the
+///    vehicles the safety constraint checks ([`SafetyConstraint`]), and a workspace allocated
+///    once for the call;
+/// 2. **the ADMM loop**, until ‖F‖∞ ≤ `eps_primal` and ‖Z − Z_prev‖∞ ≤ `eps_change` or
+///    `max_iter`: the Δ-update and the α-update (box/rate QPs solved by Clarabel), the
+///    Z-update (projected descent on G whose every trial point is checked by the predictor;
+///    feasibility restoration from an unsafe Z), the dual update μ ← μ + ρF;
+/// 3. **the execution check**: the nonlinear roll-out of (Δ, α) is checked by the predictor
+///    and repaired when unsafe ([`PlanStatus::Backtracked`], [`PlanStatus::Fallback`]); a QP
+///    failure goes straight to the fallbacks ([`PlanStatus::SolverFailed`]).
+///
+/// Keeps the solution to warm-start the next call; call [`Planner::reset`] between
+/// unrelated runs. [`Planner::reference_qp`] solves the same linearised problem as one joint
+/// QP.
 #[derive(Debug, Clone)]
 pub struct Planner {
     settings: PlannerSettings,
