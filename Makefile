@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build test test-rust test-python lint fmt bench bench-planner bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt bench bench-planner bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -57,13 +57,19 @@ build:
 	$(CARGO) build --release --workspace
 
 # ---- tests ----------------------------------------------------------------------------------
-test: venv test-rust test-python
+test: venv test-rust test-examples test-python
 
 test-rust:
 	$(CARGO) test --workspace --release
 
-test-python: develop
-	$(PY) -m pytest -q
+# The examples/ of the facade crate, run as users would (from the repository root).
+test-examples:
+	$(CARGO) run --release --quiet --example plan_one_step
+	$(CARGO) run --release --quiet --example custom_predictor
+
+# The front-end parity test runs the CLI binary built by `build`.
+test-python: develop build
+	NUDGE_CLI=target/release/nudge $(PY) -m pytest -q
 
 # ---- quality --------------------------------------------------------------------------------
 fmt:
@@ -76,11 +82,11 @@ lint:
 
 # ---- benches (one thread, as in the paper) ---------------------------------------------------
 bench: venv
-	RAYON_NUM_THREADS=1 $(CARGO) bench --bench predictor -- --warm-up-time 1 --measurement-time 3
+	RAYON_NUM_THREADS=1 $(CARGO) bench -p nudge-predictor --bench predictor -- --warm-up-time 1 --measurement-time 3
 	$(MAKE) bench-table bench-planner
 
 bench-planner: venv
-	RAYON_NUM_THREADS=1 $(CARGO) bench --bench planner -- --warm-up-time 1 --measurement-time 4
+	RAYON_NUM_THREADS=1 $(CARGO) bench -p nudge --bench planner -- --warm-up-time 1 --measurement-time 4
 	$(TRAIN) bench planner
 
 bench-table: venv
@@ -109,14 +115,15 @@ distill: develop
 student: distill
 	$(TRAIN) student
 
-# The main job: closed-loop lane changes on the shipped real NGSIM scenes, planned with the
-# shipped distilled student (PREDICTOR=teacher|constant-velocity for the others), the trained
-# teacher moving the other vehicles; per-step table of one run, summary over all, records
-# (CSV/JSON) and a picture in out/demo/, drawn in the light environment $(DEMO_VENV).
+# The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
+# planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the
+# others), the trained teacher moving the other vehicles; per-step table of one run, summary
+# over all, records (CSV/JSON) and a picture in out/demo/, drawn in the light environment
+# $(DEMO_VENV).
 PREDICTOR ?= student
 demo: venv-demo build
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
-		--world teacher --seed 0 --runs 10 --threads 2 --out out/demo --verbose-run
+		--world teacher --seed 0 --runs 1 --threads 2 --out out/demo --verbose-run
 	$(DEMO_VENV)/bin/nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
 
 ci: lint test

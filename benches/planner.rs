@@ -15,8 +15,10 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use nudge::planner::{EgoState, Planner, PlannerSettings, PlanningProblem, Scenario};
-use nudge::predictor::{ConstantVelocity, History, Predictor, T_OBS, load_predictor};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario};
+use nudge::predictor::{
+    ConstantVelocity, History, ModelKind, Predictor, load_predictor, model_path,
+};
 
 const NS: [usize; 4] = [2, 4, 8, 16];
 
@@ -26,12 +28,12 @@ fn repo() -> PathBuf {
 
 fn predictors() -> Vec<Box<dyn Predictor>> {
     let mut v: Vec<Box<dyn Predictor>> = Vec::new();
-    for name in ["teacher", "student"] {
-        let p = repo().join(format!("assets/models/{name}.safetensors"));
+    for kind in [ModelKind::Teacher, ModelKind::Student] {
+        let p = model_path(&repo().join("assets"), kind);
         if p.exists() {
             v.push(load_predictor(&p).unwrap());
         } else {
-            eprintln!("skipping {name}: {} missing", p.display());
+            eprintln!("skipping {}: {} missing", kind.as_str(), p.display());
         }
     }
     v.push(Box::new(ConstantVelocity::new(6)));
@@ -65,22 +67,7 @@ fn bench(c: &mut Criterion) {
         } else {
             sc.ego_lane - 1
         };
-        let p0 = sc.position(0, T_OBS - 1);
-        let problem = PlanningProblem {
-            ego: EgoState {
-                x: p0[0],
-                y: p0[1],
-                psi: sc.heading[0],
-                v: sc.speed[0],
-            },
-            last_delta: 0.0,
-            last_accel: 0.0,
-            history: &history,
-            sizes: &sc.size,
-            y_target: sc.lane_centres[target],
-            v_ref: sc.speed[0],
-            road: sc.road(),
-        };
+        let problem = PlanningProblem::at_scenario_start(&sc, &history, sc.lane_centres[target]);
         for pred in &mut preds {
             let name = pred.name();
             group.bench_function(BenchmarkId::new(format!("step/{name}"), n), |b| {

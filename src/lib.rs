@@ -5,3 +5,8 @@
 
 pub use nudge_planner as planner;
 pub use nudge_predictor as predictor;
+
+/// The README's code blocks, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

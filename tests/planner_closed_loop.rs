@@ -1,15 +1,20 @@
 //! Closed-loop lane changes on the real shipped scenes (assets/scenes).
 #![allow(clippy::unwrap_used)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
+use nudge::planner::SimError;
 use nudge::planner::{
-    PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, WorldMode, simulate, target_lane,
+    PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, World, simulate, target_lane,
 };
-use nudge::predictor::{ConstantVelocity, load_predictor};
+use nudge::predictor::{ConstantVelocity, ModelKind, load_predictor, model_path};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn teacher_path() -> PathBuf {
+    model_path(&repo().join("assets"), ModelKind::Teacher)
 }
 
 fn scene(name: &str) -> Scenario {
@@ -45,7 +50,7 @@ fn check(rec: &RunRecord) {
 fn constant_velocity_lane_change_on_real_scene() {
     let sc = scene("us101-11_1-t02.1-ego144");
     let cfg = SimConfig {
-        world: WorldMode::LogReplay,
+        world: World::LogReplay,
         ..SimConfig::default()
     };
     for seed in 0..2 {
@@ -59,7 +64,7 @@ fn constant_velocity_lane_change_on_real_scene() {
 fn constant_velocity_lane_change_in_dense_real_scene() {
     let sc = scene("us101-11_1-t02.1-ego132");
     let cfg = SimConfig {
-        world: WorldMode::LogReplay,
+        world: World::LogReplay,
         ..SimConfig::default()
     };
     let mut cv = ConstantVelocity::new(6);
@@ -69,11 +74,11 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
 
 /// One seeded lane change on a real scene, `plan_weights` planning and the shipped teacher moving
 /// the other vehicles (they react to the ego as the teacher predicts).
-fn lane_change_in_teacher_world(plan_weights: &str) -> RunRecord {
-    let mut plan = load_predictor(repo().join(plan_weights)).unwrap();
-    let mut world = load_predictor(repo().join("assets/models/teacher.safetensors")).unwrap();
+fn lane_change_in_teacher_world(plan_weights: &Path) -> RunRecord {
+    let mut plan = load_predictor(plan_weights).unwrap();
+    let mut world = load_predictor(teacher_path()).unwrap();
     let cfg = SimConfig {
-        world: WorldMode::Predictor,
+        world: World::Teacher,
         ..SimConfig::default()
     };
     let sc = scene("us101-20_1-t04.5-ego462");
@@ -86,7 +91,7 @@ fn lane_change_in_teacher_world(plan_weights: &str) -> RunRecord {
         Some(world.as_mut()),
     )
     .unwrap();
-    assert_eq!(rec.world, "teacher");
+    assert_eq!(rec.world, World::Teacher);
     assert!(rec.steps.iter().all(|s| s.iterations >= 1 && s.mpc_s > 0.0));
     rec
 }
@@ -99,32 +104,59 @@ fn lane_change_in_teacher_world(plan_weights: &str) -> RunRecord {
     ignore = "teacher-in-the-loop is slow without optimisation; run with --release"
 )]
 fn teacher_lane_change_on_real_scene() {
-    let rec = lane_change_in_teacher_world("assets/models/teacher.safetensors");
+    let rec = lane_change_in_teacher_world(&teacher_path());
     assert!(!rec.collision, "collision with the teacher world");
     assert!(rec.success, "lane change with the teacher did not settle");
 }
 
-/// The shipped student plans, the teacher moves the world (the paper's set-up after
-/// distillation): the lane change must settle without collision. Skipped while the shipped
-/// student is the random placeholder (metadata `trained = "false"`).
+/// The shipped (trained) student plans, the teacher moves the world (the paper's set-up after
+/// distillation): the lane change must settle without collision.
 #[test]
 #[cfg_attr(
     debug_assertions,
     ignore = "predictor-in-the-loop is slow without optimisation; run with --release"
 )]
 fn student_lane_change_with_teacher_world() {
-    let student = "assets/models/student.safetensors";
-    let weights = nudge::predictor::ModelWeights::from_file(repo().join(student)).unwrap();
-    if weights.trained() != Some(true) {
-        eprintln!("skipping: {student} is not trained");
-        return;
-    }
-    let rec = lane_change_in_teacher_world(student);
+    let student = model_path(&repo().join("assets"), ModelKind::Student);
+    let weights = nudge::predictor::ModelWeights::from_file(&student).unwrap();
+    assert_eq!(
+        weights.trained(),
+        Some(true),
+        "{} is not trained",
+        student.display()
+    );
+    let rec = lane_change_in_teacher_world(&student);
     assert!(
         !rec.collision,
         "collision with the student planning in a teacher world"
     );
     assert!(rec.success, "lane change with the student did not settle");
+}
+
+/// The world model must match the world: a teacher world needs a teacher (not a student, not
+/// none), a log-replay world none.
+#[test]
+fn world_models_are_checked_against_the_world() {
+    let sc = scene("us101-11_1-t02.1-ego144");
+    let s = PlannerSettings::default();
+    let teacher_world = SimConfig::default();
+    assert_eq!(teacher_world.world, World::Teacher);
+    let replay = SimConfig {
+        world: World::LogReplay,
+        ..teacher_world
+    };
+    let mut cv = ConstantVelocity::new(6);
+    let mut student =
+        load_predictor(model_path(&repo().join("assets"), ModelKind::Student)).unwrap();
+    let mut other_cv = ConstantVelocity::new(6);
+    let errors = [
+        simulate(&sc, &s, &teacher_world, 0, &mut cv, None).unwrap_err(),
+        simulate(&sc, &s, &teacher_world, 0, &mut cv, Some(student.as_mut())).unwrap_err(),
+        simulate(&sc, &s, &replay, 0, &mut cv, Some(&mut other_cv)).unwrap_err(),
+    ];
+    for err in errors {
+        assert!(matches!(err, SimError::WorldModel { .. }), "{err}");
+    }
 }
 
 /// The real scene `name` with every other vehicle replaced by a convoy in the seeded target
@@ -172,7 +204,7 @@ fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
     let (sc, y_target, y_own) = convoy_scene("us101-11_1-t02.1-ego144", 0, 11.0);
     for abort_after in [2, 0] {
         let cfg = SimConfig {
-            world: WorldMode::LogReplay,
+            world: World::LogReplay,
             abort_after,
             ..SimConfig::default()
         };

@@ -8,7 +8,7 @@ name resolution for the shipped models and scenes::
     teacher = nudge.Predictor.load(nudge.model_path("teacher"))
     out = teacher.predict(sc.history, cands)   # [agents, 8, 2], [batch, 6, 2] -> [batch, agents-1, 6, 2]
     plan = nudge.Planner(nudge.PlannerSettings.default(), teacher).plan_scenario(sc)
-    rec = nudge.simulate(nudge.scene_paths(), "student", world="predictor", world_predictor="teacher")
+    rec = nudge.simulate(nudge.scene_paths(), "student", world="teacher", max_steps=20)
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from nudge._native import (
+    DEFAULTS,
     DT,
     MAX_AGENTS,
     T_OBS,
@@ -30,13 +31,16 @@ from nudge._native import (
     Scenario,
     ScenarioError,
     SettingsError,
+    SimConfig,
     SolverError,
     WeightsError,
     __version__,
 )
+from nudge._native import model_path as _model_path
 from nudge._native import simulate as _simulate
 
 __all__ = [
+    "DEFAULTS",
     "DT",
     "MAX_AGENTS",
     "T_OBS",
@@ -48,6 +52,7 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "SettingsError",
+    "SimConfig",
     "SolverError",
     "WeightsError",
     "__version__",
@@ -60,20 +65,26 @@ __all__ = [
 MODEL_NAMES = ("teacher", "student")
 
 
+def _assets_path() -> Path:
+    env = os.environ.get("NUDGE_ASSETS")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
+
+
 def assets_dir() -> Path:
     """The shipped assets: ``$NUDGE_ASSETS`` if set, else ``<repo>/assets`` of this checkout."""
-    env = os.environ.get("NUDGE_ASSETS")
-    path = Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
+    path = _assets_path()
     if not path.is_dir():
         raise NudgeError(f"assets directory not found: {path} (set NUDGE_ASSETS)")
     return path
 
 
-def model_path(name: str) -> Path:
-    """``"teacher"`` / ``"student"`` -> the shipped weights file; anything else is a path."""
-    if name in MODEL_NAMES:
-        return assets_dir() / "models" / f"{name}.safetensors"
-    return Path(name)
+def model_path(name: str | os.PathLike[str]) -> Path:
+    """``"teacher"`` / ``"student"`` -> the shipped weights file (the Rust resolver's path);
+    anything else is a path."""
+    s = os.fspath(name)
+    if s in MODEL_NAMES:
+        return Path(_model_path(assets_dir(), s))
+    return Path(s)
 
 
 def scene_paths(directory: str | os.PathLike[str] | None = None) -> list[Path]:
@@ -84,43 +95,37 @@ def scene_paths(directory: str | os.PathLike[str] | None = None) -> list[Path]:
     return sorted(d.glob("*.safetensors"))
 
 
-def _resolve(predictor: str | os.PathLike[str]) -> str:
-    s = os.fspath(predictor)
-    return s if s == "constant_velocity" else str(model_path(s))
-
-
 def simulate(
     scene_paths: Sequence[str | os.PathLike[str]],
-    predictor: str | os.PathLike[str] = "teacher",
+    predictor: str | os.PathLike[str] = DEFAULTS["predictor"],
     *,
-    world: str = "log_replay",
     world_predictor: str | os.PathLike[str] | None = None,
-    seed: int = 0,
+    seed: int = DEFAULTS["seed"],
     scene_seeds: Sequence[int] | None = None,
-    runs: int = 1,
+    runs: int = DEFAULTS["runs"],
     threads: int | None = None,
     settings: PlannerSettings | None = None,
-    max_steps: int = 30,
-    abort_after: int = 4,
-    abort_hold: int = 3,
+    config: SimConfig | None = None,
     record: bool = False,
     on_error: str = "raise",
+    **config_overrides: int | float | str,
 ) -> dict[str, Any]:
-    """:func:`nudge._native.simulate` accepting ``"teacher"`` / ``"student"`` /
-    ``"constant_velocity"`` or weight paths for ``predictor`` and ``world_predictor``."""
+    """Closed-loop lane changes: :func:`nudge._native.simulate` with the named models
+    (``"teacher"``, ``"student"``) resolved under :func:`assets_dir`. Defaults come from Rust
+    (:data:`DEFAULTS`, :meth:`SimConfig.default`); ``config_overrides`` are ``SimConfig``
+    fields (``world="log_replay"``, ``max_steps=4``, ...)."""
     return _simulate(
         [os.fspath(p) for p in scene_paths],
-        _resolve(predictor),
-        world=world,
-        world_predictor=None if world_predictor is None else _resolve(world_predictor),
+        os.fspath(predictor),
+        world_predictor=None if world_predictor is None else os.fspath(world_predictor),
         seed=seed,
         scene_seeds=None if scene_seeds is None else [int(s) for s in scene_seeds],
         runs=runs,
         threads=threads,
         settings=settings,
-        max_steps=max_steps,
-        abort_after=abort_after,
-        abort_hold=abort_hold,
+        config=config,
         record=record,
         on_error=on_error,
+        assets=os.fspath(_assets_path()),
+        **config_overrides,
     )

@@ -1,5 +1,6 @@
-"""Type stubs of the Rust extension ``nudge._native`` (crates/pybind). Keep in sync: a test
-checks that every public name of the module appears here."""
+"""Type stubs of the Rust extension ``nudge._native`` (crates/pybind). Keep in sync: tests check
+that every public name of the module appears here with the module's parameters and defaults
+(``...`` where the default is a Rust constant: see ``DEFAULTS`` and ``SimConfig.default()``)."""
 
 from os import PathLike
 from pathlib import Path
@@ -13,6 +14,15 @@ T_OBS: int
 MAX_AGENTS: int
 DT: float
 
+class _Defaults(TypedDict):
+    predictor: str  # "student"
+    world_predictor: str  # "teacher"
+    seed: int  # 0
+    runs: int  # 1 per scene
+
+DEFAULTS: _Defaults
+"""The front ends' defaults, from Rust (``nudge_planner::sim::defaults``)."""
+
 class NudgeError(Exception):
     """Base class of every nudge error."""
 
@@ -23,7 +33,7 @@ class InputError(NudgeError):
     """An input array has the wrong shape or dtype, or holds NaN/inf."""
 
 class SettingsError(NudgeError):
-    """Planner settings are invalid (unknown key, impossible value)."""
+    """Planner or closed-loop settings are invalid (unknown key, impossible value)."""
 
 class ScenarioError(NudgeError):
     """A scenario file is missing or malformed."""
@@ -66,6 +76,24 @@ class PlannerSettings:
     def to_json(self) -> str: ...
     def replace(self, **overrides: int | float | bool) -> PlannerSettings: ...
     def __getattr__(self, name: str) -> int | float | bool: ...
+    def __eq__(self, other: object) -> bool: ...
+
+class SimConfig:
+    """Closed-loop settings; fields are readable as attributes (``c.max_steps``): max_steps,
+    settle_y (m), settle_psi (rad), settle_steps, world ("teacher" or "log_replay"),
+    abort_after, abort_hold (steps)."""
+
+    def __init__(self, **overrides: int | float | str) -> None: ...
+    @staticmethod
+    def default() -> SimConfig: ...
+    @staticmethod
+    def from_dict(d: dict[str, int | float | str]) -> SimConfig: ...
+    def to_dict(self) -> dict[str, int | float | str]: ...
+    @staticmethod
+    def from_json(text: str) -> SimConfig: ...
+    def to_json(self) -> str: ...
+    def replace(self, **overrides: int | float | str) -> SimConfig: ...
+    def __getattr__(self, name: str) -> int | float | str: ...
     def __eq__(self, other: object) -> bool: ...
 
 class Scenario:
@@ -130,8 +158,10 @@ class PlanResult(TypedDict, total=False):
     primal_residual: float
     change_residual: float
     min_safety: float | None
+    rollout_min_safety: float | None
     checked: int
-    status: str  # Converged, MaxIterations, Unsafe or Fallback
+    status: Literal["Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"]
+    solver_failure: tuple[str, str] | None  # (qp "delta" | "alpha", Clarabel status) for SolverFailed
     timings: Timings
     target_lane: int  # plan_scenario only
     y_target: float  # plan_scenario only
@@ -158,42 +188,53 @@ class Planner:
     ) -> PlanResult: ...
     def plan_scenario(self, scenario: Scenario, target_lane: int | None = None, seed: int = 0) -> PlanResult: ...
 
+def model_path(assets: _Path, name: Literal["teacher", "student"]) -> Path:
+    """The shipped weights of ``name`` under ``assets`` (the Rust resolver's path)."""
+
 def simulate(
     scene_paths: list[_Path],
-    predictor: str,
+    predictor: _Path = ...,
     *,
-    world: Literal["log_replay", "predictor"] = "log_replay",
-    world_predictor: str | None = None,
-    seed: int = 0,
+    world_predictor: _Path | None = None,
+    seed: int = ...,
     scene_seeds: list[int] | None = None,
-    runs: int = 1,
+    runs: int = ...,
     threads: int | None = None,
     settings: PlannerSettings | None = None,
-    max_steps: int = 30,
-    abort_after: int = 4,
-    abort_hold: int = 3,
+    config: SimConfig | None = None,
     record: bool = False,
     on_error: Literal["raise", "skip"] = "raise",
+    assets: _Path | None = None,
+    **config_overrides: int | float | str,
 ) -> dict[str, dict[str, Any]]:
-    """Closed-loop runs over scenario files on ``threads`` rayon threads; run ``r`` of scene ``i``
-    draws its target lane from seed ``scene_seeds[i] + r`` (default ``seed + r``).
+    """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
+    run ``r`` of scene ``i`` draws its target lane from seed ``scene_seeds[i] + r`` when given,
+    else ``seed + i * runs + r``.
 
-    Lane-change aborts: after ``abort_after`` consecutive steps without a safe plan (status
-    ``Fallback``, ``Unsafe`` or a Clarabel failure) while the ego is not yet wholly inside the
-    target lane, the ego aims at its own lane's centre for ``abort_hold`` steps, then retries
-    (``abort_after = 0`` disables aborts).
+    ``predictor`` (default ``DEFAULTS["predictor"]``) and ``world_predictor`` (the world model
+    of a ``"teacher"`` world, default the shipped teacher; must be a teacher): ``"teacher"``,
+    ``"student"``, ``"constant_velocity"`` (named models under ``assets``) or a weights path.
+    ``config`` (default ``SimConfig.default()``) with ``config_overrides`` (``SimConfig`` fields:
+    ``world``, ``max_steps``, ``settle_y``, ``settle_psi``, ``settle_steps``, ``abort_after``,
+    ``abort_hold``) sets the closed loop. Lane-change aborts: after ``abort_after`` consecutive
+    steps without a safe plan (status ``Fallback``, ``Unsafe`` or ``SolverFailed``) while the
+    ego is not yet wholly inside the target lane, the ego aims at its own lane's centre for
+    ``abort_hold`` steps, then retries (``abort_after = 0`` disables aborts).
 
-    Returns ``{"runs": ..., "steps": ...}`` (+ ``"examples"`` when ``record``):
+    Returns ``{"runs": ..., "steps": ...}`` (+ ``"examples"`` when ``record``), the columns of
+    ``nudge_planner::sim::columns`` (the CLI's CSV has the same names and values):
 
-    - runs (one row per (scene, seed)): scenario list[str], scene_index i64, seed u64,
+    - runs (one row per run): scenario list[str], scene_index i64, seed u64,
       predictor list[str], world list[str], n_agents i64, target_lane i64 (-1 on error),
-      y_target f64, success bool, steps_to_target i64 (-1 = never), collision bool,
-      aborts i64, n_steps i64, error list[str | None];
+      y_target f64 (NaN on error), success bool, steps_to_target i64 (-1 = never),
+      collision bool, aborts i64, n_steps i64, error list[str | None];
     - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
-      iterations i64, predictor_calls i64, cost f64, primal_residual f64, min_b f64 (NaN = none
-      checked), collision bool, status list[str], delta f64, accel f64, ego f64 [S, 4]
-      (x, y, psi, v after the step), z_updates i64, z_s f64, y_goal f64 (the lateral position
-      aimed at: the target lane's centre, or the ego's own lane's during an abort);
+      z_updates i64, z_s f64 (sum of the Z-update times), z_median_s f64, iterations i64,
+      predictor_calls i64, cost f64, primal_residual f64, min_b f64 (the planner's constraint
+      at the executed step; NaN = none checked), collision bool, status list[str] (a
+      ``PlanStatus`` name), delta f64, accel f64, x, y, psi, v f64 (the ego after the step),
+      y_goal f64 (the lateral position aimed at: the target lane's centre, or the ego's own
+      lane's during an abort); plus ego f64 [S, 4] = (x, y, psi, v);
     - examples (every distinct candidate the planning predictor evaluated, float32 m):
       history [H, 8, 2], context_offsets i64 [C + 1], context_run i64 [C],
       example_context i64 [E], candidate [E, T, 2], prediction [P, T, 2],

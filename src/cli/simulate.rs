@@ -1,76 +1,75 @@
-//! `nudge simulate`: many closed-loop runs in parallel, a per-step table for one run, a
-//! summary, and the records as CSV and JSON.
+//! `nudge simulate`: closed-loop runs in parallel over a directory of scenes, the per-step
+//! table of one run, the summary, and the records as CSV and JSON. Everything but the
+//! argument parsing and the file writing is `nudge_planner::sim`, shared with Python.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use clap::{Args, ValueEnum};
+use clap::Args;
+use nudge_planner::sim::defaults;
+use nudge_planner::sim::{Summary, run_table, step_listing, step_table, thread_pool};
 use nudge_planner::{
-    PlannerSettings, PredictorPair, RunRecord, RunSpec, Scenario, SimConfig, WorldMode,
-    simulate_many,
+    PlannerSettings, Predictors, RunRecord, Scenario, SimConfig, World, run_specs, simulate_many,
 };
-use nudge_predictor::{ConstantVelocity, Predictor, PredictorError, load_predictor};
+use nudge_predictor::default_assets_dir;
 
-/// Planning predictor choices.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum PredictorKind {
-    /// Social-GAN teacher (recursive, 6 generator calls per prediction).
-    Teacher,
-    /// Distilled one-pass student.
-    Student,
-    /// Interaction-unaware constant velocity.
-    ConstantVelocity,
+/// The closed-loop defaults the flags' help shows.
+const DEFAULT: SimConfig = SimConfig::DEFAULT;
+
+/// `text [default: value]`.
+fn noted(text: &str, value: impl std::fmt::Display) -> String {
+    format!("{text} [default: {value}]")
 }
 
-/// World-model choices.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum WorldKind {
-    /// The teacher's one-step interactive prediction moves the other vehicles.
-    Teacher,
-    /// The logged future moves the other vehicles.
-    LogReplay,
-}
-
-/// Arguments of `nudge simulate`.
+/// Arguments of `nudge simulate`. Closed-loop settings come from `--config` (a `SimConfig`
+/// JSON file; its defaults otherwise), each overridable by its own flag.
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Directory of "nudge.scenario/1" `.safetensors` files.
+    /// Directory of "nudge.scenario/1" `.safetensors` files (run in sorted file-name order).
     #[arg(long, default_value = "assets/scenes")]
     pub scenes: PathBuf,
-    /// Predictor used inside the planner.
-    #[arg(long, value_enum, default_value = "student")]
-    pub predictor: PredictorKind,
-    /// Weights of the planning predictor (default: assets/models/<predictor>.safetensors).
+    /// Planning predictor: teacher, student, constant_velocity, or a weights file.
+    #[arg(long, default_value = defaults::PREDICTOR.as_str())]
+    pub predictor: PathBuf,
+    #[arg(long, help = noted("World model of a teacher world: teacher or a teacher weights file", defaults::WORLD_PREDICTOR))]
+    pub world_predictor: Option<PathBuf>,
+    /// Directory of the named models (<assets>/models/<name>.safetensors)
+    /// [default: $NUDGE_ASSETS, else assets].
     #[arg(long)]
-    pub weights: Option<PathBuf>,
-    /// How the other vehicles move.
-    #[arg(long, value_enum, default_value = "teacher")]
-    pub world: WorldKind,
-    /// Teacher weights for the world model.
-    #[arg(long, default_value = "assets/models/teacher.safetensors")]
-    pub world_weights: PathBuf,
+    pub assets: Option<PathBuf>,
     /// Planner settings JSON (missing fields default).
     #[arg(long)]
     pub settings: Option<PathBuf>,
-    /// Base seed: run r uses scenario r mod #scenes and seed + r for its target lane.
-    #[arg(long, default_value_t = 0)]
+    /// Closed-loop settings JSON (`SimConfig`; missing fields default).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Base seed: run r of scene i draws its target lane from seed + i·runs + r.
+    #[arg(long, default_value_t = defaults::SEED)]
     pub seed: u64,
-    /// Number of runs.
-    #[arg(long, default_value_t = 1)]
+    /// Runs per scene.
+    #[arg(long, default_value_t = defaults::RUNS_PER_SCENE)]
     pub runs: usize,
-    /// Worker threads (each planner call is single-threaded); default: all cores.
+    /// Worker threads (each planner call is single-threaded) [default: all cores].
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Most planning steps per run.
-    #[arg(long, default_value_t = 30)]
-    pub max_steps: usize,
-    /// Abort a lane change after this many consecutive steps without a safe plan while the ego
-    /// is not yet inside the target lane (it aims at its own lane, then retries); 0 disables.
-    #[arg(long, default_value_t = SimConfig::default().abort_after)]
-    pub abort_after: usize,
-    /// Steps an aborted lane change keeps to the ego's own lane before retrying.
-    #[arg(long, default_value_t = SimConfig::default().abort_hold)]
-    pub abort_hold: usize,
+    #[arg(long, value_parser = clap::builder::ValueParser::new(parse_world),
+          help = noted("How the other vehicles move: teacher or log_replay", DEFAULT.world))]
+    pub world: Option<World>,
+    #[arg(long, help = noted("Most planning steps per run", DEFAULT.max_steps))]
+    pub max_steps: Option<usize>,
+    #[arg(long, help = noted("Settled when |y − y_target| ≤ this (m) ...", DEFAULT.settle_y))]
+    pub settle_y: Option<f64>,
+    #[arg(long, help = noted("... and |ψ| ≤ this (rad) ...", DEFAULT.settle_psi))]
+    pub settle_psi: Option<f64>,
+    #[arg(long, help = noted("... for this many consecutive steps", DEFAULT.settle_steps))]
+    pub settle_steps: Option<usize>,
+    #[arg(long, help = noted(
+        "Abort a lane change after this many consecutive steps without a safe plan while the \
+         ego is not yet inside the target lane (it aims at its own lane, then retries); 0 disables",
+        DEFAULT.abort_after,
+    ))]
+    pub abort_after: Option<usize>,
+    #[arg(long, help = noted("Steps an aborted lane change keeps to the ego's own lane before retrying", DEFAULT.abort_hold))]
+    pub abort_hold: Option<usize>,
     /// Output directory for steps.csv, runs.csv and records.json.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -79,253 +78,80 @@ pub struct SimulateArgs {
     pub verbose_run: bool,
 }
 
-fn model_path(kind: PredictorKind, weights: Option<&Path>) -> PathBuf {
-    weights.map_or_else(
-        || match kind {
-            PredictorKind::Teacher => PathBuf::from("assets/models/teacher.safetensors"),
-            _ => PathBuf::from("assets/models/student.safetensors"),
-        },
-        Path::to_path_buf,
-    )
+fn parse_world(s: &str) -> Result<World, String> {
+    s.parse()
+        .map_err(|e: nudge_planner::SimConfigError| e.to_string())
 }
 
-fn make_pair(a: &SimulateArgs) -> Result<PredictorPair, PredictorError> {
-    let plan: Box<dyn Predictor> = match a.predictor {
-        PredictorKind::ConstantVelocity => Box::new(ConstantVelocity::new(6)),
-        k => load_predictor(model_path(k, a.weights.as_deref()))?,
-    };
-    let world = match a.world {
-        WorldKind::Teacher => Some(load_predictor(&a.world_weights)?),
-        WorldKind::LogReplay => None,
-    };
-    Ok((plan, world))
+fn read(path: &Path) -> Result<String, String> {
+    std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-fn quantile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
+impl SimulateArgs {
+    /// The closed-loop settings: `--config` (or the defaults) with the flags applied.
+    fn sim_config(&self) -> Result<SimConfig, String> {
+        let mut c = match &self.config {
+            Some(p) => {
+                SimConfig::from_json(&read(p)?).map_err(|e| format!("{}: {e}", p.display()))?
+            }
+            None => SimConfig::default(),
+        };
+        c.world = self.world.unwrap_or(c.world);
+        c.max_steps = self.max_steps.unwrap_or(c.max_steps);
+        c.settle_y = self.settle_y.unwrap_or(c.settle_y);
+        c.settle_psi = self.settle_psi.unwrap_or(c.settle_psi);
+        c.settle_steps = self.settle_steps.unwrap_or(c.settle_steps);
+        c.abort_after = self.abort_after.unwrap_or(c.abort_after);
+        c.abort_hold = self.abort_hold.unwrap_or(c.abort_hold);
+        c.validate().map_err(|e| e.to_string())?;
+        Ok(c)
     }
-    v.sort_by(f64::total_cmp);
-    let idx = ((v.len() - 1) as f64 * q).round() as usize;
-    v[idx]
-}
 
-fn mean_std(v: &[f64]) -> (f64, f64) {
-    if v.is_empty() {
-        return (f64::NAN, f64::NAN);
-    }
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64;
-    (m, var.sqrt())
-}
-
-fn step_table(r: &RunRecord) -> String {
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "run {} seed {} ({} vehicles, target lane {} at y = {:.2} m, predictor {}, world {})",
-        r.scenario, r.seed, r.n_agents, r.target_lane, r.y_target, r.predictor, r.world
-    );
-    let _ = writeln!(
-        s,
-        "{:>4} {:>9} {:>9} {:>5} {:>6} {:>10} {:>9} {:>7} {:>7} {:>8} {:>8} {:>6} {:>6} {:>6} {:>4} status",
-        "step",
-        "mpc_ms",
-        "zmed_ms",
-        "iters",
-        "calls",
-        "cost",
-        "primal",
-        "min_b",
-        "delta",
-        "accel",
-        "x",
-        "y",
-        "y_goal",
-        "v",
-        "coll"
-    );
-    for st in &r.steps {
-        let mut z = st.z_updates_s.clone();
-        let _ = writeln!(
-            s,
-            "{:>4} {:>9.2} {:>9.3} {:>5} {:>6} {:>10.2} {:>9.2e} {:>7} {:>7.3} {:>8.2} {:>8.1} {:>6.2} {:>6.2} {:>6.2} {:>4} {}",
-            st.step,
-            st.mpc_s * 1e3,
-            quantile(&mut z, 0.5) * 1e3,
-            st.iterations,
-            st.predictor_calls,
-            st.cost,
-            st.primal_residual,
-            st.min_b
-                .map_or_else(|| "-".to_string(), |b| format!("{b:.2}")),
-            st.delta,
-            st.accel,
-            st.ego[0],
-            st.ego[1],
-            st.y_goal,
-            st.ego[3],
-            if st.collision { "YES" } else { "no" },
-            st.status
-        );
-    }
-    let _ = writeln!(
-        s,
-        "success {} after {:?} steps, collision {}, lane-change aborts {}",
-        r.success, r.steps_to_target, r.collision, r.aborts
-    );
-    s
-}
-
-fn summary(records: &[RunRecord], failed: usize) -> String {
-    let n = records.len();
-    let succ = records.iter().filter(|r| r.success).count();
-    let coll = records.iter().filter(|r| r.collision).count();
-    let aborts: usize = records.iter().map(|r| r.aborts).sum();
-    let aborted_runs = records.iter().filter(|r| r.aborts > 0).count();
-    let steps: Vec<f64> = records
-        .iter()
-        .filter_map(|r| r.steps_to_target.map(|s| s as f64))
-        .collect();
-    let mut mpc: Vec<f64> = records
-        .iter()
-        .flat_map(|r| r.steps.iter().map(|s| s.mpc_s))
-        .collect();
-    let mut zup: Vec<f64> = records
-        .iter()
-        .flat_map(|r| r.steps.iter().flat_map(|s| s.z_updates_s.iter().copied()))
-        .collect();
-    let costs: Vec<f64> = records
-        .iter()
-        .flat_map(|r| r.steps.iter().map(|s| s.cost))
-        .filter(|c| c.is_finite())
-        .collect();
-    let qp_fail = records
-        .iter()
-        .flat_map(|r| &r.steps)
-        .filter(|s| s.status.starts_with("QpFailed"))
-        .count();
-    let unsafe_steps = records
-        .iter()
-        .flat_map(|r| &r.steps)
-        .filter(|s| s.status == "Unsafe")
-        .count();
-    let total_steps: usize = records.iter().map(|r| r.steps.len()).sum();
-    let (sm, ss) = mean_std(&steps);
-    let (cm, cs) = mean_std(&costs);
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        "runs {n} (+{failed} that could not run), planning steps {total_steps}"
-    );
-    let _ = writeln!(
-        out,
-        "success rate {:.1} % ({succ}/{n}); steps to target {sm:.1} ± {ss:.1} ({:.1} ± {:.1} s)",
-        100.0 * succ as f64 / n.max(1) as f64,
-        sm * 0.3,
-        ss * 0.3
-    );
-    let _ = writeln!(out, "runs with a collision: {coll}");
-    let _ = writeln!(out, "lane-change aborts: {aborts} in {aborted_runs} runs");
-    let _ = writeln!(
-        out,
-        "planning time per step: median {:.2} ms, p90 {:.2} ms; Z-update median {:.3} ms",
-        quantile(&mut mpc, 0.5) * 1e3,
-        quantile(&mut mpc, 0.9) * 1e3,
-        quantile(&mut zup, 0.5) * 1e3
-    );
-    let _ = writeln!(out, "plan cost mean ± std: {cm:.2} ± {cs:.2}");
-    let _ = writeln!(
-        out,
-        "steps with status Unsafe: {unsafe_steps}; with a Clarabel failure: {qp_fail}"
-    );
-    out
-}
-
-fn write_outputs(dir: &Path, records: &[RunRecord]) -> Result<(), String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut steps = String::from(
-        "run,scenario,seed,predictor,world,step,mpc_s,z_update_median_s,z_updates,iterations,predictor_calls,cost,primal_residual,min_b,collision,status,delta,accel,x,y,psi,v,y_goal\n",
-    );
-    let mut runs = String::from(
-        "run,scenario,seed,predictor,world,n_agents,target_lane,y_target,success,steps_to_target,collision,aborts,steps\n",
-    );
-    for (i, r) in records.iter().enumerate() {
-        let _ = writeln!(
-            runs,
-            "{i},{},{},{},{},{},{},{},{},{},{},{},{}",
-            r.scenario,
-            r.seed,
-            r.predictor,
-            r.world,
-            r.n_agents,
-            r.target_lane,
-            r.y_target,
-            r.success,
-            r.steps_to_target
-                .map_or_else(String::new, |s| s.to_string()),
-            r.collision,
-            r.aborts,
-            r.steps.len()
-        );
-        for s in &r.steps {
-            let mut z = s.z_updates_s.clone();
-            let _ = writeln!(
-                steps,
-                "{i},{},{},{},{},{},{},{},{},{},{},{},{},{},{},\"{}\",{},{},{},{},{},{},{}",
-                r.scenario,
-                r.seed,
-                r.predictor,
-                r.world,
-                s.step,
-                s.mpc_s,
-                quantile(&mut z, 0.5),
-                s.z_updates_s.len(),
-                s.iterations,
-                s.predictor_calls,
-                s.cost,
-                s.primal_residual,
-                s.min_b.map_or_else(String::new, |b| b.to_string()),
-                s.collision,
-                s.status.replace('"', "'"),
-                s.delta,
-                s.accel,
-                s.ego[0],
-                s.ego[1],
-                s.ego[2],
-                s.ego[3],
-                s.y_goal
-            );
+    /// The planner settings: `--settings` or the defaults.
+    fn planner_settings(&self) -> Result<PlannerSettings, String> {
+        match &self.settings {
+            Some(p) => {
+                PlannerSettings::from_json(&read(p)?).map_err(|e| format!("{}: {e}", p.display()))
+            }
+            None => Ok(PlannerSettings::default()),
         }
     }
-    let write = |name: &str, text: &str| {
+}
+
+/// Writes steps.csv, runs.csv (the shared columns) and records.json (the runs that ran).
+fn write_outputs(
+    dir: &Path,
+    scenes: &[Scenario],
+    outputs: &[nudge_planner::RunOutput],
+) -> Result<(), String> {
+    let io = |p: &Path, e: &dyn std::fmt::Display| format!("{}: {e}", p.display());
+    std::fs::create_dir_all(dir).map_err(|e| io(dir, &e))?;
+    for (name, table) in [
+        ("steps.csv", step_table(outputs)),
+        ("runs.csv", run_table(scenes, outputs)),
+    ] {
         let p = dir.join(name);
-        std::fs::write(&p, text).map_err(|e| format!("{}: {e}", p.display()))
-    };
-    write("steps.csv", &steps)?;
-    write("runs.csv", &runs)?;
-    let json = serde_json::to_string_pretty(records).map_err(|e| e.to_string())?;
-    write("records.json", &json)?;
-    Ok(())
+        let file = std::fs::File::create(&p).map_err(|e| io(&p, &e))?;
+        table.write_csv(file).map_err(|e| io(&p, &e))?;
+    }
+    let records: Vec<&RunRecord> = outputs
+        .iter()
+        .filter_map(|o| o.result.as_ref().ok())
+        .collect();
+    let json = serde_json::to_string_pretty(&records).map_err(|e| e.to_string())?;
+    let p = dir.join("records.json");
+    std::fs::write(&p, json).map_err(|e| io(&p, &e))
 }
 
 /// Runs `nudge simulate`.
 ///
 /// # Errors
-/// A message naming the problem: unreadable scenes or settings, missing weights, a run that
-/// fails for a reason other than a recorded Clarabel failure.
+/// A message naming the problem: unreadable scenes or settings, invalid settings, missing
+/// weights, an output that cannot be written. Runs that fail are reported and counted.
 pub fn run(a: &SimulateArgs) -> Result<(), String> {
-    if a.runs == 0 {
-        return Err("--runs must be at least 1".into());
-    }
-    let settings = match &a.settings {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-            PlannerSettings::from_json(&text).map_err(|e| format!("{}: {e}", p.display()))?
-        }
-        None => PlannerSettings::default(),
-    };
-    settings.validate().map_err(|e| e.to_string())?;
+    let settings = a.planner_settings()?;
+    let cfg = a.sim_config()?;
+    let pool = thread_pool(a.threads).map_err(|e| e.to_string())?;
     let (scenes, bad) = Scenario::load_dir(&a.scenes).map_err(|e| e.to_string())?;
     for (p, e) in &bad {
         eprintln!("skipping {}: {e}", p.display());
@@ -333,52 +159,32 @@ pub fn run(a: &SimulateArgs) -> Result<(), String> {
     if scenes.is_empty() {
         return Err(format!("no usable scenario in {}", a.scenes.display()));
     }
-    // Fail early (and clearly) on missing weights.
-    make_pair(a).map_err(|e| e.to_string())?;
-    let cfg = SimConfig {
-        max_steps: a.max_steps,
-        abort_after: a.abort_after,
-        abort_hold: a.abort_hold,
-        world: match a.world {
-            WorldKind::Teacher => WorldMode::Predictor,
-            WorldKind::LogReplay => WorldMode::LogReplay,
-        },
-        ..SimConfig::default()
-    };
-    let specs: Vec<RunSpec> = (0..a.runs)
-        .map(|r| RunSpec {
-            scenario: r % scenes.len(),
-            seed: a.seed + r as u64,
-        })
-        .collect();
-    let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = a.threads {
-        pool = pool.num_threads(t.max(1));
-    }
-    let pool = pool.build().map_err(|e| e.to_string())?;
-    let results = pool.install(|| simulate_many(&scenes, &specs, &settings, &cfg, || make_pair(a)));
-    let mut records = Vec::new();
-    let mut failed = 0;
-    for (spec, r) in specs.iter().zip(results) {
-        match r {
-            Ok(rec) => records.push(rec),
-            Err(e) => {
-                failed += 1;
-                eprintln!(
-                    "run on {} seed {} failed: {e}",
-                    scenes[spec.scenario].name, spec.seed
-                );
-            }
+    let specs = run_specs(scenes.len(), a.runs, a.seed, None).map_err(|e| e.to_string())?;
+    let assets = a.assets.clone().unwrap_or_else(default_assets_dir);
+    let world_model = a.world_predictor.as_deref();
+    let predictors = Predictors::resolve(
+        &a.predictor,
+        cfg.world,
+        world_model,
+        &assets,
+        settings.horizon,
+    )
+    .map_err(|e| e.to_string())?;
+    let outputs =
+        pool.install(|| simulate_many(&scenes, &specs, &settings, &cfg, &predictors, false));
+    for o in &outputs {
+        if let Err(e) = &o.result {
+            let name = &scenes[o.spec.scene].name;
+            eprintln!("run on {name} seed {} failed: {e}", o.spec.seed);
         }
     }
-    if a.runs == 1 || a.verbose_run {
-        if let Some(first) = records.first() {
-            println!("{}", step_table(first));
-        }
+    let first = outputs.iter().find_map(|o| o.result.as_ref().ok());
+    if let (Some(first), true) = (first, outputs.len() == 1 || a.verbose_run) {
+        println!("{}", step_listing(first));
     }
-    println!("{}", summary(&records, failed));
+    println!("{}", Summary::of(&outputs));
     if let Some(dir) = &a.out {
-        write_outputs(dir, &records)?;
+        write_outputs(dir, &scenes, &outputs)?;
         println!("records written to {}", dir.display());
     }
     Ok(())

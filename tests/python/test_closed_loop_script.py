@@ -13,7 +13,7 @@ from nudge_train.experiments.closed_loop import summarise
 
 
 def test_summary_matches_records(scenes: list[Path], tmp_path: Path) -> None:
-    res = nudge.simulate(scenes[:3], "constant_velocity", world="predictor", world_predictor="teacher",
+    res = nudge.simulate(scenes[:3], "constant_velocity", world="teacher", world_predictor="teacher",
                          seed=2, runs=1, threads=1, max_steps=30)
     s = summarise(res, nudge.DT)
     runs = res["runs"]

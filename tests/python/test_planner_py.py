@@ -42,28 +42,84 @@ def test_scenario_errors(tmp_path: Path) -> None:
         nudge.Scenario.load(bad)
 
 
-def _check_plan(plan: dict, horizon: int = 6) -> None:
+def _rollout(ego: np.ndarray, delta: np.ndarray, accel: np.ndarray, s: nudge.PlannerSettings) -> np.ndarray:
+    """The kinematic bicycle (speed clamped at 0), written here independently of the Rust one."""
+    x, y, psi, v = (float(c) for c in ego)
+    out = []
+    for d, a in zip(delta, accel):
+        beta = np.arctan(s.l_r / (s.l_f + s.l_r) * np.tan(d))
+        x, y, psi, v = (x + s.dt * v * np.cos(psi + beta), y + s.dt * v * np.sin(psi + beta),
+                        psi + s.dt * v * np.sin(beta) / s.l_r, max(v + s.dt * a, 0.0))
+        out.append((x, y, psi, v))
+    return np.array(out)
+
+
+def _check_plan(plan: dict, ego: np.ndarray, s: nudge.PlannerSettings, horizon: int = 6) -> None:
+    """Shapes, and what each status promises about the returned plan."""
     assert plan["states"].shape == (horizon, 4)
     assert plan["delta"].shape == plan["accel"].shape == (horizon,)
     assert np.isfinite(plan["states"]).all()
-    assert plan["status"] in ("Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback")
-    assert plan["iterations"] >= 1
     assert plan["timings"]["total_s"] > 0
-    assert plan["timings"]["z_updates_s"].shape == (plan["iterations"],) or plan["timings"]["z_updates_s"].ndim == 1
+    status = plan["status"]
+    # One Z-update per ADMM iteration, except the one a QP failure interrupts.
+    assert plan["timings"]["z_updates_s"].shape == (plan["iterations"] - (status == "SolverFailed"),)
+    assert (plan["solver_failure"] is None) == (status != "SolverFailed")
+    if status == "Converged":
+        assert plan["primal_residual"] <= s.eps_primal
+    if status in ("Converged", "MaxIterations"):
+        # Z is safe (its roll-out is reported; it can be unsafe when no repair violated less).
+        assert plan["min_safety"] is None or plan["min_safety"] > s.safety_min
+        assert (plan["rollout_min_safety"] is None) == (plan["checked"] == 0)
+        assert plan["iterations"] == s.max_iter or status == "Converged"
+    elif status in ("Backtracked", "Fallback", "SolverFailed"):
+        # A repaired plan is its inputs' roll-out, checked on it.
+        np.testing.assert_allclose(plan["states"], _rollout(ego, plan["delta"], plan["accel"], s), atol=1e-9)
+        assert plan["min_safety"] == plan["rollout_min_safety"]
+        if status == "Backtracked":
+            assert plan["min_safety"] is None or plan["min_safety"] > s.safety_min
+    else:
+        assert status == "Unsafe", status
 
 
 def test_plan_scenario_and_raw_arrays_agree(teacher: nudge.Predictor, scenario: nudge.Scenario) -> None:
     s = nudge.PlannerSettings.default()
     p1 = nudge.Planner(s, teacher).plan_scenario(scenario, seed=3)
-    _check_plan(p1)
+    ego = np.array([*scenario.history[0, -1], scenario.heading[0], scenario.speed[0]])
+    _check_plan(p1, ego, s)
     assert p1["target_lane"] == scenario.target_lane(3)
     assert p1["predictor_calls"] > 0
-    ego = np.array([*scenario.history[0, -1], scenario.heading[0], scenario.speed[0]])
     p2 = nudge.Planner(s, teacher).plan(scenario.history, scenario.size, ego, p1["y_target"],
                                        float(scenario.speed[0]), scenario.road)
     for k in ("states", "delta", "accel"):
         np.testing.assert_array_equal(p1[k], p2[k])
     assert p1["cost"] == p2["cost"] and p1["iterations"] == p2["iterations"]
+
+
+def test_every_status_keeps_its_promise(scenes: list[Path], student: nudge.Predictor) -> None:
+    """One cold-start plan per shipped scene, student and constant velocity: every status seen
+    keeps what it promises (several statuses occur on these scenes)."""
+    s = nudge.PlannerSettings.default()
+    seen = set()
+    for path in scenes:
+        sc = nudge.Scenario.load(path)
+        ego = np.array([*sc.history[0, -1], sc.heading[0], sc.speed[0]])
+        for predictor in (student, nudge.Predictor.constant_velocity()):
+            plan = nudge.Planner(s, predictor).plan_scenario(sc, seed=0)
+            _check_plan(plan, ego, s)
+            seen.add(plan["status"])
+    assert {"Converged", "MaxIterations", "Fallback"} <= seen, seen
+
+
+def test_a_failed_qp_is_a_status_with_a_checked_plan(scenario: nudge.Scenario) -> None:
+    """w_a = 1e308 overflows the acceleration QP: the call still returns a checked plan."""
+    s = nudge.PlannerSettings(w_a=1e308)
+    plan = nudge.Planner(s, nudge.Predictor.constant_velocity()).plan_scenario(scenario, seed=0)
+    assert plan["status"] == "SolverFailed"
+    qp, clarabel_status = plan["solver_failure"]
+    assert qp == "alpha" and clarabel_status not in ("Solved", "AlmostSolved")
+    ego = np.array([*scenario.history[0, -1], scenario.heading[0], scenario.speed[0]])
+    _check_plan(plan, ego, s)
+    assert plan["iterations"] == 1 and (plan["accel"] == 0).all()
 
 
 def test_planner_is_deterministic_and_reset_restores_cold_start(student: nudge.Predictor,

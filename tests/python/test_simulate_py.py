@@ -9,7 +9,8 @@ import pytest
 
 import nudge
 
-TIMING = {"mpc_s", "z_s"}
+TIMING = {"mpc_s", "z_s", "z_median_s"}
+STATUSES = {"Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"}
 
 
 def _same_records(a: dict, b: dict) -> None:
@@ -29,23 +30,43 @@ def test_columns_and_lengths(scenes: list[Path]) -> None:
     r = nudge.simulate(scenes[:3], "constant_velocity", seed=1, runs=2, threads=2, max_steps=4)
     runs, steps = r["runs"], r["steps"]
     assert len(runs["scenario"]) == 6
-    np.testing.assert_array_equal(runs["seed"], [1, 2] * 3)
+    # Scene-major runs; scene i, run r draws seed + i * runs + r.
+    np.testing.assert_array_equal(runs["seed"], [1, 2, 3, 4, 5, 6])
     np.testing.assert_array_equal(runs["scene_index"], [0, 0, 1, 1, 2, 2])
     assert runs["error"] == [None] * 6
+    assert runs["world"] == ["teacher"] * 6 and runs["predictor"] == ["constant_velocity"] * 6
     assert int(runs["n_steps"].sum()) == len(steps["run"])
     assert steps["ego"].shape == (len(steps["run"]), 4)
+    np.testing.assert_array_equal(steps["ego"], np.stack([steps[k] for k in ("x", "y", "psi", "v")], axis=1))
     assert (steps["mpc_s"] > 0).all() and (runs["n_steps"] <= 4).all() and (runs["n_steps"] >= 1).all()
-    assert set(steps["status"]) <= {"Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback"} | {s for s in steps["status"] if s.startswith("QpFailed")}
+    assert set(steps["status"]) <= STATUSES
+    # One Z-update per ADMM iteration (no QP failed here); z_s sums them.
+    np.testing.assert_array_equal(steps["z_updates"], steps["iterations"])
+    assert (steps["z_s"] >= steps["z_median_s"]).all() and (steps["z_median_s"] > 0).all()
     for run in range(6):
         np.testing.assert_array_equal(steps["step"][steps["run"] == run], np.arange(runs["n_steps"][run]))
     assert "examples" not in r
 
 
+def test_config_and_overrides_set_the_closed_loop(scenes: list[Path]) -> None:
+    """A SimConfig (settle_* included) and keyword overrides of its fields reach the runs."""
+    cfg = nudge.SimConfig(world="log_replay", settle_steps=1000, max_steps=5)
+    r = nudge.simulate(scenes[:2], "constant_velocity", config=cfg)
+    assert r["runs"]["world"] == ["log_replay"] * 2
+    # settle_steps beyond max_steps: no run can succeed, every run takes max_steps.
+    assert not r["runs"]["success"].any() and (r["runs"]["n_steps"] == 5).all()
+    o = nudge.simulate(scenes[:2], "constant_velocity", config=cfg, max_steps=2, settle_y=1e-9)
+    assert (o["runs"]["n_steps"] == 2).all()
+    with pytest.raises(nudge.SettingsError, match="settle_y"):
+        nudge.simulate(scenes[:1], "constant_velocity", settle_y=-1.0)
+    with pytest.raises(nudge.SettingsError, match="bogus"):
+        nudge.simulate(scenes[:1], "constant_velocity", bogus=1)
+
+
 def test_thread_count_does_not_change_results(scenes: list[Path]) -> None:
-    a = nudge.simulate(scenes[:4], "student", world="predictor", world_predictor="teacher", seed=5, threads=1,
+    a = nudge.simulate(scenes[:4], "student", world="teacher", world_predictor="teacher", seed=5, threads=1,
                        max_steps=3)
-    b = nudge.simulate(scenes[:4], "student", world="predictor", world_predictor="teacher", seed=5, threads=2,
-                       max_steps=3)
+    b = nudge.simulate(scenes[:4], "student", seed=5, threads=2, max_steps=3)
     _same_records(a, b)
     assert set(a["runs"]["world"]) == {"teacher"} and set(a["runs"]["predictor"]) == {"student"}
 
@@ -94,8 +115,14 @@ def test_errors(scenes: list[Path], tmp_path: Path) -> None:
         nudge.simulate([tmp_path / "nope.safetensors"], "constant_velocity")
     with pytest.raises(nudge.WeightsError, match="missing.safetensors"):
         nudge.simulate(scenes[:1], tmp_path / "missing.safetensors")
-    with pytest.raises(nudge.InputError, match="world"):
+    with pytest.raises(nudge.SettingsError, match="world"):
         nudge.simulate(scenes[:1], "constant_velocity", world="mars")
+    with pytest.raises(nudge.SettingsError, match="world"):
+        nudge.simulate(scenes[:1], "constant_velocity", world="predictor")
+    with pytest.raises(nudge.InputError, match="must be a teacher"):
+        nudge.simulate(scenes[:1], "constant_velocity", world_predictor="student")
+    with pytest.raises(nudge.InputError, match="log_replay"):
+        nudge.simulate(scenes[:1], "constant_velocity", world="log_replay", world_predictor="teacher")
     with pytest.raises(nudge.InputError, match="threads"):
         nudge.simulate(scenes[:1], "constant_velocity", threads=0)
     with pytest.raises(nudge.InputError, match="runs"):
@@ -127,7 +154,7 @@ def test_one_lane_scene_raises_or_is_skipped(scenes: list[Path], tmp_path: Path)
         pytest.skip("the scenario reader rejects this one-lane road itself")
     with pytest.raises(nudge.ScenarioError, match="no lane adjacent"):
         nudge.simulate([one], "constant_velocity")
-    r = nudge.simulate([one, src], "constant_velocity", on_error="skip", max_steps=2)
+    r = nudge.simulate([one, src], "constant_velocity", on_error="skip", max_steps=2, world="log_replay")
     assert "no lane adjacent" in r["runs"]["error"][0] and r["runs"]["error"][1] is None
     assert r["runs"]["n_steps"][0] == 0 and (r["steps"]["run"] == 1).all()
 
@@ -135,8 +162,10 @@ def test_one_lane_scene_raises_or_is_skipped(scenes: list[Path], tmp_path: Path)
 def test_scene_seeds(scenes: list[Path]) -> None:
     a = nudge.simulate(scenes[:2], "constant_velocity", scene_seeds=[7, 11], runs=2, max_steps=1)
     np.testing.assert_array_equal(a["runs"]["seed"], [7, 8, 11, 12])
-    b = nudge.simulate(scenes[1:2], "constant_velocity", seed=11, runs=2, max_steps=1)
-    np.testing.assert_array_equal(a["runs"]["target_lane"][2:], b["runs"]["target_lane"])
+    # Without per-scene seeds, scene i starts at seed + i * runs.
+    b = nudge.simulate(scenes[:2], "constant_velocity", seed=9, runs=2, max_steps=1)
+    np.testing.assert_array_equal(b["runs"]["seed"], [9, 10, 11, 12])
+    np.testing.assert_array_equal(a["runs"]["target_lane"][2:], b["runs"]["target_lane"][2:])
     with pytest.raises(nudge.InputError, match="scene_seeds"):
         nudge.simulate(scenes[:2], "constant_velocity", scene_seeds=[1])
 
@@ -144,9 +173,9 @@ def test_scene_seeds(scenes: list[Path]) -> None:
 def test_limits(scenes: list[Path]) -> None:
     with pytest.raises(nudge.InputError, match="threads: must be in 1..=256"):
         nudge.simulate(scenes[:1], "constant_velocity", threads=10**6)
-    with pytest.raises(nudge.InputError, match="max_steps"):
+    with pytest.raises(nudge.SettingsError, match="max_steps"):
         nudge.simulate(scenes[:1], "constant_velocity", max_steps=10**9)
-    with pytest.raises(nudge.InputError, match="max_steps"):
+    with pytest.raises(nudge.SettingsError, match="max_steps"):
         nudge.simulate(scenes[:1], "constant_velocity", max_steps=0)
 
 
@@ -154,11 +183,13 @@ def test_abort_columns_and_switch(scenes: list[Path]) -> None:
     """`aborts` / `y_goal` are reported; with aborts disabled the goal is always the target lane,
     and with them the goal only ever leaves the target for the ego's own lane after a run of
     unsafe planning steps."""
-    off = nudge.simulate(scenes, "constant_velocity", seed=3, threads=2, abort_after=0, max_steps=12)
+    off = nudge.simulate(scenes, "constant_velocity", seed=3, threads=2, abort_after=0, max_steps=12,
+                         world="log_replay")
     runs, steps = off["runs"], off["steps"]
     assert (runs["aborts"] == 0).all()
     np.testing.assert_array_equal(steps["y_goal"], runs["y_target"][steps["run"]])
-    on = nudge.simulate(scenes, "constant_velocity", seed=3, threads=2, abort_after=1, abort_hold=2, max_steps=12)
+    on = nudge.simulate(scenes, "constant_velocity", seed=3, threads=2, abort_after=1, abort_hold=2, max_steps=12,
+                        world="log_replay")
     runs, steps = on["runs"], on["steps"]
     for r in range(len(runs["scenario"])):
         rows = np.nonzero(steps["run"] == r)[0]
@@ -169,9 +200,9 @@ def test_abort_columns_and_switch(scenes: list[Path]) -> None:
             # Each hold starts right after a step without a safe plan, or continues a hold.
             assert k >= 1
             status = steps["status"][rows[k - 1]]
-            assert status in ("Fallback", "Unsafe") or status.startswith("QpFailed") or goal[k - 1] != runs["y_target"][r]
+            assert status in ("Fallback", "Unsafe", "SolverFailed") or goal[k - 1] != runs["y_target"][r]
 
 
 def test_bad_abort_settings_raise(scenes: list[Path]) -> None:
-    with pytest.raises(nudge.InputError, match="abort_after"):
+    with pytest.raises(nudge.SettingsError, match="abort_after"):
         nudge.simulate(scenes[:1], "constant_velocity", abort_after=10_000)

@@ -5,6 +5,8 @@ use std::path::PathBuf;
 
 use nudge_predictor::PredictorError;
 
+use crate::qp::{QpFailure, QpName, QpStatus};
+
 /// A [`crate::PlannerSettings`] field holds a value the planner cannot work with.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -151,24 +153,55 @@ pub enum PlannerError {
         /// What is wrong.
         reason: String,
     },
-    /// Clarabel could not set up a QP.
+    /// Clarabel could not set up the joint reference QP ([`crate::Planner::reference_qp`];
+    /// inside [`crate::Planner::plan`] a QP failure ends in status
+    /// [`crate::PlanStatus::SolverFailed`] instead).
     #[error("Clarabel setup of the {qp} QP failed: {reason}")]
     QpSetup {
-        /// Which QP (`"delta"`, `"alpha"`, `"joint"`).
-        qp: &'static str,
+        /// Which QP.
+        qp: QpName,
         /// Clarabel's message.
         reason: String,
     },
-    /// Clarabel returned a status other than Solved/AlmostSolved, also after the
-    /// equilibration-off retry.
-    #[error("Clarabel failed on the {qp} QP at ADMM iteration {iteration}: status {status}")]
+    /// Clarabel returned a status other than Solved/AlmostSolved on the joint reference QP,
+    /// also after the equilibration-off retry.
+    #[error("Clarabel failed on the {qp} QP at ADMM iteration {iteration}: status {status:?}")]
     QpFailed {
-        /// Which QP (`"delta"`, `"alpha"`, `"joint"`).
-        qp: &'static str,
-        /// ADMM iteration (0-based) at which it failed.
+        /// Which QP.
+        qp: QpName,
+        /// ADMM iteration (0-based) at which it failed (0 for the joint QP).
         iteration: usize,
-        /// Clarabel's status, formatted.
-        status: String,
+        /// Clarabel's status.
+        status: QpStatus,
+    },
+}
+
+impl From<QpFailure> for PlannerError {
+    fn from(f: QpFailure) -> Self {
+        match f.detail {
+            Some(reason) if f.status == QpStatus::Setup => Self::QpSetup { qp: f.qp, reason },
+            _ => Self::QpFailed {
+                qp: f.qp,
+                iteration: f.iteration,
+                status: f.status,
+            },
+        }
+    }
+}
+
+/// A [`crate::SimConfig`] field holds a value the simulator cannot work with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimConfigError {
+    /// One field is out of its admissible range or unknown.
+    #[error("invalid closed-loop setting `{field}` = {value}: {reason}")]
+    Invalid {
+        /// Name of the field (as in the serde representation; `"<json>"` for a parse error).
+        field: &'static str,
+        /// The value found, formatted.
+        value: String,
+        /// What the value must satisfy.
+        reason: &'static str,
     },
 }
 
@@ -194,7 +227,7 @@ pub enum SimError {
         /// The predictor's complaint (history shape, agent count...).
         source: PredictorError,
     },
-    /// The planner failed in a way the simulator cannot recover from (not a QP failure).
+    /// The planner failed in a way the simulator cannot recover from.
     #[error("scenario {scene}, step {step}: {source}")]
     Planner {
         /// Scenario name.
@@ -204,7 +237,36 @@ pub enum SimError {
         /// The planner's error.
         source: PlannerError,
     },
-    /// The settings do not validate.
+    /// The planner settings do not validate.
     #[error(transparent)]
     Settings(#[from] SettingsError),
+    /// The closed-loop settings do not validate.
+    #[error(transparent)]
+    Config(#[from] SimConfigError),
+    /// A predictor named for the planner or the world could not be loaded.
+    #[error("{role}: {source}")]
+    Model {
+        /// `"predictor"` or `"world_predictor"`.
+        role: &'static str,
+        /// The loading error, naming the file.
+        source: PredictorError,
+    },
+    /// The world model does not match the world: a `teacher` world needs a teacher, a
+    /// `log_replay` world none.
+    #[error("world {world}: {reason}")]
+    WorldModel {
+        /// The world's name.
+        world: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The runs asked for cannot be laid out (no runs, wrong number of per-scene seeds, too
+    /// many runs, a seed that overflows).
+    #[error("runs: {field}: {reason}")]
+    Runs {
+        /// The offending argument.
+        field: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
 }

@@ -3,11 +3,13 @@
 //! The interaction-aware planner of the paper (Algorithm 1): an MPC over T = 6 steps of
 //! 0.3 s solved by ADMM, whose steering and acceleration updates are Clarabel QPs and whose
 //! state update is projected gradient descent with every trial point checked for safety by
-//! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory. Plus the
-//! scenario reader ("nudge.scenario/1" safetensors files) and the closed-loop simulator.
+//! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory ([`Planner`]; the
+//! phases are described in its module). Plus the scenario reader ("nudge.scenario/1"
+//! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
+//! [`simulate_many`]) with the records and columns both front ends report.
 //!
 //! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
-//! 0 = +x), speed v (m/s); agent 0 is the ego.
+//! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.
 
 mod admm;
 mod error;
@@ -16,11 +18,15 @@ mod qp;
 mod safety;
 mod scenario;
 mod settings;
-mod sim;
+pub mod sim;
 
-pub use admm::{EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem};
-pub use error::{PlannerError, ScenarioError, SettingsError, SimError};
+pub use admm::{
+    CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner,
+    PlanningProblem, SafetyConstraint, StepStatus,
+};
+pub use error::{PlannerError, ScenarioError, SettingsError, SimConfigError, SimError};
 pub use model::{Bicycle, Jac4, Linearisation, State};
+pub use qp::{QpName, QpStatus};
 pub use safety::{
     Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
     motion_direction, motion_heading,
@@ -28,6 +34,6 @@ pub use safety::{
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    PredictorPair, RunRecord, RunSpec, SimConfig, StepRecord, WorldMode, simulate, simulate_many,
-    target_lane,
+    Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary, World, run_specs,
+    simulate, simulate_many, target_lane,
 };

@@ -6,9 +6,9 @@
 
 use nalgebra::{SMatrix, SVector};
 
-/// A state (x, y, ψ, v).
+/// A state (x, y, ψ, v): position of the centre of gravity (m, m), heading (rad), speed (m/s).
 pub type State = SVector<f64, 4>;
-/// A 4×4 state Jacobian.
+/// A `[4, 4]` state Jacobian ∂f/∂z.
 pub type Jac4 = SMatrix<f64, 4, 4>;
 
 /// Kinematic bicycle parameters and step length.
@@ -29,7 +29,7 @@ impl Bicycle {
         (self.l_r / (self.l_f + self.l_r) * delta.tan()).atan()
     }
 
-    /// dβ/dδ.
+    /// dβ/dδ (dimensionless).
     #[must_use]
     pub fn slip_derivative(&self, delta: f64) -> f64 {
         let k = self.l_r / (self.l_f + self.l_r);
@@ -38,7 +38,9 @@ impl Bicycle {
         k * sec2 / (1.0 + k * k * t * t)
     }
 
-    /// One exact (nonlinear) step: z⁺ = f(z, δ, a).
+    /// One exact (nonlinear) step z⁺ = f(z, δ, a) of `dt` seconds, steering δ (rad),
+    /// acceleration a (m/s²); the speed may go negative (the linearisation needs the smooth
+    /// model; see [`Bicycle::advance`] for the vehicle).
     #[must_use]
     pub fn step(&self, z: &State, delta: f64, accel: f64) -> State {
         let beta = self.slip(delta);
@@ -76,12 +78,23 @@ impl Bicycle {
         (jz, jd, ja)
     }
 
-    /// Rolls the nonlinear model out from `z0` under `delta`, `accel` (length T each) into
-    /// `out` (T states, steps 1..=T).
+    /// One step of the vehicle as it drives: [`Bicycle::step`], then the speed clamped at 0
+    /// (the vehicle brakes to a stop, it does not reverse). The planner's roll-outs, its
+    /// fallbacks and the closed-loop simulator all move the ego with this; the linearisation
+    /// uses the unclamped [`Bicycle::step`].
+    #[must_use]
+    pub fn advance(&self, z: &State, delta: f64, accel: f64) -> State {
+        let mut next = self.step(z, delta, accel);
+        next[3] = next[3].max(0.0);
+        next
+    }
+
+    /// Rolls the vehicle out from `z0` under `delta`, `accel` (length T each, rad and m/s²)
+    /// with [`Bicycle::advance`] into `out` (T states z_1..z_T).
     pub fn rollout(&self, z0: &State, delta: &[f64], accel: &[f64], out: &mut [State]) {
         let mut z = *z0;
         for ((d, a), o) in delta.iter().zip(accel).zip(out.iter_mut()) {
-            z = self.step(&z, *d, *a);
+            z = self.advance(&z, *d, *a);
             *o = z;
         }
     }
@@ -96,13 +109,14 @@ impl Bicycle {
 /// (rows of step k, columns of state z_k, k ≥ 1).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Linearisation {
-    /// Horizon T.
+    /// Horizon T (steps).
     pub horizon: usize,
-    /// ∂f/∂z at each nominal point, k = 0..T (`jz[0]` multiplies the fixed z_0 and enters D).
+    /// ∂f/∂z at each nominal point, `[T]` of `[4, 4]`, k = 0..T (`jz[0]` multiplies the
+    /// fixed z_0 and enters D).
     pub jz: Vec<Jac4>,
-    /// ∂f/∂δ at each nominal point (A's blocks).
+    /// ∂f/∂δ at each nominal point, `[T]` of `[4]` (A's blocks).
     pub jd: Vec<State>,
-    /// ∂f/∂a (B's blocks; constant).
+    /// ∂f/∂a, `[4]` (B's blocks; constant).
     pub ja: State,
     /// The constant term D, `[T]` blocks of 4.
     pub d: Vec<State>,
@@ -149,7 +163,8 @@ impl Linearisation {
         }
     }
 
-    /// Evaluates F(Δ, α, Z) into `out` (`[T]` states); `z` holds z_1..z_T.
+    /// Evaluates F(Δ, α, Z) into `out` (`[T]` states); `delta` `[T]` (rad), `accel` `[T]`
+    /// (m/s²), `z` `[T]` holds z_1..z_T.
     pub fn residual(&self, delta: &[f64], accel: &[f64], z: &[State], out: &mut [State]) {
         for k in 0..self.horizon {
             let mut r = self.d[k] + self.jd[k] * delta[k] + self.ja * accel[k] - z[k];
@@ -272,6 +287,27 @@ mod tests {
                 assert!((fd[i] - ja[i]).abs() <= 1e-7 + 1e-6 * fd[i].abs(), "da {i}");
             }
         }
+    }
+
+    /// `advance` is `step` with the speed clamped at 0; the roll-out chains `advance`.
+    #[test]
+    fn advance_clamps_speed_and_rollout_chains_it() {
+        let m = model();
+        let z = State::new(1.0, 2.0, 0.1, 0.5);
+        // Hard braking from 0.5 m/s: the unclamped step reverses, the vehicle stops.
+        let free = m.step(&z, 0.05, -6.0);
+        assert!(free[3] < 0.0);
+        let driven = m.advance(&z, 0.05, -6.0);
+        assert_eq!(driven[3], 0.0);
+        assert_eq!(driven.fixed_rows::<3>(0), free.fixed_rows::<3>(0));
+        // Without braking below 0 the two agree bit for bit.
+        assert_eq!(m.advance(&z, 0.05, 1.0), m.step(&z, 0.05, 1.0));
+        let mut out = vec![State::zeros(); 3];
+        m.rollout(&z, &[0.05, 0.0, -0.05], &[-6.0, -6.0, 2.0], &mut out);
+        assert_eq!(out[0], driven);
+        assert_eq!(out[1], m.advance(&driven, 0.0, -6.0));
+        assert_eq!(out[2], m.advance(&out[1], -0.05, 2.0));
+        assert!((out[2][3] - 0.6).abs() < 1e-12, "speed {}", out[2][3]);
     }
 
     /// The linearisation is exact at the nominal point and first-order accurate near it.

@@ -8,8 +8,113 @@ use clarabel::solver::{
     DefaultSettings, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus, SupportedConeT,
     ZeroConeT,
 };
+use serde::{Deserialize, Serialize};
 
-use crate::error::PlannerError;
+/// Which QP of the planner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum QpName {
+    /// The Δ-update (steering sequence).
+    Delta,
+    /// The α-update (acceleration sequence).
+    Alpha,
+    /// The joint reference QP in (Δ, α, Z) ([`crate::Planner::reference_qp`]).
+    Joint,
+}
+
+impl QpName {
+    /// The name used in messages and records: `delta`, `alpha`, `joint`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Delta => "delta",
+            Self::Alpha => "alpha",
+            Self::Joint => "joint",
+        }
+    }
+}
+
+impl std::fmt::Display for QpName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Why Clarabel gave no usable solution: the solver could not be built (`Setup`), or its
+/// termination status (Clarabel's `SolverStatus`, any but `Solved` / `AlmostSolved`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum QpStatus {
+    /// Clarabel refused the problem data (e.g. a non-finite matrix entry).
+    Setup,
+    /// The solver has not run.
+    Unsolved,
+    /// A solution (counted as usable).
+    Solved,
+    /// A solution of reduced accuracy (counted as usable).
+    AlmostSolved,
+    /// Certificate of primal infeasibility.
+    PrimalInfeasible,
+    /// Certificate of dual infeasibility.
+    DualInfeasible,
+    /// Primal infeasibility at reduced accuracy.
+    AlmostPrimalInfeasible,
+    /// Dual infeasibility at reduced accuracy.
+    AlmostDualInfeasible,
+    /// Iteration limit reached.
+    MaxIterations,
+    /// Time limit reached.
+    MaxTime,
+    /// Numerical error.
+    NumericalError,
+    /// No progress.
+    InsufficientProgress,
+    /// Stopped by a callback.
+    CallbackTerminated,
+}
+
+impl From<SolverStatus> for QpStatus {
+    fn from(s: SolverStatus) -> Self {
+        match s {
+            SolverStatus::Unsolved => Self::Unsolved,
+            SolverStatus::Solved => Self::Solved,
+            SolverStatus::AlmostSolved => Self::AlmostSolved,
+            SolverStatus::PrimalInfeasible => Self::PrimalInfeasible,
+            SolverStatus::DualInfeasible => Self::DualInfeasible,
+            SolverStatus::AlmostPrimalInfeasible => Self::AlmostPrimalInfeasible,
+            SolverStatus::AlmostDualInfeasible => Self::AlmostDualInfeasible,
+            SolverStatus::MaxIterations => Self::MaxIterations,
+            SolverStatus::MaxTime => Self::MaxTime,
+            SolverStatus::NumericalError => Self::NumericalError,
+            SolverStatus::InsufficientProgress => Self::InsufficientProgress,
+            SolverStatus::CallbackTerminated => Self::CallbackTerminated,
+        }
+    }
+}
+
+/// A QP that gave no usable solution, also after the equilibration-off retry.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct QpFailure {
+    /// Which QP.
+    pub qp: QpName,
+    /// ADMM iteration (0-based) of the failed solve.
+    pub iteration: usize,
+    /// Clarabel's status (`Setup` when the solver could not be built or updated).
+    pub status: QpStatus,
+    /// Clarabel's message for a set-up failure.
+    pub detail: Option<String>,
+}
+
+impl QpFailure {
+    fn setup(qp: QpName, iteration: usize, e: &impl std::fmt::Display) -> Self {
+        Self {
+            qp,
+            iteration,
+            status: QpStatus::Setup,
+            detail: Some(e.to_string()),
+        }
+    }
+}
 
 /// Clarabel settings used everywhere: quiet, no presolve (q/b are updated), one thread.
 pub(crate) fn clarabel_settings(equilibrate: bool) -> DefaultSettings<f64> {
@@ -134,7 +239,7 @@ pub(crate) fn usable(status: SolverStatus) -> bool {
 /// A Clarabel QP whose P, A, b are fixed and whose q is updated per solve, with the
 /// equilibration-off retry.
 pub(crate) struct BoxRateQp {
-    name: &'static str,
+    name: QpName,
     solver: DefaultSolver<f64>,
     p: CscMatrix<f64>,
     a: CscMatrix<f64>,
@@ -150,11 +255,11 @@ pub(crate) struct BoxRateQp {
 impl BoxRateQp {
     /// Builds the solver for Hessian `p_dense` (`[t, t]` row-major, symmetric).
     pub(crate) fn new(
-        name: &'static str,
+        name: QpName,
         p_dense: &[f64],
         t: usize,
         bx: RateBox,
-    ) -> Result<Self, PlannerError> {
+    ) -> Result<Self, QpFailure> {
         let bx = RateBox {
             prev: bx.prev.clamp(bx.lo, bx.hi),
             ..bx
@@ -166,13 +271,8 @@ impl BoxRateQp {
         let a = triplets_csc(4 * t, t, trip);
         let cones = vec![NonnegativeConeT(4 * t)];
         let q = vec![0.0; t];
-        let solver =
-            DefaultSolver::new(&p, &q, &a, &b, &cones, clarabel_settings(true)).map_err(|e| {
-                PlannerError::QpSetup {
-                    qp: name,
-                    reason: e.to_string(),
-                }
-            })?;
+        let solver = DefaultSolver::new(&p, &q, &a, &b, &cones, clarabel_settings(true))
+            .map_err(|e| QpFailure::setup(name, 0, &e))?;
         Ok(Self {
             name,
             solver,
@@ -193,14 +293,11 @@ impl BoxRateQp {
         q: &[f64],
         out: &mut [f64],
         iteration: usize,
-    ) -> Result<(), PlannerError> {
+    ) -> Result<(), QpFailure> {
         self.qbuf.copy_from_slice(q);
         self.solver
             .update_q(&self.qbuf)
-            .map_err(|e| PlannerError::QpSetup {
-                qp: self.name,
-                reason: e.to_string(),
-            })?;
+            .map_err(|e| QpFailure::setup(self.name, iteration, &e))?;
         self.solver.solve();
         self.solves += 1;
         let mut status = self.solver.solution.status;
@@ -216,19 +313,17 @@ impl BoxRateQp {
                 &self.cones,
                 clarabel_settings(false),
             )
-            .map_err(|e| PlannerError::QpSetup {
-                qp: self.name,
-                reason: e.to_string(),
-            })?;
+            .map_err(|e| QpFailure::setup(self.name, iteration, &e))?;
             self.solver.solve();
             self.solves += 1;
             status = self.solver.solution.status;
         }
         if !usable(status) {
-            return Err(PlannerError::QpFailed {
+            return Err(QpFailure {
                 qp: self.name,
                 iteration,
-                status: format!("{status:?}"),
+                status: status.into(),
+                detail: None,
             });
         }
         out.copy_from_slice(&self.solver.solution.x);

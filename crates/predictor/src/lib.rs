@@ -18,8 +18,8 @@
 //! positions stay in f64: only differences (displacements, offsets between agents) are rounded
 //! to f32, and predicted positions accumulate in f64. On the golden cases
 //! (`tests/golden`, a float64 evaluation of the PyTorch model rounded to float32) the largest
-//! error is about 2e-6 m, the goldens' own float32 rounding; the [`reference`](mod@reference) module holds a
-//! literal f64 implementation used to test the fast path. Results are bit-reproducible for a
+//! error is about 2e-6 m, the goldens' own float32 rounding; a literal f64 implementation (the
+//! hidden `reference` module) tests the fast path. Results are bit-reproducible for a
 //! given build (FMA is used only when the build targets it, e.g. `-C target-cpu=x86-64-v3`).
 //!
 //! Work that depends only on the history is cached per scene: the teacher's τ = 1 generator
@@ -34,29 +34,73 @@ mod error;
 mod generator;
 mod history;
 mod nn;
+mod recording;
+#[doc(hidden)]
 pub mod reference;
+mod spec;
 mod student;
 mod teacher;
-pub mod weights;
+#[path = "weights.rs"]
+mod weights_file;
+
+/// Loading and validating network weights exported by `python/train` as `.safetensors`
+/// (PyTorch `state_dict` names, float32, the JSON [`ModelConfig`] in the `"config"` metadata
+/// entry); [`ModelWeights::from_file`] checks the config, then every tensor's presence,
+/// dtype, shape and finiteness, naming the file and tensor of the first problem.
+pub mod weights {
+    /// Seeded random weights of a valid file (a test oracle).
+    #[doc(hidden)]
+    pub use crate::weights_file::synthetic_weights;
+    pub use crate::weights_file::{
+        ModelConfig, ModelKind, ModelWeights, Tensor, WEIGHTS_FORMAT, expected_tensors,
+    };
+}
 
 pub use constant_velocity::ConstantVelocity;
 pub use error::{PredictorError, Result};
 pub use history::History;
+pub use recording::{Recording, Records};
+pub use spec::{
+    ASSETS_ENV, PredictorKind, PredictorSpec, UnknownPredictor, default_assets_dir, model_path,
+};
 pub use student::Student;
 pub use teacher::Teacher;
 pub use weights::{ModelConfig, ModelKind, ModelWeights};
 
 /// Loads a [`Teacher`] or a [`Student`] from a `.safetensors` weights file, whichever its
-/// config's `kind` names.
+/// config's `kind` names (see [`PredictorSpec`] to build several from one read).
 ///
 /// # Errors
-/// Any loading error of [`ModelWeights::from_file`].
+/// Any loading error of [`ModelWeights::from_file`] (missing file, bad config, wrong tensor
+/// shape or dtype, non-finite weight), naming the file and tensor.
+///
+/// # Examples
+///
+/// Predict how the other vehicles of a scene react to one ego candidate:
+///
+/// ```
+/// use nudge_predictor::{History, T_OBS, load_predictor};
+///
+/// let weights = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+///     .join("../../assets/models/student.safetensors");
+/// let mut student = load_predictor(&weights)?;
+/// // Two vehicles driving at 10 m/s, 3.7 m apart, observed for T_OBS steps of 0.3 s.
+/// let mut history = Vec::new();
+/// for y in [0.0, 3.7] {
+///     for t in 0..T_OBS {
+///         history.extend([3.0 * t as f64, y]);
+///     }
+/// }
+/// student.set_scene(&History::new(history, 2)?)?;
+/// // One candidate [1, 6, 2] (m): the ego keeps its lane and speed.
+/// let candidate: Vec<f64> = (1..=6).flat_map(|k| [21.0 + 3.0 * k as f64, 0.0]).collect();
+/// let mut out = vec![0.0; 6 * 2]; // [1, n - 1, 6, 2]
+/// student.predict(&candidate, &mut out)?;
+/// assert!(out[10] > 21.0, "the other vehicle keeps moving forward");
+/// # Ok::<(), nudge_predictor::PredictorError>(())
+/// ```
 pub fn load_predictor(path: impl AsRef<std::path::Path>) -> Result<Box<dyn Predictor>> {
-    let weights = ModelWeights::from_file(path)?;
-    Ok(match weights.config().kind {
-        ModelKind::Teacher => Box::new(Teacher::from_weights(&weights)?),
-        ModelKind::Student => Box::new(Student::from_weights(&weights)?),
-    })
+    Ok(PredictorSpec::from_file(path)?.build())
 }
 
 /// Observed steps fed to every predictor (8 × 0.3 s = 2.4 s).

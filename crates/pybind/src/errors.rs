@@ -4,13 +4,14 @@
 //! NudgeError
 //! ├── WeightsError    bad or missing weights file
 //! ├── InputError      wrong shape / dtype / non-finite values / agent count
-//! ├── SettingsError   invalid planner settings (unknown key, bad value)
+//! ├── SettingsError   invalid planner or closed-loop settings (unknown key, bad value)
 //! ├── ScenarioError   bad or missing scenario file
 //! └── SolverError     a QP solve or planning step failed
 //! ```
 
 use nudge_planner::{
-    PlannerError, ScenarioError as RsScenarioError, SettingsError as RsSettingsError, SimError,
+    PlannerError, ScenarioError as RsScenarioError, SettingsError as RsSettingsError,
+    SimConfigError, SimError,
 };
 use nudge_predictor::PredictorError;
 use pyo3::PyErr;
@@ -40,7 +41,7 @@ create_exception!(
     nudge,
     SettingsError,
     NudgeError,
-    "Planner settings are invalid (unknown key, impossible value)."
+    "Planner or closed-loop settings are invalid (unknown key, impossible value)."
 );
 create_exception!(
     nudge,
@@ -77,6 +78,11 @@ pub fn settings_err(err: RsSettingsError) -> PyErr {
     SettingsError::new_err(err.to_string())
 }
 
+/// Maps a closed-loop settings error.
+pub fn sim_config_err(err: SimConfigError) -> PyErr {
+    SettingsError::new_err(err.to_string())
+}
+
 /// Maps a scenario error.
 pub fn scenario_err(err: RsScenarioError) -> PyErr {
     ScenarioError::new_err(err.to_string())
@@ -100,10 +106,13 @@ pub fn planner_err(err: PlannerError) -> PyErr {
 pub fn sim_err(err: SimError) -> PyErr {
     let msg = err.to_string();
     match err {
-        SimError::Settings(_) => SettingsError::new_err(msg),
+        SimError::Settings(_) | SimError::Config(_) => SettingsError::new_err(msg),
         SimError::NoAdjacentLane { .. } => ScenarioError::new_err(msg),
-        SimError::Predictor { source, .. } => same_class(&predictor_err(source), msg),
+        SimError::Predictor { source, .. } | SimError::Model { source, .. } => {
+            same_class(&predictor_err(source), msg)
+        }
         SimError::Planner { source, .. } => same_class(&planner_err(source), msg),
+        SimError::WorldModel { .. } | SimError::Runs { .. } => InputError::new_err(msg),
         #[allow(unreachable_patterns)]
         _ => NudgeError::new_err(msg),
     }

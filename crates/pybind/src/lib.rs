@@ -7,12 +7,30 @@ mod arrays;
 mod errors;
 mod planner;
 mod predict;
-mod record;
 mod scenario;
 mod settings;
 mod sim;
 
+use std::path::PathBuf;
+
+use nudge_predictor::PredictorKind;
 use pyo3::prelude::*;
+
+/// The shipped weights of `name` (`"teacher"` or `"student"`) under the assets directory
+/// `assets`: the path the Rust resolver loads for that name.
+#[pyfunction]
+fn model_path(assets: PathBuf, name: &str) -> PyResult<PathBuf> {
+    match name
+        .parse::<PredictorKind>()
+        .ok()
+        .and_then(PredictorKind::model)
+    {
+        Some(kind) => Ok(nudge_predictor::model_path(&assets, kind)),
+        None => Err(errors::InputError::new_err(format!(
+            "model_path: expected \"teacher\" or \"student\", got {name:?}"
+        ))),
+    }
+}
 
 /// The extension module.
 #[pymodule]
@@ -26,9 +44,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SolverError", py.get_type::<errors::SolverError>())?;
     m.add_class::<predict::PyPredictor>()?;
     m.add_class::<settings::PySettings>()?;
+    m.add_class::<settings::PySimConfig>()?;
     m.add_class::<scenario::PyScenario>()?;
     m.add_class::<planner::PyPlanner>()?;
     m.add_function(wrap_pyfunction!(sim::simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(model_path, m)?)?;
+    m.add("DEFAULTS", sim::defaults_dict(py)?)?;
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;
     m.add("DT", nudge_predictor::DT)?;

@@ -2,7 +2,7 @@
 
 use std::sync::Mutex;
 
-use nudge_planner::{EgoState, Plan, Planner, PlannerSettings, PlanningProblem};
+use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem};
 use nudge_predictor::{History, T_OBS};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
@@ -53,7 +53,20 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
     d.set_item("change_residual", plan.change_residual)?;
     d.set_item("min_safety", plan.min_safety)?;
     d.set_item("checked", plan.checked)?;
-    d.set_item("status", format!("{:?}", plan.status))?;
+    d.set_item("rollout_min_safety", plan.rollout_min_safety)?;
+    d.set_item("status", plan.status.name())?;
+    // Which QP failed and Clarabel's status, for status "SolverFailed".
+    let failure = match plan.status {
+        PlanStatus::SolverFailed { qp, status } => Some((
+            qp.as_str(),
+            serde_json::to_value(status)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_string))
+                .unwrap_or_default(),
+        )),
+        _ => None,
+    };
+    d.set_item("solver_failure", failure)?;
     let tm = PyDict::new(py);
     tm.set_item("delta_s", plan.timings.delta_s)?;
     tm.set_item("alpha_s", plan.timings.alpha_s)?;
@@ -68,36 +81,20 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
 }
 
 impl PyPlanner {
-    #[allow(clippy::too_many_arguments)]
+    /// Plans `problem` with the GIL released; the plan as a dict.
     fn run<'py>(
         &self,
         py: Python<'py>,
-        history: History,
-        sizes: Vec<[f64; 2]>,
-        ego: EgoState,
-        y_target: f64,
-        v_ref: f64,
-        road: [f64; 2],
-        last: (f64, f64),
+        problem: &PlanningProblem<'_>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let pred = self.predictor.get();
         let result = py.detach(|| {
-            let problem = PlanningProblem {
-                ego,
-                last_delta: last.0,
-                last_accel: last.1,
-                history: &history,
-                sizes: &sizes,
-                y_target,
-                v_ref,
-                road,
-            };
             let mut planner = self
                 .planner
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner);
             let mut p = pred.lock();
-            planner.plan(&problem, p.as_mut())
+            planner.plan(problem, p.as_mut())
         });
         let plan = result.map_err(planner_err)?;
         plan_to_dict(py, &plan)
@@ -152,7 +149,9 @@ impl PyPlanner {
     /// `road` = (right, left) edge y (m), previous inputs `last_delta` (rad), `last_accel`
     /// (m/s²). Returns a dict: `delta` `[T]`, `accel` `[T]`, `states` `[T, 4]`, `cost`,
     /// `iterations`, `predictor_calls`, `qp_solves`, `primal_residual`, `change_residual`,
-    /// `min_safety` (float or None), `checked`, `status`, `timings` (dict, seconds).
+    /// `min_safety` and `rollout_min_safety` (float or None), `checked`, `status` (a
+    /// `PlanStatus` name), `solver_failure` (`(qp, clarabel_status)` for `"SolverFailed"`,
+    /// else None), `timings` (dict, seconds).
     #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn plan<'py>(
@@ -195,22 +194,22 @@ impl PyPlanner {
         finite("last_accel", last_accel)?;
         let history = History::new(hist, n).map_err(predictor_err)?;
         let sizes: Vec<[f64; 2]> = sz.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-        let ego = EgoState {
-            x: e[0],
-            y: e[1],
-            psi: e[2],
-            v: e[3],
-        };
-        self.run(
-            py,
-            history,
-            sizes,
-            ego,
+        let problem = PlanningProblem {
+            ego: EgoState {
+                x: e[0],
+                y: e[1],
+                psi: e[2],
+                v: e[3],
+            },
+            last_delta,
+            last_accel,
+            history: &history,
+            sizes: &sizes,
             y_target,
             v_ref,
-            [road.0, road.1],
-            (last_delta, last_accel),
-        )
+            road: [road.0, road.1],
+        };
+        self.run(py, &problem)
     }
 
     /// One MPC call at a scenario's start, as the simulator's first step: ego state from the
@@ -236,23 +235,8 @@ impl PyPlanner {
             None => nudge_planner::target_lane(sc, seed).map_err(sim_err)?,
         };
         let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;
-        let p0 = sc.position(0, T_OBS - 1);
-        let ego = EgoState {
-            x: p0[0],
-            y: p0[1],
-            psi: sc.heading[0],
-            v: sc.speed[0].max(0.0),
-        };
-        let d = self.run(
-            py,
-            history,
-            sc.size.clone(),
-            ego,
-            sc.lane_centres[lane],
-            sc.speed[0],
-            sc.road(),
-            (0.0, 0.0),
-        )?;
+        let problem = PlanningProblem::at_scenario_start(sc, &history, sc.lane_centres[lane]);
+        let d = self.run(py, &problem)?;
         d.set_item("target_lane", lane)?;
         d.set_item("y_target", sc.lane_centres[lane])?;
         Ok(d)

@@ -1,38 +1,70 @@
-//! `nudge._native.PlannerSettings`: the planner's settings, round-tripping with a Python dict.
+//! `nudge._native.PlannerSettings` and `nudge._native.SimConfig`: the planner's and the
+//! closed loop's settings, round-tripping with Python dicts and JSON text.
 //!
-//! Conversion goes through serde (`serde_json::Value`): every key must be a known setting
-//! (unknown keys raise `SettingsError` naming the key), integers stay integers, floats must be
-//! finite, and the result is validated by `PlannerSettings::validate`.
+//! Both go through serde (`serde_json::Value`): every key must be a known field (unknown keys
+//! raise `SettingsError` naming the key), each value must have its default's type (integers
+//! stay integers, floats must be finite, names must be one of the field's names), and the
+//! result is validated by the Rust `validate()`.
 
-use nudge_planner::PlannerSettings;
+use nudge_planner::{PlannerSettings, SimConfig};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyDict, PyFloat, PyInt};
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyString};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 use serde_json::{Map, Number, Value};
 
-use crate::errors::{SettingsError, settings_err};
+use crate::errors::{SettingsError, settings_err, sim_config_err};
 
-/// Planner settings (see `crates/planner/src/settings.rs` for every field, unit and default).
-#[pyclass(name = "PlannerSettings", module = "nudge._native", frozen, eq)]
-#[derive(Debug, Clone, PartialEq)]
-pub struct PySettings {
-    /// The validated Rust settings.
-    pub inner: PlannerSettings,
+/// A settings struct with serde (de)serialisation, defaults and validation.
+pub trait Settings: Serialize + DeserializeOwned + Default + Clone {
+    /// What the struct is called in messages.
+    const WHAT: &'static str;
+    /// What one field is called in messages.
+    const FIELD: &'static str;
+    /// Validates every field; the error as a Python exception.
+    fn check(&self) -> PyResult<()>;
+    /// Parses and validates JSON text.
+    fn parse_json(text: &str) -> PyResult<Self>;
+}
+
+impl Settings for PlannerSettings {
+    const WHAT: &'static str = "planner settings";
+    const FIELD: &'static str = "planner setting";
+    fn check(&self) -> PyResult<()> {
+        self.validate().map_err(settings_err)
+    }
+    fn parse_json(text: &str) -> PyResult<Self> {
+        Self::from_json(text).map_err(settings_err)
+    }
+}
+
+impl Settings for SimConfig {
+    const WHAT: &'static str = "closed-loop settings";
+    const FIELD: &'static str = "closed-loop setting";
+    fn check(&self) -> PyResult<()> {
+        self.validate().map_err(sim_config_err)
+    }
+    fn parse_json(text: &str) -> PyResult<Self> {
+        Self::from_json(text).map_err(sim_config_err)
+    }
 }
 
 /// The settings as a JSON object (field name → value).
-fn as_object(s: &PlannerSettings) -> PyResult<Map<String, Value>> {
+fn as_object<T: Settings>(s: &T) -> PyResult<Map<String, Value>> {
     match serde_json::to_value(s) {
         Ok(Value::Object(m)) => Ok(m),
         Ok(other) => Err(SettingsError::new_err(format!(
-            "planner settings serialised to {other}, expected an object"
+            "{} serialised to {other}, expected an object",
+            T::WHAT
         ))),
         Err(e) => Err(SettingsError::new_err(format!(
-            "cannot serialise planner settings: {e}"
+            "cannot serialise {}: {e}",
+            T::WHAT
         ))),
     }
 }
 
-/// A JSON value as a Python object (settings hold only bools and numbers).
+/// A JSON value as a Python object (settings hold bools, numbers and names).
 fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
     Ok(match v {
         Value::Bool(b) => PyBool::new(py, *b).to_owned().into_any(),
@@ -45,49 +77,39 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
                 n.as_f64().unwrap_or(f64::NAN).into_pyobject(py)?.into_any()
             }
         }
+        Value::String(s) => s.into_pyobject(py)?.into_any(),
         other => other.to_string().into_pyobject(py)?.into_any(),
     })
 }
 
-/// One Python value for setting `key`, type-checked against the default's JSON type.
-fn py_to_value(key: &str, default: &Value, v: &Bound<'_, PyAny>) -> PyResult<Value> {
+/// One Python value for field `key`, type-checked against the default's JSON type.
+fn py_to_value<T: Settings>(key: &str, default: &Value, v: &Bound<'_, PyAny>) -> PyResult<Value> {
     let bad = |want: &str| {
         SettingsError::new_err(format!(
-            "planner setting `{key}`: expected {want}, got {} ({})",
+            "{} `{key}`: expected {want}, got {} ({})",
+            T::FIELD,
             v.repr().map_or_else(|_| "?".to_string(), |r| r.to_string()),
             v.get_type()
                 .name()
                 .map_or_else(|_| "?".to_string(), |n| n.to_string()),
         ))
     };
+    let is_bool = v.is_instance_of::<PyBool>();
     match default {
-        Value::Bool(_) => {
-            if v.is_instance_of::<PyBool>() {
-                Ok(Value::Bool(v.extract::<bool>()?))
-            } else {
-                Err(bad("a bool"))
-            }
-        }
+        Value::Bool(_) if is_bool => Ok(Value::Bool(v.extract::<bool>()?)),
+        Value::Bool(_) => Err(bad("a bool")),
         Value::Number(n) if n.is_u64() || n.is_i64() => {
-            if v.is_instance_of::<PyBool>() {
-                return Err(bad("a non-negative integer"));
-            }
-            if v.is_instance_of::<PyInt>() || v.hasattr("__index__").unwrap_or(false) {
-                v.extract::<u64>()
-                    .map(|u| Value::Number(u.into()))
-                    .map_err(|_| bad("a non-negative integer"))
-            } else {
-                Err(bad("a non-negative integer"))
+            let integer = v.is_instance_of::<PyInt>() || v.hasattr("__index__").unwrap_or(false);
+            match v.extract::<u64>() {
+                Ok(u) if integer && !is_bool => Ok(Value::Number(u.into())),
+                _ => Err(bad("a non-negative integer")),
             }
         }
         Value::Number(_) => {
-            if v.is_instance_of::<PyBool>() {
-                return Err(bad("a number"));
-            }
-            if !(v.is_instance_of::<PyFloat>()
+            let number = v.is_instance_of::<PyFloat>()
                 || v.is_instance_of::<PyInt>()
-                || v.hasattr("__float__").unwrap_or(false))
-            {
+                || v.hasattr("__float__").unwrap_or(false);
+            if is_bool || !number {
                 return Err(bad("a number"));
             }
             let x: f64 = v.extract().map_err(|_| bad("a number"))?;
@@ -95,124 +117,177 @@ fn py_to_value(key: &str, default: &Value, v: &Bound<'_, PyAny>) -> PyResult<Val
                 .map(Value::Number)
                 .ok_or_else(|| bad("a finite number"))
         }
+        Value::String(_) if v.is_instance_of::<PyString>() => Ok(Value::String(v.extract()?)),
+        Value::String(_) => Err(bad("a str")),
         _ => Err(bad("a supported value")),
     }
 }
 
-impl PySettings {
-    /// Settings from a Python mapping of overrides (missing keys keep their defaults).
-    pub fn from_mapping(d: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let dict = d.cast::<PyDict>().map_err(|_| {
+/// `base` with the fields of the Python mapping `d` replaced, validated.
+pub fn with_overrides<T: Settings>(base: &T, d: &Bound<'_, PyAny>) -> PyResult<T> {
+    let dict = d.cast::<PyDict>().map_err(|_| {
+        SettingsError::new_err(format!(
+            "{}: expected a dict, got {}",
+            T::WHAT,
+            d.get_type()
+                .name()
+                .map_or_else(|_| "?".to_string(), |n| n.to_string())
+        ))
+    })?;
+    let mut obj = as_object(base)?;
+    for (k, v) in dict.iter() {
+        let key: String = k.extract().map_err(|_| {
             SettingsError::new_err(format!(
-                "planner settings: expected a dict, got {}",
-                d.get_type()
-                    .name()
-                    .map_or_else(|_| "?".to_string(), |n| n.to_string())
+                "{}: keys must be str, got {}",
+                T::WHAT,
+                k.repr().map_or_else(|_| "?".to_string(), |r| r.to_string())
             ))
         })?;
-        let mut obj = as_object(&PlannerSettings::default())?;
-        for (k, v) in dict.iter() {
-            let key: String = k.extract().map_err(|_| {
-                SettingsError::new_err(format!(
-                    "planner settings: keys must be str, got {}",
-                    k.repr().map_or_else(|_| "?".to_string(), |r| r.to_string())
-                ))
-            })?;
-            let Some(default) = obj.get(&key) else {
-                let mut known: Vec<&String> = obj.keys().collect();
-                known.sort();
-                let known: Vec<&str> = known.iter().map(|s| s.as_str()).collect();
-                return Err(SettingsError::new_err(format!(
-                    "unknown planner setting `{key}` (known: {})",
-                    known.join(", ")
-                )));
-            };
-            let value = py_to_value(&key, default, &v)?;
-            obj.insert(key, value);
-        }
-        let inner: PlannerSettings = serde_json::from_value(Value::Object(obj))
-            .map_err(|e| SettingsError::new_err(format!("planner settings: {e}")))?;
-        inner.validate().map_err(settings_err)?;
-        Ok(Self { inner })
+        let Some(default) = obj.get(&key) else {
+            let mut known: Vec<&str> = obj.keys().map(String::as_str).collect();
+            known.sort_unstable();
+            return Err(SettingsError::new_err(format!(
+                "unknown {} `{key}` (known: {})",
+                T::FIELD,
+                known.join(", ")
+            )));
+        };
+        let value = py_to_value::<T>(&key, default, &v)?;
+        // A name must be one the field knows: deserialise with only this field replaced.
+        let mut one = obj.clone();
+        one.insert(key.clone(), value.clone());
+        serde_json::from_value::<T>(Value::Object(one))
+            .map_err(|e| SettingsError::new_err(format!("{} `{key}`: {e}", T::FIELD)))?;
+        obj.insert(key, value);
+    }
+    let out: T = serde_json::from_value(Value::Object(obj))
+        .map_err(|e| SettingsError::new_err(format!("{}: {e}", T::WHAT)))?;
+    out.check()?;
+    Ok(out)
+}
+
+/// Every field as a Python dict.
+fn to_dict<'py, T: Settings>(py: Python<'py>, s: &T) -> PyResult<Bound<'py, PyDict>> {
+    let out = PyDict::new(py);
+    for (k, v) in as_object(s)? {
+        out.set_item(k, value_to_py(py, &v)?)?;
+    }
+    Ok(out)
+}
+
+/// Field `name` as a Python value.
+fn field<'py, T: Settings>(
+    py: Python<'py>,
+    s: &T,
+    class: &str,
+    name: &str,
+) -> PyResult<Bound<'py, PyAny>> {
+    match as_object(s)?.get(name) {
+        Some(v) => value_to_py(py, v),
+        None => Err(pyo3::exceptions::PyAttributeError::new_err(format!(
+            "{class} has no field `{name}`"
+        ))),
     }
 }
 
-#[pymethods]
-impl PySettings {
-    /// `PlannerSettings(**overrides)`: the defaults with the given fields replaced.
-    #[new]
-    #[pyo3(signature = (**overrides))]
-    fn new(py: Python<'_>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
-        match overrides {
-            Some(d) => Self::from_mapping(d.as_any()),
-            None => Self::from_mapping(PyDict::new(py).as_any()),
-        }
-    }
-
-    /// The defaults (the paper's values).
-    #[staticmethod]
-    fn default() -> Self {
-        Self {
-            inner: PlannerSettings::default(),
-        }
-    }
-
-    /// Settings from a dict; missing keys default, unknown keys or bad values raise
-    /// `SettingsError` naming the key.
-    #[staticmethod]
-    fn from_dict(d: &Bound<'_, PyAny>) -> PyResult<Self> {
-        Self::from_mapping(d)
-    }
-
-    /// Every field as a dict (ints, floats, bools).
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let out = PyDict::new(py);
-        for (k, v) in as_object(&self.inner)? {
-            out.set_item(k, value_to_py(py, &v)?)?;
-        }
-        Ok(out)
-    }
-
-    /// Settings from JSON text (the format of the Rust CLI's `--settings` files).
-    #[staticmethod]
-    fn from_json(text: &str) -> PyResult<Self> {
-        PlannerSettings::from_json(text)
-            .map(|inner| Self { inner })
-            .map_err(settings_err)
-    }
-
-    /// The settings as JSON text.
-    fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string_pretty(&self.inner)
-            .map_err(|e| SettingsError::new_err(format!("cannot serialise planner settings: {e}")))
-    }
-
-    /// A copy with some fields replaced (same checks as `from_dict`).
-    #[pyo3(signature = (**overrides))]
-    fn replace(&self, py: Python<'_>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
-        let d = self.to_dict(py)?;
-        if let Some(o) = overrides {
-            d.update(o.as_mapping())?;
-        }
-        Self::from_mapping(d.as_any())
-    }
-
-    /// Attribute access to every field (`settings.horizon`).
-    fn __getattr__<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
-        let obj = as_object(&self.inner)?;
-        match obj.get(name) {
-            Some(v) => value_to_py(py, v),
-            None => Err(pyo3::exceptions::PyAttributeError::new_err(format!(
-                "PlannerSettings has no field `{name}`"
-            ))),
-        }
-    }
-
-    fn __repr__(&self) -> String {
-        let s = &self.inner;
-        format!(
-            "PlannerSettings(horizon={}, dt={}, rho={}, max_iter={}, ...)",
-            s.horizon, s.dt, s.rho, s.max_iter
-        )
-    }
+/// The settings as JSON text.
+fn to_json<T: Settings>(s: &T) -> PyResult<String> {
+    serde_json::to_string_pretty(s)
+        .map_err(|e| SettingsError::new_err(format!("cannot serialise {}: {e}", T::WHAT)))
 }
+
+/// The Python class of a [`Settings`] struct: construction with overrides, `default()`,
+/// dict and JSON round trips, `replace()`, attribute access to every field.
+macro_rules! settings_class {
+    ($py:ident, $rust:ty, $name:literal, $doc:literal) => {
+        #[doc = $doc]
+        #[pyclass(name = $name, module = "nudge._native", frozen, eq)]
+        #[derive(Debug, Clone, PartialEq)]
+        pub struct $py {
+            /// The validated Rust settings.
+            pub inner: $rust,
+        }
+
+        #[pymethods]
+        impl $py {
+            /// The defaults with the given fields replaced.
+            #[new]
+            #[pyo3(signature = (**overrides))]
+            fn new(py: Python<'_>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+                let empty = PyDict::new(py);
+                let d = overrides.unwrap_or(&empty);
+                with_overrides(&<$rust>::default(), d.as_any()).map(|inner| Self { inner })
+            }
+
+            /// The defaults.
+            #[staticmethod]
+            fn default() -> Self {
+                Self {
+                    inner: <$rust>::default(),
+                }
+            }
+
+            /// Settings from a dict; missing keys default, unknown keys or bad values raise
+            /// `SettingsError` naming the key.
+            #[staticmethod]
+            fn from_dict(d: &Bound<'_, PyAny>) -> PyResult<Self> {
+                with_overrides(&<$rust>::default(), d).map(|inner| Self { inner })
+            }
+
+            /// Every field as a dict.
+            fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+                to_dict(py, &self.inner)
+            }
+
+            /// Settings from JSON text (the format of the CLI's settings files).
+            #[staticmethod]
+            fn from_json(text: &str) -> PyResult<Self> {
+                <$rust as Settings>::parse_json(text).map(|inner| Self { inner })
+            }
+
+            /// The settings as JSON text.
+            fn to_json(&self) -> PyResult<String> {
+                to_json(&self.inner)
+            }
+
+            /// A copy with some fields replaced (same checks as `from_dict`).
+            #[pyo3(signature = (**overrides))]
+            fn replace(
+                &self,
+                py: Python<'_>,
+                overrides: Option<&Bound<'_, PyDict>>,
+            ) -> PyResult<Self> {
+                let empty = PyDict::new(py);
+                let d = overrides.unwrap_or(&empty);
+                with_overrides(&self.inner, d.as_any()).map(|inner| Self { inner })
+            }
+
+            /// Attribute access to every field.
+            fn __getattr__<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
+                field(py, &self.inner, $name, name)
+            }
+
+            fn __repr__(&self) -> PyResult<String> {
+                let fields: Vec<String> = as_object(&self.inner)?
+                    .iter()
+                    .map(|(k, v)| format!("{k}={v}"))
+                    .collect();
+                Ok(format!("{}({})", $name, fields.join(", ")))
+            }
+        }
+    };
+}
+
+settings_class!(
+    PySettings,
+    PlannerSettings,
+    "PlannerSettings",
+    "Planner settings (see `crates/planner/src/settings.rs` for every field, unit and default)."
+);
+settings_class!(
+    PySimConfig,
+    SimConfig,
+    "SimConfig",
+    "Closed-loop settings: `max_steps`, `settle_y` (m), `settle_psi` (rad), `settle_steps`, \
+     `world` (\"teacher\" or \"log_replay\"), `abort_after`, `abort_hold` (steps)."
+);

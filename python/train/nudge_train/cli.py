@@ -198,7 +198,7 @@ def _add_distill(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-root", type=Path, default=d.data_root, help="raw NGSIM material")
     p.add_argument("--runs", type=int, default=d.runs, help="closed-loop runs per scene")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of the scene order and target lanes")
-    p.add_argument("--world", choices=("predictor", "log_replay"), default=d.world,
+    p.add_argument("--world", choices=("teacher", "log_replay"), default=d.world,
                    help="how the other vehicles move")
     p.add_argument("--max-steps", type=int, default=d.max_steps, help="closed-loop steps per run")
     p.add_argument("--scenes-per-shard", type=int, default=d.scenes_per_shard, help="scenes per shard")

@@ -42,4 +42,4 @@ WEIGHTS_FORMAT = "nudge.weights/1"
 """Generator weights (``.safetensors``), read by the Rust predictor."""
 
 BENCH_NS = (2, 4, 8, 16, 32)
-"""Agent counts of the predictor benchmark's scenes (benches/data/scenes.safetensors)."""
+"""Agent counts of the predictor benchmark's scenes (crates/predictor/benches/data/scenes.safetensors)."""

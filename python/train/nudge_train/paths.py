@@ -52,9 +52,9 @@ ENV_ASSETS = "NUDGE_ASSETS"
 ENV_NGSIM = "NUDGE_NGSIM"
 """Environment variable overriding the raw NGSIM folder."""
 
-GOLDEN_DIR = Path("tests/golden")
+GOLDEN_DIR = Path("crates/predictor/tests/golden")
 """Repository-relative folder of the predictor's golden files (``nudge-train goldens``)."""
-BENCH_SCENES = Path("benches/data/scenes.safetensors")
+BENCH_SCENES = Path("crates/predictor/benches/data/scenes.safetensors")
 """Repository-relative file of the predictor benchmark's input scenes (``nudge-train goldens``)."""
 
 _CHECKOUT = Path(__file__).resolve().parents[3]

@@ -65,7 +65,7 @@ def test_defaults_are_those_of_the_replaced_entry_points() -> None:
     assert (s.distill, s.out_dir) == (str(paths.repo() / "data" / "distill"), str(paths.repo() / "runs" / "student"))
     d = p.parse_args(["distill"])
     assert d.size == {"train": 213, "val": 40, "test": 37}  # the "paper" preset
-    assert (d.world, d.runs, d.seed, d.max_steps, d.scenes_per_shard, d.threads) == ("predictor", 1, 0, 30, 8, None)
+    assert (d.world, d.runs, d.seed, d.max_steps, d.scenes_per_shard, d.threads) == ("teacher", 1, 0, 30, 8, None)
     assert d.out == paths.repo() / "data" / "distill"
     b = p.parse_args(["bench", "inference"])
     assert (b.ns, b.warmup, b.repeats, b.min_seconds, b.batch32) == (list(BENCH_NS), 10, 50, 1.0, False)

@@ -31,6 +31,7 @@ def _one_thread() -> Iterator[None]:
 
 REPO_ROOT = paths.repo()
 GOLDEN = paths.GOLDEN_DIR.as_posix()  # repository-relative, as the check reports it
+BENCH = paths.BENCH_SCENES.as_posix()
 
 
 def _asset_is_trained(kind: str) -> bool:
@@ -46,17 +47,17 @@ def test_committed_files_are_reproduced_bit_exactly() -> None:
 
 
 def test_check_reports_a_modified_file(tmp_path: Path) -> None:
-    for rel in (GOLDEN, "benches/data"):
+    for rel in (GOLDEN, paths.BENCH_SCENES.parent.as_posix()):
         shutil.copytree(REPO_ROOT / rel, tmp_path / rel)
     target = tmp_path / GOLDEN / "cases_student_random.safetensors"
     raw = bytearray(target.read_bytes())
     raw[-1] ^= 0x01  # flip one bit of the last expected value
     target.write_bytes(bytes(raw))
-    (tmp_path / "benches" / "data" / "scenes.safetensors").unlink()
+    (tmp_path / paths.BENCH_SCENES).unlink()
     problems = make_goldens.check(tmp_path, make_goldens.Options(), log=lambda _msg: None)
     assert len(problems) == 2
     assert any(p.startswith(f"{GOLDEN}/cases_student_random.safetensors: n") and "values differ" in p for p in problems)
-    assert any(p.startswith("benches/data/scenes.safetensors: missing") for p in problems)
+    assert any(p.startswith(f"{BENCH}: missing") for p in problems)
     assert main(["goldens", "--repo-root", str(tmp_path), "--check"]) == 1
 
 
@@ -83,7 +84,7 @@ def test_cases_format_and_pytorch_f32_agreement(kind: str) -> None:
 
 
 def test_bench_scenes_format() -> None:
-    with safe_open(str(REPO_ROOT / "benches" / "data" / "scenes.safetensors"), "pt") as f:
+    with safe_open(str(REPO_ROOT / paths.BENCH_SCENES), "pt") as f:
         for n in (2, 4, 8, 16, 32):
             assert f.get_tensor(f"n{n}.history").shape == (n, 8, 2)
             assert f.get_tensor(f"n{n}.candidates").shape == (32, 6, 2)

@@ -30,7 +30,7 @@ class DistillConfig:
     ``max_scenes``: scenes per split (``None`` = every scene of the split); the subset is drawn
     with ``seed`` and is the same on every rerun. ``runs``: closed-loop runs per scene (run ``r``
     of a scene draws its target lane from the scene's seed + r). ``world``: how the other
-    vehicles move (``"predictor"`` = the teacher's one-step interactive prediction,
+    vehicles move (``"teacher"`` = the teacher's one-step interactive prediction,
     ``"log_replay"`` = the logged future). ``threads``: rayon threads per shard.
     """
 
@@ -43,7 +43,7 @@ class DistillConfig:
     max_scenes: dict[str, int | None] = field(default_factory=lambda: dict(SIZES["paper"]))
     runs: int = 1
     seed: int = 0
-    world: str = "predictor"
+    world: str = "teacher"
     max_steps: int = 30
     scenes_per_shard: int = 8
     threads: int | None = None
@@ -57,8 +57,8 @@ class DistillConfig:
             raise ValueError(f"runs: must be at least 1, got {self.runs}")
         if self.scenes_per_shard < 1:
             raise ValueError(f"scenes_per_shard: must be at least 1, got {self.scenes_per_shard}")
-        if self.world not in ("predictor", "log_replay"):
-            raise ValueError(f"world: expected 'predictor' or 'log_replay', got {self.world!r}")
+        if self.world not in ("teacher", "log_replay"):
+            raise ValueError(f"world: expected 'teacher' or 'log_replay', got {self.world!r}")
         if self.max_steps < 1:
             raise ValueError(f"max_steps: must be at least 1, got {self.max_steps}")
         if self.threads is not None and self.threads < 1:

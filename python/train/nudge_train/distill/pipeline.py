@@ -63,7 +63,8 @@ def compute_shard(spec: ShardSpec, teacher: str, world: str, runs: int, max_step
                   content_key: str, teacher_sha256: str) -> tuple[dict[str, np.ndarray], dict[str, str], dict]:
     """Runs one shard; returns its tensors, safetensors metadata and a summary dict."""
     t0 = time.perf_counter()
-    r = nudge.simulate(list(spec.scenes), teacher, world=world, scene_seeds=list(spec.seeds), runs=runs,
+    world_model = teacher if world == "teacher" else None
+    r = nudge.simulate(list(spec.scenes), teacher, world=world, world_predictor=world_model, scene_seeds=list(spec.seeds), runs=runs,
                        threads=threads, max_steps=max_steps, record=True, on_error="skip")
     wall = time.perf_counter() - t0
     ex, rr = r["examples"], r["runs"]

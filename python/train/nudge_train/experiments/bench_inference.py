@@ -1,7 +1,7 @@
 """Times the PyTorch reference predictors on the same weights and inputs as the Rust benchmark
 and prints them next to the Rust (criterion) medians.
 
-Weights: assets/models/{teacher,student}.safetensors. Inputs: benches/data/scenes.safetensors
+Weights: assets/models/{teacher,student}.safetensors. Inputs: crates/predictor/benches/data/scenes.safetensors
 (``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [32, 6, 2]). One timed call is a full prediction
 from the history: the teacher's whole 6-call recursion, or the student's encoder + pooling +
 6-step decoder, for ONE candidate (``--batch32``: all 32 candidates in one call, compared with the
@@ -159,7 +159,7 @@ def run(
     header = (
         f"PyTorch {torch.__version__} (1 thread, inference_mode, median of ≥{repeats} calls after "
         f"{warmup} warm-up) vs Rust criterion group `{group}` medians; {count} candidate(s) per call; "
-        f"same weights (assets/models) and scenes (benches/data/scenes.safetensors); CPU: {cpu_name()}."
+        f"same weights (assets/models) and scenes ({paths.BENCH_SCENES}); CPU: {cpu_name()}."
     )
     print(header)
     print(table_text(rows))

@@ -92,7 +92,7 @@ def run(
     summaries: dict[str, dict] = {}
     for pred in predictors:
         t0 = time.perf_counter()
-        res = nudge.simulate(chosen, pred, world="predictor", world_predictor="teacher", scene_seeds=scene_seeds,
+        res = nudge.simulate(chosen, pred, world="teacher", world_predictor="teacher", scene_seeds=scene_seeds,
                              settings=planner_settings, abort_after=abort_after, abort_hold=abort_hold, runs=1,
                              threads=threads, on_error="skip")
         s = summarise(res, nudge.DT)

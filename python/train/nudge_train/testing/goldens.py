@@ -3,12 +3,12 @@ the randomly initialised shipped weights. Everything is seeded: rerunning gives 
 
 Files (paths relative to the repository root):
 
-* tests/golden/weights_{teacher,student}_random.safetensors: seeded random generators.
-* tests/golden/cases_{teacher,student}_random.safetensors: for N in {1, 2, 5, 17, 47},
+* crates/predictor/tests/golden/weights_{teacher,student}_random.safetensors: seeded random generators.
+* crates/predictor/tests/golden/cases_{teacher,student}_random.safetensors: for N in {1, 2, 5, 17, 47},
   ``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [4, 6, 2], ``n{N}.expected`` [4, N−1, 6, 2].
-* with ``--trained``: tests/golden/cases_{teacher,student}_trained.safetensors against
+* with ``--trained``: crates/predictor/tests/golden/cases_{teacher,student}_trained.safetensors against
   assets/models/{teacher,student}.safetensors (only for files whose metadata says trained="true").
-* benches/data/scenes.safetensors: ``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [32, 6, 2]
+* crates/predictor/benches/data/scenes.safetensors: ``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [32, 6, 2]
   for N in {2, 4, 8, 16, 32}.
 * with ``--ship-random``: assets/models/{teacher,student}.safetensors, random (trained="false").
 

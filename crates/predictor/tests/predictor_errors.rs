@@ -5,8 +5,8 @@
 use std::collections::HashMap;
 use std::path::PathBuf;
 
-use nudge::predictor::weights::synthetic_weights;
-use nudge::predictor::{
+use nudge_predictor::weights::synthetic_weights;
+use nudge_predictor::{
     ConstantVelocity, History, MAX_AGENTS, ModelConfig, ModelWeights, Predictor, PredictorError,
     Student, T_OBS, Teacher, load_predictor,
 };

@@ -1,51 +1,10 @@
-//! Predictor specs (what to build per run) and the recording predictor used to collect
-//! distillation data: it delegates to a teacher and keeps every (history, candidate,
-//! prediction) the planner asks for.
+//! The recording predictor used to collect distillation data: it delegates to an inner
+//! predictor (the teacher) and keeps every distinct (history, candidate, prediction) the
+//! planner asks for.
 
 use std::collections::HashSet;
-use std::path::Path;
 
-use nudge_predictor::{
-    ConstantVelocity, History, ModelKind, ModelWeights, Predictor, PredictorError, Student, T_OBS,
-    Teacher,
-};
-
-/// A predictor that can be built once per run (weights are parsed once and cloned).
-#[derive(Debug, Clone)]
-pub enum Spec {
-    /// The constant-velocity baseline with this horizon (steps).
-    ConstantVelocity(usize),
-    /// A loaded teacher.
-    Teacher(Box<Teacher>),
-    /// A loaded student.
-    Student(Box<Student>),
-}
-
-impl Spec {
-    /// `"constant_velocity"` or the path of a teacher/student `.safetensors` file.
-    ///
-    /// # Errors
-    /// Any weights-loading error of the predictor crate.
-    pub fn parse(what: &str, horizon: usize) -> Result<Self, PredictorError> {
-        if what == "constant_velocity" {
-            return Ok(Self::ConstantVelocity(horizon));
-        }
-        let w = ModelWeights::from_file(Path::new(what))?;
-        Ok(match w.config().kind {
-            ModelKind::Teacher => Self::Teacher(Box::new(Teacher::from_weights(&w)?)),
-            ModelKind::Student => Self::Student(Box::new(Student::from_weights(&w)?)),
-        })
-    }
-
-    /// A fresh predictor.
-    pub fn build(&self) -> Box<dyn Predictor> {
-        match self {
-            Self::ConstantVelocity(h) => Box::new(ConstantVelocity::new(*h)),
-            Self::Teacher(t) => Box::new(t.as_ref().clone()),
-            Self::Student(s) => Box::new(s.as_ref().clone()),
-        }
-    }
-}
+use crate::{History, Predictor, T_OBS};
 
 /// Everything a [`Recording`] predictor saw, flat (float32, metres, road frame).
 ///
@@ -68,6 +27,20 @@ pub struct Records {
     pub duplicates: usize,
 }
 
+impl Records {
+    /// Appends `other`'s contexts and examples after this one's (its context indices shifted).
+    pub fn append(&mut self, mut other: Records) {
+        let base = self.context_agents.len();
+        self.history.append(&mut other.history);
+        self.context_agents.append(&mut other.context_agents);
+        self.example_context
+            .extend(other.example_context.iter().map(|c| c + base));
+        self.candidate.append(&mut other.candidate);
+        self.prediction.append(&mut other.prediction);
+        self.duplicates += other.duplicates;
+    }
+}
+
 /// A predictor that delegates to `inner` and records every candidate per scene that is distinct
 /// at float32 precision (projected-gradient steps often move a candidate by less than that).
 pub struct Recording {
@@ -82,6 +55,7 @@ pub struct Recording {
 
 impl Recording {
     /// Wraps `inner`.
+    #[must_use]
     pub fn new(inner: Box<dyn Predictor>) -> Self {
         Self {
             inner,
@@ -103,7 +77,7 @@ impl Predictor for Recording {
         self.inner.horizon()
     }
 
-    fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
+    fn set_scene(&mut self, history: &History) -> crate::Result<()> {
         self.inner.set_scene(history)?;
         self.scene.clear();
         self.scene.extend_from_slice(history.positions());
@@ -113,7 +87,7 @@ impl Predictor for Recording {
         Ok(())
     }
 
-    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> crate::Result<()> {
         self.inner.predict(candidates, out)?;
         let h = self.inner.horizon();
         let per_c = h * 2;
@@ -157,6 +131,7 @@ impl Predictor for Recording {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ConstantVelocity;
 
     fn history(n: usize) -> History {
         let mut v = Vec::with_capacity(n * T_OBS * 2);
@@ -209,13 +184,24 @@ mod tests {
         let bad = vec![f64::NAN; 12];
         assert!(rec.predict(&bad, &mut [0.0; 12]).is_err());
         assert!(rec.records.example_context.is_empty());
-        assert!(Spec::parse("/nonexistent/weights.safetensors", 6).is_err());
-        assert_eq!(
-            Spec::parse("constant_velocity", 6)
-                .expect("cv")
-                .build()
-                .name(),
-            "constant_velocity"
-        );
+    }
+
+    #[test]
+    fn append_shifts_context_indices() {
+        let mut a = Recording::new(Box::new(ConstantVelocity::new(6)));
+        a.set_scene(&history(3)).expect("scene");
+        let c1: Vec<f64> = (1..13).map(f64::from).collect();
+        a.predict(&c1, &mut [0.0; 2 * 12]).expect("predict");
+        let mut b = Recording::new(Box::new(ConstantVelocity::new(6)));
+        b.set_scene(&history(2)).expect("scene");
+        b.predict(&c1, &mut [0.0; 12]).expect("predict");
+        b.predict(&c1, &mut [0.0; 12]).expect("predict");
+        let mut all = a.records.clone();
+        all.append(b.records.clone());
+        assert_eq!(all.context_agents, vec![3, 2]);
+        assert_eq!(all.example_context, vec![0, 1]);
+        assert_eq!(all.duplicates, 1);
+        assert_eq!(all.history.len(), (3 + 2) * T_OBS * 2);
+        assert_eq!(all.prediction.len(), 2 * 12 + 12);
     }
 }

@@ -3,11 +3,11 @@
 //! determinism, typed errors on bad input, and property tests.
 #![allow(clippy::unwrap_used)]
 
-use nudge::planner::{
+use nudge_planner::{
     EgoState, Ellipse, OrientedBox, PlanStatus, Planner, PlannerError, PlannerSettings,
     PlanningProblem, motion_heading,
 };
-use nudge::predictor::{ConstantVelocity, History, Predictor, T_OBS};
+use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 use proptest::prelude::*;
 
 /// Ego at (0, y0) with speed v; others `(dx, y, speed)`; all driving along +x.

@@ -4,11 +4,11 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use nudge::planner::{Scenario, ScenarioError};
+use nudge_planner::{Scenario, ScenarioError};
 use safetensors::{Dtype, tensor::TensorView};
 
 fn shipped() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/scenes")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes")
 }
 
 #[test]

@@ -1,13 +1,13 @@
 //! Parity of the Rust networks with PyTorch (golden files written by
-//! `python/train/scripts/make_goldens.py`) and their properties: permutation equivariance,
+//! `python/train/scripts/make_goldens.py`, in `tests/golden`) and their properties: permutation equivariance,
 //! cached == uncached (fast path vs the literal reference implementation), determinism, and
 //! the exact constant-velocity baseline.
 #![allow(clippy::unwrap_used, clippy::print_stdout)]
 
 use std::path::{Path, PathBuf};
 
-use nudge::predictor::weights::synthetic_weights;
-use nudge::predictor::{
+use nudge_predictor::weights::synthetic_weights;
+use nudge_predictor::{
     ConstantVelocity, History, ModelConfig, ModelWeights, Predictor, Student, T_OBS, Teacher,
     load_predictor, reference,
 };
@@ -17,8 +17,14 @@ use safetensors::SafeTensors;
 /// Largest acceptable |rust − pytorch| in metres.
 const TOL: f64 = 1e-5;
 
+/// The repository root (trained-weight goldens name repo-relative paths).
 fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// This crate's golden files.
+fn golden_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/golden")
 }
 
 fn f32s(st: &SafeTensors<'_>, name: &str) -> Option<(Vec<usize>, Vec<f64>)> {
@@ -35,7 +41,7 @@ fn f32s(st: &SafeTensors<'_>, name: &str) -> Option<(Vec<usize>, Vec<f64>)> {
 
 /// Runs one golden case file; returns false (with a note) when it is absent.
 fn golden(kind: &str, variant: &str) -> bool {
-    let cases = repo().join(format!("tests/golden/cases_{kind}_{variant}.safetensors"));
+    let cases = golden_dir().join(format!("cases_{kind}_{variant}.safetensors"));
     if !cases.exists() {
         println!("NOTE: {} absent, case skipped", cases.display());
         return false;
@@ -46,13 +52,10 @@ fn golden(kind: &str, variant: &str) -> bool {
     let meta = header.metadata().clone().unwrap_or_default();
     let weights_name = meta.get("weights").expect("cases file names its weights");
     // Random-weight cases name a file beside them, trained ones a repo-relative path.
-    let weights: PathBuf = [
-        repo().join(weights_name),
-        repo().join("tests/golden").join(weights_name),
-    ]
-    .into_iter()
-    .find(|p| p.exists())
-    .unwrap_or_else(|| panic!("weights {weights_name} of {} not found", cases.display()));
+    let weights: PathBuf = [repo().join(weights_name), golden_dir().join(weights_name)]
+        .into_iter()
+        .find(|p| p.exists())
+        .unwrap_or_else(|| panic!("weights {weights_name} of {} not found", cases.display()));
     let mut model = load_predictor(&weights).unwrap();
     let w = ModelWeights::from_file(&weights).unwrap();
     let z: Vec<f32> = w
@@ -209,8 +212,8 @@ fn check_against_reference(cfg: &ModelConfig, seed: u64, n: usize) {
         .unwrap_or_default();
     let (history, cand) = scene(seed, n, 3);
     let mut fast: Box<dyn Predictor> = match cfg.kind {
-        nudge::predictor::ModelKind::Teacher => Box::new(Teacher::from_weights(&w).unwrap()),
-        nudge::predictor::ModelKind::Student => Box::new(Student::from_weights(&w).unwrap()),
+        nudge_predictor::ModelKind::Teacher => Box::new(Teacher::from_weights(&w).unwrap()),
+        nudge_predictor::ModelKind::Student => Box::new(Student::from_weights(&w).unwrap()),
     };
     let got = run(fast.as_mut(), &history, &cand);
     let want = reference::predict(&w, &z, &history, &cand).unwrap();
@@ -254,7 +257,7 @@ proptest! {
             &ModelConfig {
                 pool_every_timestep: false,
                 noise_dim: 2,
-                ..ModelConfig { kind: nudge::predictor::ModelKind::Student, pred_len: 6, ..odd }
+                ..ModelConfig { kind: nudge_predictor::ModelKind::Student, pred_len: 6, ..odd }
             },
             seed,
             n,
@@ -373,8 +376,12 @@ fn teacher_noise() {
 
 #[test]
 fn shipped_models_load() {
-    for name in ["teacher", "student"] {
-        let p: &Path = &repo().join(format!("assets/models/{name}.safetensors"));
+    for kind in [
+        nudge_predictor::ModelKind::Teacher,
+        nudge_predictor::ModelKind::Student,
+    ] {
+        let name = kind.as_str();
+        let p: &Path = &nudge_predictor::model_path(&repo().join("assets"), kind);
         if !p.exists() {
             println!("NOTE: {} absent, skipped", p.display());
             continue;

@@ -15,18 +15,19 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use nudge::predictor::{ConstantVelocity, History, Predictor, Student, Teacher};
+use nudge_predictor::{ConstantVelocity, History, Predictor, Student, Teacher};
 use safetensors::SafeTensors;
 
 const NS: [usize; 5] = [2, 4, 8, 16, 32];
 
-fn repo() -> PathBuf {
+/// This crate's directory.
+fn here() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
 /// `(history, candidates [32, 6, 2])` of the bench scene with `n` agents.
 fn scenes() -> Vec<(usize, History, Vec<f64>)> {
-    let path = repo().join("benches/data/scenes.safetensors");
+    let path = here().join("benches/data/scenes.safetensors");
     let bytes = std::fs::read(&path)
         .unwrap_or_else(|e| panic!("{}: {e} (run make_goldens.py)", path.display()));
     let st = SafeTensors::deserialize(&bytes).unwrap();
@@ -46,7 +47,7 @@ fn scenes() -> Vec<(usize, History, Vec<f64>)> {
 }
 
 fn models() -> Vec<Box<dyn Predictor>> {
-    let dir = repo().join("assets/models");
+    let dir = here().join("../../assets/models");
     vec![
         Box::new(Teacher::from_file(dir.join("teacher.safetensors")).unwrap()),
         Box::new(Student::from_file(dir.join("student.safetensors")).unwrap()),

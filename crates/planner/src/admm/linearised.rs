@@ -1,0 +1,219 @@
+//! The per-call set-up shared by [`crate::Planner::plan`] and
+//! [`crate::Planner::reference_qp`]: the ego-centred frame, the nominal trajectory (the
+//! shifted previous plan, or constant velocity on a cold start), the linearised dynamics
+//! around it, the input and state bounds, and the cost J = Φ1 + Φ2 + Φ3.
+
+use crate::model::{Bicycle, Linearisation, State};
+use crate::qp::{RateBox, repair_box_rate};
+use crate::settings::PlannerSettings;
+
+use super::problem::PlanningProblem;
+
+/// What one call leaves for the next: its inputs and duals, shifted by one step when used.
+#[derive(Debug, Clone)]
+pub(crate) struct WarmStart {
+    /// Steering `[T]` (rad).
+    pub delta: Vec<f64>,
+    /// Acceleration `[T]` (m/s²).
+    pub accel: Vec<f64>,
+    /// Duals μ `[T]`.
+    pub duals: Vec<State>,
+}
+
+/// `v` shifted by one step, its last entry repeated.
+fn shifted<T: Copy>(v: &[T], empty: T) -> Vec<T> {
+    let mut s: Vec<T> = v.iter().skip(1).copied().collect();
+    s.push(*v.last().unwrap_or(&empty));
+    s
+}
+
+/// One MPC call's linearised problem, in a frame centred on the ego's position (x and y of
+/// every state here are relative to [`LinearisedProblem::origin`]).
+pub(crate) struct LinearisedProblem {
+    /// Horizon T (steps).
+    pub horizon: usize,
+    /// The ego's measured position (x, y) in the road frame (m): the frame's origin.
+    pub origin: [f64; 2],
+    /// The measured state z_0 in this frame (x = y = 0).
+    pub start: State,
+    /// F(Δ, α, Z) = AΔ + Bα + CZ + D around the nominal trajectory.
+    pub linearisation: Linearisation,
+    /// Nominal steering `[T]` (rad): the shifted previous plan, within its bounds.
+    pub nominal_delta: Vec<f64>,
+    /// Nominal acceleration `[T]` (m/s²).
+    pub nominal_accel: Vec<f64>,
+    /// The roll-out of the nominal inputs, z_1..z_T.
+    pub nominal_rollout: Vec<State>,
+    /// Duals μ to start from `[T]` (the shifted previous ones, or zeros).
+    pub warm_duals: Vec<State>,
+    /// Per-step weights (0, w_y, w_ψ, w_v) on (x, y, ψ, v).
+    pub weights: State,
+    /// Reference state (x ignored): (0, y_target, 0, v_ref) in this frame.
+    pub reference: State,
+    /// Lower state bounds (x, ψ unbounded; y from the road, v ≥ 0).
+    pub lower: State,
+    /// Upper state bounds.
+    pub upper: State,
+    /// Box and rate bounds of the steering.
+    pub delta_box: RateBox,
+    /// Box and rate bounds of the acceleration.
+    pub accel_box: RateBox,
+}
+
+impl LinearisedProblem {
+    /// Sets up one call of `problem` (already checked) from the warm start `warm`.
+    pub(crate) fn new(
+        s: &PlannerSettings,
+        model: &Bicycle,
+        warm: Option<&WarmStart>,
+        p: &PlanningProblem<'_>,
+    ) -> Self {
+        let t = s.horizon;
+        let origin = [p.ego.x, p.ego.y];
+        let start = State::new(0.0, 0.0, p.ego.psi, p.ego.v);
+        let delta_box = RateBox {
+            lo: -s.delta_max,
+            hi: s.delta_max,
+            rate: s.ddelta_max,
+            prev: p.last_delta.clamp(-s.delta_max, s.delta_max),
+        };
+        let accel_box = RateBox {
+            lo: s.a_min,
+            hi: s.a_max,
+            rate: s.da_max,
+            prev: p.last_accel.clamp(s.a_min, s.a_max),
+        };
+        let (mut nominal_delta, mut nominal_accel, warm_duals) = match warm {
+            Some(w) if w.delta.len() == t => {
+                let mut duals = shifted(&w.duals, State::zeros());
+                if !s.warm_start_dual {
+                    duals.iter_mut().for_each(|m| *m = State::zeros());
+                }
+                (shifted(&w.delta, 0.0), shifted(&w.accel, 0.0), duals)
+            }
+            _ => (vec![0.0; t], vec![0.0; t], vec![State::zeros(); t]),
+        };
+        repair_box_rate(&mut nominal_delta, delta_box);
+        repair_box_rate(&mut nominal_accel, accel_box);
+        let mut nominal_rollout = vec![State::zeros(); t];
+        model.rollout(&start, &nominal_delta, &nominal_accel, &mut nominal_rollout);
+        let mut nominal = Vec::with_capacity(t);
+        nominal.push(start);
+        nominal.extend_from_slice(&nominal_rollout[..t - 1]);
+        let linearisation = Linearisation::new(
+            model,
+            &start,
+            &nominal,
+            &nominal_delta,
+            &nominal_accel,
+            s.v_lin_min,
+        );
+        let (y_low, y_high) = lateral_band(s, p, origin[1]);
+        Self {
+            horizon: t,
+            origin,
+            start,
+            linearisation,
+            nominal_delta,
+            nominal_accel,
+            nominal_rollout,
+            warm_duals,
+            weights: State::new(0.0, s.w_y, s.w_psi, s.w_v),
+            reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
+            lower: State::new(f64::NEG_INFINITY, y_low, f64::NEG_INFINITY, 0.0),
+            upper: State::new(f64::INFINITY, y_high, f64::INFINITY, s.v_max.max(p.ego.v)),
+            delta_box,
+            accel_box,
+        }
+    }
+
+    /// Φ3(Z) = Σ_k w_y e_y² + w_ψ e_ψ² + w_v e_v², e = z_k − reference.
+    pub(crate) fn tracking_cost(&self, z: &[State]) -> f64 {
+        let w = &self.weights;
+        z.iter()
+            .map(|zk| {
+                let e = zk - self.reference;
+                w[1] * e[1] * e[1] + w[2] * e[2] * e[2] + w[3] * e[3] * e[3]
+            })
+            .sum()
+    }
+
+    /// J = Φ1(Δ) + Φ2(α) + Φ3(Z).
+    pub(crate) fn cost(
+        &self,
+        s: &PlannerSettings,
+        delta: &[f64],
+        accel: &[f64],
+        z: &[State],
+    ) -> f64 {
+        input_cost(delta, self.delta_box.prev, s.w_delta, s.w_ddelta)
+            + input_cost(accel, self.accel_box.prev, s.w_a, s.w_da)
+            + self.tracking_cost(z)
+    }
+
+    /// States in this frame → (x, y, ψ, v) in the road frame.
+    pub(crate) fn to_world(&self, z: &[State]) -> Vec<[f64; 4]> {
+        z.iter()
+            .map(|s| [s[0] + self.origin[0], s[1] + self.origin[1], s[2], s[3]])
+            .collect()
+    }
+
+    /// `z` clamped into the state bounds.
+    pub(crate) fn clamp(&self, z: &State) -> State {
+        z.sup(&self.lower).inf(&self.upper)
+    }
+
+    /// Z⁺ = Π(Z − η·d) into `out`, Π clamping into the state bounds.
+    pub(crate) fn project_step(
+        &self,
+        z: &[State],
+        direction: &[State],
+        eta: f64,
+        out: &mut [State],
+    ) {
+        for ((o, zk), dk) in out.iter_mut().zip(z).zip(direction) {
+            *o = self.clamp(&(zk - eta * dk));
+        }
+    }
+}
+
+/// Lateral band (relative to `y0`, m) the ego's centre must stay in: the road less half the
+/// ego's width and `edge_margin`, collapsed to its middle when too narrow, widened to include
+/// the ego's current position (data noise can put it slightly outside).
+fn lateral_band(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (f64, f64) {
+    let half_width = 0.5 * p.sizes[0][1] + s.edge_margin;
+    let mut low = p.road[0] + half_width - y0;
+    let mut high = p.road[1] - half_width - y0;
+    if low > high {
+        let mid = 0.5 * (low + high);
+        low = mid;
+        high = mid;
+    }
+    (low.min(0.0), high.max(0.0))
+}
+
+/// Φ1 or Φ2 of an input sequence: w Σu² + w_d Σ(u_k − u_{k−1})², u_{−1} = `prev`.
+pub(crate) fn input_cost(u: &[f64], prev: f64, w: f64, wd: f64) -> f64 {
+    let mut p = prev;
+    let mut c = 0.0;
+    for &x in u {
+        c += w * x * x + wd * (x - p) * (x - p);
+        p = x;
+    }
+    c
+}
+
+/// Hessian (`[t, t]` row-major) of w Σu² + w_d Σ(u_k − u_{k−1})², plus `extra` on the
+/// diagonal.
+pub(crate) fn input_hessian(t: usize, w: f64, wd: f64, extra: &[f64]) -> Vec<f64> {
+    let mut p = vec![0.0; t * t];
+    for k in 0..t {
+        let dd = 1.0 + if k + 1 < t { 1.0 } else { 0.0 };
+        p[k * t + k] = 2.0 * (w + wd * dd) + extra[k];
+        if k + 1 < t {
+            p[k * t + k + 1] = -2.0 * wd;
+            p[(k + 1) * t + k] = -2.0 * wd;
+        }
+    }
+    p
+}

@@ -1,0 +1,425 @@
+//! The ADMM MPC of the paper's Algorithm 1. One call of [`Planner::plan`] is
+//!
+//! 1. **set-up** ([`linearised`]): the nominal trajectory (the shifted previous plan), the
+//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), and a
+//!    workspace allocated once for the call ([`workspace`]);
+//! 2. **the ADMM loop**, until ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change or `max_iter`:
+//!    the Δ-update and α-update (box/rate QPs solved by Clarabel, [`inputs`]), the Z-update
+//!    (projected descent whose every trial point is checked by the predictor,
+//!    [`z_update`], with feasibility restoration from an unsafe Z, [`restoration`]), and the
+//!    dual update μ ← μ + ρF;
+//! 3. **the execution check** ([`repair`]): the nonlinear roll-out of (Δ, α) is checked by
+//!    the predictor and repaired (backtracking, then simple fallbacks) when unsafe; a QP
+//!    failure goes straight to the fallbacks.
+//!
+//! The solution warm-starts the next call. [`Planner::reference_qp`] solves the same
+//! linearised problem as one joint QP ([`reference`]).
+
+mod constraint;
+mod inputs;
+mod linearised;
+mod problem;
+mod reference;
+mod repair;
+mod restoration;
+mod workspace;
+mod z_update;
+
+#[cfg(test)]
+mod tests;
+
+use std::time::Instant;
+
+use nudge_predictor::Predictor;
+
+use crate::error::PlannerError;
+use crate::model::{Bicycle, State};
+use crate::qp::QpFailure;
+use crate::settings::PlannerSettings;
+
+pub use constraint::{CheckedVehicle, SafetyConstraint};
+pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
+pub use reference::JointSolution;
+
+use constraint::SafetyEval;
+use inputs::Input;
+use inputs::InputQps;
+use linearised::{LinearisedProblem, WarmStart};
+use repair::{Candidate, Rank, Repairer};
+use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
+
+/// The ADMM MPC planner of the paper's Algorithm 1. One call of [`Planner::plan`] is
+///
+/// 1. **set-up**: the nominal trajectory (the shifted previous plan, constant velocity on a
+///    cold start), the dynamics linearised around it, the input and state bounds, the
+///    vehicles the safety constraint checks ([`SafetyConstraint`]), and a workspace allocated
+///    once for the call;
+/// 2. **the ADMM loop**, until ‖F‖∞ ≤ `eps_primal` and ‖Z − Z_prev‖∞ ≤ `eps_change` or
+///    `max_iter`: the Δ-update and the α-update (box/rate QPs solved by Clarabel), the
+///    Z-update (projected descent on G whose every trial point is checked by the predictor;
+///    feasibility restoration from an unsafe Z), the dual update μ ← μ + ρF;
+/// 3. **the execution check**: the nonlinear roll-out of (Δ, α) is checked by the predictor
+///    and repaired when unsafe ([`PlanStatus::Backtracked`], [`PlanStatus::Fallback`]); a QP
+///    failure goes straight to the fallbacks ([`PlanStatus::SolverFailed`]).
+///
+/// Keeps the solution to warm-start the next call; call [`Planner::reset`] between
+/// unrelated runs. [`Planner::reference_qp`] solves the same linearised problem as one joint
+/// QP.
+#[derive(Debug, Clone)]
+pub struct Planner {
+    settings: PlannerSettings,
+    model: Bicycle,
+    warm: Option<WarmStart>,
+}
+
+/// Why the ADMM loop stopped.
+#[derive(Debug, Clone, PartialEq)]
+enum Stop {
+    /// ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change.
+    Converged,
+    /// `max_iter` iterations.
+    MaxIterations,
+    /// A QP gave no usable solution.
+    SolverFailed(QpFailure),
+}
+
+/// What the ADMM loop hands to the execution check.
+struct AdmmResult {
+    iterates: Iterates,
+    /// Minimum b of Z.
+    min_b: Option<f64>,
+    iterations: usize,
+    change_residual: f64,
+    qp_solves: usize,
+    stop: Stop,
+}
+
+/// The plan after the execution check, in the call's frame.
+struct Finished {
+    delta: Vec<f64>,
+    accel: Vec<f64>,
+    z: Vec<State>,
+    duals: Vec<State>,
+    min_b: Option<f64>,
+    rollout_min_b: Option<f64>,
+    status: PlanStatus,
+    iterations: usize,
+    change_residual: f64,
+    qp_solves: usize,
+}
+
+impl Planner {
+    /// A planner with validated settings.
+    ///
+    /// # Errors
+    /// [`PlannerError::Settings`] when `settings.validate()` fails.
+    pub fn new(settings: PlannerSettings) -> Result<Self, PlannerError> {
+        settings.validate()?;
+        let model = Bicycle {
+            l_f: settings.l_f,
+            l_r: settings.l_r,
+            dt: settings.dt,
+        };
+        Ok(Self {
+            settings,
+            model,
+            warm: None,
+        })
+    }
+
+    /// The settings in use.
+    #[must_use]
+    pub fn settings(&self) -> &PlannerSettings {
+        &self.settings
+    }
+
+    /// The bicycle model in use.
+    #[must_use]
+    pub fn model(&self) -> &Bicycle {
+        &self.model
+    }
+
+    /// Forgets the warm start (the next call starts from a constant-velocity roll-out).
+    pub fn reset(&mut self) {
+        self.warm = None;
+    }
+
+    /// Solves one MPC call (Algorithm 1) and stores the solution as the next warm start.
+    ///
+    /// `problem` holds the measured ego state, the history `[n, 8, 2]` and sizes `[n]` of
+    /// every vehicle (agent 0 = ego), the lateral target and the road; `predictor` (horizon
+    /// T = `settings.horizon`) predicts the other vehicles for every trial trajectory.
+    /// Returns inputs `[T]`, states `[T]` (road frame) and how the call ended
+    /// ([`Plan::status`]); a Clarabel failure is not an error but the status
+    /// [`PlanStatus::SolverFailed`] with a checked fallback plan.
+    ///
+    /// # Errors
+    /// [`PlannerError::BadProblem`] for a malformed problem, [`PlannerError::HorizonMismatch`]
+    /// when the predictor's horizon differs, [`PlannerError::Predictor`] when the predictor
+    /// rejects the scene or a candidate.
+    ///
+    /// # Examples
+    ///
+    /// A lane change to the left lane (y = 3.7 m) on a straight two-lane road with a slower car
+    /// ahead, planned with the constant-velocity predictor:
+    ///
+    /// ```
+    /// use nudge_planner::{EgoState, PlanStatus, Planner, PlannerSettings, PlanningProblem};
+    /// use nudge_predictor::{ConstantVelocity, History, T_OBS};
+    ///
+    /// // Ego at (0, 0) and a car 15 m ahead, both observed for T_OBS steps of 0.3 s.
+    /// let mut positions = Vec::new();
+    /// for (x0, y, v) in [(0.0, 0.0, 12.0), (15.0, 0.0, 9.0)] {
+    ///     for t in 0..T_OBS {
+    ///         positions.extend([x0 - v * 0.3 * (T_OBS - 1 - t) as f64, y]);
+    ///     }
+    /// }
+    /// let history = History::new(positions, 2)?;
+    /// let sizes = [[4.5, 1.9], [4.5, 1.9]];
+    /// let problem = PlanningProblem {
+    ///     ego: EgoState { x: 0.0, y: 0.0, psi: 0.0, v: 12.0 },
+    ///     last_delta: 0.0,
+    ///     last_accel: 0.0,
+    ///     history: &history,
+    ///     sizes: &sizes,
+    ///     y_target: 3.7,
+    ///     v_ref: 12.0,
+    ///     road: [-1.85, 5.55],
+    /// };
+    /// let mut planner = Planner::new(PlannerSettings::default())?;
+    /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6))?;
+    /// assert_eq!(plan.states.len(), 6);
+    /// assert!(plan.states[5][1] > 0.0, "the ego moves towards the left lane");
+    /// assert!(plan.min_safety.is_some_and(|b| b > 0.0) && plan.status != PlanStatus::Unsafe);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn plan(
+        &mut self,
+        problem: &PlanningProblem<'_>,
+        predictor: &mut dyn Predictor,
+    ) -> Result<Plan, PlannerError> {
+        let start = Instant::now();
+        self.check(problem, predictor)?;
+        let s = &self.settings;
+        // Set-up: the linearised problem, the checked vehicles, the workspace.
+        let lp = LinearisedProblem::new(s, &self.model, self.warm.as_ref(), problem);
+        let constraint = SafetyConstraint::new(problem, s);
+        if !constraint.vehicles().is_empty() {
+            predictor.set_scene(problem.history)?;
+        }
+        let n_agents = problem.history.n_agents();
+        let threshold = s.safety_min + s.plan_buffer;
+        let mut safety = SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, threshold);
+        let mut timings = PhaseTimings::default();
+        let iterates = Iterates::start(&lp);
+        let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);
+        let mut ws = Workspace::new(s, &lp, iterates, current);
+        let admm = match InputQps::new(s, &lp) {
+            // ADMM: loop {Δ-update; α-update; Z-update; dual update}.
+            Ok(mut qps) => {
+                let mut stop = Stop::MaxIterations;
+                let mut iterations = 0;
+                for iteration in 0..s.max_iter {
+                    iterations = iteration + 1;
+                    let (delta_s, alpha_s) = (&mut timings.delta_s, &mut timings.alpha_s);
+                    let inputs = qps
+                        .update(Input::Steering, s, &lp, &mut ws, iteration, delta_s)
+                        .and_then(|()| {
+                            qps.update(Input::Acceleration, s, &lp, &mut ws, iteration, alpha_s)
+                        });
+                    if let Err(failure) = inputs {
+                        stop = Stop::SolverFailed(failure);
+                        break;
+                    }
+                    ws.update_z(s, &lp, &mut safety, predictor, &mut timings)?;
+                    if ws.update_duals(s, &lp) {
+                        stop = Stop::Converged;
+                        break;
+                    }
+                }
+                AdmmResult::new(ws, stop, iterations, qps.solves())
+            }
+            Err(failure) => AdmmResult::new(ws, Stop::SolverFailed(failure), 0, 0),
+        };
+        // Execution check: the roll-out of (Δ, α), repaired when unsafe.
+        let mut repairer = Repairer {
+            s,
+            model: &self.model,
+            lp: &lp,
+            safety: &mut safety,
+            predictor,
+        };
+        let finished = check_execution(&mut repairer, admm)?;
+        let counts = (safety.calls, constraint.vehicles().len());
+        let (mut plan, warm) = finished.into_plan(s, &lp, counts, timings);
+        self.warm = Some(warm);
+        plan.timings.total_s = start.elapsed().as_secs_f64();
+        Ok(plan)
+    }
+
+    /// Checks the problem and the predictor's horizon.
+    fn check(
+        &self,
+        problem: &PlanningProblem<'_>,
+        predictor: &dyn Predictor,
+    ) -> Result<(), PlannerError> {
+        problem.check()?;
+        if predictor.horizon() != self.settings.horizon {
+            return Err(PlannerError::HorizonMismatch {
+                predictor: predictor.horizon(),
+                planner: self.settings.horizon,
+            });
+        }
+        Ok(())
+    }
+
+    /// Solves the linearised problem this planner's next [`Planner::plan`] call would set up
+    /// (same nominal, same warm start) as ONE Clarabel QP in (Δ, α, Z), without the safety
+    /// constraint. With no vehicle in range, ADMM converges to this solution.
+    ///
+    /// # Errors
+    /// As [`Planner::plan`] for a malformed problem; [`PlannerError::QpSetup`] /
+    /// [`PlannerError::QpFailed`] (QP `joint`) when Clarabel does not solve it.
+    pub fn reference_qp(
+        &self,
+        problem: &PlanningProblem<'_>,
+    ) -> Result<JointSolution, PlannerError> {
+        problem.check()?;
+        let lp = LinearisedProblem::new(&self.settings, &self.model, self.warm.as_ref(), problem);
+        reference::solve_joint(&self.settings, &lp)
+    }
+}
+
+impl AdmmResult {
+    /// The workspace's iterates after the loop stopped.
+    fn new(ws: Workspace, stop: Stop, iterations: usize, qp_solves: usize) -> Self {
+        Self {
+            min_b: ws.current.min_b,
+            iterations,
+            change_residual: ws.change,
+            qp_solves,
+            iterates: ws.iterates,
+            stop,
+        }
+    }
+}
+
+/// The execution check of the ADMM result (see [`repair`]): status `Unsafe` when Z is unsafe;
+/// when the roll-out of (Δ, α) is unsafe (and `rollout_check` is on), the first safe
+/// backtracking step, else the best fallback if it beats the roll-out; after a QP failure, the
+/// best fallback with status [`PlanStatus::SolverFailed`].
+fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finished, PlannerError> {
+    let s = r.s;
+    let Iterates {
+        delta,
+        accel,
+        z,
+        duals,
+    } = admm.iterates;
+    let counts = (admm.iterations, admm.change_residual, admm.qp_solves);
+    let mut status = match admm.stop {
+        Stop::SolverFailed(failure) => {
+            let c = r.best_fallback()?;
+            let status = PlanStatus::SolverFailed {
+                qp: failure.qp,
+                status: failure.status,
+            };
+            let zeros = vec![State::zeros(); duals.len()];
+            return Ok(Finished::adopt(c, zeros, status, counts));
+        }
+        Stop::Converged => PlanStatus::Converged,
+        Stop::MaxIterations => PlanStatus::MaxIterations,
+    };
+    if !admm.min_b.is_none_or(|b| b > s.safety_min) {
+        status = PlanStatus::Unsafe;
+    }
+    let rollout = r.check(delta.clone(), accel.clone())?;
+    if s.rollout_check && !rollout.rank.safe {
+        let repaired = match r.backtrack(&delta, &accel)? {
+            Some(c) => Some((c, PlanStatus::Backtracked)),
+            None => {
+                let c = r.best_fallback()?;
+                let current = Rank {
+                    safe: false,
+                    value: rollout.rank.value,
+                };
+                c.rank.beats(&current).then_some((c, PlanStatus::Fallback))
+            }
+        };
+        if let Some((c, status)) = repaired {
+            return Ok(Finished::adopt(c, duals, status, counts));
+        }
+    }
+    Ok(Finished {
+        delta,
+        accel,
+        z,
+        duals,
+        min_b: admm.min_b,
+        rollout_min_b: rollout.min_b,
+        status,
+        iterations: counts.0,
+        change_residual: counts.1,
+        qp_solves: counts.2,
+    })
+}
+
+impl Finished {
+    /// A repaired plan: the candidate's inputs and roll-out; `counts` = (iterations, change
+    /// residual, QP solves) of the ADMM loop.
+    fn adopt(
+        c: Candidate,
+        duals: Vec<State>,
+        status: PlanStatus,
+        counts: (usize, f64, usize),
+    ) -> Self {
+        Self {
+            delta: c.delta,
+            accel: c.accel,
+            z: c.rollout,
+            duals,
+            min_b: c.min_b,
+            rollout_min_b: c.min_b,
+            status,
+            iterations: counts.0,
+            change_residual: counts.1,
+            qp_solves: counts.2,
+        }
+    }
+
+    /// The plan in the road frame and the next call's warm start; `counts` = (predictor
+    /// calls, checked vehicles).
+    fn into_plan(
+        self,
+        s: &PlannerSettings,
+        lp: &LinearisedProblem,
+        counts: (usize, usize),
+        timings: PhaseTimings,
+    ) -> (Plan, WarmStart) {
+        let mut residual = vec![State::zeros(); lp.horizon];
+        lp.linearisation
+            .residual(&self.delta, &self.accel, &self.z, &mut residual);
+        let plan = Plan {
+            states: lp.to_world(&self.z),
+            cost: lp.cost(s, &self.delta, &self.accel, &self.z),
+            primal_residual: max_abs(&residual),
+            delta: self.delta.clone(),
+            accel: self.accel.clone(),
+            iterations: self.iterations,
+            predictor_calls: counts.0,
+            qp_solves: self.qp_solves,
+            change_residual: self.change_residual,
+            min_safety: self.min_b,
+            rollout_min_safety: self.rollout_min_b,
+            checked: counts.1,
+            timings,
+            status: self.status,
+        };
+        let warm = WarmStart {
+            delta: self.delta,
+            accel: self.accel,
+            duals: self.duals,
+        };
+        (plan, warm)
+    }
+}

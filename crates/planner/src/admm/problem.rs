@@ -1,0 +1,299 @@
+//! What one MPC call is given ([`PlanningProblem`], [`EgoState`]) and what it returns
+//! ([`Plan`], [`PlanStatus`], [`PhaseTimings`]), with the checks a problem must pass.
+
+use nudge_predictor::{History, T_OBS};
+use serde::{Deserialize, Serialize};
+
+use crate::error::PlannerError;
+use crate::qp::{QpName, QpStatus};
+use crate::scenario::Scenario;
+
+/// The ego's measured state in the road frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EgoState {
+    /// Longitudinal position of the centre of gravity (m).
+    pub x: f64,
+    /// Lateral position (m, positive left).
+    pub y: f64,
+    /// Heading (rad, 0 = along the road, positive left).
+    pub psi: f64,
+    /// Speed (m/s).
+    pub v: f64,
+}
+
+/// Everything one MPC call needs besides the settings and the predictor.
+#[derive(Debug, Clone, Copy)]
+pub struct PlanningProblem<'a> {
+    /// The ego's current state.
+    pub ego: EgoState,
+    /// Steering applied at the previous step δ_{−1} (rad).
+    pub last_delta: f64,
+    /// Acceleration applied at the previous step a_{−1} (m/s²).
+    pub last_accel: f64,
+    /// Observed positions `[n, T_OBS, 2]` (m), agent 0 = ego (its last entry should be the
+    /// ego's current position).
+    pub history: &'a History,
+    /// Vehicle sizes `[n]` of (length, width) (m), agent 0 = ego.
+    pub sizes: &'a [[f64; 2]],
+    /// Lateral target y (m): the target lane's centre.
+    pub y_target: f64,
+    /// Reference speed (m/s).
+    pub v_ref: f64,
+    /// Road edges (right, left) as lateral y (m), right < left.
+    pub road: [f64; 2],
+}
+
+impl<'a> PlanningProblem<'a> {
+    /// The problem at the last observed step of scenario `sc` (the closed loop's first step):
+    /// the ego's observed position, heading and speed (the speed also the reference), no
+    /// previous inputs, `history` (the scenario's, `[n, T_OBS, 2]`), lateral target
+    /// `y_target` (m).
+    #[must_use]
+    pub fn at_scenario_start(sc: &'a Scenario, history: &'a History, y_target: f64) -> Self {
+        let p = sc.position(0, T_OBS - 1);
+        Self {
+            ego: EgoState {
+                x: p[0],
+                y: p[1],
+                psi: sc.heading[0],
+                v: sc.speed[0].max(0.0),
+            },
+            last_delta: 0.0,
+            last_accel: 0.0,
+            history,
+            sizes: &sc.size,
+            y_target,
+            v_ref: sc.speed[0],
+            road: sc.road(),
+        }
+    }
+}
+
+impl PlanningProblem<'_> {
+    /// Checks that the problem can be planned: finite numbers, a non-negative speed, a heading
+    /// within ±π/2 of the road, an ordered road, one positive size per agent.
+    ///
+    /// # Errors
+    /// [`PlannerError::BadProblem`] naming the first offending field.
+    pub fn check(&self) -> Result<(), PlannerError> {
+        let bad =
+            |field: &'static str, reason: String| Err(PlannerError::BadProblem { field, reason });
+        let e = self.ego;
+        for (field, v) in [
+            ("ego.x", e.x),
+            ("ego.y", e.y),
+            ("ego.psi", e.psi),
+            ("ego.v", e.v),
+            ("last_delta", self.last_delta),
+            ("last_accel", self.last_accel),
+            ("y_target", self.y_target),
+            ("v_ref", self.v_ref),
+            ("road", self.road[0]),
+            ("road", self.road[1]),
+        ] {
+            if !v.is_finite() {
+                return bad(field, format!("non-finite value {v}"));
+            }
+        }
+        if e.v < 0.0 {
+            return bad("ego.v", format!("negative speed {}", e.v));
+        }
+        if e.psi.abs() > std::f64::consts::FRAC_PI_2 {
+            return bad(
+                "ego.psi",
+                format!("heading {} rad points off the road", e.psi),
+            );
+        }
+        if self.road[0] >= self.road[1] {
+            return bad(
+                "road",
+                format!(
+                    "right edge {} is not below left edge {}",
+                    self.road[0], self.road[1]
+                ),
+            );
+        }
+        let n = self.history.n_agents();
+        if self.sizes.len() != n {
+            return bad(
+                "sizes",
+                format!("{} sizes for {n} agents", self.sizes.len()),
+            );
+        }
+        for (i, s) in self.sizes.iter().enumerate() {
+            if !(s[0].is_finite() && s[1].is_finite() && s[0] > 0.0 && s[1] > 0.0) {
+                return bad("sizes", format!("agent {i} has size {s:?}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How an MPC call ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum PlanStatus {
+    /// ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change; Z is safe. The roll-out of (Δ, α)
+    /// is safe too unless no repair was less violating ([`Plan::rollout_min_safety`] says).
+    Converged,
+    /// `max_iter` reached; Z is safe (every accepted Z is); its roll-out as for `Converged`.
+    MaxIterations,
+    /// The states could not be made safe (feasibility restoration failed); the plan is the
+    /// least-violating one found.
+    Unsafe,
+    /// The roll-out of the ADMM inputs was unsafe (Z sat on the constraint boundary, or ADMM
+    /// stopped before F ≈ 0); the plan is the ADMM inputs pulled towards the shifted previous
+    /// plan (by 3/4, 1/2 or 1/4) until the roll-out was safe, and that roll-out.
+    Backtracked,
+    /// The roll-out of the ADMM inputs was unsafe and backtracking did not help; the plan is
+    /// the cheapest safe (else the least-violating) simple input sequence and its roll-out.
+    Fallback,
+    /// A QP of the ADMM (Δ- or α-update) gave no usable solution, also after the
+    /// equilibration-off retry; the ADMM iterates were dropped and the plan is chosen as for
+    /// [`PlanStatus::Fallback`] (the cheapest safe, else the least-violating, simple input
+    /// sequence, checked on its roll-out).
+    SolverFailed {
+        /// The QP that failed.
+        qp: QpName,
+        /// Clarabel's status.
+        status: QpStatus,
+    },
+}
+
+impl PlanStatus {
+    /// The variant's name (`"Converged"`, ..., `"SolverFailed"`), as in records and tables.
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        StepStatus::from(*self).as_str()
+    }
+
+    /// The plan is a repair or a heuristic chosen after the ADMM answer could not be used
+    /// (its roll-out was unsafe, or a QP failed).
+    #[must_use]
+    pub fn is_repaired(&self) -> bool {
+        matches!(
+            self,
+            Self::Backtracked | Self::Fallback | Self::SolverFailed { .. }
+        )
+    }
+}
+
+/// The name of a [`PlanStatus`] without its details, serialised as the name: how the plan
+/// applied at a closed-loop step came about (the records' `status`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum StepStatus {
+    /// ADMM converged; the plan is safe.
+    Converged,
+    /// ADMM reached `max_iter`; the plan is safe.
+    MaxIterations,
+    /// The states could not be made safe.
+    Unsafe,
+    /// The ADMM inputs were pulled towards the previous plan until their roll-out was safe.
+    Backtracked,
+    /// A simple input sequence replaced the ADMM inputs.
+    Fallback,
+    /// A QP failed; a simple input sequence is the plan.
+    SolverFailed,
+}
+
+impl StepStatus {
+    /// Every status, in declaration order.
+    pub const ALL: [Self; 6] = [
+        Self::Converged,
+        Self::MaxIterations,
+        Self::Unsafe,
+        Self::Backtracked,
+        Self::Fallback,
+        Self::SolverFailed,
+    ];
+
+    /// The name, as in records and tables.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Converged => "Converged",
+            Self::MaxIterations => "MaxIterations",
+            Self::Unsafe => "Unsafe",
+            Self::Backtracked => "Backtracked",
+            Self::Fallback => "Fallback",
+            Self::SolverFailed => "SolverFailed",
+        }
+    }
+
+    /// No safe lane-change plan was found (counts towards a lane-change abort).
+    #[must_use]
+    pub fn is_unsafe_plan(self) -> bool {
+        matches!(self, Self::Fallback | Self::Unsafe | Self::SolverFailed)
+    }
+}
+
+impl From<PlanStatus> for StepStatus {
+    fn from(s: PlanStatus) -> Self {
+        match s {
+            PlanStatus::Converged => Self::Converged,
+            PlanStatus::MaxIterations => Self::MaxIterations,
+            PlanStatus::Unsafe => Self::Unsafe,
+            PlanStatus::Backtracked => Self::Backtracked,
+            PlanStatus::Fallback => Self::Fallback,
+            PlanStatus::SolverFailed { .. } => Self::SolverFailed,
+        }
+    }
+}
+
+impl std::fmt::Display for StepStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Wall-clock time of each ADMM phase over one MPC call.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseTimings {
+    /// All Δ-updates (s).
+    pub delta_s: f64,
+    /// All α-updates (s).
+    pub alpha_s: f64,
+    /// All Z-updates (s).
+    pub z_s: f64,
+    /// Each Z-update (s), in order, `[iterations]` (one fewer when a QP failed).
+    pub z_updates_s: Vec<f64>,
+    /// The whole call, set-up included (s).
+    pub total_s: f64,
+}
+
+/// The result of one MPC call.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    /// Steering δ_0..δ_{T−1} (rad), `[T]`.
+    pub delta: Vec<f64>,
+    /// Acceleration a_0..a_{T−1} (m/s²), `[T]`.
+    pub accel: Vec<f64>,
+    /// Planned states z_1..z_T as (x, y, ψ, v) in the road frame (m, m, rad, m/s), `[T]`.
+    pub states: Vec<[f64; 4]>,
+    /// Cost J = Φ1 + Φ2 + Φ3 at the returned (Δ, α, Z).
+    pub cost: f64,
+    /// ADMM iterations run (the failed one included after a QP failure).
+    pub iterations: usize,
+    /// Predictor calls (one candidate each).
+    pub predictor_calls: usize,
+    /// Clarabel solves (retries included).
+    pub qp_solves: usize,
+    /// Final primal residual ‖F(Δ, α, Z)‖∞.
+    pub primal_residual: f64,
+    /// Final change residual ‖Z − Z_prev‖∞ (∞ when no Z-update ran).
+    pub change_residual: f64,
+    /// Minimum b_i over checked vehicles and steps under the predictor's prediction of the
+    /// returned states (`None` when no vehicle is checked).
+    pub min_safety: Option<f64>,
+    /// Minimum b_i under the predictor's prediction of the nonlinear roll-out of the returned
+    /// (Δ, α) from the measured state (what the vehicle will actually do); `None` when no
+    /// vehicle is checked.
+    pub rollout_min_safety: Option<f64>,
+    /// Number of vehicles checked (within `check_range`).
+    pub checked: usize,
+    /// Phase timings.
+    pub timings: PhaseTimings,
+    /// How the call ended.
+    pub status: PlanStatus,
+}

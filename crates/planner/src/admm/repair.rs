@@ -1,0 +1,190 @@
+//! The execution check and its repairs. The vehicle follows the nonlinear roll-out of (Δ, α),
+//! not Z. When ADMM stopped before F ≈ 0 the two differ, and Z tends to sit on the constraint
+//! boundary, so the roll-out can dip below it. Then
+//! 1. [`Repairer::backtrack`]: pull (Δ, α) towards the nominal (the shifted previous plan) by
+//!    θ = 3/4, 1/2, 1/4 and take the first safe roll-out;
+//! 2. else [`Repairer::best_fallback`]: the cheapest safe (else the least-violating) of a few simple
+//!    input sequences: the nominal, steering straight with constant accelerations, and
+//!    [`steer_towards`] the lateral goal with those accelerations.
+//!
+//! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
+
+use nudge_predictor::Predictor;
+
+use crate::error::PlannerError;
+use crate::model::{Bicycle, State};
+use crate::qp::{RateBox, repair_box_rate};
+use crate::settings::PlannerSettings;
+
+use super::constraint::SafetyEval;
+use super::linearised::LinearisedProblem;
+
+/// An input sequence checked on its roll-out.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Candidate {
+    /// Steering `[T]` (rad).
+    pub delta: Vec<f64>,
+    /// Acceleration `[T]` (m/s²).
+    pub accel: Vec<f64>,
+    /// Its roll-out z_1..z_T (call frame).
+    pub rollout: Vec<State>,
+    /// Minimum b of the roll-out (`None` when nothing is checked).
+    pub min_b: Option<f64>,
+    /// How it ranks among fallbacks.
+    pub rank: Rank,
+}
+
+/// A fallback's rank: a safe sequence by its cost J, an unsafe one by its total violation; any
+/// safe one beats every unsafe one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Rank {
+    /// The roll-out is safe (at `safety_min`).
+    pub safe: bool,
+    /// Cost when safe, total violation when not.
+    pub value: f64,
+}
+
+impl Rank {
+    /// Strictly better than `other`.
+    pub(crate) fn beats(&self, other: &Rank) -> bool {
+        match (self.safe, other.safe) {
+            (true, false) => true,
+            (false, true) => false,
+            _ => self.value < other.value,
+        }
+    }
+}
+
+/// The context every repair needs.
+pub(crate) struct Repairer<'a, 'c> {
+    pub s: &'a PlannerSettings,
+    pub model: &'a Bicycle,
+    pub lp: &'a LinearisedProblem,
+    pub safety: &'a mut SafetyEval<'c>,
+    pub predictor: &'a mut dyn Predictor,
+}
+
+impl Repairer<'_, '_> {
+    /// Rolls `delta`, `accel` out from the measured state and checks the roll-out.
+    pub(crate) fn check(
+        &mut self,
+        delta: Vec<f64>,
+        accel: Vec<f64>,
+    ) -> Result<Candidate, PlannerError> {
+        let mut rollout = vec![State::zeros(); self.lp.horizon];
+        self.model
+            .rollout(&self.lp.start, &delta, &accel, &mut rollout);
+        let e = self.safety.eval(self.predictor, &rollout)?;
+        let rank = if e.is_safe(self.s.safety_min) {
+            Rank {
+                safe: true,
+                value: self.lp.cost(self.s, &delta, &accel, &rollout),
+            }
+        } else {
+            Rank {
+                safe: false,
+                value: e.violation,
+            }
+        };
+        Ok(Candidate {
+            delta,
+            accel,
+            rollout,
+            min_b: e.min_b,
+            rank,
+        })
+    }
+
+    /// The first of (Δ, α) pulled towards the nominal by θ = 3/4, 1/2, 1/4 whose roll-out is
+    /// safe.
+    pub(crate) fn backtrack(
+        &mut self,
+        delta: &[f64],
+        accel: &[f64],
+    ) -> Result<Option<Candidate>, PlannerError> {
+        for theta in [0.75, 0.5, 0.25] {
+            let d = towards(delta, &self.lp.nominal_delta, theta, self.lp.delta_box);
+            let a = towards(accel, &self.lp.nominal_accel, theta, self.lp.accel_box);
+            let c = self.check(d, a)?;
+            if c.rank.safe {
+                return Ok(Some(c));
+            }
+        }
+        Ok(None)
+    }
+
+    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`];
+    /// every one is checked.
+    pub(crate) fn best_fallback(&mut self) -> Result<Candidate, PlannerError> {
+        let nominal = (self.lp.nominal_delta.clone(), self.lp.nominal_accel.clone());
+        let mut best = self.check(nominal.0, nominal.1)?;
+        for (d, a) in simple_inputs(self.s, self.model, self.lp) {
+            let c = self.check(d, a)?;
+            if c.rank.beats(&best.rank) {
+                best = c;
+            }
+        }
+        Ok(best)
+    }
+}
+
+/// `nominal + θ·(u − nominal)`, made feasible for `bounds`.
+fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> {
+    let mut out: Vec<f64> = u
+        .iter()
+        .zip(nominal)
+        .map(|(u, n)| n + theta * (u - n))
+        .collect();
+    repair_box_rate(&mut out, bounds);
+    out
+}
+
+/// The simple input sequences of the fallback besides the nominal, in order: for each
+/// constant acceleration 0, a_min/2, a_min, a_max/2 (within the jerk bound), steering straight
+/// (δ → 0 within the rate bound), then [`steer_towards`] the lateral goal.
+pub(crate) fn simple_inputs(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let t = lp.horizon;
+    let mut inputs = Vec::with_capacity(8);
+    let mut straight = vec![0.0; t];
+    repair_box_rate(&mut straight, lp.delta_box);
+    for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
+        let mut a = vec![a_cmd; t];
+        repair_box_rate(&mut a, lp.accel_box);
+        inputs.push((straight.clone(), a.clone()));
+        let d = steer_towards(model, &lp.start, &a, lp.reference[1], lp.delta_box);
+        inputs.push((d, a));
+    }
+    inputs
+}
+
+/// Steering that turns the vehicle towards the lateral goal `y_goal` (m, same frame as
+/// `start`) while it follows `accel` (m/s²): each step aims at the heading
+/// ψ* = clamp(0.05·(y_goal − y), ±0.08) rad and steers to reach it in one step, within the
+/// box and rate bounds.
+pub(crate) fn steer_towards(
+    model: &Bicycle,
+    start: &State,
+    accel: &[f64],
+    y_goal: f64,
+    bounds: RateBox,
+) -> Vec<f64> {
+    let mut z = *start;
+    let mut prev = bounds.prev.clamp(bounds.lo, bounds.hi);
+    let mut out = Vec::with_capacity(accel.len());
+    for a in accel {
+        let heading_goal = (0.05 * (y_goal - z[1])).clamp(-0.08, 0.08);
+        // ψ⁺ − ψ ≈ dt·v·sin β / l_r with β ≈ δ·l_r/(l_f + l_r).
+        let gain = model.dt * z[3].max(1.0) / (model.l_f + model.l_r);
+        let lo = bounds.lo.max(prev - bounds.rate);
+        let hi = bounds.hi.min(prev + bounds.rate);
+        let d = ((heading_goal - z[2]) / gain).clamp(lo, hi);
+        z = model.advance(&z, d, *a);
+        out.push(d);
+        prev = d;
+    }
+    out
+}

@@ -1,0 +1,594 @@
+//! Unit tests that force each branch of the ADMM call (feasibility restoration, descent,
+//! backtracking, fallback, a QP failure) with small custom predictors and crafted problems, and
+//! check what each returns.
+#![allow(clippy::unwrap_used)]
+
+use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
+
+use super::constraint::SafetyEval;
+use super::inputs::{Input, InputQps};
+use super::linearised::LinearisedProblem;
+use super::repair::{Repairer, simple_inputs};
+use super::restoration::restore;
+use super::workspace::{CurrentSafety, Iterates, Workspace, mat_vec};
+use super::z_update::Lagrangian;
+use super::*;
+use crate::qp::{BoxRateQp, QpName, QpStatus, RateBox};
+
+/// (steering, acceleration) sequences.
+type Inputs = (Vec<f64>, Vec<f64>);
+
+/// Ego at (0, y0) with speed v; others `(x, y, speed)`; all driving along +x.
+fn scene(v: f64, y0: f64, others: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
+    let n = 1 + others.len();
+    let mut pos = Vec::with_capacity(n * T_OBS * 2);
+    for &(x, y, s) in std::iter::once(&(0.0, y0, v)).chain(others) {
+        for t in 0..T_OBS {
+            pos.extend([x - s * (T_OBS - 1 - t) as f64 * 0.3, y]);
+        }
+    }
+    (History::new(pos, n).unwrap(), vec![[4.5, 1.9]; n])
+}
+
+/// A lane change from y = 0 to y = 3.7 at `v` on a two-lane road.
+fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem<'a> {
+    PlanningProblem {
+        ego: EgoState {
+            x: 0.0,
+            y: 0.0,
+            psi: 0.0,
+            v,
+        },
+        last_delta: 0.0,
+        last_accel: 0.0,
+        history: h,
+        sizes,
+        y_target: 3.7,
+        v_ref: v,
+        road: [-1.85, 5.55],
+    }
+}
+
+/// Predicts every other agent 200 m ahead of the ego candidate's last position (always safe)
+/// until `strict_from` calls have been made; from then on, it predicts agent 1 on top of the
+/// candidate (b = −1) whenever the candidate's last lateral position exceeds `y_limit`.
+struct Gate {
+    strict_from: usize,
+    y_limit: f64,
+    n_agents: usize,
+    calls: usize,
+}
+
+impl Gate {
+    fn new(strict_from: usize, y_limit: f64) -> Self {
+        Self {
+            strict_from,
+            y_limit,
+            n_agents: 0,
+            calls: 0,
+        }
+    }
+}
+
+impl Predictor for Gate {
+    fn name(&self) -> &'static str {
+        "gate"
+    }
+    fn horizon(&self) -> usize {
+        6
+    }
+    fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
+        self.n_agents = history.n_agents();
+        Ok(())
+    }
+    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+        let blocked = self.calls >= self.strict_from && candidates[11] > self.y_limit;
+        self.calls += 1;
+        for agent in 0..self.n_agents - 1 {
+            for k in 0..6 {
+                let o = (agent * 6 + k) * 2;
+                if blocked && agent == 0 {
+                    out[o] = candidates[2 * k];
+                    out[o + 1] = candidates[2 * k + 1];
+                } else {
+                    out[o] = candidates[10] + 200.0;
+                    out[o + 1] = candidates[2 * k + 1];
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// b of a vehicle predicted 200 m ahead at the same lateral position, as the constraint sizes
+/// it for two road-aligned cars (ψ of the ego's last planned state ignored: |sin ψ| ≈ 0
+/// changes a_x by millimetres, far below what 200 m gives).
+fn far_b_lower_bound(s: &PlannerSettings) -> f64 {
+    let a_x = s.ellipse_scale * (4.5 + 1.9) + s.margin_x;
+    (200.0 / a_x).powi(2) - 1.0
+}
+
+/// The nonlinear roll-out of (δ, a) from the problem's ego state, in the road frame.
+fn rollout_world(
+    s: &PlannerSettings,
+    p: &PlanningProblem<'_>,
+    d: &[f64],
+    a: &[f64],
+) -> Vec<[f64; 4]> {
+    let model = Bicycle {
+        l_f: s.l_f,
+        l_r: s.l_r,
+        dt: s.dt,
+    };
+    let z0 = State::new(p.ego.x, p.ego.y, p.ego.psi, p.ego.v);
+    let mut out = vec![State::zeros(); d.len()];
+    model.rollout(&z0, d, a, &mut out);
+    out.iter().map(|z| [z[0], z[1], z[2], z[3]]).collect()
+}
+
+fn model(s: &PlannerSettings) -> Bicycle {
+    Bicycle {
+        l_f: s.l_f,
+        l_r: s.l_r,
+        dt: s.dt,
+    }
+}
+
+/// A car 40 m behind in the target lane: checked, never in the way.
+fn car_behind_in_target_lane() -> (History, Vec<[f64; 2]>) {
+    scene(12.0, 0.0, &[(-40.0, 3.7, 12.0)])
+}
+
+/// A car 8 m ahead in the ego's lane at half the ego's speed: the constant-velocity nominal
+/// (the ego keeps its lane and speed) runs into it, so the Z-update starts from an unsafe Z.
+fn blocked_start() -> (History, Vec<[f64; 2]>) {
+    scene(12.0, 0.0, &[(8.0, 0.0, 6.0)])
+}
+
+/// Feasibility restoration from an unsafe Z: it moves Z, the violation it reports is the
+/// violation of the new Z (re-evaluated), lower than before, and Z stays within its bounds;
+/// with and without Hessian scaling (Newton + pinned push, or gradient + position push).
+#[test]
+fn restoration_reduces_the_violation_of_an_unsafe_start() {
+    for hessian_scaled in [true, false] {
+        let s = PlannerSettings {
+            hessian_scaled,
+            ..PlannerSettings::default()
+        };
+        let (h, sizes) = blocked_start();
+        let p = problem(&h, &sizes, 12.0);
+        let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+        let constraint = SafetyConstraint::new(&p, &s);
+        assert_eq!(constraint.vehicles().len(), 1);
+        let mut cv = ConstantVelocity::new(6);
+        cv.set_scene(&h).unwrap();
+        let threshold = s.safety_min + s.plan_buffer;
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
+        let iterates = Iterates::start(&lp);
+        let first = safety.eval(&mut cv, &iterates.z).unwrap();
+        assert!(
+            !first.is_safe(threshold) && first.violation > 0.0,
+            "{first:?}"
+        );
+        let current = CurrentSafety::new(first, &safety);
+        let mut ws = Workspace::new(&s, &lp, iterates, current);
+        // The gradient and steps at Z, as the Z-update prepares them.
+        let Workspace {
+            iterates,
+            curvature,
+            scratch,
+            current,
+            ..
+        } = &mut ws;
+        let g = Lagrangian {
+            s: &s,
+            lp: &lp,
+            delta: &iterates.delta,
+            accel: &iterates.accel,
+            duals: &iterates.duals,
+        };
+        g.value(&iterates.z, &mut scratch.residual);
+        g.gradient(
+            &iterates.z,
+            &scratch.residual,
+            &mut scratch.weighted,
+            &mut scratch.gradient,
+        );
+        assert_eq!(curvature.newton.is_some(), hessian_scaled);
+        if let (Some(hn), Some(hp)) = (curvature.newton.as_ref(), curvature.pinned.as_ref()) {
+            mat_vec(hn, &scratch.gradient, &mut scratch.newton_step);
+            mat_vec(hp, &scratch.gradient, &mut scratch.pinned_step);
+        }
+        let before = iterates.z.clone();
+        let moved = restore(
+            &s,
+            &lp,
+            curvature,
+            &mut iterates.z,
+            scratch,
+            current,
+            &mut safety,
+            &mut cv,
+        )
+        .unwrap();
+        assert!(
+            moved,
+            "restoration did not move Z (hessian_scaled {hessian_scaled})"
+        );
+        assert_ne!(iterates.z, before);
+        let again = safety.eval(&mut cv, &iterates.z).unwrap();
+        assert_eq!(again.violation, current.violation);
+        assert_eq!(again.min_b, current.min_b);
+        assert!(
+            current.violation < first.violation,
+            "violation {} not below {}",
+            current.violation,
+            first.violation
+        );
+        for z in &iterates.z {
+            assert!(
+                z[1] >= lp.lower[1] && z[1] <= lp.upper[1] && z[3] >= 0.0,
+                "{z}"
+            );
+        }
+    }
+}
+
+/// Whole Z-updates from the unsafe start: the first restores (the violation falls), and once
+/// safe, descent accepts only safe trials that lower G (so min b stays above the threshold).
+#[test]
+fn z_updates_restore_then_descend_safely() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = blocked_start();
+    let p = problem(&h, &sizes, 12.0);
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let mut cv = ConstantVelocity::new(6);
+    cv.set_scene(&h).unwrap();
+    let threshold = s.safety_min + s.plan_buffer;
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
+    let iterates = Iterates::start(&lp);
+    let first = safety.eval(&mut cv, &iterates.z).unwrap();
+    let mut ws = Workspace::new(&s, &lp, iterates, CurrentSafety::new(first, &safety));
+    let mut qps = InputQps::new(&s, &lp).unwrap();
+    let mut timings = PhaseTimings::default();
+    let mut violations = vec![first.violation];
+    let mut safe_since = None;
+    for it in 0..s.max_iter {
+        let mut t = 0.0;
+        qps.update(Input::Steering, &s, &lp, &mut ws, it, &mut t)
+            .unwrap();
+        qps.update(Input::Acceleration, &s, &lp, &mut ws, it, &mut t)
+            .unwrap();
+        ws.update_z(&s, &lp, &mut safety, &mut cv, &mut timings)
+            .unwrap();
+        violations.push(ws.current.violation);
+        let now = safety.eval(&mut cv, &ws.iterates.z).unwrap();
+        assert_eq!(now.min_b, ws.current.min_b, "bookkeeping at iteration {it}");
+        if now.is_safe(threshold) {
+            safe_since.get_or_insert(it);
+        } else {
+            assert!(
+                safe_since.is_none(),
+                "Z unsafe again at iteration {it} after being safe"
+            );
+        }
+        ws.update_duals(&s, &lp);
+    }
+    assert!(
+        violations[1] < violations[0],
+        "the first Z-update did not restore: {violations:?}"
+    );
+    assert!(safe_since.is_some(), "never safe: {violations:?}");
+    assert_eq!(timings.z_updates_s.len(), s.max_iter);
+}
+
+/// The predictor calls of a whole plan with an always-safe [`Gate`].
+fn reference_plan(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Plan {
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let plan = planner.plan(p, &mut Gate::new(usize::MAX, 0.0)).unwrap();
+    assert!(matches!(
+        plan.status,
+        PlanStatus::Converged | PlanStatus::MaxIterations
+    ));
+    assert_eq!(plan.checked, 1);
+    assert!(plan.predictor_calls > 1);
+    assert!(
+        plan.states[5][1] > 0.5,
+        "the lane change barely starts: {:?}",
+        plan.states
+    );
+    plan
+}
+
+/// Lateral position after 6 steps of the reference inputs scaled by θ (cold start: the
+/// nominal is zero, so backtracking towards it scales the inputs).
+fn y_end(s: &PlannerSettings, p: &PlanningProblem<'_>, plan: &Plan, theta: f64) -> f64 {
+    let d: Vec<f64> = plan.delta.iter().map(|d| theta * d).collect();
+    let a: Vec<f64> = plan.accel.iter().map(|a| theta * a).collect();
+    rollout_world(s, p, &d, &a)[5][1]
+}
+
+/// A roll-out that turns unsafe after ADMM (the gate closes for the execution check) and is
+/// safe again with the inputs halved: `Backtracked`, with inputs exactly θ = 1/2 of the ADMM
+/// inputs, the states their roll-out, and min b that of the far vehicle.
+#[test]
+fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = car_behind_in_target_lane();
+    let p = problem(&h, &sizes, 12.0);
+    let admm = reference_plan(&s, &p);
+    let admm_calls = admm.predictor_calls - 1;
+    let limit = 0.5 * (y_end(&s, &p, &admm, 0.75) + y_end(&s, &p, &admm, 0.5));
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let plan = planner.plan(&p, &mut Gate::new(admm_calls, limit)).unwrap();
+    assert_eq!(plan.status, PlanStatus::Backtracked);
+    let half: Vec<f64> = admm.delta.iter().map(|d| 0.5 * d).collect();
+    let half_a: Vec<f64> = admm.accel.iter().map(|a| 0.5 * a).collect();
+    assert_eq!(plan.delta, half);
+    assert_eq!(plan.accel, half_a);
+    assert_eq!(plan.states, rollout_world(&s, &p, &half, &half_a));
+    // The roll-out check, θ = 3/4 (unsafe), θ = 1/2 (safe).
+    assert_eq!(plan.predictor_calls, admm_calls + 3);
+    let b = plan.min_safety.unwrap();
+    assert!(b > far_b_lower_bound(&s) * 0.99, "min b {b}");
+    assert_eq!(plan.rollout_min_safety, plan.min_safety);
+    assert_eq!(plan.iterations, admm.iterations);
+}
+
+/// A gate so tight that no backtracking step passes: `Fallback`, with the cheapest safe simple
+/// sequence (safe = ending below the gate), checked on its roll-out.
+#[test]
+fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = car_behind_in_target_lane();
+    let p = problem(&h, &sizes, 12.0);
+    let admm = reference_plan(&s, &p);
+    let admm_calls = admm.predictor_calls - 1;
+    let limit = 0.5 * y_end(&s, &p, &admm, 0.25);
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let plan = planner.plan(&p, &mut Gate::new(admm_calls, limit)).unwrap();
+    assert_eq!(plan.status, PlanStatus::Fallback);
+    // Independent choice: every candidate rolled out; safe iff it ends below the gate; the
+    // cheapest safe one by J (the nominal is zero on a cold start).
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let mut candidates = vec![(vec![0.0; 6], vec![0.0; 6])];
+    candidates.extend(simple_inputs(&s, &model(&s), &lp));
+    let mut best: Option<(f64, &Inputs)> = None;
+    for c in &candidates {
+        let states = rollout_world(&s, &p, &c.0, &c.1);
+        if states[5][1] > limit {
+            continue;
+        }
+        let local: Vec<State> = states
+            .iter()
+            .map(|z| State::new(z[0], z[1], z[2], z[3]))
+            .collect();
+        let cost = lp.cost(&s, &c.0, &c.1, &local);
+        if best.is_none_or(|(b, _)| cost < b) {
+            best = Some((cost, c));
+        }
+    }
+    let (cost, (d, a)) = best.unwrap();
+    assert_eq!(&plan.delta, d);
+    assert_eq!(&plan.accel, a);
+    assert_eq!(plan.states, rollout_world(&s, &p, d, a));
+    assert!(
+        (plan.cost - cost).abs() <= 1e-9 * cost.max(1.0),
+        "{} vs {cost}",
+        plan.cost
+    );
+    assert!(plan.states[5][1] <= limit);
+    // Roll-out check, 3 backtracking steps, the nominal and 8 simple sequences.
+    assert_eq!(plan.predictor_calls, admm_calls + 1 + 3 + 9);
+    assert!(plan.min_safety.unwrap() > 0.0);
+    assert_eq!(plan.rollout_min_safety, plan.min_safety);
+}
+
+/// The repairs alone: backtracking returns the first safe pull towards the nominal, the
+/// fallback the best by rank, both checked on their roll-outs.
+#[test]
+fn repairer_checks_every_candidate_on_its_rollout() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = car_behind_in_target_lane();
+    let p = problem(&h, &sizes, 12.0);
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    // Steering left within the box and rate bounds; the gate closes between where θ = 3/4
+    // and θ = 1/2 of it end.
+    let steer: Vec<f64> = (1..=6)
+        .map(|k| (0.9 * k as f64 * s.ddelta_max).min(0.9 * s.delta_max))
+        .collect();
+    let end = |theta: f64| {
+        let d: Vec<f64> = steer.iter().map(|d| theta * d).collect();
+        rollout_world(&s, &p, &d, &[0.0; 6])[5][1]
+    };
+    let limit = 0.5 * (end(0.75) + end(0.5));
+    assert!(end(1.0) > limit && end(0.5) < limit);
+    let mut gate = Gate::new(0, limit);
+    gate.set_scene(&h).unwrap();
+    let m = model(&s);
+    let mut r = Repairer {
+        s: &s,
+        model: &m,
+        lp: &lp,
+        safety: &mut safety,
+        predictor: &mut gate,
+    };
+    let c = r.check(steer.clone(), vec![0.0; 6]).unwrap();
+    assert!(!c.rank.safe && c.min_b == Some(-1.0), "{:?}", c.min_b);
+    assert!(
+        c.rank.value > 0.0,
+        "an unsafe candidate ranks by its violation"
+    );
+    let back = r.backtrack(&steer, &[0.0; 6]).unwrap().unwrap();
+    let want: Vec<f64> = steer.iter().map(|d| 0.5 * d).collect();
+    assert_eq!(back.delta, want);
+    assert!(back.rank.safe);
+    let mut states = vec![State::zeros(); 6];
+    m.rollout(&lp.start, &back.delta, &back.accel, &mut states);
+    assert_eq!(back.rollout, states);
+    let best = r.best_fallback().unwrap();
+    assert!(best.rank.safe && best.rollout[5][1] <= limit);
+    // No safe candidate is cheaper; the nominal (zero) comes first among them.
+    let mut all = vec![(vec![0.0; 6], vec![0.0; 6])];
+    all.extend(simple_inputs(&s, &m, &lp));
+    for (d, a) in all {
+        let c = r.check(d, a).unwrap();
+        assert_eq!(c.rank.safe, c.rollout[5][1] <= limit);
+        if c.rank.safe {
+            assert!(
+                best.rank.value <= c.rank.value,
+                "{} > {}",
+                best.rank.value,
+                c.rank.value
+            );
+        }
+    }
+}
+
+/// A Clarabel failure of an input QP inside `plan` is a status, not an error: the ADMM
+/// iterates are dropped and the plan is the cheapest safe simple sequence, checked on its
+/// roll-out, with the failing QP named.
+#[test]
+fn qp_failure_ends_in_a_checked_fallback_plan() {
+    // A = 1e308 overflows the α-QP's Hessian to ∞: Clarabel stops with a numerical error.
+    let s = PlannerSettings {
+        w_a: 1e308,
+        ..PlannerSettings::default()
+    };
+    let (h, sizes) = scene(12.0, 0.0, &[(6.0, 3.7, 12.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let mut cv = ConstantVelocity::new(6);
+    let plan = planner.plan(&p, &mut cv).unwrap();
+    match plan.status {
+        PlanStatus::SolverFailed { qp, status } => {
+            assert_eq!(qp, QpName::Alpha);
+            assert!(!matches!(status, QpStatus::Solved | QpStatus::AlmostSolved));
+        }
+        other => panic!("expected SolverFailed, got {other:?}"),
+    }
+    assert_eq!(plan.iterations, 1);
+    assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
+    assert_eq!(plan.rollout_min_safety, plan.min_safety);
+    assert!(
+        plan.min_safety.unwrap() > s.safety_min,
+        "the fallback is safe"
+    );
+    assert!(
+        plan.accel.iter().all(|a| *a == 0.0),
+        "any acceleration costs 1e308"
+    );
+    assert_eq!(plan.checked, 1);
+    // The next call starts from the fallback plan shifted (and fails the same way).
+    let again = planner.plan(&p, &mut cv).unwrap();
+    assert!(matches!(again.status, PlanStatus::SolverFailed { .. }));
+}
+
+/// The input QP reports a failure with its name and iteration.
+#[test]
+fn input_qp_failure_names_the_qp_and_iteration() {
+    let bounds = RateBox {
+        lo: -0.1,
+        hi: 0.1,
+        rate: 0.05,
+        prev: 0.0,
+    };
+    let hessian = vec![f64::NAN; 9];
+    let failure = match BoxRateQp::new(QpName::Delta, &hessian, 3, bounds) {
+        Err(f) => f,
+        Ok(mut qp) => qp.solve(&[0.0; 3], &mut [0.0; 3], 7).unwrap_err(),
+    };
+    assert_eq!(failure.qp, QpName::Delta);
+    assert!(failure.iteration == 7 || failure.status == QpStatus::Setup);
+    assert!(!matches!(
+        failure.status,
+        QpStatus::Solved | QpStatus::AlmostSolved
+    ));
+}
+
+/// Predicts fixed positions at step 1 (`[n − 1]`) and every agent 500 m away afterwards.
+struct StepOne(Vec<[f64; 2]>);
+
+impl Predictor for StepOne {
+    fn name(&self) -> &'static str {
+        "step_one"
+    }
+    fn horizon(&self) -> usize {
+        6
+    }
+    fn set_scene(&mut self, _: &History) -> nudge_predictor::Result<()> {
+        Ok(())
+    }
+    fn predict(&mut self, _: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+        for (agent, p) in self.0.iter().enumerate() {
+            for k in 0..6 {
+                let o = (agent * 6 + k) * 2;
+                let far = if k == 0 { 0.0 } else { 500.0 };
+                out[o] = p[0] + far;
+                out[o + 1] = p[1];
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The simulator's `executed_min_b` is the constraint the planner evaluates at step 1 of a
+/// candidate equal to the executed motion: the same value, bit for bit, for vehicles that
+/// moved forward (heading from their motion) and one that stood still (its last observed
+/// heading); vehicles out of range are not checked.
+#[test]
+fn executed_min_b_is_the_planners_step_one_constraint() {
+    let s = PlannerSettings::default();
+    // A car ahead drifting left, a car beside that stopped, one out of range.
+    let (h, sizes) = scene(
+        12.0,
+        0.0,
+        &[(10.0, 3.5, 11.0), (-3.0, -3.6, 0.0), (90.0, 0.0, 12.0)],
+    );
+    let p = problem(&h, &sizes, 12.0);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let checked: Vec<usize> = constraint.vehicles().iter().map(|v| v.index).collect();
+    assert_eq!(checked, [1, 2]);
+    let moved = vec![[13.4, 3.2], [-3.0, -3.6], [93.6, 0.0]];
+    let ego_next = [3.6, 0.05, 0.03];
+    let mut positions = vec![[ego_next[0], ego_next[1]]];
+    positions.extend_from_slice(&moved);
+    let executed = constraint.executed_min_b(ego_next, &positions).unwrap();
+    // The planner's evaluation of a candidate whose first state is the executed one.
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety_min);
+    let mut z = vec![State::new(-1000.0, 0.0, 0.0, 12.0); 6];
+    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], 12.0);
+    let planned = safety.eval(&mut StepOne(moved), &z).unwrap().min_b.unwrap();
+    assert_eq!(executed.to_bits(), planned.to_bits());
+    // Independent geometry: ellipses at the headings in radians (the moving car's from its
+    // displacement, the stopped car's 0), equal up to the trigonometry's rounding.
+    let b = |other: [f64; 2], heading: f64| {
+        crate::Ellipse::with_headings(
+            sizes[0],
+            ego_next[2],
+            [4.5, 1.9],
+            heading,
+            s.ellipse_scale,
+            s.margin_x,
+            s.margin_y,
+        )
+        .value([ego_next[0], ego_next[1]], other)
+    };
+    let want = b(positions[1], (-0.3f64).atan2(3.4)).min(b(positions[2], 0.0));
+    assert!((executed - want).abs() < 1e-12, "{executed} vs {want}");
+    assert_eq!(
+        SafetyConstraint::new(
+            &problem(&h, &sizes[..], 12.0),
+            &PlannerSettings {
+                check_range: 1.0,
+                ..s
+            }
+        )
+        .executed_min_b(ego_next, &positions),
+        None
+    );
+}

@@ -1,0 +1,201 @@
+//! The Z-update: projected descent on G(Z) = Φ3(Z) + μᵀF + ρ/2‖F‖² whose every trial point is
+//! checked by the predictor. From a safe Z it accepts the first safe trial that lowers G
+//! ([`Trial`] kinds in order, step halvings within a kind); from an unsafe Z it runs the
+//! feasibility restoration of [`super::restoration`].
+
+use std::time::Instant;
+
+use nudge_predictor::Predictor;
+
+use crate::error::PlannerError;
+use crate::model::State;
+use crate::settings::PlannerSettings;
+
+use super::constraint::SafetyEval;
+use super::linearised::LinearisedProblem;
+use super::problem::PhaseTimings;
+use super::restoration::restore;
+use super::workspace::{CurrentSafety, Curvature, Scratch, Workspace, mat_vec, max_diff};
+
+/// The augmented Lagrangian as a function of Z, the inputs and duals fixed.
+pub(crate) struct Lagrangian<'a> {
+    pub s: &'a PlannerSettings,
+    pub lp: &'a LinearisedProblem,
+    pub delta: &'a [f64],
+    pub accel: &'a [f64],
+    pub duals: &'a [State],
+}
+
+impl Lagrangian<'_> {
+    /// G(Z); leaves F(Δ, α, Z) in `residual`.
+    pub(crate) fn value(&self, z: &[State], residual: &mut [State]) -> f64 {
+        self.lp
+            .linearisation
+            .residual(self.delta, self.accel, z, residual);
+        let mut g = self.lp.tracking_cost(z);
+        for (mu, f) in self.duals.iter().zip(residual.iter()) {
+            g += mu.dot(f) + 0.5 * self.s.rho * f.norm_squared();
+        }
+        g
+    }
+
+    /// ∇G = 2W(Z − Z_ref) + Cᵀ(μ + ρF) into `gradient`, F = `residual` (at `z`), using
+    /// `weighted` as scratch.
+    pub(crate) fn gradient(
+        &self,
+        z: &[State],
+        residual: &[State],
+        weighted: &mut [State],
+        gradient: &mut [State],
+    ) {
+        for ((w, mu), f) in weighted.iter_mut().zip(self.duals).zip(residual) {
+            *w = mu + self.s.rho * f;
+        }
+        self.lp.linearisation.apply_ct(weighted, gradient);
+        for (g, zk) in gradient.iter_mut().zip(z) {
+            let e = zk - self.lp.reference;
+            *g += 2.0 * self.lp.weights.component_mul(&e);
+        }
+    }
+}
+
+/// A kind of trial direction d of the descent from a safe Z (Z⁺ = Π(Z − η·d)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Trial {
+    /// d = H⁻¹∇G with η = 1, 1/2, ...: η = 1 is G's exact minimiser when no bound is active.
+    Newton,
+    /// d = H_pin⁻¹∇G with η = 1 only: minimises G while holding the positions near the current
+    /// (safe) ones, so that ψ and v become consistent with them.
+    PinnedNewton,
+    /// d = ∇G with η = 1/L, 1/(2L), ... (when Hessian scaling is off).
+    Gradient,
+}
+
+impl Trial {
+    /// The kinds tried in order: the Newton pair with Hessian scaling, else the gradient.
+    fn sequence(curvature: &Curvature) -> &'static [Trial] {
+        if curvature.newton.is_some() {
+            &[Self::Newton, Self::PinnedNewton]
+        } else {
+            &[Self::Gradient]
+        }
+    }
+
+    /// The first step length η.
+    fn first_step(self, curvature: &Curvature) -> f64 {
+        match self {
+            Self::Newton | Self::PinnedNewton => 1.0,
+            Self::Gradient => 1.0 / curvature.lipschitz,
+        }
+    }
+
+    /// How many times η is halved after the first trial.
+    fn halvings(self, s: &PlannerSettings) -> usize {
+        match self {
+            Self::PinnedNewton => 0,
+            Self::Newton | Self::Gradient => s.pgd_halvings,
+        }
+    }
+}
+
+/// Descent from a safe Z: the first trial (kinds in [`Trial::sequence`] order, η halved within
+/// a kind) that lowers G and is safe replaces Z. A trial that does not move Z (every step
+/// component held by the bounds) ends the search. Returns whether Z moved.
+#[allow(clippy::too_many_arguments)]
+fn descend(
+    g: &Lagrangian<'_>,
+    curvature: &Curvature,
+    z: &mut [State],
+    g_current: f64,
+    scratch: &mut Scratch,
+    current: &mut CurrentSafety,
+    safety: &mut SafetyEval<'_>,
+    predictor: &mut dyn Predictor,
+) -> Result<bool, PlannerError> {
+    for &trial in Trial::sequence(curvature) {
+        let direction = match trial {
+            Trial::Newton => &scratch.newton_step,
+            Trial::PinnedNewton => &scratch.pinned_step,
+            Trial::Gradient => &scratch.gradient,
+        };
+        let mut eta = trial.first_step(curvature);
+        for _ in 0..=trial.halvings(g.s) {
+            g.lp.project_step(z, direction, eta, &mut scratch.trial);
+            if max_diff(&scratch.trial, z) < 1e-12 {
+                return Ok(false);
+            }
+            if g.value(&scratch.trial, &mut scratch.weighted) < g_current {
+                let e = safety.eval(predictor, &scratch.trial)?;
+                if e.is_safe(safety.threshold()) {
+                    z.copy_from_slice(&scratch.trial);
+                    current.min_b = e.min_b;
+                    current.violation = 0.0;
+                    return Ok(true);
+                }
+            }
+            eta *= 0.5;
+        }
+    }
+    Ok(false)
+}
+
+impl Workspace {
+    /// One Z-update (`pgd_steps` descent or restoration steps at most, ending early when Z
+    /// does not move); its wall time is added to `timings`.
+    pub(crate) fn update_z(
+        &mut self,
+        s: &PlannerSettings,
+        lp: &LinearisedProblem,
+        safety: &mut SafetyEval<'_>,
+        predictor: &mut dyn Predictor,
+        timings: &mut PhaseTimings,
+    ) -> Result<(), PlannerError> {
+        let t0 = Instant::now();
+        let Self {
+            iterates,
+            curvature,
+            scratch,
+            current,
+            ..
+        } = self;
+        scratch.z_prev.copy_from_slice(&iterates.z);
+        let g = Lagrangian {
+            s,
+            lp,
+            delta: &iterates.delta,
+            accel: &iterates.accel,
+            duals: &iterates.duals,
+        };
+        let z = &mut iterates.z;
+        let mut g_current = g.value(z, &mut scratch.residual);
+        for _ in 0..s.pgd_steps {
+            g.gradient(
+                z,
+                &scratch.residual,
+                &mut scratch.weighted,
+                &mut scratch.gradient,
+            );
+            if let Some(h) = curvature.newton.as_ref() {
+                mat_vec(h, &scratch.gradient, &mut scratch.newton_step);
+            }
+            if let Some(h) = curvature.pinned.as_ref() {
+                mat_vec(h, &scratch.gradient, &mut scratch.pinned_step);
+            }
+            let moved = if current.is_safe(safety.threshold()) {
+                descend(
+                    &g, curvature, z, g_current, scratch, current, safety, predictor,
+                )?
+            } else {
+                restore(s, lp, curvature, z, scratch, current, safety, predictor)?
+            };
+            if !moved {
+                break;
+            }
+            g_current = g.value(z, &mut scratch.residual);
+        }
+        let dz = t0.elapsed().as_secs_f64();
+        timings.z_s += dz;
+        timings.z_updates_s.push(dz);
+        Ok(())
+    }
+}

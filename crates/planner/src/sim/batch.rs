@@ -1,0 +1,248 @@
+//! Batches of closed-loop runs, as both front ends (the `nudge` CLI and `nudge.simulate`) run
+//! them: the run-spec rule ([`run_specs`]), the predictors of a batch resolved once
+//! ([`Predictors`]), and [`simulate_many`] on a rayon pool.
+
+use std::path::Path;
+
+use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Records};
+use rayon::prelude::*;
+
+use crate::error::SimError;
+use crate::scenario::Scenario;
+use crate::settings::PlannerSettings;
+
+use super::config::{SimConfig, World};
+use super::records::RunRecord;
+use super::run::simulate;
+
+/// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
+/// (one source for the CLI and Python).
+pub mod defaults {
+    use nudge_predictor::PredictorKind;
+
+    /// The planning predictor.
+    pub const PREDICTOR: PredictorKind = PredictorKind::Student;
+    /// The world model of a `teacher` world (a named model under the assets directory).
+    pub const WORLD_PREDICTOR: PredictorKind = PredictorKind::Teacher;
+    /// The base seed.
+    pub const SEED: u64 = 0;
+    /// Runs per scene.
+    pub const RUNS_PER_SCENE: usize = 1;
+}
+
+/// Most runs one batch may hold.
+pub const MAX_RUNS: usize = 1_000_000;
+/// Most worker threads of a batch.
+pub const MAX_THREADS: usize = 256;
+
+/// The rayon pool of a batch: `threads` workers (`None`: one per core).
+///
+/// # Errors
+/// [`SimError::Runs`] (field `threads`) for 0 or more than [`MAX_THREADS`] threads, or when
+/// the pool cannot start.
+pub fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, SimError> {
+    let bad = |reason: String| SimError::Runs {
+        field: "threads",
+        reason,
+    };
+    if let Some(t) = threads
+        && !(1..=MAX_THREADS).contains(&t)
+    {
+        return Err(bad(format!(
+            "must be in 1..={MAX_THREADS} (or unset for all cores), got {t}"
+        )));
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.unwrap_or(0))
+        .build()
+        .map_err(|e| bad(format!("cannot start {threads:?} threads: {e}")))
+}
+
+/// One run of a batch: which scene (index into the batch's scenes) and which seed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunSpec {
+    /// Index into the scene slice.
+    pub scene: usize,
+    /// Target-lane seed.
+    pub seed: u64,
+}
+
+/// The runs of a batch: scene-major over `n_scenes` scenes (in the given order), `runs_per_scene`
+/// each; scene i, run r gets seed `scene_seeds[i] + r` when per-scene seeds are given, else
+/// `seed + i · runs_per_scene + r`.
+///
+/// # Errors
+/// [`SimError::Runs`] for zero runs per scene, a number of per-scene seeds other than
+/// `n_scenes`, more than [`MAX_RUNS`] runs, or a seed beyond `u64::MAX`.
+///
+/// # Examples
+///
+/// ```
+/// use nudge_planner::{RunSpec, run_specs};
+///
+/// let specs = run_specs(2, 2, 10, None)?;
+/// let seeds: Vec<(usize, u64)> = specs.iter().map(|r| (r.scene, r.seed)).collect();
+/// assert_eq!(seeds, [(0, 10), (0, 11), (1, 12), (1, 13)]);
+/// let per_scene = run_specs(2, 2, 10, Some(&[7, 3]))?;
+/// assert_eq!(per_scene[2], RunSpec { scene: 1, seed: 3 });
+/// # Ok::<(), nudge_planner::SimError>(())
+/// ```
+pub fn run_specs(
+    n_scenes: usize,
+    runs_per_scene: usize,
+    seed: u64,
+    scene_seeds: Option<&[u64]>,
+) -> Result<Vec<RunSpec>, SimError> {
+    let bad = |field: &'static str, reason: String| SimError::Runs { field, reason };
+    if runs_per_scene == 0 {
+        return Err(bad("runs", "must be at least 1".into()));
+    }
+    if let Some(s) = scene_seeds
+        && s.len() != n_scenes
+    {
+        return Err(bad(
+            "scene_seeds",
+            format!("expected one seed per scene ({n_scenes}), got {}", s.len()),
+        ));
+    }
+    let total = n_scenes
+        .checked_mul(runs_per_scene)
+        .filter(|&n| n <= MAX_RUNS)
+        .ok_or_else(|| {
+            bad(
+                "runs",
+                format!("{n_scenes} scenes × {runs_per_scene} runs exceeds {MAX_RUNS} runs"),
+            )
+        })?;
+    let mut specs = Vec::with_capacity(total);
+    for scene in 0..n_scenes {
+        let base = match scene_seeds {
+            Some(s) => Some(s[scene]),
+            None => (scene as u64)
+                .checked_mul(runs_per_scene as u64)
+                .and_then(|o| seed.checked_add(o)),
+        };
+        for r in 0..runs_per_scene as u64 {
+            let seed = base.and_then(|b| b.checked_add(r)).ok_or_else(|| {
+                bad(
+                    "seed",
+                    format!("the seed of scene {scene}, run {r} exceeds u64::MAX"),
+                )
+            })?;
+            specs.push(RunSpec { scene, seed });
+        }
+    }
+    Ok(specs)
+}
+
+/// The predictors of a batch, each loaded once and cloned for every run.
+#[derive(Debug, Clone)]
+pub struct Predictors {
+    /// The planning predictor.
+    pub planning: PredictorSpec,
+    /// The world model (`Some` teacher exactly when the world is [`World::Teacher`]).
+    pub world: Option<PredictorSpec>,
+}
+
+impl Predictors {
+    /// Resolves the planning predictor and, for a [`World::Teacher`] world, the world model
+    /// (`world_predictor`, default the shipped teacher), each by name or path
+    /// ([`PredictorSpec::resolve`], named models under `assets`), for `horizon` steps.
+    ///
+    /// # Errors
+    /// [`SimError::Model`] when a predictor cannot be loaded; [`SimError::WorldModel`] when
+    /// the world model is not a teacher, or one is named for a `log_replay` world.
+    pub fn resolve(
+        predictor: impl AsRef<Path>,
+        world: World,
+        world_predictor: Option<&Path>,
+        assets: &Path,
+        horizon: usize,
+    ) -> Result<Self, SimError> {
+        let planning = PredictorSpec::resolve(predictor, assets, horizon).map_err(|source| {
+            SimError::Model {
+                role: "predictor",
+                source,
+            }
+        })?;
+        let world = match (world, world_predictor) {
+            (World::LogReplay, None) => None,
+            (World::LogReplay, Some(p)) => {
+                return Err(SimError::WorldModel {
+                    world: world.as_str(),
+                    reason: format!(
+                        "the logged future moves the others; world_predictor {} would be ignored",
+                        p.display()
+                    ),
+                });
+            }
+            (World::Teacher, given) => {
+                let name = Path::new(defaults::WORLD_PREDICTOR.as_str());
+                let spec = PredictorSpec::resolve(given.unwrap_or(name), assets, horizon).map_err(
+                    |source| SimError::Model {
+                        role: "world_predictor",
+                        source,
+                    },
+                )?;
+                if spec.kind() != PredictorKind::Teacher {
+                    return Err(SimError::WorldModel {
+                        world: world.as_str(),
+                        reason: format!("the world model must be a teacher, got a {}", spec.kind()),
+                    });
+                }
+                Some(spec)
+            }
+        };
+        Ok(Self { planning, world })
+    }
+}
+
+/// One finished run of a batch.
+#[derive(Debug)]
+pub struct RunOutput {
+    /// Which run.
+    pub spec: RunSpec,
+    /// Its record, or why it could not run.
+    pub result: Result<RunRecord, SimError>,
+    /// Every distinct candidate the planning predictor evaluated, with its prediction (when
+    /// recording).
+    pub examples: Option<Records>,
+}
+
+/// Runs every spec of `specs` on `scenes` in parallel on the current rayon pool (each planner
+/// call stays single-threaded), with fresh predictors per run; with `record`, the planning
+/// predictor is wrapped in a [`Recording`]. Outputs come back in the order of `specs`.
+pub fn simulate_many(
+    scenes: &[Scenario],
+    specs: &[RunSpec],
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+    predictors: &Predictors,
+    record: bool,
+) -> Vec<RunOutput> {
+    specs
+        .par_iter()
+        .map(|&spec| {
+            let sc = &scenes[spec.scene];
+            let mut world = predictors.world.as_ref().map(PredictorSpec::build);
+            let world = world.as_deref_mut().map(|w| w as &mut dyn Predictor);
+            let planning = predictors.planning.build();
+            let (result, examples) = if record {
+                let mut rec = Recording::new(planning);
+                let r = simulate(sc, settings, cfg, spec.seed, &mut rec, world);
+                (r, Some(rec.records))
+            } else {
+                let mut p = planning;
+                (
+                    simulate(sc, settings, cfg, spec.seed, p.as_mut(), world),
+                    None,
+                )
+            };
+            RunOutput {
+                spec,
+                result,
+                examples,
+            }
+        })
+        .collect()
+}

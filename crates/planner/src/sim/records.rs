@@ -1,0 +1,75 @@
+//! What a closed-loop run records: [`StepRecord`] per planning step, [`RunRecord`] per run,
+//! and the typed [`StepStatus`] (the name of the step's [`crate::PlanStatus`]).
+
+use serde::{Deserialize, Serialize};
+
+pub use crate::admm::StepStatus;
+
+use super::config::World;
+
+/// What happened at one closed-loop step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StepRecord {
+    /// Step index (0-based); time after the start = (step + 1) · 0.3 s.
+    pub step: usize,
+    /// Wall time of the whole MPC call (s).
+    pub mpc_s: f64,
+    /// Wall time of each Z-update (s), `[iterations]`.
+    pub z_updates_s: Vec<f64>,
+    /// ADMM iterations.
+    pub iterations: usize,
+    /// Predictor calls.
+    pub predictor_calls: usize,
+    /// Plan cost J.
+    pub cost: f64,
+    /// Primal residual ‖F‖∞ of the plan.
+    pub primal_residual: f64,
+    /// Minimum b_i over the vehicles checked at planning time, at the executed step (the ego's
+    /// and the others' actual new positions), as the planner's constraint evaluates step 1
+    /// ([`crate::SafetyConstraint::executed_min_b`]); `None` when none is checked.
+    pub min_b: Option<f64>,
+    /// The ego's box overlaps another vehicle's after this step.
+    pub collision: bool,
+    /// How the applied plan came about.
+    pub status: StepStatus,
+    /// Applied steering (rad).
+    pub delta: f64,
+    /// Applied acceleration (m/s²).
+    pub accel: f64,
+    /// Ego state after the step (x, y, ψ, v) (m, m, rad, m/s).
+    pub ego: [f64; 4],
+    /// The nearest other vehicle after the step: (agent index, x − x_ego, y − y_ego) (m).
+    pub nearest: Option<(usize, f64, f64)>,
+    /// Lateral position the planner aimed at this step (m): the target lane's centre, or the
+    /// ego's own lane's centre while a lane-change abort holds.
+    pub y_goal: f64,
+}
+
+/// One closed-loop run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    /// Scenario name.
+    pub scenario: String,
+    /// Seed that chose the target lane.
+    pub seed: u64,
+    /// Planning predictor (its [`nudge_predictor::Predictor::name`]).
+    pub predictor: String,
+    /// How the others moved.
+    pub world: World,
+    /// Vehicles in the scene (ego included).
+    pub n_agents: usize,
+    /// Target lane index.
+    pub target_lane: usize,
+    /// Target lateral position: the target lane's centre (m).
+    pub y_target: f64,
+    /// Settled in the target lane before `max_steps`.
+    pub success: bool,
+    /// Steps until settled (the last of the `settle_steps` consecutive steps), if successful.
+    pub steps_to_target: Option<usize>,
+    /// Any step with a bounding-box collision.
+    pub collision: bool,
+    /// Lane-change aborts ([`crate::SimConfig::abort_after`]).
+    pub aborts: usize,
+    /// Per-step records.
+    pub steps: Vec<StepRecord>,
+}

@@ -1,0 +1,202 @@
+//! What to predict with, named once: [`PredictorKind`] (the vocabulary `teacher`, `student`,
+//! `constant_velocity`), the one resolver of the shipped models' paths ([`model_path`]), and
+//! [`PredictorSpec`], a predictor whose weights are parsed once and cloned for every run.
+
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{PredictorError, Result};
+use crate::weights::{ModelKind, ModelWeights};
+use crate::{ConstantVelocity, Predictor, Student, Teacher};
+
+/// Environment variable naming the assets directory (`<assets>/models/*.safetensors`).
+pub const ASSETS_ENV: &str = "NUDGE_ASSETS";
+
+/// The kinds of predictor, named as everywhere in nudge (Rust, CLI, Python, records).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PredictorKind {
+    /// The Social-GAN teacher.
+    Teacher,
+    /// The distilled student.
+    Student,
+    /// The interaction-unaware constant-velocity baseline.
+    ConstantVelocity,
+}
+
+impl PredictorKind {
+    /// Every kind.
+    pub const ALL: [Self; 3] = [Self::Teacher, Self::Student, Self::ConstantVelocity];
+
+    /// `"teacher"`, `"student"` or `"constant_velocity"`.
+    #[must_use]
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Teacher => "teacher",
+            Self::Student => "student",
+            Self::ConstantVelocity => "constant_velocity",
+        }
+    }
+
+    /// The network kind of a learned predictor (`None` for constant velocity).
+    #[must_use]
+    pub fn model(self) -> Option<ModelKind> {
+        match self {
+            Self::Teacher => Some(ModelKind::Teacher),
+            Self::Student => Some(ModelKind::Student),
+            Self::ConstantVelocity => None,
+        }
+    }
+}
+
+impl From<ModelKind> for PredictorKind {
+    fn from(kind: ModelKind) -> Self {
+        match kind {
+            ModelKind::Teacher => Self::Teacher,
+            ModelKind::Student => Self::Student,
+        }
+    }
+}
+
+impl std::fmt::Display for PredictorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Not one of the names of [`PredictorKind`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown predictor {0:?} (expected \"teacher\", \"student\" or \"constant_velocity\")")]
+pub struct UnknownPredictor(pub String);
+
+impl FromStr for PredictorKind {
+    type Err = UnknownPredictor;
+
+    fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.as_str() == s)
+            .ok_or_else(|| UnknownPredictor(s.to_string()))
+    }
+}
+
+/// The assets directory: `$NUDGE_ASSETS` when set, else `assets` (relative to the working
+/// directory, the repository root for the shipped tools).
+#[must_use]
+pub fn default_assets_dir() -> PathBuf {
+    std::env::var_os(ASSETS_ENV).map_or_else(|| PathBuf::from("assets"), PathBuf::from)
+}
+
+/// The shipped weights of `kind` under the assets directory `assets`:
+/// `<assets>/models/<teacher|student>.safetensors`. The only place that knows this layout.
+#[must_use]
+pub fn model_path(assets: &Path, kind: ModelKind) -> PathBuf {
+    assets
+        .join("models")
+        .join(format!("{}.safetensors", kind.as_str()))
+}
+
+/// A predictor to build once per run: the weights are read and checked once, and every
+/// [`PredictorSpec::build`] clones the loaded network.
+#[derive(Debug, Clone)]
+pub enum PredictorSpec {
+    /// The constant-velocity baseline with this horizon (steps).
+    ConstantVelocity {
+        /// Prediction horizon (steps).
+        horizon: usize,
+    },
+    /// A loaded teacher.
+    Teacher(Box<Teacher>),
+    /// A loaded student.
+    Student(Box<Student>),
+}
+
+impl PredictorSpec {
+    /// A teacher or a student loaded from a weights file, whichever its config names.
+    ///
+    /// # Errors
+    /// Any loading error of [`ModelWeights::from_file`].
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        let w = ModelWeights::from_file(path)?;
+        Ok(match w.config().kind {
+            ModelKind::Teacher => Self::Teacher(Box::new(Teacher::from_weights(&w)?)),
+            ModelKind::Student => Self::Student(Box::new(Student::from_weights(&w)?)),
+        })
+    }
+
+    /// `name_or_path`: `"constant_velocity"` (with `horizon` steps), `"teacher"` or
+    /// `"student"` (the shipped weights under `assets`, [`model_path`]), or the path of a
+    /// weights file.
+    ///
+    /// # Errors
+    /// Any loading error; [`PredictorError::WrongModelKind`] when a named model's file holds
+    /// the other kind of network.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nudge_predictor::{PredictorKind, PredictorSpec};
+    ///
+    /// let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
+    /// let student = PredictorSpec::resolve("student", &assets, 6)?;
+    /// assert_eq!(student.kind(), PredictorKind::Student);
+    /// // Every build is a fresh predictor with the same weights.
+    /// let (a, b) = (student.build(), student.build());
+    /// assert_eq!((a.name(), b.horizon()), ("student", 6));
+    /// assert_eq!(PredictorSpec::resolve("constant_velocity", &assets, 6)?.horizon(), 6);
+    /// # Ok::<(), nudge_predictor::PredictorError>(())
+    /// ```
+    pub fn resolve(name_or_path: impl AsRef<Path>, assets: &Path, horizon: usize) -> Result<Self> {
+        let given = name_or_path.as_ref();
+        let kind = given.to_str().and_then(|s| s.parse::<PredictorKind>().ok());
+        match kind {
+            Some(PredictorKind::ConstantVelocity) => Ok(Self::ConstantVelocity { horizon }),
+            Some(k) => {
+                let model = k.model().unwrap_or(ModelKind::Teacher);
+                let path = model_path(assets, model);
+                let spec = Self::from_file(&path)?;
+                if spec.kind() != k {
+                    return Err(PredictorError::WrongModelKind {
+                        path,
+                        expected: k.as_str(),
+                        got: spec.kind().as_str(),
+                    });
+                }
+                Ok(spec)
+            }
+            None => Self::from_file(given),
+        }
+    }
+
+    /// Which kind of predictor this builds.
+    #[must_use]
+    pub fn kind(&self) -> PredictorKind {
+        match self {
+            Self::ConstantVelocity { .. } => PredictorKind::ConstantVelocity,
+            Self::Teacher(_) => PredictorKind::Teacher,
+            Self::Student(_) => PredictorKind::Student,
+        }
+    }
+
+    /// Prediction horizon (steps).
+    #[must_use]
+    pub fn horizon(&self) -> usize {
+        match self {
+            Self::ConstantVelocity { horizon } => *horizon,
+            Self::Teacher(t) => t.horizon(),
+            Self::Student(s) => s.horizon(),
+        }
+    }
+
+    /// A fresh predictor (a clone of the loaded network).
+    #[must_use]
+    pub fn build(&self) -> Box<dyn Predictor> {
+        match self {
+            Self::ConstantVelocity { horizon } => Box::new(ConstantVelocity::new(*horizon)),
+            Self::Teacher(t) => Box::new(t.as_ref().clone()),
+            Self::Student(s) => Box::new(s.as_ref().clone()),
+        }
+    }
+}
