@@ -100,6 +100,33 @@ pub struct PlannerSettings {
     pub rollout_check: bool,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
+
+    /// Heading bound relative to the road (rad): every returned state has |ψ_k| ≤ heading_max
+    /// (an ego that starts beyond it gets a bound that returns to it by `heading_recovery`
+    /// per step). A value ≥ π/2 leaves the heading unbounded.
+    pub heading_max: f64,
+    /// Rate (rad per step) at which the heading bound of an ego starting beyond `heading_max`
+    /// returns to it.
+    pub heading_recovery: f64,
+    /// Lateral overshoot allowed beyond the lateral goal and behind the start (m): the ego's
+    /// centre stays within [min(y_0, y_target) − overshoot_max, max(y_0, y_target) +
+    /// overshoot_max] (and on the road, its corners included at the heading bound).
+    pub overshoot_max: f64,
+    /// Iterations of the SQP refinement of the ADMM inputs on the nonlinear roll-out, run when
+    /// that roll-out is not admissible (unsafe or out of its bounds); 0 disables it.
+    pub refine_iters: usize,
+    /// The refinement's target (units of b) above `safety_min` for the linearised safety rows.
+    pub refine_margin: f64,
+    /// Trust region of one refinement step on each steering input (rad).
+    pub refine_trust_delta: f64,
+    /// Trust region of one refinement step on each acceleration input (m/s²).
+    pub refine_trust_accel: f64,
+    /// Wall-clock budget of one MPC call (s): when it is spent the call ends with the best
+    /// admissible plan found (status `BudgetExhausted`); 0 means no budget.
+    pub budget_s: f64,
+    /// Predictor-call budget of one MPC call (deterministic, for tests and reproducible
+    /// runs); 0 means no budget.
+    pub budget_calls: usize,
 }
 
 impl Default for PlannerSettings {
@@ -141,6 +168,15 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             restore_step: 1.0,
+            heading_max: 0.2,
+            heading_recovery: 0.05,
+            overshoot_max: 0.3,
+            refine_iters: 5,
+            refine_margin: 0.02,
+            refine_trust_delta: 0.05,
+            refine_trust_accel: 2.0,
+            budget_s: 0.0,
+            budget_calls: 0,
         }
     }
 }
@@ -292,6 +328,45 @@ impl PlannerSettings {
             self.eps_change > 0.0,
             positive,
         )?;
+        check(
+            "heading_max",
+            self.heading_max,
+            self.heading_max > 0.0 && self.heading_max <= 10.0,
+            "must be in (0, 10] rad",
+        )?;
+        check(
+            "heading_recovery",
+            self.heading_recovery,
+            self.heading_recovery > 0.0,
+            positive,
+        )?;
+        check(
+            "overshoot_max",
+            self.overshoot_max,
+            self.overshoot_max >= 0.0,
+            nonneg,
+        )?;
+        if self.refine_iters > 100 {
+            return Err(SettingsError::Invalid {
+                field: "refine_iters",
+                value: self.refine_iters.to_string(),
+                reason: "must be at most 100",
+            });
+        }
+        check("refine_margin", self.refine_margin, self.refine_margin >= 0.0, nonneg)?;
+        check(
+            "refine_trust_delta",
+            self.refine_trust_delta,
+            self.refine_trust_delta > 0.0,
+            positive,
+        )?;
+        check(
+            "refine_trust_accel",
+            self.refine_trust_accel,
+            self.refine_trust_accel > 0.0,
+            positive,
+        )?;
+        check("budget_s", self.budget_s, self.budget_s >= 0.0, nonneg)?;
         check(
             "restore_step",
             self.restore_step,

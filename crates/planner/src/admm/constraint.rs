@@ -167,6 +167,24 @@ pub(crate) struct SafetyEval<'c> {
     pub violation_gradient: Vec<[f64; 2]>,
     /// Predictor calls so far.
     pub calls: usize,
+    /// The (vehicle, step) pairs of the last evaluation with b below [`ROW_B`], linearised
+    /// in the ego's position (prediction and ellipse frozen), for the refinement.
+    pub rows: Vec<SafetyRow>,
+}
+
+/// Pairs with b below this value are kept as [`SafetyRow`]s (far pairs cannot become active
+/// within one refinement step).
+pub(crate) const ROW_B: f64 = 1.5;
+
+/// One (vehicle, step) pair of a safety evaluation, linearised in the ego's position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct SafetyRow {
+    /// Step k (0-based: state z_{k+1}).
+    pub step: usize,
+    /// b at the evaluated point.
+    pub b: f64,
+    /// ∂b/∂(x_k, y_k) (1/m).
+    pub gradient: [f64; 2],
 }
 
 impl<'c> SafetyEval<'c> {
@@ -188,6 +206,7 @@ impl<'c> SafetyEval<'c> {
             ego_direction: vec![[1.0, 0.0]; horizon],
             violation_gradient: vec![[0.0; 2]; horizon],
             calls: 0,
+            rows: Vec::new(),
         }
     }
 
@@ -221,6 +240,7 @@ impl<'c> SafetyEval<'c> {
         self.calls += 1;
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;
+        self.rows.clear();
         for v in checked {
             let base = (v.index - 1) * t * 2;
             let mut previous = v.last;
@@ -236,6 +256,13 @@ impl<'c> SafetyEval<'c> {
                 previous = other;
                 let b = ellipse.value(ego, other);
                 min_b = min_b.min(b);
+                if b < ROW_B {
+                    self.rows.push(SafetyRow {
+                        step: k,
+                        b,
+                        gradient: ellipse.gradient(ego, other),
+                    });
+                }
                 if b <= self.threshold {
                     violation += self.threshold - b;
                     let g = ellipse.gradient(ego, other);

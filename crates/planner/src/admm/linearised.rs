@@ -50,10 +50,11 @@ pub(crate) struct LinearisedProblem {
     pub weights: State,
     /// Reference state (x ignored): (0, y_target, 0, v_ref) in this frame.
     pub reference: State,
-    /// Lower state bounds (x, ψ unbounded; y from the road, v ≥ 0).
-    pub lower: State,
-    /// Upper state bounds.
-    pub upper: State,
+    /// Lower state bounds per step `[T]` (x unbounded; y from the road and the lateral
+    /// corridor, ψ from the heading bound, v ≥ 0).
+    pub lower: Vec<State>,
+    /// Upper state bounds per step `[T]`.
+    pub upper: Vec<State>,
     /// Box and rate bounds of the steering.
     pub delta_box: RateBox,
     /// Box and rate bounds of the acceleration.
@@ -108,7 +109,7 @@ impl LinearisedProblem {
             &nominal_accel,
             s.v_lin_min,
         );
-        let (y_low, y_high) = lateral_band(s, p, origin[1]);
+        let (lower, upper) = state_bounds(s, p, origin[1]);
         Self {
             horizon: t,
             origin,
@@ -120,8 +121,8 @@ impl LinearisedProblem {
             warm_duals,
             weights: State::new(0.0, s.w_y, s.w_psi, s.w_v),
             reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
-            lower: State::new(f64::NEG_INFINITY, y_low, f64::NEG_INFINITY, 0.0),
-            upper: State::new(f64::INFINITY, y_high, f64::INFINITY, s.v_max.max(p.ego.v)),
+            lower,
+            upper,
             delta_box,
             accel_box,
         }
@@ -158,9 +159,22 @@ impl LinearisedProblem {
             .collect()
     }
 
-    /// `z` clamped into the state bounds.
-    pub(crate) fn clamp(&self, z: &State) -> State {
-        z.sup(&self.lower).inf(&self.upper)
+    /// `z` (the state of step `k`, 0-based) clamped into that step's bounds.
+    pub(crate) fn clamp(&self, k: usize, z: &State) -> State {
+        z.sup(&self.lower[k]).inf(&self.upper[k])
+    }
+
+    /// How far the states `z` (`[T]`) lie outside their bounds: Σ over steps and components
+    /// of the excess (m for y, rad for ψ, m/s for v); 0 when every state is within them.
+    pub(crate) fn bound_excess(&self, z: &[State]) -> f64 {
+        z.iter()
+            .enumerate()
+            .map(|(k, zk)| {
+                (1..4)
+                    .map(|j| (self.lower[k][j] - zk[j]).max(0.0) + (zk[j] - self.upper[k][j]).max(0.0))
+                    .sum::<f64>()
+            })
+            .sum()
     }
 
     /// Z⁺ = Π(Z − η·d) into `out`, Π clamping into the state bounds.
@@ -171,25 +185,57 @@ impl LinearisedProblem {
         eta: f64,
         out: &mut [State],
     ) {
-        for ((o, zk), dk) in out.iter_mut().zip(z).zip(direction) {
-            *o = self.clamp(&(zk - eta * dk));
+        for (k, ((o, zk), dk)) in out.iter_mut().zip(z).zip(direction).enumerate() {
+            *o = self.clamp(k, &(zk - eta * dk));
         }
     }
 }
 
-/// Lateral band (relative to `y0`, m) the ego's centre must stay in: the road less half the
-/// ego's width and `edge_margin`, collapsed to its middle when too narrow, widened to include
-/// the ego's current position (data noise can put it slightly outside).
-fn lateral_band(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (f64, f64) {
-    let half_width = 0.5 * p.sizes[0][1] + s.edge_margin;
-    let mut low = p.road[0] + half_width - y0;
-    let mut high = p.road[1] - half_width - y0;
-    if low > high {
-        let mid = 0.5 * (low + high);
-        low = mid;
-        high = mid;
+/// The per-step state bounds `[T]` (y relative to `y0`, m):
+///
+/// * heading: |ψ_k| ≤ max(`heading_max`, |ψ_0| − (k + 1)·`heading_recovery`), unbounded when
+///   `heading_max` ≥ π/2;
+/// * lateral: the road less the ego's half extent across the road at that heading bound (its
+///   corners stay on the road) and `edge_margin`, intersected with the corridor from the start
+///   to the lateral target widened by `overshoot_max` on both sides; collapsed to its middle
+///   when empty, and widened to include the start (data noise can put the ego slightly
+///   outside);
+/// * speed: 0 ≤ v ≤ max(`v_max`, v_0).
+fn state_bounds(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (Vec<State>, Vec<State>) {
+    let t = s.horizon;
+    let [length, width] = p.sizes[0];
+    let bounded = s.heading_max < std::f64::consts::FRAC_PI_2;
+    let goal = p.y_target - y0;
+    let (corridor_low, corridor_high) = (goal.min(0.0) - s.overshoot_max, goal.max(0.0) + s.overshoot_max);
+    let mut lower = Vec::with_capacity(t);
+    let mut upper = Vec::with_capacity(t);
+    for k in 0..t {
+        let (heading, half_extent) = if bounded {
+            let h = s.heading_max.max(p.ego.psi.abs() - (k + 1) as f64 * s.heading_recovery);
+            (h, half_extent_across(length, width, h))
+        } else {
+            (f64::INFINITY, 0.5 * width)
+        };
+        let half = half_extent + s.edge_margin;
+        let mut low = (p.road[0] + half - y0).max(corridor_low);
+        let mut high = (p.road[1] - half - y0).min(corridor_high);
+        if low > high {
+            let mid = 0.5 * (low + high);
+            low = mid;
+            high = mid;
+        }
+        lower.push(State::new(f64::NEG_INFINITY, low.min(0.0), -heading, 0.0));
+        upper.push(State::new(f64::INFINITY, high.max(0.0), heading, s.v_max.max(p.ego.v)));
     }
-    (low.min(0.0), high.max(0.0))
+    (lower, upper)
+}
+
+/// Largest half extent across the road (m) of a box of `length` × `width` (m) whose heading
+/// is at most `heading` (rad) off the road: ½(L·sin ψ + W·cos ψ), which grows with ψ up to
+/// the half diagonal at ψ = atan(L/W).
+fn half_extent_across(length: f64, width: f64, heading: f64) -> f64 {
+    let h = heading.min(length.atan2(width));
+    0.5 * (length * h.sin() + width * h.cos())
 }
 
 /// Φ1 or Φ2 of an input sequence: w Σu² + w_d Σ(u_k − u_{k−1})², u_{−1} = `prev`.

@@ -20,6 +20,7 @@ mod inputs;
 mod linearised;
 mod problem;
 mod reference;
+mod refine;
 mod repair;
 mod restoration;
 mod workspace;
@@ -45,7 +46,7 @@ use constraint::SafetyEval;
 use inputs::Input;
 use inputs::InputQps;
 use linearised::{LinearisedProblem, WarmStart};
-use repair::{Candidate, Rank, Repairer};
+use repair::{Candidate, Repairer};
 use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 
 /// The ADMM MPC planner of the paper's Algorithm 1. One call of [`Planner::plan`] is
@@ -86,8 +87,6 @@ enum Stop {
 /// What the ADMM loop hands to the execution check.
 struct AdmmResult {
     iterates: Iterates,
-    /// Minimum b of Z.
-    min_b: Option<f64>,
     iterations: usize,
     change_residual: f64,
     qp_solves: usize,
@@ -294,7 +293,6 @@ impl AdmmResult {
     /// The workspace's iterates after the loop stopped.
     fn new(ws: Workspace, stop: Stop, iterations: usize, qp_solves: usize) -> Self {
         Self {
-            min_b: ws.current.min_b,
             iterations,
             change_residual: ws.change,
             qp_solves,
@@ -304,20 +302,24 @@ impl AdmmResult {
     }
 }
 
-/// The execution check of the ADMM result (see [`repair`]): status `Unsafe` when Z is unsafe;
-/// when the roll-out of (Δ, α) is unsafe (and `rollout_check` is on), the first safe
-/// backtracking step, else the best fallback if it beats the roll-out; after a QP failure, the
-/// best fallback with status [`PlanStatus::SolverFailed`].
+/// The execution check of the ADMM result (see [`repair`]). The plan's states are always the
+/// nonlinear roll-out of its inputs. When the roll-out of the ADMM inputs is admissible the
+/// plan is the ADMM answer (status `Converged` or `MaxIterations`); otherwise, with
+/// `rollout_check` on, the refinement ([`PlanStatus::Refined`]), else the first admissible
+/// backtracking step ([`PlanStatus::Backtracked`]), else the best fallback if it beats the
+/// roll-out ([`PlanStatus::Fallback`]); a plan that is still not admissible has status
+/// [`PlanStatus::Unsafe`]. After a QP failure, the best fallback with status
+/// [`PlanStatus::SolverFailed`].
 fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finished, PlannerError> {
     let s = r.s;
     let Iterates {
         delta,
         accel,
-        z,
+        z: _,
         duals,
     } = admm.iterates;
     let counts = (admm.iterations, admm.change_residual, admm.qp_solves);
-    let mut status = match admm.stop {
+    let status = match admm.stop {
         Stop::SolverFailed(failure) => {
             let c = r.best_fallback()?;
             let status = PlanStatus::SolverFailed {
@@ -330,38 +332,26 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
         Stop::Converged => PlanStatus::Converged,
         Stop::MaxIterations => PlanStatus::MaxIterations,
     };
-    if !admm.min_b.is_none_or(|b| b > s.safety_min) {
-        status = PlanStatus::Unsafe;
+    let rollout = r.check(delta, accel)?;
+    if rollout.rank.safe {
+        return Ok(Finished::adopt(rollout, duals, status, counts));
     }
-    let rollout = r.check(delta.clone(), accel.clone())?;
-    if s.rollout_check && !rollout.rank.safe {
-        let repaired = match r.backtrack(&delta, &accel)? {
-            Some(c) => Some((c, PlanStatus::Backtracked)),
-            None => {
-                let c = r.best_fallback()?;
-                let current = Rank {
-                    safe: false,
-                    value: rollout.rank.value,
-                };
-                c.rank.beats(&current).then_some((c, PlanStatus::Fallback))
-            }
-        };
-        if let Some((c, status)) = repaired {
-            return Ok(Finished::adopt(c, duals, status, counts));
+    if s.rollout_check {
+        if let Some(c) = r.refine(&rollout)? {
+            return Ok(Finished::adopt(c, duals, PlanStatus::Refined, counts));
+        }
+        if let Some(c) = r.backtrack(&rollout.delta, &rollout.accel)? {
+            return Ok(Finished::adopt(c, duals, PlanStatus::Backtracked, counts));
+        }
+        let c = r.best_fallback()?;
+        if c.rank.safe {
+            return Ok(Finished::adopt(c, duals, PlanStatus::Fallback, counts));
+        }
+        if c.rank.beats(&rollout.rank) {
+            return Ok(Finished::adopt(c, duals, PlanStatus::Unsafe, counts));
         }
     }
-    Ok(Finished {
-        delta,
-        accel,
-        z,
-        duals,
-        min_b: admm.min_b,
-        rollout_min_b: rollout.min_b,
-        status,
-        iterations: counts.0,
-        change_residual: counts.1,
-        qp_solves: counts.2,
-    })
+    Ok(Finished::adopt(rollout, duals, PlanStatus::Unsafe, counts))
 }
 
 impl Finished {

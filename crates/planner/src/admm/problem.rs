@@ -133,20 +133,26 @@ impl PlanningProblem<'_> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[non_exhaustive]
 pub enum PlanStatus {
-    /// ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change; Z is safe. The roll-out of (Δ, α)
-    /// is safe too unless no repair was less violating ([`Plan::rollout_min_safety`] says).
+    /// ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change, and the nonlinear roll-out of the
+    /// ADMM inputs is admissible (safe and within the state bounds): the plan is the ADMM
+    /// answer.
     Converged,
-    /// `max_iter` reached; Z is safe (every accepted Z is); its roll-out as for `Converged`.
+    /// `max_iter` reached; the roll-out of the ADMM inputs is admissible: the plan is the ADMM
+    /// answer.
     MaxIterations,
-    /// The states could not be made safe (feasibility restoration failed); the plan is the
-    /// least-violating one found.
+    /// The roll-out of the ADMM inputs was not admissible (ADMM satisfies the linearised
+    /// dynamics only up to `eps_primal`, and Z sits on the safety boundary); SQP refinement
+    /// steps on the nonlinear model from those inputs made it admissible.
+    Refined,
+    /// No admissible plan was found (refinement, backtracking and fallbacks failed); the plan
+    /// is the least-violating one found.
     Unsafe,
-    /// The roll-out of the ADMM inputs was unsafe (Z sat on the constraint boundary, or ADMM
-    /// stopped before F ≈ 0); the plan is the ADMM inputs pulled towards the shifted previous
-    /// plan (by 3/4, 1/2 or 1/4) until the roll-out was safe, and that roll-out.
+    /// The roll-out of the ADMM inputs was not admissible and the refinement failed; the plan
+    /// is the ADMM inputs pulled towards the shifted previous plan (by 3/4, 1/2 or 1/4) until
+    /// the roll-out was admissible, and that roll-out.
     Backtracked,
-    /// The roll-out of the ADMM inputs was unsafe and backtracking did not help; the plan is
-    /// the cheapest safe (else the least-violating) simple input sequence and its roll-out.
+    /// Refinement and backtracking failed; the plan is the cheapest admissible simple input
+    /// sequence and its roll-out.
     Fallback,
     /// A QP of the ADMM (Δ- or α-update) gave no usable solution, also after the
     /// equilibration-off retry; the ADMM iterates were dropped and the plan is chosen as for
@@ -183,11 +189,13 @@ impl PlanStatus {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[non_exhaustive]
 pub enum StepStatus {
-    /// ADMM converged; the plan is safe.
+    /// ADMM converged; its plan is admissible.
     Converged,
-    /// ADMM reached `max_iter`; the plan is safe.
+    /// ADMM reached `max_iter`; its plan is admissible.
     MaxIterations,
-    /// The states could not be made safe.
+    /// The ADMM inputs, refined on the nonlinear model, are admissible.
+    Refined,
+    /// No admissible plan was found.
     Unsafe,
     /// The ADMM inputs were pulled towards the previous plan until their roll-out was safe.
     Backtracked,
@@ -199,9 +207,10 @@ pub enum StepStatus {
 
 impl StepStatus {
     /// Every status, in declaration order.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 7] = [
         Self::Converged,
         Self::MaxIterations,
+        Self::Refined,
         Self::Unsafe,
         Self::Backtracked,
         Self::Fallback,
@@ -214,6 +223,7 @@ impl StepStatus {
         match self {
             Self::Converged => "Converged",
             Self::MaxIterations => "MaxIterations",
+            Self::Refined => "Refined",
             Self::Unsafe => "Unsafe",
             Self::Backtracked => "Backtracked",
             Self::Fallback => "Fallback",
@@ -233,6 +243,7 @@ impl From<PlanStatus> for StepStatus {
         match s {
             PlanStatus::Converged => Self::Converged,
             PlanStatus::MaxIterations => Self::MaxIterations,
+            PlanStatus::Refined => Self::Refined,
             PlanStatus::Unsafe => Self::Unsafe,
             PlanStatus::Backtracked => Self::Backtracked,
             PlanStatus::Fallback => Self::Fallback,

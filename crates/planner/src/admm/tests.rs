@@ -225,9 +225,9 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
             current.violation,
             first.violation
         );
-        for z in &iterates.z {
+        for (k, z) in iterates.z.iter().enumerate() {
             assert!(
-                z[1] >= lp.lower[1] && z[1] <= lp.upper[1] && z[3] >= 0.0,
+                z[1] >= lp.lower[k][1] && z[1] <= lp.upper[k][1] && z[3] >= 0.0,
                 "{z}"
             );
         }

@@ -1,0 +1,254 @@
+//! The SQP refinement of the ADMM inputs on the nonlinear model (single shooting).
+//!
+//! ADMM returns (Δ, α) and states Z that satisfy the *linearised* dynamics only up to
+//! `eps_primal`, linearised around the shifted previous plan; Z tends to lie on the safety
+//! boundary, and the nonlinear roll-out of (Δ, α), which is what the vehicle does, drifts off
+//! it over the horizon (by ~0.1 in b at the last step on validation scenes). When that
+//! roll-out is not admissible, the refinement takes sequential-QP steps on the original
+//! problem with the states eliminated: u = (Δ, α) ← u + du where du solves
+//!
+//! min J(u) + ∇J(u)·du + ½ duᵀ H du  (Gauss-Newton: Φ1, Φ2 exact, Φ3 through the roll-out's
+//! sensitivities S_k = ∂z_k/∂u)
+//! s.t. the input box and rate bounds, |du| ≤ the trust region,
+//!      lower_k ≤ z_k + S_k du ≤ upper_k (y and ψ),
+//!      b_ik + ∇b_ik · S_k^{xy} du ≥ safety_min + refine_margin for every (vehicle, step)
+//!      with b_ik < [`ROW_B`](super::constraint::ROW_B) — the prediction and the ellipse
+//!      held at the current roll-out.
+//!
+//! Each step is followed by a predictor call on the new roll-out (the prediction depends on
+//! the ego's trajectory); the first admissible roll-out ends the refinement. One step is a
+//! 2T-variable Clarabel QP.
+
+use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
+
+use crate::model::{Bicycle, State};
+use crate::qp::{
+    box_rate_rows, clarabel_settings, repair_box_rate, triplets_csc, upper_csc, usable,
+};
+use crate::settings::PlannerSettings;
+
+use super::constraint::SafetyRow;
+use super::linearised::{LinearisedProblem, input_hessian};
+
+/// The nonlinear roll-out (speed clamped at 0) of `delta`, `accel` (`[T]` each) from `start`
+/// and its sensitivities: `sens[k][j]` = ∂z_{k+1}/∂u_j for u = (δ_0..δ_{T−1}, a_0..a_{T−1}),
+/// exact (the bicycle's Jacobians along the roll-out), zero through a clamped speed.
+pub(crate) fn rollout_sensitivities(
+    model: &Bicycle,
+    start: &State,
+    delta: &[f64],
+    accel: &[f64],
+) -> (Vec<State>, Vec<Vec<State>>) {
+    let t = delta.len();
+    let mut rollout = Vec::with_capacity(t);
+    let mut sens: Vec<Vec<State>> = vec![vec![State::zeros(); 2 * t]; t];
+    let mut z = *start;
+    for k in 0..t {
+        let (jz, jd, ja) = model.jacobians(&z, delta[k]);
+        if k > 0 {
+            for j in 0..2 * t {
+                sens[k][j] = jz * sens[k - 1][j];
+            }
+        }
+        sens[k][k] += jd;
+        sens[k][t + k] += ja;
+        let raw = model.step(&z, delta[k], accel[k]);
+        if raw[3] < 0.0 {
+            for s in &mut sens[k] {
+                s[3] = 0.0;
+            }
+        }
+        z = model.advance(&z, delta[k], accel[k]);
+        rollout.push(z);
+    }
+    (rollout, sens)
+}
+
+/// ∂/∂u of w Σu² + w_d Σ(u_k − u_{k−1})², u_{−1} = `prev`.
+fn input_gradient(u: &[f64], prev: f64, w: f64, wd: f64) -> Vec<f64> {
+    let t = u.len();
+    (0..t)
+        .map(|k| {
+            let before = if k == 0 { prev } else { u[k - 1] };
+            let mut g = 2.0 * w * u[k] + 2.0 * wd * (u[k] - before);
+            if k + 1 < t {
+                g -= 2.0 * wd * (u[k + 1] - u[k]);
+            }
+            g
+        })
+        .collect()
+}
+
+/// One refinement step from (`delta`, `accel`) with the safety `rows` of its roll-out; the
+/// new inputs (within their box and rate bounds), or `None` when the QP has no usable
+/// solution (e.g. the linearised constraints are infeasible within the trust region).
+pub(crate) fn step(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+    delta: &[f64],
+    accel: &[f64],
+    rows: &[SafetyRow],
+) -> Option<(Vec<f64>, Vec<f64>)> {
+    let t = delta.len();
+    let nv = 2 * t;
+    let (rollout, sens) = rollout_sensitivities(model, &lp.start, delta, accel);
+    // Objective: Gauss-Newton model of J around u.
+    let mut p = vec![0.0; nv * nv];
+    let mut q = vec![0.0; nv];
+    let zeros = vec![0.0; t];
+    let hd = input_hessian(t, s.w_delta, s.w_ddelta, &zeros);
+    let ha = input_hessian(t, s.w_a, s.w_da, &zeros);
+    let gd = input_gradient(delta, lp.delta_box.prev, s.w_delta, s.w_ddelta);
+    let ga = input_gradient(accel, lp.accel_box.prev, s.w_a, s.w_da);
+    for i in 0..t {
+        q[i] += gd[i];
+        q[t + i] += ga[i];
+        for j in 0..t {
+            p[i * nv + j] += hd[i * t + j];
+            p[(t + i) * nv + t + j] += ha[i * t + j];
+        }
+    }
+    for (zk, sk) in rollout.iter().zip(&sens) {
+        for c in 1..4 {
+            let w = lp.weights[c];
+            if w == 0.0 {
+                continue;
+            }
+            let e = zk[c] - lp.reference[c];
+            for i in 0..nv {
+                q[i] += 2.0 * w * e * sk[i][c];
+                for j in 0..nv {
+                    p[i * nv + j] += 2.0 * w * sk[i][c] * sk[j][c];
+                }
+            }
+        }
+    }
+    let mut a = Vec::new();
+    let mut b = Vec::new();
+    // Input box and rate bounds on u + du: the rows of u, shifted by A·u.
+    box_rate_rows(&mut a, &mut b, 0, t, lp.delta_box);
+    box_rate_rows(&mut a, &mut b, t, t, lp.accel_box);
+    let u: Vec<f64> = delta.iter().chain(accel).copied().collect();
+    for &(r, c, v) in &a {
+        b[r] -= v * u[c];
+    }
+    // Trust region.
+    for i in 0..nv {
+        let r = if i < t {
+            s.refine_trust_delta
+        } else {
+            s.refine_trust_accel
+        };
+        let row = b.len();
+        a.push((row, i, 1.0));
+        b.push(r);
+        a.push((row + 1, i, -1.0));
+        b.push(r);
+    }
+    // State bounds on y and ψ.
+    for (k, (zk, sk)) in rollout.iter().zip(&sens).enumerate() {
+        for c in [1usize, 2] {
+            for (sign, bound) in [(1.0, lp.upper[k][c]), (-1.0, lp.lower[k][c])] {
+                if !bound.is_finite() {
+                    continue;
+                }
+                let row = b.len();
+                for (i, si) in sk.iter().enumerate() {
+                    if si[c] != 0.0 {
+                        a.push((row, i, sign * si[c]));
+                    }
+                }
+                b.push(sign * (bound - zk[c]));
+            }
+        }
+    }
+    // Linearised safety rows.
+    let target = s.safety_min + s.refine_margin;
+    for r in rows {
+        let row = b.len();
+        for (i, si) in sens[r.step].iter().enumerate() {
+            let v = r.gradient[0] * si[0] + r.gradient[1] * si[1];
+            if v != 0.0 {
+                a.push((row, i, -v));
+            }
+        }
+        b.push(r.b - target);
+    }
+    let m = b.len();
+    let pm = upper_csc(&p, nv);
+    let am = triplets_csc(m, nv, a);
+    let cones = [NonnegativeConeT(m)];
+    for equilibrate in [true, false] {
+        let Ok(mut solver) =
+            DefaultSolver::new(&pm, &q, &am, &b, &cones, clarabel_settings(equilibrate))
+        else {
+            continue;
+        };
+        solver.solve();
+        if usable(solver.solution.status) {
+            let x = &solver.solution.x;
+            let mut nd: Vec<f64> = delta.iter().zip(x).map(|(u, d)| u + d).collect();
+            let mut na: Vec<f64> = accel.iter().zip(&x[t..]).map(|(u, d)| u + d).collect();
+            repair_box_rate(&mut nd, lp.delta_box);
+            repair_box_rate(&mut na, lp.accel_box);
+            return Some((nd, na));
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The sensitivities match central finite differences of the roll-out.
+    #[test]
+    fn sensitivities_match_finite_differences() {
+        let model = Bicycle {
+            l_f: 1.4,
+            l_r: 1.4,
+            dt: 0.3,
+        };
+        let start = State::new(0.0, 0.2, 0.05, 12.0);
+        let delta = [0.03, 0.01, -0.02, 0.0, 0.04, -0.01];
+        let accel = [0.5, -1.0, 0.2, 0.0, 1.0, -0.5];
+        let (roll, sens) = rollout_sensitivities(&model, &start, &delta, &accel);
+        let h = 1e-6;
+        for j in 0..12 {
+            let (mut dp, mut ap, mut dm, mut am) = (delta, accel, delta, accel);
+            if j < 6 {
+                dp[j] += h;
+                dm[j] -= h;
+            } else {
+                ap[j - 6] += h;
+                am[j - 6] -= h;
+            }
+            let (rp, _) = rollout_sensitivities(&model, &start, &dp, &ap);
+            let (rm, _) = rollout_sensitivities(&model, &start, &dm, &am);
+            for k in 0..6 {
+                let fd = (rp[k] - rm[k]) / (2.0 * h);
+                let err = (fd - sens[k][j]).amax();
+                assert!(err < 1e-6 * (1.0 + fd.amax()), "k {k} j {j}: {err}");
+            }
+        }
+        // The roll-out is the clamped one.
+        let mut out = vec![State::zeros(); 6];
+        model.rollout(&start, &delta, &accel, &mut out);
+        assert_eq!(out, roll);
+    }
+
+    #[test]
+    fn input_gradient_matches_finite_differences() {
+        let u = [0.1, -0.2, 0.3, 0.0];
+        let g = input_gradient(&u, 0.05, 3.0, 2.0);
+        let cost = |u: &[f64]| super::super::linearised::input_cost(u, 0.05, 3.0, 2.0);
+        for k in 0..4 {
+            let (mut up, mut um) = (u, u);
+            up[k] += 1e-6;
+            um[k] -= 1e-6;
+            let fd = (cost(&up) - cost(&um)) / 2e-6;
+            assert!((fd - g[k]).abs() < 1e-6, "{k}: {fd} vs {}", g[k]);
+        }
+    }
+}
