@@ -34,7 +34,7 @@ fn predictors() -> Vec<Box<dyn Predictor>> {
             eprintln!("skipping {name}: {} missing", p.display());
         }
     }
-    v.push(Box::new(ConstantVelocity::new(6)));
+    v.push(Box::new(ConstantVelocity::default()));
     v
 }
 

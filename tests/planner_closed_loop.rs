@@ -49,7 +49,7 @@ fn constant_velocity_lane_change_on_real_scene() {
         ..SimConfig::default()
     };
     for seed in 0..2 {
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::new(6).unwrap();
         let rec = simulate(&sc, &PlannerSettings::default(), &cfg, seed, &mut cv, None).unwrap();
         check(&rec);
     }
@@ -62,7 +62,7 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
         world: WorldMode::LogReplay,
         ..SimConfig::default()
     };
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::new(6).unwrap();
     let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
     check(&rec);
 }
@@ -176,7 +176,7 @@ fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
             abort_after,
             ..SimConfig::default()
         };
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::new(6).unwrap();
         let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
         assert!(!rec.collision, "collision with abort_after {abort_after}");
         assert!(!rec.success, "a lane change through a closed convoy");

@@ -91,7 +91,7 @@ fn model_path(kind: PredictorKind, weights: Option<&Path>) -> PathBuf {
 
 fn make_pair(a: &SimulateArgs) -> Result<PredictorPair, PredictorError> {
     let plan: Box<dyn Predictor> = match a.predictor {
-        PredictorKind::ConstantVelocity => Box::new(ConstantVelocity::new(6)),
+        PredictorKind::ConstantVelocity => Box::new(ConstantVelocity::default()),
         k => load_predictor(model_path(k, a.weights.as_deref()))?,
     };
     let world = match a.world {

@@ -53,7 +53,10 @@ fn documented_hash(config: &str, tensors: &[(String, Dtype, Vec<usize>, Vec<u8>)
     for (name, dtype, shape, data) in sorted {
         field(&mut h, name.as_bytes());
         field(&mut h, format!("{dtype:?}").as_bytes());
-        let dims: Vec<u8> = shape.iter().flat_map(|d| (*d as u64).to_le_bytes()).collect();
+        let dims: Vec<u8> = shape
+            .iter()
+            .flat_map(|d| (*d as u64).to_le_bytes())
+            .collect();
         h.update((shape.len() as u64).to_le_bytes());
         h.update(&dims);
         field(&mut h, data);
@@ -185,7 +188,12 @@ fn predictors() -> Vec<Box<dyn Predictor>> {
 }
 
 /// Runs `History::new` + `set_scene` + `predict`; the error of the first step that fails.
-fn run(p: &mut dyn Predictor, hist: Vec<f64>, n: usize, cand: &[f64]) -> Result<Vec<f64>, PredictorError> {
+fn run(
+    p: &mut dyn Predictor,
+    hist: Vec<f64>,
+    n: usize,
+    cand: &[f64],
+) -> Result<Vec<f64>, PredictorError> {
     let h = History::new(hist, n)?;
     p.set_scene(&h)?;
     let t = p.horizon();
@@ -211,6 +219,22 @@ fn weights_whose_network_outputs_nan_fail_at_load() {
         load_predictor(&file).map(|_| ()),
     ] {
         let err = result.expect_err("a network that outputs NaN must not load");
+        match &err {
+            PredictorError::SelfCheck { path, source } => {
+                assert_eq!(path, &file);
+                assert!(
+                    matches!(
+                        **source,
+                        PredictorError::NonFiniteOutput {
+                            predictor: "student",
+                            ..
+                        }
+                    ),
+                    "{source:?}"
+                );
+            }
+            other => panic!("expected SelfCheck, got {other:?}"),
+        }
         let msg = err.to_string();
         assert!(msg.contains("nan-student.safetensors"), "{msg}");
         assert!(msg.contains("self-check"), "{msg}");
@@ -226,7 +250,23 @@ fn weights_with_absurd_outputs_fail_at_load() {
         let mut p = Parts::shipped(kind);
         p.set_f32("decoder.hidden2pos.bias", 0, 3.4e38);
         let file = write(&dir, &format!("huge-{kind}.safetensors"), &p.stamped());
-        let err = load_predictor(&file).err().expect("absurd outputs must not load");
+        let err = load_predictor(&file)
+            .err()
+            .expect("absurd outputs must not load");
+        match &err {
+            PredictorError::SelfCheck { source, .. } => match **source {
+                PredictorError::ImplausibleOutput {
+                    displacement,
+                    max,
+                    step: 1,
+                    ..
+                } => {
+                    assert!(displacement > 1e38 && max == nudge_predictor::limits::MAX_STEP);
+                }
+                ref other => panic!("{other:?}"),
+            },
+            other => panic!("expected SelfCheck, got {other:?}"),
+        }
         let msg = err.to_string();
         assert!(msg.contains(&format!("huge-{kind}.safetensors")), "{msg}");
         assert!(msg.contains("implausible"), "{msg}");
@@ -240,7 +280,9 @@ fn weights_with_absurd_outputs_fail_at_load() {
 fn partially_non_finite_network_names_agent_and_step() {
     let mut p = Parts::shipped("teacher");
     p.set_f32("pool_net.spatial_embedding.weight", 0, 3e38);
-    let err = Teacher::from_bytes(&p.stamped()).err().expect("must not load");
+    let err = Teacher::from_bytes(&p.stamped())
+        .err()
+        .expect("must not load");
     let msg = err.to_string();
     assert!(msg.contains("agent ") && msg.contains("step "), "{msg}");
 }
@@ -260,7 +302,10 @@ fn unrepresentable_inputs_are_refused_with_the_accepted_range() {
             h
         }),
         ("agent 1.5 km from the others", far(1060.0)),
-        ("agent moving 40 m per step", history_with(None, Some((3, 40.0)))),
+        (
+            "agent moving 40 m per step",
+            history_with(None, Some((3, 40.0))),
+        ),
     ];
     for mut p in predictors() {
         let name = p.name();
@@ -270,16 +315,42 @@ fn unrepresentable_inputs_are_refused_with_the_accepted_range() {
                 .unwrap_or_else(|| panic!("{name}: {what} accepted"));
             let msg = err.to_string();
             assert!(msg.contains("accepted range"), "{name}: {what}: {msg}");
+            assert!(
+                matches!(
+                    err,
+                    PredictorError::InputOutOfRange {
+                        what: "history",
+                        ..
+                    }
+                ),
+                "{name}: {what}: {err:?}"
+            );
         }
         let mut far_cand = candidates();
         far_cand[3] = 1e154;
         let mut jump = candidates();
         jump[4] += 40.0;
-        for (what, c) in [("candidate at 1e154 m", far_cand), ("candidate jumping 40 m", jump)] {
+        for (what, c) in [
+            ("candidate at 1e154 m", far_cand),
+            ("candidate jumping 40 m", jump),
+        ] {
             let err = run(p.as_mut(), history_with(None, None), n, &c)
                 .err()
                 .unwrap_or_else(|| panic!("{name}: {what} accepted"));
-            assert!(err.to_string().contains("accepted range"), "{name}: {what}: {err}");
+            assert!(
+                err.to_string().contains("accepted range"),
+                "{name}: {what}: {err}"
+            );
+            assert!(
+                matches!(
+                    err,
+                    PredictorError::InputOutOfRange {
+                        what: "candidates",
+                        ..
+                    }
+                ),
+                "{name}: {what}: {err:?}"
+            );
         }
         // Just inside every range: finite predictions.
         let mut shifted = history_with(Some((1, [690.0, 690.0])), Some((3, 20.0)));
@@ -296,15 +367,34 @@ fn unrepresentable_inputs_are_refused_with_the_accepted_range() {
 
 #[test]
 fn constant_velocity_horizon_zero_is_refused_not_a_panic() {
-    let outcome = std::panic::catch_unwind(|| {
-        let mut cv = ConstantVelocity::new(0);
-        let h = History::new(history_with(None, None), AGENTS.len())?;
-        cv.set_scene(&h)?;
-        cv.predict(&[], &mut [])
-    });
-    let result = outcome.expect("horizon 0 must not panic");
-    let err = result.expect_err("horizon 0 must be refused");
-    assert!(err.to_string().contains("horizon"), "{err}");
+    for h in [0, nudge_predictor::MAX_HORIZON + 1, usize::MAX] {
+        match ConstantVelocity::new(h) {
+            Err(PredictorError::Horizon { got, max }) => {
+                assert_eq!((got, max), (h, nudge_predictor::MAX_HORIZON));
+            }
+            other => panic!("horizon {h}: {other:?}"),
+        }
+    }
+    let err = ConstantVelocity::new(0).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "horizon 0 steps is outside the supported range 1..=60"
+    );
+    // The shared batch check refuses horizon 0 and 0 agents too (it divided by zero).
+    assert!(matches!(
+        nudge_predictor::check_batch(&[], &[], 0, 2, [0.0; 2]),
+        Err(PredictorError::Horizon { got: 0, .. })
+    ));
+    assert!(matches!(
+        nudge_predictor::check_batch(&[0.0; 12], &[], 6, 0, [0.0; 2]),
+        Err(PredictorError::AgentCount { got: 0, .. })
+    ));
+    let mut cv = ConstantVelocity::new(1).unwrap();
+    let h = History::new(history_with(None, None), AGENTS.len()).unwrap();
+    cv.set_scene(&h).unwrap();
+    let mut out = vec![0.0; 4 * 2];
+    cv.predict(&[7.5, 0.0], &mut out).unwrap();
+    assert_eq!(&out[..2], &[32.0, 0.0]);
 }
 
 /// Strategy: a float that is often ordinary, sometimes huge, NaN or infinite.
@@ -337,7 +427,10 @@ proptest! {
         let outcome = std::panic::catch_unwind(|| {
             let mut results = Vec::new();
             let mut ps = predictors();
-            ps.push(Box::new(ConstantVelocity::new(horizon)));
+            match ConstantVelocity::new(horizon) {
+                Ok(cv) => ps.push(Box::new(cv)),
+                Err(e) => results.push(("constant_velocity", Err(e))),
+            }
             for mut p in ps {
                 let t = p.horizon();
                 let mut hist = history_with(None, None);
@@ -391,7 +484,10 @@ fn fifo_is_refused_without_blocking() {
     let dir = scratch("fifo");
     let fifo = dir.join("model.safetensors");
     let _ = std::fs::remove_file(&fifo);
-    let status = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
     assert!(status.success());
     let f = fifo.clone();
     let result = within(10, move || load_predictor(&f).map(|_| ()));
@@ -399,16 +495,29 @@ fn fifo_is_refused_without_blocking() {
     if result.is_none() {
         let _ = std::fs::OpenOptions::new().write(true).open(&fifo);
     }
-    let err = result.expect("loading a FIFO blocked").expect_err("a FIFO must be refused");
+    let err = result
+        .expect("loading a FIFO blocked")
+        .expect_err("a FIFO must be refused");
+    assert!(
+        matches!(&err, PredictorError::NotRegularFile { path, kind: "a FIFO" } if *path == fifo),
+        "{err:?}"
+    );
     let msg = err.to_string();
-    assert!(msg.contains("model.safetensors") && msg.contains("not a regular file"), "{msg}");
+    assert!(
+        msg.contains("model.safetensors") && msg.contains("not a regular file"),
+        "{msg}"
+    );
 }
 
 #[cfg(unix)]
 #[test]
 fn devices_and_directories_are_refused_before_reading() {
     let dir = scratch("special");
-    for path in [PathBuf::from("/dev/zero"), PathBuf::from("/dev/null"), dir.clone()] {
+    for path in [
+        PathBuf::from("/dev/zero"),
+        PathBuf::from("/dev/null"),
+        dir.clone(),
+    ] {
         let p = path.clone();
         let err = within(10, move || Teacher::from_file(&p).map(|_| ()))
             .unwrap_or_else(|| panic!("{}: blocked", path.display()))
@@ -431,8 +540,15 @@ fn oversized_file_is_refused_before_reading() {
     let err = within(10, move || load_predictor(&p).map(|_| ()))
         .expect("an oversized file must be refused before reading")
         .expect_err("must be refused");
+    assert!(
+        matches!(err, PredictorError::FileTooLarge { size, max, .. } if size == 1 << 40 && max == nudge_predictor::file::MAX_WEIGHTS_BYTES),
+        "{err:?}"
+    );
     let msg = err.to_string();
-    assert!(msg.contains("huge.safetensors") && msg.contains("larger than"), "{msg}");
+    assert!(
+        msg.contains("huge.safetensors") && msg.contains("larger than"),
+        "{msg}"
+    );
     std::fs::remove_file(&path).unwrap();
 }
 
@@ -451,8 +567,15 @@ fn shipped_and_golden_weights_carry_the_documented_hash() {
         "tests/golden/weights_student_random.safetensors",
     ] {
         let p = Parts::of(&std::fs::read(repo().join(rel)).unwrap());
-        let stored = p.meta.get("sha256").unwrap_or_else(|| panic!("{rel}: no sha256"));
-        assert_eq!(stored, &documented_hash(&p.meta["config"], &p.tensors), "{rel}");
+        let stored = p
+            .meta
+            .get("sha256")
+            .unwrap_or_else(|| panic!("{rel}: no sha256"));
+        assert_eq!(
+            stored,
+            &documented_hash(&p.meta["config"], &p.tensors),
+            "{rel}"
+        );
         load_predictor(repo().join(rel)).unwrap();
     }
 }
@@ -468,10 +591,16 @@ fn flipped_bits_are_detected() {
         let mut bad = good.clone();
         bad[offset] ^= 0x01;
         let file = write(&dir, "flipped.safetensors", &bad);
-        let err = load_predictor(&file).err().unwrap_or_else(|| panic!("flip at {offset} accepted"));
+        let err = load_predictor(&file)
+            .err()
+            .unwrap_or_else(|| panic!("flip at {offset} accepted"));
         let msg = err.to_string();
         assert!(msg.contains("flipped.safetensors"), "{msg}");
         assert!(msg.contains("sha256"), "{msg}");
+        assert!(
+            matches!(err, PredictorError::HashMismatch { .. }),
+            "{err:?}"
+        );
     }
     // An edited config field the loader does not otherwise check (the seed) too.
     let mut p = Parts::shipped("student");
@@ -485,7 +614,10 @@ fn flipped_bits_are_detected() {
 fn weights_without_hash_are_refused() {
     let mut p = Parts::shipped("teacher");
     p.meta.remove("sha256");
-    let err = Teacher::from_bytes(&p.raw()).err().expect("must be refused");
+    let err = Teacher::from_bytes(&p.raw())
+        .err()
+        .expect("must be refused");
+    assert!(matches!(err, PredictorError::MissingHash { .. }), "{err:?}");
     assert!(err.to_string().contains("sha256"), "{err}");
     let mut p = Parts::shipped("teacher");
     p.meta.insert("sha256".into(), "not a hash".into());

@@ -28,6 +28,7 @@ impl Spec {
     /// Any weights-loading error of the predictor crate.
     pub fn parse(what: &str, horizon: usize) -> Result<Self, PredictorError> {
         if what == "constant_velocity" {
+            ConstantVelocity::new(horizon)?;
             return Ok(Self::ConstantVelocity(horizon));
         }
         let w = ModelWeights::from_file(Path::new(what))?;
@@ -40,7 +41,10 @@ impl Spec {
     /// A fresh predictor.
     pub fn build(&self) -> Box<dyn Predictor> {
         match self {
-            Self::ConstantVelocity(h) => Box::new(ConstantVelocity::new(*h)),
+            Self::ConstantVelocity(h) => Box::new(
+                // `parse` checked the horizon.
+                ConstantVelocity::new(*h).unwrap_or_default(),
+            ),
             Self::Teacher(t) => Box::new(t.as_ref().clone()),
             Self::Student(s) => Box::new(s.as_ref().clone()),
         }
@@ -171,8 +175,8 @@ mod tests {
 
     #[test]
     fn records_distinct_candidates_with_the_inner_prediction() {
-        let mut rec = Recording::new(Box::new(ConstantVelocity::new(6)));
-        let mut plain = ConstantVelocity::new(6);
+        let mut rec = Recording::new(Box::new(ConstantVelocity::default()));
+        let mut plain = ConstantVelocity::default();
         let h = history(3);
         rec.set_scene(&h).expect("scene");
         plain.set_scene(&h).expect("scene");
@@ -204,7 +208,7 @@ mod tests {
 
     #[test]
     fn errors_pass_through_and_record_nothing() {
-        let mut rec = Recording::new(Box::new(ConstantVelocity::new(6)));
+        let mut rec = Recording::new(Box::new(ConstantVelocity::default()));
         rec.set_scene(&history(2)).expect("scene");
         let bad = vec![f64::NAN; 12];
         assert!(rec.predict(&bad, &mut [0.0; 12]).is_err());
