@@ -9,6 +9,19 @@ use nudge_predictor::PredictorError;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SettingsError {
+    /// A numeric field lies outside its documented range ([`crate::settings::RANGES`]).
+    #[error("invalid planner setting `{field}` = {value}: must be in {range}")]
+    OutOfRange {
+        /// Name of the field (as in the serde representation).
+        field: &'static str,
+        /// The value found.
+        value: f64,
+        /// Its admissible range.
+        range: crate::settings::FieldRange,
+    },
+    /// A settings file cannot be read (missing, not a regular file, too large, not UTF-8).
+    #[error("cannot read planner settings: {0}")]
+    File(String),
     /// One field is out of its admissible range.
     #[error("invalid planner setting `{field}` = {value}: {reason}")]
     Invalid {

@@ -15,7 +15,7 @@ mod model;
 mod qp;
 mod safety;
 mod scenario;
-mod settings;
+pub mod settings;
 mod sim;
 
 pub use admm::{EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem};

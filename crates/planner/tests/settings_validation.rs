@@ -91,8 +91,77 @@ fn every_field_is_validated() {
             let err = PlannerSettings::from_json(&with(&key, value.clone()))
                 .err()
                 .unwrap_or_else(|| panic!("{key} = {value} accepted"));
-            assert!(err.to_string().contains(&format!("`{key}`")), "{key} = {value}: {err}");
+            assert!(
+                err.to_string().contains(&format!("`{key}`")),
+                "{key} = {value}: {err}"
+            );
         }
     }
     assert_eq!(numeric, 33, "numeric settings");
+}
+
+/// The documented range table covers exactly the numeric fields, each bound is enforced, and
+/// each closed end point is accepted.
+#[test]
+fn range_table_matches_the_fields_and_is_enforced() {
+    use nudge_planner::settings::RANGES;
+    let numeric: Vec<String> = defaults()
+        .into_iter()
+        .filter(|(_, v)| !v.is_boolean())
+        .map(|(k, _)| k)
+        .collect();
+    let table: Vec<&str> = RANGES.iter().map(|r| r.field).collect();
+    let mut sorted_numeric = numeric.clone();
+    sorted_numeric.sort();
+    let mut sorted_table: Vec<String> = table.iter().map(|s| (*s).to_owned()).collect();
+    sorted_table.sort();
+    assert_eq!(sorted_numeric, sorted_table);
+    for r in RANGES {
+        let default = PlannerSettings::default().numeric(r.field).unwrap();
+        assert!(
+            r.contains(default),
+            "default {} = {default} outside {r}",
+            r.field
+        );
+        let is_int = defaults()[r.field].is_u64();
+        let step = |x: f64, up: bool| {
+            if is_int {
+                if up { x + 1.0 } else { x - 1.0 }
+            } else {
+                let d = x.abs().max(1.0) * 1e-9;
+                if up { x + d } else { x - d }
+            }
+        };
+        for (v, ok) in [
+            (step(r.min, false), false),
+            (step(r.max, true), false),
+            (r.min, !r.min_open),
+            (r.max, !r.max_open),
+        ] {
+            if is_int && v < 0.0 {
+                continue; // not representable in the integer field
+            }
+            // a_max must also exceed a_min: test a_max's own bounds with a_min at its minimum.
+            let mut m = serde_json::Map::new();
+            if r.field == "a_max" {
+                m.insert("a_min".into(), json!(-15.0));
+            }
+            let value = if is_int { json!(v as u64) } else { json!(v) };
+            m.insert(r.field.into(), value);
+            let result = PlannerSettings::from_json(&Value::Object(m).to_string());
+            if r.field == "a_max" && v <= -15.0 {
+                assert!(result.is_err());
+                continue;
+            }
+            assert_eq!(
+                result.is_ok(),
+                ok,
+                "{} = {v} (range {r}): {result:?}",
+                r.field
+            );
+            if let Err(e) = result {
+                assert!(e.to_string().contains(&format!("`{}`", r.field)), "{e}");
+            }
+        }
+    }
 }
