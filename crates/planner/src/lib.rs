@@ -14,7 +14,7 @@ mod error;
 mod model;
 mod qp;
 mod safety;
-mod scenario;
+pub mod scenario;
 pub mod settings;
 mod sim;
 
