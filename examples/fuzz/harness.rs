@@ -949,7 +949,7 @@ fn scenario_plausible(sc: &Scenario) -> Result<(), String> {
     let [right, left] = sc.road();
     for w in sc.lane_bounds.windows(2) {
         let width = w[1] - w[0];
-        if !(width >= LANE_WIDTH[0] && width <= LANE_WIDTH[1]) {
+        if !(LANE_WIDTH[0]..=LANE_WIDTH[1]).contains(&width) {
             return Err(format!("lane width {width}"));
         }
     }
@@ -962,10 +962,10 @@ fn scenario_plausible(sc: &Scenario) -> Result<(), String> {
                 ));
             }
         }
-        if !(sc.heading[a].abs() <= MAX_HEADING) {
+        if sc.heading[a].abs().is_nan() || sc.heading[a].abs() > MAX_HEADING {
             return Err(format!("agent {a} heading {}", sc.heading[a]));
         }
-        if !(sc.speed[a] >= 0.0 && sc.speed[a] <= MAX_SPEED) {
+        if !(0.0..=MAX_SPEED).contains(&sc.speed[a]) {
             return Err(format!("agent {a} speed {}", sc.speed[a]));
         }
     }
@@ -1144,13 +1144,11 @@ fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
             let v: Vec<f64> = (0..=rng.below(5)).map(|_| rng.range(-10.0, 10.0)).collect();
             text = serde_json::json!(v).to_string();
         }
-        1 => {
-            if !text.is_empty() {
-                let mut b = text.into_bytes();
-                let i = rng.below(b.len());
-                b[i] ^= 1 << rng.below(7);
-                text = String::from_utf8_lossy(&b).into_owned();
-            }
+        1 if !text.is_empty() => {
+            let mut b = text.into_bytes();
+            let i = rng.below(b.len());
+            b[i] ^= 1 << rng.below(7);
+            text = String::from_utf8_lossy(&b).into_owned();
         }
         2 => {
             let n = rng.below(text.len() + 1);

@@ -10,7 +10,10 @@ use nudge_predictor::PredictorError;
 #[non_exhaustive]
 pub enum SettingsError {
     /// A numeric field lies outside its documented range ([`crate::settings::RANGES`]).
-    #[error("invalid planner setting `{field}` = {value}: must be in {range}")]
+    #[error(
+        "invalid planner setting `{field}` = {shown}: must be in {range}",
+        shown = crate::settings::show(*.value)
+    )]
     OutOfRange {
         /// Name of the field (as in the serde representation).
         field: &'static str,

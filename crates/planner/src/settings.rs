@@ -219,14 +219,24 @@ impl FieldRange {
     }
 }
 
+/// A number for messages: plain for ordinary magnitudes, scientific for huge or tiny ones.
+pub(crate) fn show(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && a.is_finite() && !(1e-3..1e6).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 impl std::fmt::Display for FieldRange {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
             "{}{}, {}{}{}{}",
             if self.min_open { '(' } else { '[' },
-            self.min,
-            self.max,
+            show(self.min),
+            show(self.max),
             if self.max_open { ')' } else { ']' },
             if self.unit.is_empty() { "" } else { " " },
             self.unit

@@ -34,7 +34,7 @@
 //! prediction is checked to be finite and physically plausible before it is returned; a
 //! network is run on a canonical scene when it is loaded, so weights whose output is NaN or
 //! absurd fail at load, naming the file; weights files carry a content hash that the loader
-//! verifies; files are read only when regular and of bounded size ([`file`]). Nothing in this
+//! verifies; files are read only when regular and of bounded size ([`mod@file`]). Nothing in this
 //! crate panics on any input (property-tested in `tests/reliability.rs`).
 
 mod constant_velocity;

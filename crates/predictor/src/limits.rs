@@ -66,6 +66,12 @@ fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
+/// Squared distance (cheap; `hypot` only for messages).
+fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (a[0] - b[0], a[1] - b[1]);
+    dx * dx + dy * dy
+}
+
 /// Checks a finite `[n, T_OBS, 2]` history: coordinates, per-step displacements, distances
 /// between agents at the last observed step.
 pub(crate) fn check_history(positions: &[f64], n: usize) -> Result<()> {
@@ -86,29 +92,26 @@ pub(crate) fn check_history(positions: &[f64], n: usize) -> Result<()> {
                     MAX_ABS_POSITION,
                 ));
             }
-            if t > 0 {
-                let d = dist(p, at(a, t - 1));
-                if d > MAX_STEP {
-                    return Err(out_of_range(
-                        "history",
-                        Quantity::StepDisplacement,
-                        format!("agent {a}, observed steps {} to {t}", t - 1),
-                        d,
-                        MAX_STEP,
-                    ));
-                }
+            if t > 0 && dist2(p, at(a, t - 1)) > MAX_STEP * MAX_STEP {
+                return Err(out_of_range(
+                    "history",
+                    Quantity::StepDisplacement,
+                    format!("agent {a}, observed steps {} to {t}", t - 1),
+                    dist(p, at(a, t - 1)),
+                    MAX_STEP,
+                ));
             }
         }
     }
     for i in 0..n {
         for j in i + 1..n {
-            let d = dist(at(i, T_OBS - 1), at(j, T_OBS - 1));
-            if d > MAX_AGENT_OFFSET {
+            let (p, q) = (at(i, T_OBS - 1), at(j, T_OBS - 1));
+            if dist2(p, q) > MAX_AGENT_OFFSET * MAX_AGENT_OFFSET {
                 return Err(out_of_range(
                     "history",
                     Quantity::AgentOffset,
                     format!("agents {i} and {j} at the last observed step"),
-                    d,
+                    dist(p, q),
                     MAX_AGENT_OFFSET,
                 ));
             }
@@ -138,13 +141,12 @@ pub(crate) fn check_candidates(
                     MAX_ABS_POSITION,
                 ));
             }
-            let d = dist(p, prev);
-            if d > MAX_STEP {
+            if dist2(p, prev) > MAX_STEP * MAX_STEP {
                 return Err(out_of_range(
                     "candidates",
                     Quantity::StepDisplacement,
                     format!("candidate {b}, step {}", k + 1),
-                    d,
+                    dist(p, prev),
                     MAX_STEP,
                 ));
             }
@@ -220,9 +222,9 @@ const CANONICAL: [(f64, f64, f64); 5] = [
     (-5.0, -3.7, 7.8),
 ];
 
-/// The canonical scene of the load-time self-check: the history of [`CANONICAL`] (constant
-/// speeds) and four ego candidates `[4, horizon, 2]` (keep lane, change left, change right,
-/// brake).
+/// The canonical scene of the load-time self-check: five agents on a three-lane highway at
+/// 22–27 m/s with neighbours ahead, behind and on both sides (constant speeds), and four ego
+/// candidates `[4, horizon, 2]` (keep lane, change left, change right, brake).
 #[must_use]
 pub fn canonical_scene(horizon: usize) -> (History, Vec<f64>) {
     let mut pos = Vec::with_capacity(CANONICAL.len() * T_OBS * 2);

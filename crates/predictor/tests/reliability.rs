@@ -280,9 +280,7 @@ fn weights_with_absurd_outputs_fail_at_load() {
 fn partially_non_finite_network_names_agent_and_step() {
     let mut p = Parts::shipped("teacher");
     p.set_f32("pool_net.spatial_embedding.weight", 0, 3e38);
-    let err = Teacher::from_bytes(&p.stamped())
-        .err()
-        .expect("must not load");
+    let err = Teacher::from_bytes(&p.stamped()).expect_err("must not load");
     let msg = err.to_string();
     assert!(msg.contains("agent ") && msg.contains("step "), "{msg}");
 }
@@ -614,9 +612,7 @@ fn flipped_bits_are_detected() {
 fn weights_without_hash_are_refused() {
     let mut p = Parts::shipped("teacher");
     p.meta.remove("sha256");
-    let err = Teacher::from_bytes(&p.raw())
-        .err()
-        .expect("must be refused");
+    let err = Teacher::from_bytes(&p.raw()).expect_err("must be refused");
     assert!(matches!(err, PredictorError::MissingHash { .. }), "{err:?}");
     assert!(err.to_string().contains("sha256"), "{err}");
     let mut p = Parts::shipped("teacher");
