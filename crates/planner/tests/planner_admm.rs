@@ -84,7 +84,7 @@ fn admm_matches_joint_qp_without_vehicles() {
     let p = problem(&h, &sizes, 12.0, 0.0, 3.7);
     let mut planner = Planner::new(settings).unwrap();
     let reference = planner.reference_qp(&p).unwrap();
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     let plan = planner.plan(&p, &mut cv).unwrap();
     assert_eq!(plan.status, PlanStatus::Converged);
     assert_eq!(plan.checked, 0);
@@ -172,7 +172,7 @@ fn plans_are_safe_bounded_and_deterministic_with_traffic() {
     let p = problem(&h, &sizes, 12.0, 0.0, 3.7);
     let mut a = Planner::new(s.clone()).unwrap();
     let mut b = Planner::new(s.clone()).unwrap();
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     let pa = a.plan(&p, &mut cv).unwrap();
     let pb = b.plan(&p, &mut cv).unwrap();
     assert_ne!(pa.status, PlanStatus::Unsafe);
@@ -255,7 +255,7 @@ fn invalid_settings_are_typed_errors() {
 fn bad_problems_are_typed_errors() {
     let (h, sizes) = scene(12.0, 0.0, &[(14.0, 0.0, 9.0)]);
     let mut planner = Planner::new(PlannerSettings::default()).unwrap();
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     let mut p = problem(&h, &sizes, 12.0, 0.0, 3.7);
     p.ego.v = f64::NAN;
     assert!(matches!(
@@ -270,7 +270,7 @@ fn bad_problems_are_typed_errors() {
         planner.plan(&p2, &mut cv),
         Err(PlannerError::BadProblem { field: "sizes", .. })
     ));
-    let mut cv5 = ConstantVelocity::new(5);
+    let mut cv5 = ConstantVelocity::new(5).unwrap();
     let p3 = problem(&h, &sizes, 12.0, 0.0, 3.7);
     assert!(matches!(
         planner.plan(&p3, &mut cv5),
@@ -304,7 +304,7 @@ proptest! {
         p.last_delta = last_delta;
         p.last_accel = last_accel;
         let mut planner = Planner::new(s.clone()).unwrap();
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::default();
         let plan = planner.plan(&p, &mut cv).unwrap();
         // Bounds with the clamped last inputs.
         let mut pd = last_delta.clamp(-s.delta_max, s.delta_max);

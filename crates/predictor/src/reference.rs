@@ -221,7 +221,7 @@ pub fn predict(
     let n = history.n_agents();
     let t = cfg.t_plan;
     let mut out = vec![0.0f64; (candidates.len() / (2 * t).max(1)) * (n - 1) * t * 2];
-    let batch = check_batch(candidates, &out, t, n)?;
+    let batch = check_batch(candidates, &out, t, n, history.at(0, T_OBS - 1))?;
     let win0 = window(history);
     for b in 0..batch {
         let cand: Vec<[f64; 2]> = (0..t)

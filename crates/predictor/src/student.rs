@@ -8,7 +8,7 @@ use crate::generator::{Generator, Scratch};
 use crate::history::check_finite;
 use crate::nn::Pool;
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
-use crate::{History, Predictor, T_OBS, check_batch};
+use crate::{History, Predictor, T_OBS, check_batch, limits};
 
 /// The student predictor.
 ///
@@ -61,15 +61,18 @@ impl Student {
         Self::from_weights(&ModelWeights::from_bytes(bytes)?)
     }
 
-    /// Builds a student from validated weights.
+    /// Builds a student from validated weights and runs the load-time self-check
+    /// ([`limits::canonical_scene`]).
     ///
     /// # Errors
-    /// [`PredictorError::WrongModelKind`] if the weights are a teacher's.
+    /// [`PredictorError::WrongModelKind`] if the weights are a teacher's;
+    /// [`PredictorError::SelfCheck`] (naming the weights' file) if its predictions on the
+    /// canonical scene are non-finite or implausible.
     pub fn from_weights(weights: &ModelWeights) -> Result<Self> {
         weights.expect_kind(ModelKind::Student)?;
         let generator = Generator::new(weights);
         let noise = generator.fixed_noise.clone();
-        Ok(Self {
+        let mut student = Self {
             generator,
             noise,
             s: Scratch::default(),
@@ -84,7 +87,10 @@ impl Student {
             max1: Vec::new(),
             d: Vec::new(),
             pos: Vec::new(),
-        })
+        };
+        limits::self_check(&mut student, weights.path())?;
+        student.n = 0;
+        Ok(student)
     }
 
     /// The network configuration.
@@ -110,6 +116,7 @@ impl Student {
             });
         }
         check_finite("noise", z)?;
+        limits::check_noise(z)?;
         self.noise.clear();
         self.noise.extend(z.iter().map(|&v| v as f32));
         self.n = 0;
@@ -211,7 +218,7 @@ impl Predictor for Student {
             return Err(PredictorError::NoScene);
         }
         let t = self.horizon();
-        let batch = check_batch(candidates, out, t, n)?;
+        let batch = check_batch(candidates, out, t, n, [self.last[0], self.last[1]])?;
         if n == 1 {
             return Ok(());
         }
@@ -292,6 +299,7 @@ impl Predictor for Student {
                     out[o..o + 2].copy_from_slice(&self.pos[2 * a..2 * a + 2]);
                 }
             }
+            limits::check_output("student", b, &self.last, out, t)?;
         }
         Ok(())
     }

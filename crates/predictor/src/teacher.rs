@@ -7,7 +7,7 @@ use crate::generator::{Generator, Scratch};
 use crate::history::check_finite;
 use crate::nn::Pool;
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
-use crate::{History, Predictor, T_OBS, check_batch};
+use crate::{History, Predictor, T_OBS, check_batch, limits};
 
 /// The teacher predictor (Social-GAN generator, one step per call, `t_plan` calls).
 ///
@@ -33,6 +33,8 @@ pub struct Teacher {
     n: usize,
     /// `[n, T_OBS, 2]` scene history (metres).
     win0: Vec<f64>,
+    /// `[n, 2]` last observed positions (metres).
+    last: Vec<f64>,
     /// `[n, 2]` candidate-independent τ = 1 prediction (entry 0 unused).
     q1: Vec<f64>,
     /// Working window `[n, T_OBS, 2]` and one-step prediction `[n, 2]` (metres).
@@ -63,27 +65,34 @@ impl Teacher {
         Self::from_weights(&ModelWeights::from_bytes(bytes)?)
     }
 
-    /// Builds a teacher from validated weights.
+    /// Builds a teacher from validated weights and runs the load-time self-check
+    /// ([`limits::canonical_scene`], with the file's noise).
     ///
     /// # Errors
-    /// [`PredictorError::WrongModelKind`] if the weights are a student's.
+    /// [`PredictorError::WrongModelKind`] if the weights are a student's;
+    /// [`PredictorError::SelfCheck`] (naming the weights' file) if its predictions on the
+    /// canonical scene are non-finite or implausible.
     pub fn from_weights(weights: &ModelWeights) -> Result<Self> {
         weights.expect_kind(ModelKind::Teacher)?;
         let generator = Generator::new(weights);
         let noise = generator.fixed_noise.clone();
-        Ok(Self {
+        let mut teacher = Self {
             generator,
             noise,
             s: Scratch::default(),
             n: 0,
             win0: Vec::new(),
+            last: Vec::new(),
             q1: Vec::new(),
             win: Vec::new(),
             q: Vec::new(),
             h_enc2: Vec::new(),
             terms2: Vec::new(),
             max2: Vec::new(),
-        })
+        };
+        limits::self_check(&mut teacher, weights.path())?;
+        teacher.n = 0;
+        Ok(teacher)
     }
 
     /// The network configuration.
@@ -118,6 +127,7 @@ impl Teacher {
             });
         }
         check_finite("noise", z)?;
+        limits::check_noise(z)?;
         self.noise.clear();
         self.noise.extend(z.iter().map(|&v| v as f32));
         self.n = 0;
@@ -155,6 +165,10 @@ impl Predictor for Teacher {
         self.n = 0;
         self.win0.clear();
         self.win0.extend_from_slice(history.positions());
+        self.last.clear();
+        for a in 0..n {
+            self.last.extend_from_slice(&history.at(a, T_OBS - 1));
+        }
         let g = &self.generator;
         let s = &mut self.s;
         g.reserve(s, n);
@@ -188,7 +202,7 @@ impl Predictor for Teacher {
             return Err(PredictorError::NoScene);
         }
         let t = self.horizon();
-        let batch = check_batch(candidates, out, t, n)?;
+        let batch = check_batch(candidates, out, t, n, [self.last[0], self.last[1]])?;
         if n == 1 {
             return Ok(());
         }
@@ -207,6 +221,7 @@ impl Predictor for Teacher {
             let out = &mut out[b * per..(b + 1) * per];
             write(out, &self.q1, 0);
             if t < 2 {
+                limits::check_output("teacher", b, &self.last, out, t)?;
                 continue;
             }
             // τ = 2 from the cache: the ego's encoding, term and pairs only.
@@ -231,6 +246,7 @@ impl Predictor for Teacher {
                 g.one_step(&self.win, n, &self.noise, s, &mut self.q);
                 write(out, &self.q, tau);
             }
+            limits::check_output("teacher", b, &self.last, out, t)?;
         }
         Ok(())
     }

@@ -187,7 +187,7 @@ impl Planner {
     ///     road: [-1.85, 5.55],
     /// };
     /// let mut planner = Planner::new(PlannerSettings::default())?;
-    /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6))?;
+    /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6)?)?;
     /// assert_eq!(plan.states.len(), 6);
     /// assert!(plan.states[5][1] > 0.0, "the ego moves towards the left lane");
     /// assert!(plan.min_safety.is_some_and(|b| b > 0.0) && plan.status != PlanStatus::Unsafe);

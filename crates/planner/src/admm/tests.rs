@@ -160,7 +160,7 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
         let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
         let constraint = SafetyConstraint::new(&p, &s);
         assert_eq!(constraint.vehicles().len(), 1);
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::default();
         cv.set_scene(&h).unwrap();
         let threshold = s.safety_min + s.plan_buffer;
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
@@ -243,7 +243,7 @@ fn z_updates_restore_then_descend_safely() {
     let p = problem(&h, &sizes, 12.0);
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
     let constraint = SafetyConstraint::new(&p, &s);
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     cv.set_scene(&h).unwrap();
     let threshold = s.safety_min + s.plan_buffer;
     let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
@@ -461,7 +461,7 @@ fn qp_failure_ends_in_a_checked_fallback_plan() {
     let (h, sizes) = scene(12.0, 0.0, &[(6.0, 3.7, 12.0)]);
     let p = problem(&h, &sizes, 12.0);
     let mut planner = Planner::new(s.clone()).unwrap();
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     let plan = planner.plan(&p, &mut cv).unwrap();
     match plan.status {
         PlanStatus::SolverFailed { qp, status } => {
