@@ -453,14 +453,21 @@ fn repairer_checks_every_candidate_on_its_rollout() {
 /// roll-out, with the failing QP named.
 #[test]
 fn qp_failure_ends_in_a_checked_fallback_plan() {
-    // A = 1e308 overflows the α-QP's Hessian to ∞: Clarabel stops with a numerical error.
+    // w_a = 1e308 overflows the α-QP's Hessian to ∞: Clarabel stops with a numerical error.
+    // Validation refuses such a weight, so the planner is built without it (the failure
+    // stands for any Clarabel failure on valid settings).
     let s = PlannerSettings {
         w_a: 1e308,
         ..PlannerSettings::default()
     };
+    assert!(s.validate().is_err());
     let (h, sizes) = scene(12.0, 0.0, &[(6.0, 3.7, 12.0)]);
     let p = problem(&h, &sizes, 12.0);
-    let mut planner = Planner::new(s.clone()).unwrap();
+    let mut planner = Planner {
+        model: Planner::new(PlannerSettings::default()).unwrap().model,
+        settings: s.clone(),
+        warm: None,
+    };
     let mut cv = ConstantVelocity::default();
     let plan = planner.plan(&p, &mut cv).unwrap();
     match plan.status {
