@@ -7,7 +7,7 @@
 //! N ∈ {2, 4, 8, 16, 32} agents (ego included). Scenes come from
 //! `benches/data/scenes.safetensors` (`n{N}.history` `[N, 8, 2]`, `n{N}.candidates`
 //! `[32, 6, 2]`, f32 metres), weights from `assets/models/{teacher,student}.safetensors`;
-//! both are written by `python/train/scripts/make_goldens.py`.
+//! both are written by `nudge-train goldens`.
 #![allow(clippy::unwrap_used)]
 
 use std::hint::black_box;

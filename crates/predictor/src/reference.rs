@@ -3,7 +3,7 @@
 //! It follows the PyTorch modules operation by operation (embedding, then concatenation,
 //! unsplit pooling over every pair, separate LSTM biases, no caching, no folding) and
 //! allocates freely. It computes in **f64** (the f32 weights widened), like the golden
-//! generator `python/train/scripts/make_goldens.py`, so it is a precision reference as well:
+//! generator `nudge-train goldens`, so it is a precision reference as well:
 //! [`Teacher`](crate::Teacher) and [`Student`](crate::Student) (f32) must agree with it to
 //! ≤ 1e-5 m; the property tests check that.
 

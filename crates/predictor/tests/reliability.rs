@@ -567,8 +567,8 @@ fn shipped_and_golden_weights_carry_the_documented_hash() {
     for rel in [
         "assets/models/teacher.safetensors",
         "assets/models/student.safetensors",
-        "tests/golden/weights_teacher_random.safetensors",
-        "tests/golden/weights_student_random.safetensors",
+        "crates/predictor/tests/golden/weights_teacher_random.safetensors",
+        "crates/predictor/tests/golden/weights_student_random.safetensors",
     ] {
         let p = Parts::of(&std::fs::read(repo().join(rel)).unwrap());
         let stored = p
