@@ -10,16 +10,17 @@ from pathlib import Path
 import pytest
 from safetensors import safe_open
 
-from nudge_train.config import student_config
-from nudge_train.export import export_generator, read_weights, save_safetensors, stamp_weights, weights_sha256
-from nudge_train.models import build_model
+from nudge_train import paths
+from nudge_train.models.config import student_config
+from nudge_train.models.networks import build_model
+from nudge_train.training.export import export_generator, read_weights, save_safetensors, stamp_weights, weights_sha256
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
+REPO_ROOT = paths.repo()
 SHIPPED = [
     REPO_ROOT / "assets" / "models" / "teacher.safetensors",
     REPO_ROOT / "assets" / "models" / "student.safetensors",
-    REPO_ROOT / "tests" / "golden" / "weights_teacher_random.safetensors",
-    REPO_ROOT / "tests" / "golden" / "weights_student_random.safetensors",
+    REPO_ROOT / paths.GOLDEN_DIR / "weights_teacher_random.safetensors",
+    REPO_ROOT / paths.GOLDEN_DIR / "weights_student_random.safetensors",
 ]
 
 
