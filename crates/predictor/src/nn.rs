@@ -141,8 +141,9 @@ fn tile<S: Simd, const MB: usize, const OB: usize>(
     r0: usize,
     init: [S::V; OB],
 ) -> [[S::V; OB]; MB] {
-    let ws: [&[Block]; OB] = std::array::from_fn(|o| &w[(blk0 + o) * k..(blk0 + o + 1) * k]);
-    let xs: [&[f32]; MB] = std::array::from_fn(|r| &x[(r0 + r) * ldx..(r0 + r) * ldx + k]);
+    // Slices of length exactly `k` (`[..k]`), so that the loop below needs no bounds checks.
+    let ws: [&[Block]; OB] = std::array::from_fn(|o| &w[(blk0 + o) * k..][..k]);
+    let xs: [&[f32]; MB] = std::array::from_fn(|r| &x[(r0 + r) * ldx..][..k]);
     let mut acc = [init; MB];
     for kk in 0..k {
         let wv: [S::V; OB] = std::array::from_fn(|o| s.load(&ws[o][kk]));
@@ -170,8 +171,8 @@ fn tile_d<S: Simd, const MB: usize, const OB: usize>(
     r0: usize,
     init: [S::D; OB],
 ) -> [[S::D; OB]; MB] {
-    let ws: [&[BlockD]; OB] = std::array::from_fn(|o| &w[(blk0 + o) * k..(blk0 + o + 1) * k]);
-    let xs: [&[f32]; MB] = std::array::from_fn(|r| &x[(r0 + r) * ldx..(r0 + r) * ldx + k]);
+    let ws: [&[BlockD]; OB] = std::array::from_fn(|o| &w[(blk0 + o) * k..][..k]);
+    let xs: [&[f32]; MB] = std::array::from_fn(|r| &x[(r0 + r) * ldx..][..k]);
     let mut acc = [init; MB];
     for kk in 0..k {
         let wv: [S::D; OB] = std::array::from_fn(|o| s.load_d(&ws[o][kk]));
@@ -185,29 +186,53 @@ fn tile_d<S: Simd, const MB: usize, const OB: usize>(
     acc
 }
 
-/// `y = W x + b` with `W` `[out, in]`, repacked for vectorised evaluation. The sums
-/// accumulate in f64 (weights widened at load time, inputs widened exactly) and are rounded to
-/// f32 once: see [`simd`](crate::simd) for why.
+/// Precision of the sums of a [`Dense`] layer (its inputs and outputs are f32 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Accumulate {
+    /// f32 accumulators (16 lanes per vector).
+    F32,
+    /// f64 accumulators (8 lanes per vector; weights widened at load time, inputs widened
+    /// exactly), rounded to f32 once per output.
+    F64,
+}
+
+/// Packed weights and bias of a [`Dense`] layer, in the precision of its sums.
+#[derive(Debug, Clone)]
+enum Packed {
+    /// `[n_blocks][in]` blocks of 16 f32 lanes, `[n_blocks]` bias blocks.
+    F32(Vec<Block>, Vec<Block>),
+    /// `[n_blocks][in]` blocks of 8 f64 lanes, `[n_blocks]` bias blocks.
+    F64(Vec<BlockD>, Vec<BlockD>),
+}
+
+/// `y = W x + b` with `W` `[out, in]`, repacked for vectorised evaluation, summing in the
+/// chosen [`Accumulate`] precision (zero padded to whole blocks).
 #[derive(Debug, Clone)]
 pub(crate) struct Dense {
     in_dim: usize,
     out_dim: usize,
-    /// `[n_blocks][in]` blocks of 8 f64 lanes.
-    w: Vec<BlockD>,
-    /// `[n_blocks]` bias blocks, zero padded.
-    b: Vec<BlockD>,
+    packed: Packed,
 }
 
 impl Dense {
     /// From a row-major `[out, in]` weight and an `[out]` bias.
-    pub(crate) fn new(w: &[f32], b: &[f32], out_dim: usize, in_dim: usize) -> Self {
+    pub(crate) fn new(
+        w: &[f32],
+        b: &[f32],
+        out_dim: usize,
+        in_dim: usize,
+        acc: Accumulate,
+    ) -> Self {
         debug_assert_eq!(w.len(), out_dim * in_dim);
         debug_assert_eq!(b.len(), out_dim);
+        let packed = match acc {
+            Accumulate::F32 => Packed::F32(pack(w, out_dim, in_dim), pad(b)),
+            Accumulate::F64 => Packed::F64(pack_d(w, out_dim, in_dim), pack_d(b, out_dim, 1)),
+        };
         Self {
             in_dim,
             out_dim,
-            w: pack_d(w, out_dim, in_dim),
-            b: pack_d(b, out_dim, 1),
+            packed,
         }
     }
 
@@ -272,14 +297,28 @@ fn dense_rows<S: Simd>(
     relu: bool,
 ) {
     count_macs(m * d.in_dim * d.out_dim);
-    let nblk = d.b.len();
+    let nblk = match &d.packed {
+        Packed::F32(_, b) => b.len(),
+        Packed::F64(_, b) => b.len(),
+    };
     let mut r = 0;
     while r < m {
         let mb = (m - r).min(S::TILE_ROWS);
         let mut blk = 0;
         while blk < nblk {
             let ob = (nblk - blk).min(S::TILE_BLOCKS);
-            by_tile!(mb, ob, dense_tile::<S>(s, d, x, ldx, r, blk, y, ldy, relu));
+            match &d.packed {
+                Packed::F32(w, b) => by_tile!(
+                    mb,
+                    ob,
+                    dense_tile::<S>(s, d, w, b, x, ldx, r, blk, y, ldy, relu)
+                ),
+                Packed::F64(w, b) => by_tile!(
+                    mb,
+                    ob,
+                    dense_tile_d::<S>(s, d, w, b, x, ldx, r, blk, y, ldy, relu)
+                ),
+            }
             blk += ob;
         }
         r += mb;
@@ -291,6 +330,8 @@ fn dense_rows<S: Simd>(
 fn dense_tile<S: Simd, const MB: usize, const OB: usize>(
     s: S,
     d: &Dense,
+    w: &[Block],
+    b: &[Block],
     x: &[f32],
     ldx: usize,
     r0: usize,
@@ -299,8 +340,46 @@ fn dense_tile<S: Simd, const MB: usize, const OB: usize>(
     ldy: usize,
     relu: bool,
 ) {
-    let init: [S::D; OB] = std::array::from_fn(|o| s.load_d(&d.b[blk0 + o]));
-    let acc = tile_d::<S, MB, OB>(s, &d.w, d.in_dim, blk0, x, ldx, r0, init);
+    let init: [S::V; OB] = std::array::from_fn(|o| s.load(&b[blk0 + o]));
+    let acc = tile::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
+    let zero = s.splat(0.0);
+    for (r, row) in acc.into_iter().enumerate() {
+        for (o, mut v) in row.into_iter().enumerate() {
+            if relu {
+                v = s.max(v, zero);
+            }
+            let lane0 = (blk0 + o) * LANES;
+            let start = (r0 + r) * ldy + lane0;
+            let n = (d.out_dim - lane0).min(LANES);
+            let dst = &mut y[start..start + n];
+            if let Ok(full) = <&mut Block>::try_from(&mut *dst) {
+                s.store(v, full);
+            } else {
+                let mut t = [0.0f32; LANES];
+                s.store(v, &mut t);
+                dst.copy_from_slice(&t[..n]);
+            }
+        }
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn dense_tile_d<S: Simd, const MB: usize, const OB: usize>(
+    s: S,
+    d: &Dense,
+    w: &[BlockD],
+    b: &[BlockD],
+    x: &[f32],
+    ldx: usize,
+    r0: usize,
+    blk0: usize,
+    y: &mut [f32],
+    ldy: usize,
+    relu: bool,
+) {
+    let init: [S::D; OB] = std::array::from_fn(|o| s.load_d(&b[blk0 + o]));
+    let acc = tile_d::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
     for (r, row) in acc.into_iter().enumerate() {
         for (o, v) in row.into_iter().enumerate() {
             let lane0 = (blk0 + o) * LANES_D;
@@ -383,6 +462,7 @@ impl Lstm {
         b_ih: &[f32],
         b_hh: &[f32],
         h: usize,
+        acc: Accumulate,
     ) -> Self {
         let e = emb_b.len();
         let rows = 4 * h;
@@ -413,7 +493,7 @@ impl Lstm {
         }
         Self {
             h,
-            gates: Dense::new(&w, &b, rows, in_dim),
+            gates: Dense::new(&w, &b, rows, in_dim, acc),
         }
     }
 
@@ -526,6 +606,7 @@ impl Pool {
         w2: &[f32],
         b2: &[f32],
         h: usize,
+        acc: Accumulate,
     ) -> Self {
         let e = emb_b.len();
         let p = b1.len();
@@ -553,7 +634,7 @@ impl Pool {
             b,
             wpx: pad(&wpx),
             wpy: pad(&wpy),
-            l1h: Dense::new(&w1h, &c, p, h),
+            l1h: Dense::new(&w1h, &c, p, h, acc),
             w2: pack(w2, b, p),
             b2: b2.to_vec(),
         }
@@ -689,9 +770,21 @@ fn pool_tile<S: Simd, const MB: usize, const OB: usize>(
         0,
         [zero; OB],
     );
-    for (pr, row) in chunk.iter().zip(sums) {
-        let a = blocks_mut(&mut acc[pr.q as usize * al..(pr.q as usize + 1) * al]);
-        for (o, v) in row.into_iter().enumerate() {
+    // Consecutive pairs of the same query are reduced in registers first, so that each
+    // running-max row is read and written once per run instead of once per pair.
+    let mut r = 0;
+    while r < MB {
+        let q = chunk[r].q;
+        let mut best = sums[r];
+        r += 1;
+        while r < MB && chunk[r].q == q {
+            for o in 0..OB {
+                best[o] = s.max(best[o], sums[r][o]);
+            }
+            r += 1;
+        }
+        let a = blocks_mut(&mut acc[q as usize * al..(q as usize + 1) * al]);
+        for (o, v) in best.into_iter().enumerate() {
             let m = &mut a[blk0 + o];
             let new = s.max(s.load(m), v);
             s.store(new, m);
@@ -708,12 +801,19 @@ pub(crate) struct Mlp2 {
 
 impl Mlp2 {
     /// From `w1 [M, in]`, `b1 [M]`, `w2 [out, M]`, `b2 [out]`.
-    pub(crate) fn new(w1: &[f32], b1: &[f32], w2: &[f32], b2: &[f32], in_dim: usize) -> Self {
+    pub(crate) fn new(
+        w1: &[f32],
+        b1: &[f32],
+        w2: &[f32],
+        b2: &[f32],
+        in_dim: usize,
+        acc: Accumulate,
+    ) -> Self {
         let m = b1.len();
         let out = b2.len();
         Self {
-            l1: Dense::new(w1, b1, m, in_dim),
-            l2: Dense::new(w2, b2, out, m),
+            l1: Dense::new(w1, b1, m, in_dim, acc),
+            l2: Dense::new(w2, b2, out, m, acc),
         }
     }
 
@@ -919,7 +1019,8 @@ mod tests {
         for (out, inp) in [(2, 9), (13, 7), (16, 16), (24, 64), (33, 5), (128, 34)] {
             let w = values(11, out * inp);
             let b = values(12, out);
-            let d = Dense::new(&w, &b, out, inp);
+            for acc in [Accumulate::F32, Accumulate::F64] {
+            let d = Dense::new(&w, &b, out, inp, acc);
             let m = 11;
             let ldx = inp + 3;
             let x = values(13, m * ldx);
@@ -954,6 +1055,7 @@ mod tests {
                         }
                     }
                 }
+                }
             }
         }
     }
@@ -971,7 +1073,8 @@ mod tests {
         let b2 = values(6, b);
         let hs = values(7, n * h);
         let pos: Vec<f32> = values(8, n * 2).iter().map(|v| v * 30.0).collect();
-        let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h);
+        for acc in [Accumulate::F32, Accumulate::F64] {
+        let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
         let (ts, al) = (pool.term_stride(), pool.acc_len());
         let mut val = vec![0.0f32; pool.val_len()];
         let pairs: Vec<Pair> = (0..n)
@@ -1028,6 +1131,7 @@ mod tests {
                     );
                 }
             }
+        }
         }
     }
 
