@@ -30,6 +30,7 @@
 //! = 0.3 s, [`T_OBS`] = 8 observed steps, agent 0 is the ego, 1..=[`MAX_AGENTS`] agents.
 
 mod constant_velocity;
+pub mod cost;
 mod error;
 mod generator;
 mod history;
@@ -41,6 +42,7 @@ mod teacher;
 pub mod weights;
 
 pub use constant_velocity::ConstantVelocity;
+pub use cost::{MacCount, multiply_adds};
 pub use error::{PredictorError, Result};
 pub use history::History;
 pub use simd::{SimdPath, best_simd_path, simd_path, supported_simd_paths};
