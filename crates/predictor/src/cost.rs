@@ -119,6 +119,7 @@ pub fn multiply_adds(cfg: &ModelConfig, n_agents: usize) -> MacCount {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::nn::counter;
@@ -185,11 +186,19 @@ mod tests {
                     let want = multiply_adds(&cfg, n);
                     counter::take();
                     model.set_scene(&scene(n)).unwrap_or_else(|e| panic!("{e}"));
-                    assert_eq!(counter::take(), want.set_scene, "{:?} n={n} set_scene", cfg.kind);
+                    assert_eq!(
+                        counter::take(),
+                        want.set_scene,
+                        "{:?} n={n} set_scene",
+                        cfg.kind
+                    );
                     let t = model.horizon();
-                    let cand: Vec<f64> = (0..2 * t * 2).map(|i| (i % (2 * t)) as f64 * 0.7).collect();
+                    let cand: Vec<f64> =
+                        (0..2 * t * 2).map(|i| (i % (2 * t)) as f64 * 0.7).collect();
                     let mut out = vec![0.0; 2 * (n - 1) * t * 2];
-                    model.predict(&cand, &mut out).unwrap_or_else(|e| panic!("{e}"));
+                    model
+                        .predict(&cand, &mut out)
+                        .unwrap_or_else(|e| panic!("{e}"));
                     assert_eq!(
                         counter::take(),
                         2 * want.per_candidate,

@@ -199,15 +199,9 @@ impl Generator {
             self.cfg.decoder_h_dim,
             self.cfg.bottleneck_dim,
         );
-        grow(
-            &mut s.xh,
-            n * self.enc.row_len().max(self.dec.row_len()),
-        );
+        grow(&mut s.xh, n * self.enc.row_len().max(self.dec.row_len()));
         grow(&mut s.c, n * he.max(hd));
-        grow(
-            &mut s.g,
-            self.enc.gates_len(n).max(self.dec.gates_len(n)),
-        );
+        grow(&mut s.g, self.enc.gates_len(n).max(self.dec.gates_len(n)));
         grow(&mut s.h_enc, n * he);
         let pools = std::iter::once(&self.pool).chain(self.dec_pool.as_ref());
         for pool in pools {
@@ -312,7 +306,10 @@ impl Generator {
     pub(crate) fn pool_finish(pool: &Pool, queries: Range<usize>, s: &mut Scratch) {
         let (al, b) = (pool.acc_len(), pool.out_dim());
         for i in queries {
-            pool.finish(&s.acc[i * al..(i + 1) * al], &mut s.pooled[i * b..(i + 1) * b]);
+            pool.finish(
+                &s.acc[i * al..(i + 1) * al],
+                &mut s.pooled[i * b..(i + 1) * b],
+            );
         }
     }
 
@@ -352,8 +349,7 @@ impl Generator {
             row[..he].copy_from_slice(&h_enc[i * he..(i + 1) * he]);
             row[he..].copy_from_slice(&s.pooled[i * b..(i + 1) * b]);
         }
-        self.ctx
-            .rows(self.isa, &s.cat, cl, m, &mut s.hid, out, ld);
+        self.ctx.rows(self.isa, &s.cat, cl, m, &mut s.hid, out, ld);
         let mo = self.ctx.out_dim();
         for r in 0..m {
             out[r * ld + mo..r * ld + mo + z.len()].copy_from_slice(z);

@@ -116,7 +116,7 @@ pub fn check_batch(
     n_agents: usize,
 ) -> Result<usize> {
     let per = horizon * 2;
-    if candidates.is_empty() || candidates.len() % per != 0 {
+    if candidates.is_empty() || !candidates.len().is_multiple_of(per) {
         return Err(PredictorError::InputShape {
             what: "candidates",
             shape: format!("[batch, {horizon}, 2]"),

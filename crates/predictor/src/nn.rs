@@ -142,11 +142,20 @@ fn tile<S: Simd, const MB: usize, const OB: usize>(
     init: [S::V; OB],
 ) -> [[S::V; OB]; MB] {
     // Slices of length exactly `k` (`[..k]`), so that the loop below needs no bounds checks.
-    let ws: [&[Block]; OB] = std::array::from_fn(|o| &w[(blk0 + o) * k..][..k]);
-    let xs: [&[f32]; MB] = std::array::from_fn(|r| &x[(r0 + r) * ldx..][..k]);
+    let mut ws: [&[Block]; OB] = [&[]; OB];
+    for (o, wo) in ws.iter_mut().enumerate() {
+        *wo = &w[(blk0 + o) * k..][..k];
+    }
+    let mut xs: [&[f32]; MB] = [&[]; MB];
+    for (r, xr) in xs.iter_mut().enumerate() {
+        *xr = &x[(r0 + r) * ldx..][..k];
+    }
     let mut acc = [init; MB];
     for kk in 0..k {
-        let wv: [S::V; OB] = std::array::from_fn(|o| s.load(&ws[o][kk]));
+        let mut wv = init;
+        for o in 0..OB {
+            wv[o] = s.load(&ws[o][kk]);
+        }
         for r in 0..MB {
             let xv = s.splat(xs[r][kk]);
             for o in 0..OB {
@@ -171,11 +180,20 @@ fn tile_d<S: Simd, const MB: usize, const OB: usize>(
     r0: usize,
     init: [S::D; OB],
 ) -> [[S::D; OB]; MB] {
-    let ws: [&[BlockD]; OB] = std::array::from_fn(|o| &w[(blk0 + o) * k..][..k]);
-    let xs: [&[f32]; MB] = std::array::from_fn(|r| &x[(r0 + r) * ldx..][..k]);
+    let mut ws: [&[BlockD]; OB] = [&[]; OB];
+    for (o, wo) in ws.iter_mut().enumerate() {
+        *wo = &w[(blk0 + o) * k..][..k];
+    }
+    let mut xs: [&[f32]; MB] = [&[]; MB];
+    for (r, xr) in xs.iter_mut().enumerate() {
+        *xr = &x[(r0 + r) * ldx..][..k];
+    }
     let mut acc = [init; MB];
     for kk in 0..k {
-        let wv: [S::D; OB] = std::array::from_fn(|o| s.load_d(&ws[o][kk]));
+        let mut wv = init;
+        for o in 0..OB {
+            wv[o] = s.load_d(&ws[o][kk]);
+        }
         for r in 0..MB {
             let xv = s.splat_d(f64::from(xs[r][kk]));
             for o in 0..OB {
@@ -280,7 +298,9 @@ impl Kernel for DenseRows<'_> {
     type Out = ();
     #[inline(always)]
     fn run<S: Simd>(self, s: S) {
-        dense_rows(s, self.d, self.x, self.ldx, self.m, self.y, self.ldy, self.relu);
+        dense_rows(
+            s, self.d, self.x, self.ldx, self.m, self.y, self.ldy, self.relu,
+        );
     }
 }
 
@@ -340,7 +360,10 @@ fn dense_tile<S: Simd, const MB: usize, const OB: usize>(
     ldy: usize,
     relu: bool,
 ) {
-    let init: [S::V; OB] = std::array::from_fn(|o| s.load(&b[blk0 + o]));
+    let mut init = [s.splat(0.0); OB];
+    for (o, v) in init.iter_mut().enumerate() {
+        *v = s.load(&b[blk0 + o]);
+    }
     let acc = tile::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
     let zero = s.splat(0.0);
     for (r, row) in acc.into_iter().enumerate() {
@@ -378,7 +401,10 @@ fn dense_tile_d<S: Simd, const MB: usize, const OB: usize>(
     ldy: usize,
     relu: bool,
 ) {
-    let init: [S::D; OB] = std::array::from_fn(|o| s.load_d(&b[blk0 + o]));
+    let mut init = [s.splat_d(0.0); OB];
+    for (o, v) in init.iter_mut().enumerate() {
+        *v = s.load_d(&b[blk0 + o]);
+    }
     let acc = tile_d::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
     for (r, row) in acc.into_iter().enumerate() {
         for (o, v) in row.into_iter().enumerate() {
@@ -454,6 +480,7 @@ pub(crate) struct Lstm {
 impl Lstm {
     /// From the PyTorch tensors: `emb_w [E, 2]`, `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`,
     /// `b_ih`, `b_hh` `[4H]`. Folding is done in f64 and rounded once.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         emb_w: &[f32],
         emb_b: &[f32],
@@ -663,7 +690,8 @@ impl Pool {
     /// Agent terms `t_j` of `m` agents: hidden states `h[r*ldh..]` (`[m, H]`) to
     /// `terms[r*term_stride..][..P]`. The padding lanes of a term row are never written.
     pub(crate) fn terms(&self, isa: Isa, h: &[f32], ldh: usize, m: usize, terms: &mut [f32]) {
-        self.l1h.rows(isa, h, ldh, m, terms, self.term_stride(), false);
+        self.l1h
+            .rows(isa, h, ldh, m, terms, self.term_stride(), false);
     }
 
     /// Starts running maxima: rows `rows` of `acc` (stride [`Pool::acc_len`]) to `-inf`.
@@ -731,7 +759,11 @@ impl Kernel for PoolPairs<'_> {
             for (pr, v) in chunk.iter().zip(val.chunks_exact_mut(ts)) {
                 let t = blocks(&terms[pr.j as usize * ts..(pr.j as usize + 1) * ts]);
                 let (dx, dy) = (s.splat(pr.d[0]), s.splat(pr.d[1]));
-                for (((vb, tb), wx), wy) in blocks_mut(v).iter_mut().zip(t).zip(&pool.wpx).zip(&pool.wpy)
+                for (((vb, tb), wx), wy) in blocks_mut(v)
+                    .iter_mut()
+                    .zip(t)
+                    .zip(&pool.wpx)
+                    .zip(&pool.wpy)
                 {
                     let u = s.mul_add(dy, s.load(wy), s.mul_add(dx, s.load(wx), s.load(tb)));
                     s.store(s.max(u, zero), vb);
@@ -760,16 +792,7 @@ fn pool_tile<S: Simd, const MB: usize, const OB: usize>(
 ) {
     let (p, al) = (pool.p, pool.acc_len());
     let zero = s.splat(0.0);
-    let sums = tile::<S, MB, OB>(
-        s,
-        &pool.w2,
-        p,
-        blk0,
-        val,
-        pool.term_stride(),
-        0,
-        [zero; OB],
-    );
+    let sums = tile::<S, MB, OB>(s, &pool.w2, p, blk0, val, pool.term_stride(), 0, [zero; OB]);
     // Consecutive pairs of the same query are reduced in registers first, so that each
     // running-max row is read and written once per run instead of once per pair.
     let mut r = 0;
@@ -906,7 +929,10 @@ impl Kernel for PeakLoop {
 #[inline(always)]
 fn peak<S: Simd, const A: usize>(s: S, iterations: u64, a: f32) -> (u64, f32) {
     let (av, bv) = (s.splat(a), s.splat(1e-3));
-    let mut acc: [S::V; A] = std::array::from_fn(|i| s.splat(i as f32 * 1e-2));
+    let mut acc = [s.splat(0.0); A];
+    for (i, v) in acc.iter_mut().enumerate() {
+        *v = s.splat(i as f32 * 1e-2);
+    }
     for _ in 0..iterations {
         for v in &mut acc {
             *v = s.mul_add(*v, av, bv);
@@ -922,6 +948,7 @@ fn peak<S: Simd, const A: usize>(s: S, iterations: u64, a: f32) -> (u64, f32) {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::simd::supported_simd_paths;
@@ -1020,41 +1047,41 @@ mod tests {
             let w = values(11, out * inp);
             let b = values(12, out);
             for acc in [Accumulate::F32, Accumulate::F64] {
-            let d = Dense::new(&w, &b, out, inp, acc);
-            let m = 11;
-            let ldx = inp + 3;
-            let x = values(13, m * ldx);
-            let mut fused: Option<Vec<u32>> = None;
-            for isa in isas() {
-                for relu in [false, true] {
-                    let ldy = out + 1;
-                    let mut y = vec![f32::NAN; m * ldy];
-                    d.rows(isa, &x, ldx, m, &mut y, ldy, relu);
-                    for r in 0..m {
-                        // One row at a time gives the same bits.
-                        let mut y1 = vec![f32::NAN; out];
-                        d.rows(isa, &x[r * ldx..], ldx, 1, &mut y1, out, relu);
-                        assert_eq!(y1[..], y[r * ldy..r * ldy + out]);
-                        assert!(y[r * ldy + out].is_nan(), "wrote past the row");
-                        for o in 0..out {
-                            let mut e =
-                                dot(&w[o * inp..(o + 1) * inp], &x[r * ldx..r * ldx + inp])
-                                    + f64::from(b[o]);
-                            if relu {
-                                e = e.max(0.0);
+                let d = Dense::new(&w, &b, out, inp, acc);
+                let m = 11;
+                let ldx = inp + 3;
+                let x = values(13, m * ldx);
+                let mut fused: Option<Vec<u32>> = None;
+                for isa in isas() {
+                    for relu in [false, true] {
+                        let ldy = out + 1;
+                        let mut y = vec![f32::NAN; m * ldy];
+                        d.rows(isa, &x, ldx, m, &mut y, ldy, relu);
+                        for r in 0..m {
+                            // One row at a time gives the same bits.
+                            let mut y1 = vec![f32::NAN; out];
+                            d.rows(isa, &x[r * ldx..], ldx, 1, &mut y1, out, relu);
+                            assert_eq!(y1[..], y[r * ldy..r * ldy + out]);
+                            assert!(y[r * ldy + out].is_nan(), "wrote past the row");
+                            for o in 0..out {
+                                let mut e =
+                                    dot(&w[o * inp..(o + 1) * inp], &x[r * ldx..r * ldx + inp])
+                                        + f64::from(b[o]);
+                                if relu {
+                                    e = e.max(0.0);
+                                }
+                                let got = f64::from(y[r * ldy + o]);
+                                assert!((got - e).abs() < 1e-5, "{} {out}x{inp}", isa.path());
                             }
-                            let got = f64::from(y[r * ldy + o]);
-                            assert!((got - e).abs() < 1e-5, "{} {out}x{inp}", isa.path());
+                        }
+                        if isa.path().is_fused() && relu {
+                            let bits: Vec<u32> = y.iter().map(|v| v.to_bits()).collect();
+                            match &fused {
+                                None => fused = Some(bits),
+                                Some(f) => assert_eq!(f, &bits, "fused paths differ"),
+                            }
                         }
                     }
-                    if isa.path().is_fused() && relu {
-                        let bits: Vec<u32> = y.iter().map(|v| v.to_bits()).collect();
-                        match &fused {
-                            None => fused = Some(bits),
-                            Some(f) => assert_eq!(f, &bits, "fused paths differ"),
-                        }
-                    }
-                }
                 }
             }
         }
@@ -1074,64 +1101,71 @@ mod tests {
         let hs = values(7, n * h);
         let pos: Vec<f32> = values(8, n * 2).iter().map(|v| v * 30.0).collect();
         for acc in [Accumulate::F32, Accumulate::F64] {
-        let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
-        let (ts, al) = (pool.term_stride(), pool.acc_len());
-        let mut val = vec![0.0f32; pool.val_len()];
-        let pairs: Vec<Pair> = (0..n)
-            .flat_map(|i| (0..n).map(move |j| (i, j)))
-            .map(|(i, j)| Pair {
-                q: i as u32,
-                j: j as u32,
-                d: [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]],
-            })
-            .collect();
-        for isa in isas() {
-            let mut terms = vec![0.0f32; n * ts];
-            pool.terms(isa, &hs, h, n, &mut terms);
-            let mut out = vec![0.0f32; n * b];
-            let mut acc = vec![0.0f32; n * al];
-            pool.reset(&mut acc, 0..n);
-            pool.fold(isa, &pairs, &terms, &mut acc, &mut val);
-            for i in 0..n {
-                pool.finish(&acc[i * al..], &mut out[i * b..(i + 1) * b]);
-            }
-            // Reversed pair order, one pair per call: same bits.
-            let mut acc2 = vec![0.0f32; n * al];
-            pool.reset(&mut acc2, 0..n);
-            for pr in pairs.iter().rev() {
-                pool.fold(isa, std::slice::from_ref(pr), &terms, &mut acc2, &mut val);
-            }
-            assert_eq!(acc, acc2, "{}: pair order or grouping changed bits", isa.path());
-            // Literal evaluation in f64.
-            for i in 0..n {
-                let mut best = vec![f64::NEG_INFINITY; b];
-                for j in 0..n {
-                    let d = [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]];
-                    let mut x: Vec<f32> = (0..e)
-                        .map(|k| (dot(&emb_w[2 * k..2 * k + 2], &d) + f64::from(emb_b[k])) as f32)
-                        .collect();
-                    x.extend_from_slice(&hs[j * h..(j + 1) * h]);
-                    let h1: Vec<f32> = (0..p)
-                        .map(|r| {
-                            (dot(&w1[r * (e + h)..(r + 1) * (e + h)], &x) + f64::from(b1[r]))
-                                .max(0.0) as f32
-                        })
-                        .collect();
-                    for (o, m) in best.iter_mut().enumerate() {
-                        let u = (dot(&w2[o * p..(o + 1) * p], &h1) + f64::from(b2[o])).max(0.0);
-                        *m = m.max(u);
+            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let (ts, al) = (pool.term_stride(), pool.acc_len());
+            let mut val = vec![0.0f32; pool.val_len()];
+            let pairs: Vec<Pair> = (0..n)
+                .flat_map(|i| (0..n).map(move |j| (i, j)))
+                .map(|(i, j)| Pair {
+                    q: i as u32,
+                    j: j as u32,
+                    d: [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]],
+                })
+                .collect();
+            for isa in isas() {
+                let mut terms = vec![0.0f32; n * ts];
+                pool.terms(isa, &hs, h, n, &mut terms);
+                let mut out = vec![0.0f32; n * b];
+                let mut acc = vec![0.0f32; n * al];
+                pool.reset(&mut acc, 0..n);
+                pool.fold(isa, &pairs, &terms, &mut acc, &mut val);
+                for i in 0..n {
+                    pool.finish(&acc[i * al..], &mut out[i * b..(i + 1) * b]);
+                }
+                // Reversed pair order, one pair per call: same bits.
+                let mut acc2 = vec![0.0f32; n * al];
+                pool.reset(&mut acc2, 0..n);
+                for pr in pairs.iter().rev() {
+                    pool.fold(isa, std::slice::from_ref(pr), &terms, &mut acc2, &mut val);
+                }
+                assert_eq!(
+                    acc,
+                    acc2,
+                    "{}: pair order or grouping changed bits",
+                    isa.path()
+                );
+                // Literal evaluation in f64.
+                for i in 0..n {
+                    let mut best = vec![f64::NEG_INFINITY; b];
+                    for j in 0..n {
+                        let d = [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]];
+                        let mut x: Vec<f32> = (0..e)
+                            .map(|k| {
+                                (dot(&emb_w[2 * k..2 * k + 2], &d) + f64::from(emb_b[k])) as f32
+                            })
+                            .collect();
+                        x.extend_from_slice(&hs[j * h..(j + 1) * h]);
+                        let h1: Vec<f32> = (0..p)
+                            .map(|r| {
+                                (dot(&w1[r * (e + h)..(r + 1) * (e + h)], &x) + f64::from(b1[r]))
+                                    .max(0.0) as f32
+                            })
+                            .collect();
+                        for (o, m) in best.iter_mut().enumerate() {
+                            let u = (dot(&w2[o * p..(o + 1) * p], &h1) + f64::from(b2[o])).max(0.0);
+                            *m = m.max(u);
+                        }
+                    }
+                    for (o, m) in best.iter().enumerate() {
+                        let got = f64::from(out[i * b + o]);
+                        assert!(
+                            (got - m).abs() < 1e-4 * (1.0 + m.abs()),
+                            "{}: {got} vs {m}",
+                            isa.path()
+                        );
                     }
                 }
-                for (o, m) in best.iter().enumerate() {
-                    let got = f64::from(out[i * b + o]);
-                    assert!(
-                        (got - m).abs() < 1e-4 * (1.0 + m.abs()),
-                        "{}: {got} vs {m}",
-                        isa.path()
-                    );
-                }
             }
-        }
         }
     }
 

@@ -1,8 +1,8 @@
 //! Run-time choice of the vector instruction set the networks run on, and the crate's only
 //! `unsafe` code.
 //!
-//! One build runs on every x86-64 CPU: the kernels of [`nn`](crate::nn) are written once,
-//! generic over [`Simd`] (16 f32 lanes with load, store, broadcast, multiply-add and max), and
+//! One build runs on every x86-64 CPU: the kernels (module `nn`) are written once,
+//! generic over a `Simd` trait (16 f32 lanes with load, store, broadcast, multiply-add and max), and
 //! instantiated three times:
 //!
 //! | [`SimdPath`] | instructions | multiply-add |
@@ -32,8 +32,8 @@
 //!
 //! # Safety argument
 //!
-//! The instruction-set tokens [`Avx2`] and [`Avx512`] have a private field and are constructed
-//! only by [`Isa::new`], after `is_x86_feature_detected!` confirmed every feature their code
+//! The instruction-set tokens `Avx2` and `Avx512` have a private field and are constructed
+//! only by `Isa::new`, after `is_x86_feature_detected!` confirmed every feature their code
 //! uses. Every `unsafe` block below either calls a `#[target_feature]` function or executes a
 //! vector intrinsic while holding such a token (`self`), so the instructions exist on the
 //! running CPU; the memory intrinsics read or write exactly the 16 `f32` of a `&[f32; 16]` /
@@ -117,9 +117,7 @@ pub fn supported_simd_paths() -> Vec<SimdPath> {
 /// The widest path the running CPU supports.
 #[must_use]
 pub fn best_simd_path() -> SimdPath {
-    supported_simd_paths()
-        .pop()
-        .unwrap_or(SimdPath::Portable)
+    supported_simd_paths().pop().unwrap_or(SimdPath::Portable)
 }
 
 /// Name of the environment variable that forces a path for newly loaded models.
@@ -275,12 +273,18 @@ impl Simd for Portable {
         *y = v;
     }
     #[inline(always)]
-    fn mul_add(self, a: Self::V, b: Self::V, c: Self::V) -> Self::V {
-        std::array::from_fn(|l| a[l] * b[l] + c[l])
+    fn mul_add(self, a: Self::V, b: Self::V, mut c: Self::V) -> Self::V {
+        for l in 0..LANES {
+            c[l] += a[l] * b[l];
+        }
+        c
     }
     #[inline(always)]
-    fn max(self, a: Self::V, b: Self::V) -> Self::V {
-        std::array::from_fn(|l| if a[l] > b[l] { a[l] } else { b[l] })
+    fn max(self, mut a: Self::V, b: Self::V) -> Self::V {
+        for l in 0..LANES {
+            a[l] = if a[l] > b[l] { a[l] } else { b[l] };
+        }
+        a
     }
     #[inline(always)]
     fn fma1(self, a: f32, b: f32, c: f32) -> f32 {
@@ -297,8 +301,11 @@ impl Simd for Portable {
         *x
     }
     #[inline(always)]
-    fn mul_add_d(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D {
-        std::array::from_fn(|l| a[l] * b[l] + c[l])
+    fn mul_add_d(self, a: Self::D, b: Self::D, mut c: Self::D) -> Self::D {
+        for l in 0..LANES_D {
+            c[l] += a[l] * b[l];
+        }
+        c
     }
     #[inline(always)]
     fn store_d_f32(self, v: Self::D, y: &mut [f32; LANES_D]) {
@@ -567,6 +574,7 @@ impl Isa {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
@@ -586,10 +594,7 @@ mod tests {
     fn env_value_selects_or_rejects() {
         assert_eq!(path_from_env(None).unwrap(), best_simd_path());
         assert_eq!(path_from_env(Some("")).unwrap(), best_simd_path());
-        assert_eq!(
-            path_from_env(Some("portable")).unwrap(),
-            SimdPath::Portable
-        );
+        assert_eq!(path_from_env(Some("portable")).unwrap(), SimdPath::Portable);
         let err = path_from_env(Some("sse9")).unwrap_err().to_string();
         assert!(err.contains("sse9"), "{err}");
         for p in SimdPath::ALL {

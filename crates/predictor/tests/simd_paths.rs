@@ -148,8 +148,8 @@ fn path_selection() {
         Ok(v) if !v.trim().is_empty() => assert_eq!(chosen.as_str(), v.trim()),
         _ => assert_eq!(chosen, best_simd_path()),
     }
-    let w = ModelWeights::from_bytes(&synthetic_weights(&ModelConfig::student(), 1).unwrap())
-        .unwrap();
+    let w =
+        ModelWeights::from_bytes(&synthetic_weights(&ModelConfig::student(), 1).unwrap()).unwrap();
     let mut s = Student::from_weights(&w).unwrap();
     assert_eq!(s.simd_path(), chosen);
     for path in SimdPath::ALL {
@@ -227,12 +227,27 @@ fn check_paths(cfg: &ModelConfig, seed: u64, n: usize) {
     for path in supported_simd_paths() {
         let mut m = model(&w, path);
         let got = run(m.as_mut(), &history, &cand);
-        assert!(got.iter().all(|v| v.is_finite()), "{path}: non-finite output");
+        assert!(
+            got.iter().all(|v| v.is_finite()),
+            "{path}: non-finite output"
+        );
         let e_ref = max_err(&got, &want);
         let e_port = max_err(&got, &portable);
-        assert!(e_ref <= TOL, "{:?} {path} n={n}: vs reference {e_ref:.3e}", cfg.kind);
-        assert!(e_port <= TOL, "{:?} {path} n={n}: vs portable {e_port:.3e}", cfg.kind);
-        assert_eq!(run(m.as_mut(), &history, &cand), got, "{path}: repeat differs");
+        assert!(
+            e_ref <= TOL,
+            "{:?} {path} n={n}: vs reference {e_ref:.3e}",
+            cfg.kind
+        );
+        assert!(
+            e_port <= TOL,
+            "{:?} {path} n={n}: vs portable {e_port:.3e}",
+            cfg.kind
+        );
+        assert_eq!(
+            run(m.as_mut(), &history, &cand),
+            got,
+            "{path}: repeat differs"
+        );
         assert_eq!(
             run(model(&w, path).as_mut(), &history, &cand),
             got,
@@ -242,7 +257,11 @@ fn check_paths(cfg: &ModelConfig, seed: u64, n: usize) {
         for b in 0..3 {
             let mut out = vec![0.0; per];
             m.predict(&cand[b * 12..(b + 1) * 12], &mut out).unwrap();
-            assert_eq!(out[..], got[b * per..(b + 1) * per], "{path}: batch vs single");
+            assert_eq!(
+                out[..],
+                got[b * per..(b + 1) * per],
+                "{path}: batch vs single"
+            );
         }
         if path.is_fused() {
             match &fused {
