@@ -314,7 +314,7 @@ impl Image {
 
     fn bytes(&self) -> Vec<u8> {
         let mut text = serde_json::to_vec(&self.header).unwrap();
-        while text.len() % 8 != 0 {
+        while !text.len().is_multiple_of(8) {
             text.push(b' ');
         }
         let mut out = (text.len() as u64).to_le_bytes().to_vec();
@@ -1393,7 +1393,7 @@ pub fn run(cfg: &Config) -> Report {
                     }
                 }
             }
-            if i % 64 == 0 && peak_rss_mib() > cfg.rss_limit_mib {
+            if i.is_multiple_of(64) && peak_rss_mib() > cfg.rss_limit_mib {
                 report.rss_exceeded = true;
                 defect(&mut st, format!("peak RSS {} MiB", peak_rss_mib()));
                 break;

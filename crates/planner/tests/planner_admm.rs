@@ -320,10 +320,10 @@ proptest! {
         for z in &plan.states {
             prop_assert!(z[3] >= 0.0 && z[3] <= s.v_max.max(v));
         }
-        if plan.status != PlanStatus::Unsafe {
-            if let Some(b) = plan.min_safety {
-                prop_assert!(b > 0.0);
-            }
+        if plan.status != PlanStatus::Unsafe
+            && let Some(b) = plan.min_safety
+        {
+            prop_assert!(b > 0.0);
         }
     }
 }

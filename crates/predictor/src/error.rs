@@ -132,6 +132,15 @@ pub enum PredictorError {
         /// The value found.
         value: f64,
     },
+    /// A vector instruction-set path was requested that is unknown or that this CPU lacks
+    /// (`NUDGE_SIMD` or `set_simd_path`).
+    #[error("SIMD path {requested:?}: {reason}")]
+    SimdPath {
+        /// The path as requested.
+        requested: String,
+        /// Why it cannot be used.
+        reason: &'static str,
+    },
     /// `predict` was called before any scene was set.
     #[error("no scene set: call set_scene before predict")]
     NoScene,

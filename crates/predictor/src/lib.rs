@@ -38,6 +38,7 @@
 //! crate panics on any input (property-tested in `tests/reliability.rs`).
 
 mod constant_velocity;
+pub mod cost;
 mod error;
 pub mod file;
 mod generator;
@@ -47,6 +48,7 @@ mod nn;
 mod recording;
 #[doc(hidden)]
 pub mod reference;
+pub mod simd;
 mod spec;
 mod student;
 mod teacher;
@@ -68,9 +70,11 @@ pub mod weights {
 }
 
 pub use constant_velocity::ConstantVelocity;
+pub use cost::{MacCount, multiply_adds};
 pub use error::{PredictorError, Quantity, Result};
 pub use history::History;
 pub use recording::{Recording, Records};
+pub use simd::{SimdPath, best_simd_path, simd_path, supported_simd_paths};
 pub use spec::{
     ASSETS_ENV, PredictorKind, PredictorSpec, UnknownPredictor, default_assets_dir, model_path,
 };
@@ -188,7 +192,7 @@ pub fn check_batch(
         });
     }
     let per = horizon * 2;
-    if candidates.is_empty() || candidates.len() % per != 0 {
+    if candidates.is_empty() || !candidates.len().is_multiple_of(per) {
         return Err(PredictorError::InputShape {
             what: "candidates",
             shape: format!("[batch, {horizon}, 2]"),
