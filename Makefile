@@ -15,12 +15,13 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt bench bench-planner bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt fuzz bench bench-planner bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
 	@echo "make test     set up and run every test (Rust + Python + golden drift check)"
 	@echo "make lint     rustfmt, clippy -D warnings, rustdoc -D warnings"
+	@echo "make fuzz     mutation-fuzz weights, scenario and settings files (FUZZ_SECONDS per target)"
 	@echo "make bench    criterion benches (one thread) + the PyTorch-vs-Rust table"
 	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
 	@echo "make teacher  train the paper's teacher configurations, write docs/results/teacher.md"
@@ -70,6 +71,16 @@ test-examples:
 # The front-end parity test runs the CLI binary built by `build`.
 test-python: develop build
 	NUDGE_CLI=target/release/nudge $(PY) -m pytest -q
+
+# ---- fuzzing --------------------------------------------------------------------------------
+# Structure-aware mutation of weights, scenario and settings files (examples/fuzz); every try
+# must end in a typed error or a valid result. FUZZ_SECONDS is the budget per target; add e.g.
+# FUZZ_ARGS="--seed 7 --tries 100000 --target weights". The short mode runs in `make test`
+# (tests/fuzz.rs).
+FUZZ_SECONDS ?= 300
+FUZZ_ARGS ?=
+fuzz:
+	$(CARGO) run --release --example fuzz -- --seconds $(FUZZ_SECONDS) $(FUZZ_ARGS)
 
 # ---- quality --------------------------------------------------------------------------------
 fmt:

@@ -36,7 +36,7 @@ fn predictors() -> Vec<Box<dyn Predictor>> {
             eprintln!("skipping {}: {} missing", kind.as_str(), p.display());
         }
     }
-    v.push(Box::new(ConstantVelocity::new(6)));
+    v.push(Box::new(ConstantVelocity::default()));
     v
 }
 

@@ -72,7 +72,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         drift: 0.2,
         last: Vec::new(),
     };
-    let mut plain = ConstantVelocity::new(6);
+    let mut plain = ConstantVelocity::default();
     for (name, predictor) in [
         ("constant velocity", &mut plain as &mut dyn Predictor),
         ("cutting in", &mut cautious as &mut dyn Predictor),

@@ -54,7 +54,7 @@ fn constant_velocity_lane_change_on_real_scene() {
         ..SimConfig::default()
     };
     for seed in 0..2 {
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::default();
         let rec = simulate(&sc, &PlannerSettings::default(), &cfg, seed, &mut cv, None).unwrap();
         check(&rec);
     }
@@ -67,7 +67,7 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
         world: World::LogReplay,
         ..SimConfig::default()
     };
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
     check(&rec);
 }
@@ -145,10 +145,10 @@ fn world_models_are_checked_against_the_world() {
         world: World::LogReplay,
         ..teacher_world
     };
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     let mut student =
         load_predictor(model_path(&repo().join("assets"), ModelKind::Student)).unwrap();
-    let mut other_cv = ConstantVelocity::new(6);
+    let mut other_cv = ConstantVelocity::default();
     let errors = [
         simulate(&sc, &s, &teacher_world, 0, &mut cv, None).unwrap_err(),
         simulate(&sc, &s, &teacher_world, 0, &mut cv, Some(student.as_mut())).unwrap_err(),
@@ -208,7 +208,7 @@ fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
             abort_after,
             ..SimConfig::default()
         };
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::default();
         let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
         assert!(!rec.collision, "collision with abort_after {abort_after}");
         assert!(!rec.success, "a lane change through a closed convoy");

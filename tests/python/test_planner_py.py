@@ -110,16 +110,15 @@ def test_every_status_keeps_its_promise(scenes: list[Path], student: nudge.Predi
     assert {"Converged", "MaxIterations", "Fallback"} <= seen, seen
 
 
-def test_a_failed_qp_is_a_status_with_a_checked_plan(scenario: nudge.Scenario) -> None:
-    """w_a = 1e308 overflows the acceleration QP: the call still returns a checked plan."""
-    s = nudge.PlannerSettings(w_a=1e308)
-    plan = nudge.Planner(s, nudge.Predictor.constant_velocity()).plan_scenario(scenario, seed=0)
-    assert plan["status"] == "SolverFailed"
-    qp, clarabel_status = plan["solver_failure"]
-    assert qp == "alpha" and clarabel_status not in ("Solved", "AlmostSolved")
-    ego = np.array([*scenario.history[0, -1], scenario.heading[0], scenario.speed[0]])
-    _check_plan(plan, ego, s)
-    assert plan["iterations"] == 1 and (plan["accel"] == 0).all()
+def test_settings_that_would_overflow_a_qp_are_refused(scenario: nudge.Scenario) -> None:
+    """w_a = 1e308 used to overflow the acceleration QP (the Rust unit test
+    `qp_failure_ends_in_a_checked_fallback_plan` still forces that failure and checks the
+    `SolverFailed` plan); validation now refuses such a weight, naming it, and an ordinary plan
+    reports no solver failure."""
+    with pytest.raises(nudge.SettingsError, match="w_a"):
+        nudge.PlannerSettings(w_a=1e308)
+    plan = nudge.Planner(None, nudge.Predictor.constant_velocity()).plan_scenario(scenario, seed=0)
+    assert plan["status"] != "SolverFailed" and plan["solver_failure"] is None
 
 
 def test_planner_is_deterministic_and_reset_restores_cold_start(student: nudge.Predictor,

@@ -11,6 +11,22 @@ use crate::qp::{QpFailure, QpName, QpStatus};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SettingsError {
+    /// A numeric field lies outside its documented range ([`crate::settings::RANGES`]).
+    #[error(
+        "invalid planner setting `{field}` = {shown}: must be in {range}",
+        shown = crate::settings::show(*.value)
+    )]
+    OutOfRange {
+        /// Name of the field (as in the serde representation).
+        field: &'static str,
+        /// The value found.
+        value: f64,
+        /// Its admissible range.
+        range: crate::settings::FieldRange,
+    },
+    /// A settings file cannot be read (missing, not a regular file, too large, not UTF-8).
+    #[error("cannot read planner settings: {0}")]
+    File(String),
     /// One field is out of its admissible range.
     #[error("invalid planner setting `{field}` = {value}: {reason}")]
     Invalid {
@@ -114,6 +130,60 @@ pub enum ScenarioError {
         tensor: &'static str,
         /// What is wrong.
         reason: String,
+    },
+    /// The path is not a regular file (FIFO, device, directory): refused before reading.
+    #[error("{path}: not a regular file ({kind}); refusing to read it")]
+    NotRegularFile {
+        /// The path.
+        path: PathBuf,
+        /// What it is instead.
+        kind: &'static str,
+    },
+    /// The file is larger than [`crate::scenario::MAX_SCENARIO_BYTES`]: refused before reading.
+    #[error(
+        "{path}: {size} bytes is larger than the {max}-byte limit for scenario files; refusing to read it"
+    )]
+    FileTooLarge {
+        /// The path.
+        path: PathBuf,
+        /// Its size (bytes).
+        size: u64,
+        /// The bound (bytes).
+        max: u64,
+    },
+    /// A value of one agent is finite but physically implausible (off the road, absurd
+    /// heading, speed, size or motion; see [`crate::scenario`] for every range).
+    #[error("{path}: agent {agent} (source id {id}): {field} {detail}")]
+    Implausible {
+        /// File that failed.
+        path: PathBuf,
+        /// Agent index in the scenario (0 = ego).
+        agent: usize,
+        /// Its source vehicle id.
+        id: i64,
+        /// The field (tensor) holding the value.
+        field: &'static str,
+        /// The value and the range it violates.
+        detail: String,
+    },
+    /// `ego_lane` names a lane the ego is not in.
+    #[error(
+        "{path}: ego_lane {ego_lane} spans y in [{lo}, {hi}] m but agent 0 (the ego) is at \
+         y = {y} m at the last observed step (tolerance {tolerance} m)"
+    )]
+    EgoLane {
+        /// File that failed.
+        path: PathBuf,
+        /// The lane index in the file.
+        ego_lane: usize,
+        /// The ego's lateral position (m).
+        y: f64,
+        /// The lane's right boundary (m).
+        lo: f64,
+        /// The lane's left boundary (m).
+        hi: f64,
+        /// The accepted distance outside the lane (m).
+        tolerance: f64,
     },
     /// The ego's bounding box already overlaps another vehicle's at the last observed step.
     #[error("{path}: ego overlaps agent {agent} (source id {id}) at the last observed step")]

@@ -16,8 +16,8 @@ mod error;
 mod model;
 mod qp;
 mod safety;
-mod scenario;
-mod settings;
+pub mod scenario;
+pub mod settings;
 pub mod sim;
 
 pub use admm::{

@@ -1,9 +1,32 @@
 //! Reader of "nudge.scenario/1" scenario files (one real scene per `.safetensors` file).
+//!
+//! Besides the format (schema, tensors, dtypes, shapes, finite values), the reader checks that
+//! a scene is physically plausible for a highway, naming the agent and field that is not. The
+//! ranges, with the distribution over every scene nudge has (7,590: the train, val and test
+//! splits of `data/processed/scenes` and `assets/scenes`):
+//!
+//! | quantity | real scenes (min / median / max) | accepted |
+//! |---|---|---|
+//! | lateral position vs the road edges, every agent and observed step | 2.7 m inside / 1.2 m inside / 0.91 m outside | at most [`ROAD_TOLERANCE`] = 2 m outside |
+//! | ego's y vs its `ego_lane` boundaries | always inside | at most [`EGO_LANE_TOLERANCE`] = 0.5 m outside |
+//! | \|heading\| | 0.0015 / 0.055 / 0.39 rad | ≤ [`MAX_HEADING`] = π/4 |
+//! | speed | 10.6 / 18.4 / 29.1 m/s | 0 ..= [`MAX_SPEED`] = 60 m/s |
+//! | history displacement per 0.3 s step | max 8.9 m | ≤ [`MAX_SPEED`] × 0.3 s = 18 m |
+//! | lane width | 3.19 / 3.80 / 3.86 m | [`LANE_WIDTH`] = 2.5 ..= 6 m |
+//! | lanes | 5 / 6 / 6 | 1 ..= [`MAX_LANES`] = 12 |
+//! | vehicle length, width | 2.7–19.8 m, 1.19–2.59 m | [`VEHICLE_LENGTH`] = 1 ..= 30 m, [`VEHICLE_WIDTH`] = 0.5 ..= 4 m |
+//! | coordinates (history, valid future, lanes) | \|x\| ≤ 262 m, \|y\| ≤ 19.3 m | ≤ [`MAX_ABS_POSITION`] = 1e6 m |
+//! | distance between agents, last observed step | max 120 m | ≤ [`MAX_AGENT_OFFSET`] = 1,000 m |
+//!
+//! The last two are the predictor's accepted input ranges ([`nudge_predictor::limits`]).
+//! Logged futures are checked for finite, in-range coordinates only (the log-replay world
+//! replays them). Files are read only when regular and at most [`MAX_SCENARIO_BYTES`].
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use nudge_predictor::{MAX_AGENTS, T_OBS};
+use nudge_predictor::limits::{MAX_ABS_POSITION, MAX_AGENT_OFFSET};
+use nudge_predictor::{MAX_AGENTS, PredictorError, T_OBS};
 use safetensors::{Dtype, SafeTensors};
 
 use crate::error::ScenarioError;
@@ -11,6 +34,25 @@ use crate::safety::OrientedBox;
 
 /// The schema string the reader accepts.
 pub const SCHEMA: &str = "nudge.scenario/1";
+
+/// Largest scenario file accepted (bytes): 16 MiB; real scenes are 3–10 kB.
+pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+/// How far (m) a vehicle centre may lie outside the road edges (shoulders, edge lines).
+pub const ROAD_TOLERANCE: f64 = 2.0;
+/// How far (m) the ego's centre may lie outside the boundaries of its `ego_lane`.
+pub const EGO_LANE_TOLERANCE: f64 = 0.5;
+/// Largest |heading| (rad) relative to the road's direction of travel: π/4.
+pub const MAX_HEADING: f64 = std::f64::consts::FRAC_PI_4;
+/// Largest speed (m/s), 216 km/h; also bounds the history displacement per step.
+pub const MAX_SPEED: f64 = 60.0;
+/// Plausible lane widths (m).
+pub const LANE_WIDTH: [f64; 2] = [2.5, 6.0];
+/// Most lanes one road may have.
+pub const MAX_LANES: usize = 12;
+/// Plausible vehicle lengths (m).
+pub const VEHICLE_LENGTH: [f64; 2] = [1.0, 30.0];
+/// Plausible vehicle widths (m).
+pub const VEHICLE_WIDTH: [f64; 2] = [0.5, 4.0];
 
 /// One real scene: the ego (agent 0) and its neighbours, their 8-step history, sizes, logged
 /// futures and the lane layout, in the road frame (x along travel, y lateral positive left,
@@ -151,14 +193,26 @@ impl Scenario {
     /// Reads and validates a scenario file.
     ///
     /// # Errors
-    /// [`ScenarioError::Io`] when the file cannot be read, otherwise as
+    /// [`ScenarioError::Io`] when the file cannot be read,
+    /// [`ScenarioError::NotRegularFile`] / [`ScenarioError::FileTooLarge`] (checked before
+    /// reading, so a FIFO or `/dev/zero` is never read), otherwise as
     /// [`Scenario::from_bytes`].
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, ScenarioError> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|source| ScenarioError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let bytes =
+            nudge_predictor::file::read_bounded(path, MAX_SCENARIO_BYTES).map_err(|e| match e {
+                PredictorError::NotRegularFile { path, kind } => {
+                    ScenarioError::NotRegularFile { path, kind }
+                }
+                PredictorError::FileTooLarge { path, size, max } => {
+                    ScenarioError::FileTooLarge { path, size, max }
+                }
+                PredictorError::Io { path, source } => ScenarioError::Io { path, source },
+                other => ScenarioError::Io {
+                    path: path.to_path_buf(),
+                    source: std::io::Error::other(other.to_string()),
+                },
+            })?;
         Self::from_bytes(&bytes, path)
     }
 
@@ -170,7 +224,11 @@ impl Scenario {
     /// [`ScenarioError::BadMetadata`], [`ScenarioError::MissingTensor`],
     /// [`ScenarioError::WrongDtype`], [`ScenarioError::WrongShape`],
     /// [`ScenarioError::NonFinite`], [`ScenarioError::BadValue`] (sizes ≤ 0, negative speed,
-    /// unordered lanes, ego lane out of range, fewer than 6 future steps),
+    /// unordered lanes, ego lane out of range, fewer than 6 future steps, lane count or width
+    /// out of range, coordinates beyond ±1e6 m), [`ScenarioError::Implausible`] (an agent
+    /// off the road, with an absurd heading, speed, size or history motion, or too far from
+    /// another agent; see the module documentation for every range),
+    /// [`ScenarioError::EgoLane`] (`ego_lane` is not the ego's lane),
     /// [`ScenarioError::EgoOverlap`] (the ego's box overlaps another vehicle's now).
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ScenarioError> {
         let p = || path.to_path_buf();
@@ -288,6 +346,7 @@ impl Scenario {
             agent_ids,
             metadata,
         };
+        sc.check_plausible(path)?;
         let ego = sc.vehicle_box(0);
         for i in 1..n {
             if ego.overlaps(&sc.vehicle_box(i)) {
@@ -299,6 +358,177 @@ impl Scenario {
             }
         }
         Ok(sc)
+    }
+
+    /// The physical plausibility checks of [`Scenario::from_bytes`] (format already checked).
+    fn check_plausible(&self, path: &Path) -> Result<(), ScenarioError> {
+        let bad = |tensor: &'static str, reason: String| ScenarioError::BadValue {
+            path: path.to_path_buf(),
+            tensor,
+            reason,
+        };
+        let agent_err =
+            |agent: usize, field: &'static str, detail: String| ScenarioError::Implausible {
+                path: path.to_path_buf(),
+                agent,
+                id: self.agent_ids[agent],
+                field,
+                detail,
+            };
+        // The road.
+        let nl = self.lane_centres.len();
+        if nl > MAX_LANES {
+            return Err(bad(
+                "lane_centres",
+                format!("{nl} lanes; plausible roads have 1..={MAX_LANES}"),
+            ));
+        }
+        if let Some(v) = self.lane_bounds.iter().find(|v| v.abs() > MAX_ABS_POSITION) {
+            return Err(bad(
+                "lane_bounds",
+                format!("y = {v} m is beyond the accepted ±{MAX_ABS_POSITION} m"),
+            ));
+        }
+        for (i, w) in self.lane_bounds.windows(2).enumerate() {
+            let width = w[1] - w[0];
+            if !(LANE_WIDTH[0]..=LANE_WIDTH[1]).contains(&width) {
+                return Err(bad(
+                    "lane_bounds",
+                    format!(
+                        "lane {i} has width {width:e} m, outside the plausible {}..={} m",
+                        LANE_WIDTH[0], LANE_WIDTH[1]
+                    ),
+                ));
+            }
+        }
+        let [right, left] = self.road();
+        // Every agent.
+        let max_step = MAX_SPEED * nudge_predictor::DT;
+        for a in 0..self.n_agents {
+            for t in 0..T_OBS {
+                let [x, y] = self.position(a, t);
+                if x.abs().max(y.abs()) > MAX_ABS_POSITION {
+                    return Err(agent_err(
+                        a,
+                        "history",
+                        format!(
+                            "({x}, {y}) m at observed step {t} is beyond the accepted \
+                             ±{MAX_ABS_POSITION} m"
+                        ),
+                    ));
+                }
+                let outside = (right - y).max(y - left);
+                if outside > ROAD_TOLERANCE {
+                    return Err(agent_err(
+                        a,
+                        "history",
+                        format!(
+                            "y = {y} m at observed step {t} is {outside:.2} m outside the road \
+                             [{right}, {left}] m (tolerance {ROAD_TOLERANCE} m)"
+                        ),
+                    ));
+                }
+                if t > 0 {
+                    let p = self.position(a, t - 1);
+                    let d = (x - p[0]).hypot(y - p[1]);
+                    if d > max_step {
+                        return Err(agent_err(
+                            a,
+                            "history",
+                            format!(
+                                "moves {d:.2} m between observed steps {} and {t}, more than \
+                                 {max_step} m ({MAX_SPEED} m/s for 0.3 s)",
+                                t - 1
+                            ),
+                        ));
+                    }
+                }
+            }
+            let psi = self.heading[a];
+            if psi.abs() > MAX_HEADING {
+                return Err(agent_err(
+                    a,
+                    "heading",
+                    format!(
+                        "{psi} rad is outside the plausible |heading| <= {MAX_HEADING:.4} rad \
+                         (pi/4) relative to the road"
+                    ),
+                ));
+            }
+            let v = self.speed[a];
+            if v > MAX_SPEED {
+                return Err(agent_err(
+                    a,
+                    "speed",
+                    format!("{v} m/s is outside the plausible 0..={MAX_SPEED} m/s"),
+                ));
+            }
+            let [length, width] = self.size[a];
+            if !(VEHICLE_LENGTH[0]..=VEHICLE_LENGTH[1]).contains(&length) {
+                return Err(agent_err(
+                    a,
+                    "size",
+                    format!(
+                        "length {length} m is outside the plausible {}..={} m",
+                        VEHICLE_LENGTH[0], VEHICLE_LENGTH[1]
+                    ),
+                ));
+            }
+            if !(VEHICLE_WIDTH[0]..=VEHICLE_WIDTH[1]).contains(&width) {
+                return Err(agent_err(
+                    a,
+                    "size",
+                    format!(
+                        "width {width} m is outside the plausible {}..={} m",
+                        VEHICLE_WIDTH[0], VEHICLE_WIDTH[1]
+                    ),
+                ));
+            }
+            for k in 1..=self.n_future {
+                if let Some([x, y]) = self.future_at(a, k)
+                    && x.abs().max(y.abs()) > MAX_ABS_POSITION
+                {
+                    return Err(agent_err(
+                        a,
+                        "future",
+                        format!("({x}, {y}) m at future step {k} is beyond ±{MAX_ABS_POSITION} m"),
+                    ));
+                }
+            }
+        }
+        for i in 0..self.n_agents {
+            for j in i + 1..self.n_agents {
+                let (p, q) = (self.position(i, T_OBS - 1), self.position(j, T_OBS - 1));
+                let d = (p[0] - q[0]).hypot(p[1] - q[1]);
+                if d > MAX_AGENT_OFFSET {
+                    return Err(agent_err(
+                        j,
+                        "history",
+                        format!(
+                            "is {d:.1} m from agent {i} at the last observed step, more than \
+                             {MAX_AGENT_OFFSET} m"
+                        ),
+                    ));
+                }
+            }
+        }
+        // The ego's lane.
+        let y = self.position(0, T_OBS - 1)[1];
+        let (lo, hi) = (
+            self.lane_bounds[self.ego_lane],
+            self.lane_bounds[self.ego_lane + 1],
+        );
+        if y < lo - EGO_LANE_TOLERANCE || y > hi + EGO_LANE_TOLERANCE {
+            return Err(ScenarioError::EgoLane {
+                path: path.to_path_buf(),
+                ego_lane: self.ego_lane,
+                y,
+                lo,
+                hi,
+                tolerance: EGO_LANE_TOLERANCE,
+            });
+        }
+        Ok(())
     }
 
     /// Position `[x, y]` (m) of `agent` at observed step `t` (0 = oldest, 7 = now).

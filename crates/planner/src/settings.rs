@@ -5,11 +5,26 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::SettingsError;
 
+/// Largest settings file accepted by [`PlannerSettings::from_file`] (bytes).
+pub const MAX_SETTINGS_BYTES: u64 = 1 << 20;
+
+fn json_kind(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+    }
+}
+
 /// Every number the planner uses. Units: metres, seconds, radians, m/s, m/s².
 ///
 /// Deserialises from JSON with every field optional (missing fields take the [`Default`]) and
-/// unknown fields rejected. Always call [`PlannerSettings::validate`] (done by
-/// [`crate::Planner::new`]) before use.
+/// unknown fields rejected; [`PlannerSettings::from_json`] accepts only a JSON object. Always
+/// call [`PlannerSettings::validate`] (done by [`crate::Planner::new`]) before use: every
+/// numeric field has a documented range in [`RANGES`] (the booleans are valid either way).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlannerSettings {
@@ -181,213 +196,288 @@ impl Default for PlannerSettings {
     }
 }
 
-fn check(
-    field: &'static str,
-    value: f64,
-    ok: bool,
-    reason: &'static str,
-) -> Result<(), SettingsError> {
-    if ok && value.is_finite() {
-        Ok(())
-    } else {
-        Err(SettingsError::Invalid {
-            field,
-            value: format!("{value}"),
-            reason,
-        })
+/// The admissible range of one numeric setting: `min <= value <= max` (a bound marked open
+/// excludes its end point). Integer settings use the same table (their values are exact in
+/// f64).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FieldRange {
+    /// Name of the field (as in the serde representation).
+    pub field: &'static str,
+    /// Lower bound.
+    pub min: f64,
+    /// Whether `min` itself is excluded.
+    pub min_open: bool,
+    /// Upper bound.
+    pub max: f64,
+    /// Whether `max` itself is excluded.
+    pub max_open: bool,
+    /// Unit, for messages and docs.
+    pub unit: &'static str,
+}
+
+const fn closed(field: &'static str, min: f64, max: f64, unit: &'static str) -> FieldRange {
+    FieldRange {
+        field,
+        min,
+        min_open: false,
+        max,
+        max_open: false,
+        unit,
     }
 }
 
-impl PlannerSettings {
-    /// Largest horizon accepted (steps).
-    pub const MAX_HORIZON: usize = 60;
-    /// Largest ADMM iteration count accepted.
-    pub const MAX_ITER: usize = 100_000;
+const fn open_min(field: &'static str, min: f64, max: f64, unit: &'static str) -> FieldRange {
+    FieldRange {
+        field,
+        min,
+        min_open: true,
+        max,
+        max_open: false,
+        unit,
+    }
+}
 
-    /// Checks every field.
+impl FieldRange {
+    /// Whether `v` lies in the range (NaN never does).
+    #[must_use]
+    pub fn contains(&self, v: f64) -> bool {
+        let lo = if self.min_open {
+            v > self.min
+        } else {
+            v >= self.min
+        };
+        let hi = if self.max_open {
+            v < self.max
+        } else {
+            v <= self.max
+        };
+        lo && hi
+    }
+}
+
+/// A number for messages: plain for ordinary magnitudes, scientific for huge or tiny ones.
+pub(crate) fn show(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && a.is_finite() && !(1e-3..1e6).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+impl std::fmt::Display for FieldRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}{}, {}{}{}{}",
+            if self.min_open { '(' } else { '[' },
+            show(self.min),
+            show(self.max),
+            if self.max_open { ')' } else { ']' },
+            if self.unit.is_empty() { "" } else { " " },
+            self.unit
+        )
+    }
+}
+
+/// Weight bound: a quadratic weight above 1e6 only rescales the cost into ill-conditioning.
+const W_MAX: f64 = 1e6;
+
+/// Every numeric setting's admissible range, in field order. Physical quantities are bounded
+/// by what a road vehicle can do (speeds ≤ 60 m/s, accelerations within ±15 m/s², wheelbase
+/// halves 0.5–5 m, steering below 1.5 rad), counts by what one planning step may do, and
+/// tolerances by what is meaningful in f64. The shipped defaults lie well inside each range.
+/// `a_max` must also exceed `a_min` (checked after the ranges).
+pub const RANGES: &[FieldRange] = &[
+    closed("horizon", 1.0, nudge_predictor::MAX_HORIZON as f64, "steps"),
+    closed("dt", 0.01, 1.0, "s"),
+    closed("l_f", 0.5, 5.0, "m"),
+    closed("l_r", 0.5, 5.0, "m"),
+    closed("w_y", 0.0, W_MAX, "1/m²"),
+    closed("w_v", 0.0, W_MAX, ""),
+    closed("w_psi", 0.0, W_MAX, ""),
+    closed("w_delta", 0.0, W_MAX, ""),
+    closed("w_ddelta", 0.0, W_MAX, ""),
+    closed("w_a", 0.0, W_MAX, ""),
+    closed("w_da", 0.0, W_MAX, ""),
+    closed("rho", 1e-6, 1e8, ""),
+    FieldRange {
+        field: "delta_max",
+        min: 0.0,
+        min_open: true,
+        max: 1.5,
+        max_open: true,
+        unit: "rad",
+    },
+    open_min("ddelta_max", 0.0, 1.5, "rad per step"),
+    FieldRange {
+        field: "a_min",
+        min: -15.0,
+        min_open: false,
+        max: 15.0,
+        max_open: true,
+        unit: "m/s²",
+    },
+    open_min("a_max", -15.0, 15.0, "m/s²"),
+    open_min("da_max", 0.0, 30.0, "m/s² per step"),
+    open_min("v_max", 0.0, 60.0, "m/s"),
+    closed("edge_margin", 0.0, 5.0, "m"),
+    open_min("v_lin_min", 0.0, 10.0, "m/s"),
+    closed("ellipse_scale", 1.0, 4.0, ""),
+    closed("margin_x", 0.0, 20.0, "m"),
+    closed("margin_y", 0.0, 5.0, "m"),
+    closed(
+        "check_range",
+        0.0,
+        nudge_predictor::limits::MAX_AGENT_OFFSET,
+        "m",
+    ),
+    closed("safety_min", 0.0, 10.0, ""),
+    closed("plan_buffer", 0.0, 10.0, ""),
+    closed(
+        "max_iter",
+        1.0,
+        PlannerSettings::MAX_ITER as f64,
+        "iterations",
+    ),
+    closed("eps_primal", 1e-9, 1.0, ""),
+    closed("eps_change", 1e-9, 1.0, ""),
+    closed("pgd_steps", 1.0, 100.0, "steps"),
+    closed("pgd_halvings", 0.0, 30.0, "halvings"),
+    closed("pin_weight", 0.0, 1e8, ""),
+    open_min("restore_step", 0.0, 10.0, "m"),
+    open_min("heading_max", 0.0, 10.0, "rad"),
+    open_min("heading_recovery", 0.0, 1.5, "rad per step"),
+    closed("overshoot_max", 0.0, 100.0, "m"),
+    closed("refine_iters", 0.0, 100.0, "iterations"),
+    closed("refine_margin", 0.0, 10.0, ""),
+    open_min("refine_trust_delta", 0.0, 1.5, "rad"),
+    open_min("refine_trust_accel", 0.0, 30.0, "m/s²"),
+    closed("budget_s", 0.0, 3600.0, "s"),
+    closed("budget_calls", 0.0, 1e9, "predictor calls"),
+];
+
+impl PlannerSettings {
+    /// Largest horizon accepted (steps): the predictors' [`nudge_predictor::MAX_HORIZON`].
+    pub const MAX_HORIZON: usize = nudge_predictor::MAX_HORIZON;
+    /// Largest ADMM iteration count accepted.
+    pub const MAX_ITER: usize = 10_000;
+
+    /// The value of numeric field `field` as f64 (`None` for a boolean or unknown name).
+    #[must_use]
+    pub fn numeric(&self, field: &str) -> Option<f64> {
+        Some(match field {
+            "horizon" => self.horizon as f64,
+            "dt" => self.dt,
+            "l_f" => self.l_f,
+            "l_r" => self.l_r,
+            "w_y" => self.w_y,
+            "w_v" => self.w_v,
+            "w_psi" => self.w_psi,
+            "w_delta" => self.w_delta,
+            "w_ddelta" => self.w_ddelta,
+            "w_a" => self.w_a,
+            "w_da" => self.w_da,
+            "rho" => self.rho,
+            "delta_max" => self.delta_max,
+            "ddelta_max" => self.ddelta_max,
+            "a_min" => self.a_min,
+            "a_max" => self.a_max,
+            "da_max" => self.da_max,
+            "v_max" => self.v_max,
+            "edge_margin" => self.edge_margin,
+            "v_lin_min" => self.v_lin_min,
+            "ellipse_scale" => self.ellipse_scale,
+            "margin_x" => self.margin_x,
+            "margin_y" => self.margin_y,
+            "check_range" => self.check_range,
+            "safety_min" => self.safety_min,
+            "plan_buffer" => self.plan_buffer,
+            "max_iter" => self.max_iter as f64,
+            "eps_primal" => self.eps_primal,
+            "eps_change" => self.eps_change,
+            "pgd_steps" => self.pgd_steps as f64,
+            "pgd_halvings" => self.pgd_halvings as f64,
+            "pin_weight" => self.pin_weight,
+            "restore_step" => self.restore_step,
+            "heading_max" => self.heading_max,
+            "heading_recovery" => self.heading_recovery,
+            "overshoot_max" => self.overshoot_max,
+            "refine_iters" => self.refine_iters as f64,
+            "refine_margin" => self.refine_margin,
+            "refine_trust_delta" => self.refine_trust_delta,
+            "refine_trust_accel" => self.refine_trust_accel,
+            "budget_s" => self.budget_s,
+            "budget_calls" => self.budget_calls as f64,
+            _ => return None,
+        })
+    }
+
+    /// Checks every field against [`RANGES`], then `a_max > a_min`.
     ///
     /// # Errors
-    /// [`SettingsError::Invalid`] naming the first bad field: a negative or non-finite weight,
-    /// a non-positive ρ, step or geometry, an empty bound interval (`a_min ≥ a_max`,
-    /// `delta_max ≤ 0`, ...), horizon 0 or above [`Self::MAX_HORIZON`], zero iterations.
+    /// [`SettingsError::Invalid`] naming the first field out of its range (NaN and infinity
+    /// never are in range), with the range in the message.
     pub fn validate(&self) -> Result<(), SettingsError> {
-        let h = self.horizon;
-        if h == 0 || h > Self::MAX_HORIZON {
+        for r in RANGES {
+            let v = self.numeric(r.field).unwrap_or(f64::NAN);
+            if !r.contains(v) {
+                return Err(SettingsError::OutOfRange {
+                    field: r.field,
+                    value: v,
+                    range: *r,
+                });
+            }
+        }
+        if self.a_max <= self.a_min {
             return Err(SettingsError::Invalid {
-                field: "horizon",
-                value: h.to_string(),
-                reason: "must be in 1..=60",
+                field: "a_max",
+                value: format!("{}", self.a_max),
+                reason: "must be > a_min (empty acceleration bounds)",
             });
         }
-        if self.max_iter == 0 || self.max_iter > Self::MAX_ITER {
-            return Err(SettingsError::Invalid {
-                field: "max_iter",
-                value: self.max_iter.to_string(),
-                reason: "must be in 1..=100000",
-            });
-        }
-        if self.pgd_steps == 0 || self.pgd_steps > 10_000 {
-            return Err(SettingsError::Invalid {
-                field: "pgd_steps",
-                value: self.pgd_steps.to_string(),
-                reason: "must be in 1..=10000",
-            });
-        }
-        if self.pgd_halvings > 60 {
-            return Err(SettingsError::Invalid {
-                field: "pgd_halvings",
-                value: self.pgd_halvings.to_string(),
-                reason: "must be at most 60",
-            });
-        }
-        let positive = "must be finite and > 0";
-        let nonneg = "must be finite and >= 0";
-        check("dt", self.dt, self.dt > 0.0, positive)?;
-        check("l_f", self.l_f, self.l_f > 0.0, positive)?;
-        check("l_r", self.l_r, self.l_r > 0.0, positive)?;
-        for (field, w) in [
-            ("w_y", self.w_y),
-            ("w_v", self.w_v),
-            ("w_psi", self.w_psi),
-            ("w_delta", self.w_delta),
-            ("w_ddelta", self.w_ddelta),
-            ("w_a", self.w_a),
-            ("w_da", self.w_da),
-        ] {
-            check(field, w, w >= 0.0, nonneg)?;
-        }
-        check("rho", self.rho, self.rho > 0.0, positive)?;
-        check(
-            "delta_max",
-            self.delta_max,
-            self.delta_max > 0.0 && self.delta_max < 1.5,
-            "must be in (0, 1.5) rad",
-        )?;
-        check(
-            "ddelta_max",
-            self.ddelta_max,
-            self.ddelta_max > 0.0,
-            positive,
-        )?;
-        check(
-            "a_min",
-            self.a_min,
-            self.a_min.is_finite(),
-            "must be finite",
-        )?;
-        check(
-            "a_max",
-            self.a_max,
-            self.a_max > self.a_min,
-            "must be finite and > a_min (empty acceleration bounds)",
-        )?;
-        check("da_max", self.da_max, self.da_max > 0.0, positive)?;
-        check("v_max", self.v_max, self.v_max > 0.0, positive)?;
-        check(
-            "edge_margin",
-            self.edge_margin,
-            self.edge_margin >= 0.0,
-            nonneg,
-        )?;
-        check("v_lin_min", self.v_lin_min, self.v_lin_min > 0.0, positive)?;
-        check(
-            "ellipse_scale",
-            self.ellipse_scale,
-            self.ellipse_scale >= 1.0,
-            "must be finite and >= 1",
-        )?;
-        check("margin_x", self.margin_x, self.margin_x >= 0.0, nonneg)?;
-        check("margin_y", self.margin_y, self.margin_y >= 0.0, nonneg)?;
-        check(
-            "check_range",
-            self.check_range,
-            self.check_range >= 0.0,
-            nonneg,
-        )?;
-        check(
-            "safety_min",
-            self.safety_min,
-            self.safety_min >= 0.0,
-            nonneg,
-        )?;
-        check(
-            "plan_buffer",
-            self.plan_buffer,
-            self.plan_buffer >= 0.0,
-            nonneg,
-        )?;
-        check(
-            "eps_primal",
-            self.eps_primal,
-            self.eps_primal > 0.0,
-            positive,
-        )?;
-        check(
-            "eps_change",
-            self.eps_change,
-            self.eps_change > 0.0,
-            positive,
-        )?;
-        check(
-            "heading_max",
-            self.heading_max,
-            self.heading_max > 0.0 && self.heading_max <= 10.0,
-            "must be in (0, 10] rad",
-        )?;
-        check(
-            "heading_recovery",
-            self.heading_recovery,
-            self.heading_recovery > 0.0,
-            positive,
-        )?;
-        check(
-            "overshoot_max",
-            self.overshoot_max,
-            self.overshoot_max >= 0.0,
-            nonneg,
-        )?;
-        if self.refine_iters > 100 {
-            return Err(SettingsError::Invalid {
-                field: "refine_iters",
-                value: self.refine_iters.to_string(),
-                reason: "must be at most 100",
-            });
-        }
-        check("refine_margin", self.refine_margin, self.refine_margin >= 0.0, nonneg)?;
-        check(
-            "refine_trust_delta",
-            self.refine_trust_delta,
-            self.refine_trust_delta > 0.0,
-            positive,
-        )?;
-        check(
-            "refine_trust_accel",
-            self.refine_trust_accel,
-            self.refine_trust_accel > 0.0,
-            positive,
-        )?;
-        check("budget_s", self.budget_s, self.budget_s >= 0.0, nonneg)?;
-        check(
-            "restore_step",
-            self.restore_step,
-            self.restore_step > 0.0,
-            positive,
-        )?;
         Ok(())
     }
 
-    /// Parses JSON (missing fields default, unknown fields rejected) and validates.
+    /// Parses a JSON object (missing fields default; unknown and repeated fields rejected) and
+    /// validates.
     ///
     /// # Errors
-    /// [`SettingsError::Invalid`] with field `"<json>"` on a parse error, otherwise as
-    /// [`Self::validate`].
+    /// [`SettingsError::Invalid`] with field `"<json>"` when the text is not a JSON object
+    /// (serde would otherwise read an array positionally: `[7, 0.5]` as horizon and dt) or
+    /// does not parse, otherwise as [`Self::validate`].
     pub fn from_json(text: &str) -> Result<Self, SettingsError> {
-        let s: Self = serde_json::from_str(text).map_err(|e| SettingsError::Invalid {
+        let not_json = |e: serde_json::Error| SettingsError::Invalid {
             field: "<json>",
             value: e.to_string(),
             reason: "not valid planner settings JSON",
-        })?;
+        };
+        let value: serde_json::Value = serde_json::from_str(text).map_err(not_json)?;
+        if !value.is_object() {
+            return Err(SettingsError::Invalid {
+                field: "<json>",
+                value: json_kind(&value).to_owned(),
+                reason: "planner settings must be a JSON object of named fields",
+            });
+        }
+        // Parsed again from the text (not the value) so that a repeated key is an error.
+        let s: Self = serde_json::from_str(text).map_err(not_json)?;
         s.validate()?;
         Ok(s)
+    }
+
+    /// Reads a settings JSON file (a regular file of at most [`MAX_SETTINGS_BYTES`]) and
+    /// parses it as [`Self::from_json`].
+    ///
+    /// # Errors
+    /// [`SettingsError::File`] when the file cannot be read or is not a regular file of
+    /// bounded size (message names the file), otherwise as [`Self::from_json`].
+    pub fn from_file(path: impl AsRef<std::path::Path>) -> Result<Self, SettingsError> {
+        let path = path.as_ref();
+        let bytes = nudge_predictor::file::read_bounded(path, MAX_SETTINGS_BYTES)
+            .map_err(|e| SettingsError::File(e.to_string()))?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| SettingsError::File(format!("{}: not UTF-8 text: {e}", path.display())))?;
+        Self::from_json(&text)
     }
 }

@@ -1,20 +1,26 @@
 //! The Social-GAN generator shared by the teacher and the student, in f32, split into the
-//! stages the two predictors cache differently.
+//! stages the two predictors cache differently. Every stage runs on a range of agents at once
+//! (one matrix kernel per layer and step, see [`nn`](crate::nn)).
 //!
 //! Layouts (row-major): windows `[n, T_OBS, 2]` and positions `[n, 2]` in f64 metres
-//! (absolute); hidden states `[n, H]` in f32. Positions stay in f64 and only differences
-//! (displacements, offsets between agents) enter the f32 networks: each is then rounded once,
-//! relative to its own small magnitude, and predicted positions accumulate without f32
-//! rounding of absolute coordinates.
+//! (absolute); hidden states `[n, H]` in f32, pool terms `[n, term_stride]`, running maxima
+//! `[n, acc_len]`. Positions stay in f64 and only differences (displacements, offsets between
+//! agents) enter the f32 networks: each is then rounded once, relative to its own small
+//! magnitude, and predicted positions accumulate without f32 rounding of absolute coordinates.
+
+use std::ops::Range;
 
 use crate::T_OBS;
-use crate::nn::{Dense, Lstm, Mlp2, Pool};
-use crate::weights::{ModelConfig, ModelWeights};
+use crate::nn::{Accumulate, Dense, Lstm, Mlp2, Pair, Pool};
+use crate::simd::Isa;
+use crate::weights::{ModelConfig, ModelKind, ModelWeights};
 
 /// The loaded, repacked generator.
 #[derive(Debug, Clone)]
 pub(crate) struct Generator {
     pub(crate) cfg: ModelConfig,
+    /// Instruction set every kernel runs on.
+    pub(crate) isa: Isa,
     enc: Lstm,
     /// Encoder state after its first step (input displacement 0 from the zero state): the
     /// same for every agent, so computed once here. `[He]` each.
@@ -30,42 +36,32 @@ pub(crate) struct Generator {
     pub(crate) fixed_noise: Vec<f32>,
 }
 
-/// Scratch of one LSTM step: gates `[4H]` (padded), cell state `[H]`.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct LstmScratch {
-    pub(crate) g: Vec<f32>,
-    pub(crate) c: Vec<f32>,
-}
-
-/// Scratch of the pooling: running max `[acc_len]`, first-layer compaction `[P]`.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct PoolScratch {
-    pub(crate) acc: Vec<f32>,
-    pub(crate) idx: Vec<u32>,
-    pub(crate) val: Vec<f32>,
-}
-
 /// Reusable buffers of one predictor, grown (never shrunk) to the scene size in `set_scene`.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Scratch {
-    pub(crate) ls: LstmScratch,
-    pub(crate) ps: PoolScratch,
+    /// LSTM rows `[n, 2 + H]` (`[d ; h]`), cell states `[n, H]`, gates `[n, 4H]`.
+    xh: Vec<f32>,
+    c: Vec<f32>,
+    g: Vec<f32>,
     /// Encoder final hidden states `[n, He]`.
     pub(crate) h_enc: Vec<f32>,
-    /// Pool agent terms `[n, P]`.
+    /// Pool agent terms `[n, term_stride]`.
     pub(crate) terms: Vec<f32>,
+    /// Running maxima of the pooling `[n, acc_len]`.
+    pub(crate) acc: Vec<f32>,
     /// Pooled vectors `[n, B]`.
     pub(crate) pooled: Vec<f32>,
-    /// mlp input `[H + B]` and hidden layer.
-    pub(crate) cat: Vec<f32>,
-    pub(crate) hid: Vec<f32>,
-    /// mlp output (padded).
-    pub(crate) mout: Vec<f32>,
+    /// Pair list and first-layer rows of one pooling.
+    pairs: Vec<Pair>,
+    val: Vec<f32>,
+    /// mlp inputs `[n, H + B]` and hidden layers `[n, M]`.
+    cat: Vec<f32>,
+    hid: Vec<f32>,
     /// Decoder states `[n, Hd]`.
     pub(crate) h: Vec<f32>,
     pub(crate) cd: Vec<f32>,
-    /// hidden2pos output (padded).
-    pub(crate) dp: Vec<f32>,
+    /// hidden2pos outputs `[n, 2]`.
+    dp: Vec<f32>,
 }
 
 pub(crate) fn grow<T: Copy + Default>(v: &mut Vec<T>, len: usize) {
@@ -74,11 +70,24 @@ pub(crate) fn grow<T: Copy + Default>(v: &mut Vec<T>, len: usize) {
     }
 }
 
+/// Precision of the dense layers' sums for a model kind. The teacher feeds its own
+/// predictions back through six generator calls, which amplifies f32 rounding: with f32 sums
+/// its error against the f64 reference reached 1.2e-5 m on the trained golden scenes, with f64
+/// sums about 5e-6 m. The one-pass student stays within about 4e-6 m with f32 sums, which run
+/// at twice the vector width.
+fn accumulate(kind: ModelKind) -> Accumulate {
+    match kind {
+        ModelKind::Teacher => Accumulate::F64,
+        ModelKind::Student => Accumulate::F32,
+    }
+}
+
 impl Generator {
-    /// Builds the fast generator from validated weights.
-    pub(crate) fn new(w: &ModelWeights) -> Self {
+    /// Builds the fast generator from validated weights, its kernels running on `isa`.
+    pub(crate) fn new(w: &ModelWeights, isa: Isa) -> Self {
         let cfg = w.config().clone();
         let (he, hd) = (cfg.encoder_h_dim, cfg.decoder_h_dim);
+        let acc = accumulate(cfg.kind);
         let enc = Lstm::new(
             w.get("encoder.spatial_embedding.weight"),
             w.get("encoder.spatial_embedding.bias"),
@@ -87,6 +96,7 @@ impl Generator {
             w.get("encoder.encoder.bias_ih_l0"),
             w.get("encoder.encoder.bias_hh_l0"),
             he,
+            acc,
         );
         let pool = Pool::new(
             w.get("pool_net.spatial_embedding.weight"),
@@ -96,6 +106,7 @@ impl Generator {
             w.get("pool_net.mlp_pre_pool.2.weight"),
             w.get("pool_net.mlp_pre_pool.2.bias"),
             he,
+            acc,
         );
         let ctx = Mlp2::new(
             w.get("mlp_decoder_context.0.weight"),
@@ -103,6 +114,7 @@ impl Generator {
             w.get("mlp_decoder_context.2.weight"),
             w.get("mlp_decoder_context.2.bias"),
             he + cfg.bottleneck_dim,
+            acc,
         );
         let dec = Lstm::new(
             w.get("decoder.spatial_embedding.weight"),
@@ -112,12 +124,14 @@ impl Generator {
             w.get("decoder.decoder.bias_ih_l0"),
             w.get("decoder.decoder.bias_hh_l0"),
             hd,
+            acc,
         );
         let h2p = Dense::new(
             w.get("decoder.hidden2pos.weight"),
             w.get("decoder.hidden2pos.bias"),
             2,
             hd,
+            acc,
         );
         let (dec_pool, dec_mlp) = if cfg.pool_every_timestep {
             (
@@ -129,6 +143,7 @@ impl Generator {
                     w.get("decoder.pool_net.mlp_pre_pool.2.weight"),
                     w.get("decoder.pool_net.mlp_pre_pool.2.bias"),
                     hd,
+                    acc,
                 )),
                 Some(Mlp2::new(
                     w.get("decoder.mlp.0.weight"),
@@ -136,6 +151,7 @@ impl Generator {
                     w.get("decoder.mlp.2.weight"),
                     w.get("decoder.mlp.2.bias"),
                     hd + cfg.bottleneck_dim,
+                    acc,
                 )),
             )
         } else {
@@ -146,15 +162,12 @@ impl Generator {
         } else {
             Vec::new()
         };
-        let mut enc_h1 = vec![0.0f32; he];
-        let mut enc_c1 = vec![0.0f32; he];
-        let mut g = vec![0.0f32; enc.scratch_len()];
-        enc.step([0.0, 0.0], &mut enc_h1, &mut enc_c1, &mut g);
-        Self {
+        let mut generator = Self {
             cfg,
+            isa,
             enc,
-            enc_h1,
-            enc_c1,
+            enc_h1: vec![0.0; he],
+            enc_c1: vec![0.0; he],
             pool,
             ctx,
             dec,
@@ -162,7 +175,21 @@ impl Generator {
             dec_pool,
             dec_mlp,
             fixed_noise,
-        }
+        };
+        generator.set_isa(isa);
+        generator
+    }
+
+    /// Switches the instruction set (recomputes the cached first encoder step with it).
+    pub(crate) fn set_isa(&mut self, isa: Isa) {
+        self.isa = isa;
+        let he = self.cfg.encoder_h_dim;
+        let mut xh = vec![0.0f32; self.enc.row_len()];
+        let mut c = vec![0.0f32; he];
+        let mut g = vec![0.0f32; self.enc.gates_len(1)];
+        self.enc.step(isa, &mut xh, &mut c, &mut g, 1);
+        self.enc_h1.copy_from_slice(&xh[2..]);
+        self.enc_c1.copy_from_slice(&c);
     }
 
     /// Grows `s` for scenes of `n` agents.
@@ -172,140 +199,184 @@ impl Generator {
             self.cfg.decoder_h_dim,
             self.cfg.bottleneck_dim,
         );
-        grow(
-            &mut s.ls.g,
-            self.enc.scratch_len().max(self.dec.scratch_len()),
-        );
-        grow(&mut s.ls.c, he.max(hd));
+        grow(&mut s.xh, n * self.enc.row_len().max(self.dec.row_len()));
+        grow(&mut s.c, n * he.max(hd));
+        grow(&mut s.g, self.enc.gates_len(n).max(self.dec.gates_len(n)));
         grow(&mut s.h_enc, n * he);
-        let mut p = self.pool.hidden();
-        let mut acc = self.pool.acc_len();
-        let mut hid = self.ctx.hidden_len();
-        if let (Some(dp), Some(dm)) = (&self.dec_pool, &self.dec_mlp) {
-            p = p.max(dp.hidden());
-            acc = acc.max(dp.acc_len());
-            hid = hid.max(dm.hidden_len());
+        let pools = std::iter::once(&self.pool).chain(self.dec_pool.as_ref());
+        for pool in pools {
+            grow(&mut s.terms, n * pool.term_stride());
+            grow(&mut s.acc, n * pool.acc_len());
+            grow(&mut s.val, pool.val_len());
         }
-        grow(&mut s.terms, n * p);
-        grow(&mut s.ps.acc, acc);
-        grow(&mut s.ps.idx, p);
-        grow(&mut s.ps.val, p);
+        if s.pairs.capacity() < n * n {
+            s.pairs.reserve(n * n - s.pairs.len());
+        }
         grow(&mut s.pooled, n * b);
-        grow(&mut s.cat, he.max(hd) + b);
+        grow(&mut s.cat, n * (he.max(hd) + b));
+        let mut hid = self.ctx.hidden_len(n);
+        if let Some(dm) = &self.dec_mlp {
+            hid = hid.max(dm.hidden_len(n));
+        }
         grow(&mut s.hid, hid);
-        grow(&mut s.mout, 2 * hd + 32);
         grow(&mut s.h, n * hd);
         grow(&mut s.cd, n * hd);
-        grow(&mut s.dp, 32);
+        grow(&mut s.dp, 2 * n);
     }
 
-    /// Encoder final hidden state of agent `a` of window `win` (`[n, T_OBS, 2]`, metres)
-    /// into `h_enc[a]` (`h_enc` is `[n, He]`); the first displacement is 0 as in training.
-    pub(crate) fn encode_agent(
+    /// Encoder final hidden states of `agents` of window `win` (`[n, T_OBS, 2]`, metres) into
+    /// their rows of `h_enc` (`[n, He]`); the first displacement is 0 as in training.
+    pub(crate) fn encode(
         &self,
         win: &[f64],
-        a: usize,
+        agents: Range<usize>,
         h_enc: &mut [f32],
-        ls: &mut LstmScratch,
+        s: &mut Scratch,
     ) {
-        let he = self.cfg.encoder_h_dim;
-        let w = &win[a * T_OBS * 2..(a + 1) * T_OBS * 2];
-        let h = &mut h_enc[a * he..(a + 1) * he];
-        h.copy_from_slice(&self.enc_h1);
-        let c = &mut ls.c[..he];
-        c.copy_from_slice(&self.enc_c1);
+        let (he, rl, m) = (self.cfg.encoder_h_dim, self.enc.row_len(), agents.len());
+        if m == 0 {
+            return;
+        }
+        for r in 0..m {
+            s.xh[r * rl + 2..(r + 1) * rl].copy_from_slice(&self.enc_h1);
+            s.c[r * he..(r + 1) * he].copy_from_slice(&self.enc_c1);
+        }
         for t in 1..T_OBS {
-            let d = [
-                (w[2 * t] - w[2 * t - 2]) as f32,
-                (w[2 * t + 1] - w[2 * t - 1]) as f32,
-            ];
-            self.enc.step(d, h, c, &mut ls.g);
+            for (r, a) in agents.clone().enumerate() {
+                let w = &win[a * T_OBS * 2..(a + 1) * T_OBS * 2];
+                s.xh[r * rl] = (w[2 * t] - w[2 * t - 2]) as f32;
+                s.xh[r * rl + 1] = (w[2 * t + 1] - w[2 * t - 1]) as f32;
+            }
+            self.enc.step(self.isa, &mut s.xh, &mut s.c, &mut s.g, m);
+        }
+        for (r, a) in agents.enumerate() {
+            h_enc[a * he..(a + 1) * he].copy_from_slice(&s.xh[r * rl + 2..(r + 1) * rl]);
         }
     }
 
-    /// Pool agent term of agent `a` from hidden states `hs` (`[n, H]`) into `terms[a]`
-    /// (`terms` is `[n, P]`).
-    pub(crate) fn pool_term(pool: &Pool, hs: &[f32], hdim: usize, a: usize, terms: &mut [f32]) {
-        let p = pool.hidden();
-        pool.agent_term(
-            &hs[a * hdim..(a + 1) * hdim],
-            &mut terms[a * p..(a + 1) * p],
+    /// Pool agent terms of `agents` from their hidden states (rows of `hs`, stride `ld`) into
+    /// their rows of `terms` (stride `pool.term_stride()`).
+    pub(crate) fn pool_terms(
+        &self,
+        pool: &Pool,
+        hs: &[f32],
+        ld: usize,
+        agents: Range<usize>,
+        terms: &mut [f32],
+    ) {
+        if agents.is_empty() {
+            return;
+        }
+        let ts = pool.term_stride();
+        pool.terms(
+            self.isa,
+            &hs[agents.start * ld..],
+            ld,
+            agents.len(),
+            &mut terms[agents.start * ts..],
         );
     }
 
-    /// Folds agents `js` into the running max `ps.acc` of query agent `i`; `pos` is `[n, 2]`
-    /// metres, `terms` `[n, P]`.
-    #[inline]
+    /// Folds the pairs `(i, j)`, `i` in `queries`, `j` in `js`, into the running maxima
+    /// `s.acc` (rows by query); `pos` is `[n, 2]` metres, `terms` `[n, term_stride]`.
     pub(crate) fn pool_fold(
+        &self,
         pool: &Pool,
         pos: &[f64],
         terms: &[f32],
-        i: usize,
-        js: std::ops::Range<usize>,
-        ps: &mut PoolScratch,
+        queries: Range<usize>,
+        js: Range<usize>,
+        s: &mut Scratch,
     ) {
-        let p = pool.hidden();
-        let (xi, yi) = (pos[2 * i], pos[2 * i + 1]);
-        for j in js {
-            let d = [(pos[2 * j] - xi) as f32, (pos[2 * j + 1] - yi) as f32];
-            pool.pair(
-                d,
-                &terms[j * p..(j + 1) * p],
-                &mut ps.acc,
-                &mut ps.idx,
-                &mut ps.val,
+        s.pairs.clear();
+        for i in queries {
+            let (xi, yi) = (pos[2 * i], pos[2 * i + 1]);
+            for j in js.clone() {
+                s.pairs.push(Pair {
+                    q: i as u32,
+                    j: j as u32,
+                    d: [(pos[2 * j] - xi) as f32, (pos[2 * j + 1] - yi) as f32],
+                });
+            }
+        }
+        pool.fold(self.isa, &s.pairs, terms, &mut s.acc, &mut s.val);
+    }
+
+    /// `s.pooled[i] = relu(s.acc[i] + b2)` for `i` in `queries`.
+    pub(crate) fn pool_finish(pool: &Pool, queries: Range<usize>, s: &mut Scratch) {
+        let (al, b) = (pool.acc_len(), pool.out_dim());
+        for i in queries {
+            pool.finish(
+                &s.acc[i * al..(i + 1) * al],
+                &mut s.pooled[i * b..(i + 1) * b],
             );
         }
     }
 
     /// Pooling over all `n` agents at positions `pos` (`[n, 2]`) with agent terms `terms`
-    /// (`[n, P]`): `pooled[i] = relu(max_j u_ij + b2)` for the query agents `queries`.
+    /// (`[n, term_stride]`): `s.pooled[i] = relu(max_j u_ij + b2)` for the query agents
+    /// `queries`.
     pub(crate) fn pool_all(
+        &self,
         pool: &Pool,
         pos: &[f64],
         terms: &[f32],
         n: usize,
-        queries: std::ops::Range<usize>,
-        ps: &mut PoolScratch,
-        pooled: &mut [f32],
+        queries: Range<usize>,
+        s: &mut Scratch,
     ) {
-        let b = pool.out_dim();
-        for i in queries {
-            Pool::reset(&mut ps.acc);
-            Self::pool_fold(pool, pos, terms, i, 0..n, ps);
-            pool.finish(&ps.acc, &mut pooled[i * b..(i + 1) * b]);
-        }
+        pool.reset(&mut s.acc, queries.clone());
+        self.pool_fold(pool, pos, terms, queries.clone(), 0..n, s);
+        Self::pool_finish(pool, queries, s);
     }
 
-    /// Decoder initial hidden state of agent `i`: `[ctx_mlp([h_enc_i ; pooled_i]) ; z]` into
-    /// `h0` (`[Hd]`); `h_enc` is `[n, He]`, the pooled vectors are in `s.pooled`.
+    /// Decoder initial hidden states of `agents`: row `r` of `out` (stride `ld`) receives
+    /// `[ctx_mlp([h_enc_i ; pooled_i]) ; z]` (`[Hd]`) of agent `i = agents.start + r`;
+    /// `h_enc` is `[n, He]`, the pooled vectors are in `s.pooled`.
     pub(crate) fn context(
         &self,
-        i: usize,
+        agents: Range<usize>,
         h_enc: &[f32],
         z: &[f32],
         s: &mut Scratch,
-        h0: &mut [f32],
+        out: &mut [f32],
+        ld: usize,
     ) {
         let (he, b) = (self.cfg.encoder_h_dim, self.cfg.bottleneck_dim);
-        s.cat[..he].copy_from_slice(&h_enc[i * he..(i + 1) * he]);
-        s.cat[he..he + b].copy_from_slice(&s.pooled[i * b..(i + 1) * b]);
-        self.ctx.forward(&s.cat, &mut s.hid, &mut s.mout);
-        let m = self.ctx.out_dim();
-        h0[..m].copy_from_slice(&s.mout[..m]);
-        h0[m..m + z.len()].copy_from_slice(z);
+        let (cl, m) = (he + b, agents.len());
+        for (r, i) in agents.enumerate() {
+            let row = &mut s.cat[r * cl..(r + 1) * cl];
+            row[..he].copy_from_slice(&h_enc[i * he..(i + 1) * he]);
+            row[he..].copy_from_slice(&s.pooled[i * b..(i + 1) * b]);
+        }
+        self.ctx.rows(self.isa, &s.cat, cl, m, &mut s.hid, out, ld);
+        let mo = self.ctx.out_dim();
+        for r in 0..m {
+            out[r * ld + mo..r * ld + mo + z.len()].copy_from_slice(z);
+        }
     }
 
-    /// One decoder LSTM step of agent `i` on displacement `d`, states in `s.h`/`s.cd`;
-    /// returns the predicted displacement Δp (metres).
-    #[inline]
-    pub(crate) fn decode_step(&self, i: usize, d: [f32; 2], s: &mut Scratch) -> [f32; 2] {
-        let hd = self.cfg.decoder_h_dim;
-        let h = &mut s.h[i * hd..(i + 1) * hd];
-        let c = &mut s.cd[i * hd..(i + 1) * hd];
-        self.dec.step(d, h, c, &mut s.ls.g);
-        self.h2p.forward(h, &mut s.dp);
-        [s.dp[0], s.dp[1]]
+    /// One decoder step of `agents` (states in their rows of `s.h`, `s.cd`) on their
+    /// displacements in `d` (`[n, 2]`, metres), which are replaced by the predicted
+    /// displacements Δp.
+    pub(crate) fn decode_steps(&self, agents: Range<usize>, d: &mut [f32], s: &mut Scratch) {
+        let (hd, rl, m) = (self.cfg.decoder_h_dim, self.dec.row_len(), agents.len());
+        if m == 0 {
+            return;
+        }
+        for (r, i) in agents.clone().enumerate() {
+            let row = &mut s.xh[r * rl..(r + 1) * rl];
+            row[..2].copy_from_slice(&d[2 * i..2 * i + 2]);
+            row[2..].copy_from_slice(&s.h[i * hd..(i + 1) * hd]);
+        }
+        let cells = &mut s.cd[agents.start * hd..agents.end * hd];
+        self.dec.step(self.isa, &mut s.xh, cells, &mut s.g, m);
+        self.h2p
+            .rows(self.isa, &s.xh[2..], rl, m, &mut s.dp, 2, false);
+        for (r, i) in agents.enumerate() {
+            s.h[i * hd..(i + 1) * hd].copy_from_slice(&s.xh[r * rl + 2..(r + 1) * rl]);
+            d[2 * i..2 * i + 2].copy_from_slice(&s.dp[2 * r..2 * r + 2]);
+        }
     }
 
     /// Decoder refinement after a step: `h_i = dec_mlp([h_i ; pooled_i])` for every agent
@@ -313,12 +384,13 @@ impl Generator {
     pub(crate) fn refine_all(&self, n: usize, s: &mut Scratch) {
         let Some(mlp) = &self.dec_mlp else { return };
         let (hd, b) = (self.cfg.decoder_h_dim, self.cfg.bottleneck_dim);
+        let cl = hd + b;
         for i in 0..n {
-            s.cat[..hd].copy_from_slice(&s.h[i * hd..(i + 1) * hd]);
-            s.cat[hd..hd + b].copy_from_slice(&s.pooled[i * b..(i + 1) * b]);
-            mlp.forward(&s.cat, &mut s.hid, &mut s.mout);
-            s.h[i * hd..(i + 1) * hd].copy_from_slice(&s.mout[..hd]);
+            let row = &mut s.cat[i * cl..(i + 1) * cl];
+            row[..hd].copy_from_slice(&s.h[i * hd..(i + 1) * hd]);
+            row[hd..].copy_from_slice(&s.pooled[i * b..(i + 1) * b]);
         }
+        mlp.rows(self.isa, &s.cat, cl, n, &mut s.hid, &mut s.h, hd);
     }
 
     /// The teacher's decoder (`pred_len = 1`) for agents `1..n` of window `win`
@@ -334,22 +406,26 @@ impl Generator {
         s: &mut Scratch,
         q: &mut [f64],
     ) {
-        let hd = self.cfg.decoder_h_dim;
-        let mut h0 = std::mem::take(&mut s.h);
-        for i in 1..n {
-            self.context(i, h_enc, z, s, &mut h0[i * hd..(i + 1) * hd]);
+        let (hd, rl, m) = (self.cfg.decoder_h_dim, self.dec.row_len(), n - 1);
+        if m == 0 {
+            return;
         }
-        s.h = h0;
-        s.cd[..n * hd].fill(0.0);
-        for i in 1..n {
+        let mut xh = std::mem::take(&mut s.xh);
+        self.context(1..n, h_enc, z, s, &mut xh[2..], rl);
+        for (r, i) in (1..n).enumerate() {
             let k = (i * T_OBS + T_OBS - 1) * 2;
-            let d = [
-                (win[k] - win[k - 2]) as f32,
-                (win[k + 1] - win[k - 1]) as f32,
-            ];
-            let dp = self.decode_step(i, d, s);
-            q[2 * i] = win[k] + f64::from(dp[0]);
-            q[2 * i + 1] = win[k + 1] + f64::from(dp[1]);
+            xh[r * rl] = (win[k] - win[k - 2]) as f32;
+            xh[r * rl + 1] = (win[k + 1] - win[k - 1]) as f32;
+        }
+        s.c[..m * hd].fill(0.0);
+        self.dec.step(self.isa, &mut xh, &mut s.c, &mut s.g, m);
+        self.h2p
+            .rows(self.isa, &xh[2..], rl, m, &mut s.dp, 2, false);
+        s.xh = xh;
+        for (r, i) in (1..n).enumerate() {
+            let k = (i * T_OBS + T_OBS - 1) * 2;
+            q[2 * i] = win[k] + f64::from(s.dp[2 * r]);
+            q[2 * i + 1] = win[k + 1] + f64::from(s.dp[2 * r + 1]);
         }
     }
 
@@ -366,20 +442,18 @@ impl Generator {
     ) {
         let he = self.cfg.encoder_h_dim;
         let mut h_enc = std::mem::take(&mut s.h_enc);
-        for a in 0..n {
-            self.encode_agent(win, a, &mut h_enc, &mut s.ls);
-        }
+        self.encode(win, 0..n, &mut h_enc, s);
         // Positions at the last observed step, contiguous for the pooling.
         for a in 0..n {
             let k = (a * T_OBS + T_OBS - 1) * 2;
             q[2 * a] = win[k];
             q[2 * a + 1] = win[k + 1];
         }
-        for a in 0..n {
-            Self::pool_term(&self.pool, &h_enc, he, a, &mut s.terms);
-        }
+        let mut terms = std::mem::take(&mut s.terms);
+        self.pool_terms(&self.pool, &h_enc, he, 0..n, &mut terms);
         // The ego's own pooled vector is not needed (its prediction is replaced).
-        Self::pool_all(&self.pool, q, &s.terms, n, 1..n, &mut s.ps, &mut s.pooled);
+        self.pool_all(&self.pool, q, &terms, n, 1..n, s);
+        s.terms = terms;
         self.decode_one(win, n, &h_enc, z, s, q);
         s.h_enc = h_enc;
     }

@@ -10,8 +10,8 @@ use crate::{MAX_AGENTS, T_OBS};
 /// Agent 0 is the ego vehicle.
 #[derive(Debug, Clone, PartialEq)]
 pub struct History {
-    positions: Vec<f64>,
-    n_agents: usize,
+    pub(crate) positions: Vec<f64>,
+    pub(crate) n_agents: usize,
 }
 
 impl History {
@@ -20,7 +20,10 @@ impl History {
     /// # Errors
     /// [`PredictorError::AgentCount`] if `n_agents` is 0 or above [`MAX_AGENTS`],
     /// [`PredictorError::InputShape`] if the buffer length is not `n_agents * T_OBS * 2`,
-    /// [`PredictorError::NonFiniteInput`] on NaN or infinity.
+    /// [`PredictorError::NonFiniteInput`] on NaN or infinity,
+    /// [`PredictorError::InputOutOfRange`] when a coordinate, a per-step displacement or the
+    /// distance between two agents at the last observed step is beyond the ranges the
+    /// networks represent (see [`crate::limits`]).
     pub fn new(positions: Vec<f64>, n_agents: usize) -> Result<Self> {
         if n_agents == 0 || n_agents > MAX_AGENTS {
             return Err(PredictorError::AgentCount {
@@ -30,6 +33,7 @@ impl History {
         }
         check_len("history", &positions, &[n_agents, T_OBS, 2])?;
         check_finite("history", &positions)?;
+        crate::limits::check_history(&positions, n_agents)?;
         Ok(Self {
             positions,
             n_agents,
@@ -49,6 +53,9 @@ impl History {
     }
 
     /// Position `[x, y]` (metres) of `agent` at observed step `t` (0 = oldest, `T_OBS-1` = now).
+    ///
+    /// # Panics
+    /// If `agent >= n_agents()` or `t >= T_OBS` (an index out of bounds, like slice indexing).
     #[must_use]
     pub fn at(&self, agent: usize, t: usize) -> [f64; 2] {
         let k = (agent * T_OBS + t) * 2;
@@ -58,8 +65,21 @@ impl History {
     /// A copy with the non-ego agents reordered: new agent `i` (i ≥ 1) is old agent `perm[i-1]`.
     /// `perm` must be a permutation of `1..n_agents`; used by property tests and callers that
     /// sort neighbours.
+    ///
+    /// # Panics
+    /// If `perm` is not a permutation of `1..n_agents` (a caller bug, like an index out of
+    /// bounds).
     #[must_use]
     pub fn permuted(&self, perm: &[usize]) -> Self {
+        let mut seen = vec![false; self.n_agents];
+        assert!(
+            perm.len() + 1 == self.n_agents
+                && perm.iter().all(|&p| p >= 1
+                    && p < self.n_agents
+                    && !std::mem::replace(&mut seen[p], true)),
+            "History::permuted: {perm:?} is not a permutation of 1..{}",
+            self.n_agents
+        );
         let mut positions = Vec::with_capacity(self.positions.len());
         positions.extend_from_slice(&self.positions[..T_OBS * 2]);
         for &p in perm {
@@ -74,7 +94,10 @@ impl History {
 
 /// Checks that `buf` holds exactly the product of `shape` elements.
 pub(crate) fn check_len(what: &'static str, buf: &[f64], shape: &[usize]) -> Result<()> {
-    let expected: usize = shape.iter().product();
+    let expected = shape
+        .iter()
+        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
+        .unwrap_or(usize::MAX);
     if buf.len() != expected {
         return Err(PredictorError::InputShape {
             what,

@@ -28,15 +28,27 @@
 //!
 //! Conventions: metres in the road frame (x along travel, y lateral positive left), one step
 //! = 0.3 s, [`T_OBS`] = 8 observed steps, agent 0 is the ego, 1..=[`MAX_AGENTS`] agents.
+//!
+//! Reliability: inputs beyond the ranges of [`limits`] (coordinates, per-step displacements,
+//! distances between agents) are refused with a typed error stating the range; every
+//! prediction is checked to be finite and physically plausible before it is returned; a
+//! network is run on a canonical scene when it is loaded, so weights whose output is NaN or
+//! absurd fail at load, naming the file; weights files carry a content hash that the loader
+//! verifies; files are read only when regular and of bounded size ([`mod@file`]). Nothing in this
+//! crate panics on any input (property-tested in `tests/reliability.rs`).
 
 mod constant_velocity;
+pub mod cost;
 mod error;
+pub mod file;
 mod generator;
 mod history;
+pub mod limits;
 mod nn;
 mod recording;
 #[doc(hidden)]
 pub mod reference;
+pub mod simd;
 mod spec;
 mod student;
 mod teacher;
@@ -52,14 +64,17 @@ pub mod weights {
     #[doc(hidden)]
     pub use crate::weights_file::synthetic_weights;
     pub use crate::weights_file::{
-        ModelConfig, ModelKind, ModelWeights, Tensor, WEIGHTS_FORMAT, expected_tensors,
+        ModelConfig, ModelKind, ModelWeights, Tensor, WEIGHTS_FORMAT, content_sha256,
+        expected_tensors, restamp,
     };
 }
 
 pub use constant_velocity::ConstantVelocity;
-pub use error::{PredictorError, Result};
+pub use cost::{MacCount, multiply_adds};
+pub use error::{PredictorError, Quantity, Result};
 pub use history::History;
 pub use recording::{Recording, Records};
+pub use simd::{SimdPath, best_simd_path, simd_path, supported_simd_paths};
 pub use spec::{
     ASSETS_ENV, PredictorKind, PredictorSpec, UnknownPredictor, default_assets_dir, model_path,
 };
@@ -72,7 +87,9 @@ pub use weights::{ModelConfig, ModelKind, ModelWeights};
 ///
 /// # Errors
 /// Any loading error of [`ModelWeights::from_file`] (missing file, bad config, wrong tensor
-/// shape or dtype, non-finite weight), naming the file and tensor.
+/// shape or dtype, non-finite weight, content hash mismatch), naming the file and tensor;
+/// [`PredictorError::SelfCheck`] when the network's predictions on the canonical scene are
+/// non-finite or implausible.
 ///
 /// # Examples
 ///
@@ -109,6 +126,8 @@ pub const T_OBS: usize = 8;
 pub const MAX_AGENTS: usize = 47;
 /// Time step of the networks and the planner, seconds.
 pub const DT: f64 = 0.3;
+/// Largest prediction horizon (steps) any predictor accepts (18 s).
+pub const MAX_HORIZON: usize = 60;
 
 /// An interactive predictor: given a scene history and a batch of ego candidate trajectories,
 /// predicts where every other agent goes under each candidate.
@@ -141,22 +160,39 @@ pub trait Predictor: Send {
     /// [`PredictorError::NoScene`] before any [`Predictor::set_scene`];
     /// [`PredictorError::InputShape`] when `candidates` is not a whole number of
     /// `[horizon, 2]` trajectories or `out` has the wrong length;
-    /// [`PredictorError::NonFiniteInput`] on NaN/inf in `candidates`.
+    /// [`PredictorError::NonFiniteInput`] on NaN/inf in `candidates`;
+    /// [`PredictorError::InputOutOfRange`] when a candidate leaves the accepted ranges of
+    /// [`limits`] (coordinates, per-step displacement from the ego's last observed position);
+    /// [`PredictorError::NonFiniteOutput`] / [`PredictorError::ImplausibleOutput`] when a
+    /// prediction is non-finite or moves an agent more than [`limits::MAX_STEP`] in one step
+    /// (`out` then holds unchecked values and must not be used).
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> Result<()>;
 }
 
 /// Validates a candidate batch and the matching output buffer; returns the batch size.
+/// `ego_last` is the ego's last observed position (m), from which the first step of each
+/// candidate is measured.
 ///
 /// # Errors
-/// See [`Predictor::predict`].
+/// [`PredictorError::Horizon`] for horizon 0 or above [`MAX_HORIZON`],
+/// [`PredictorError::AgentCount`] for 0 agents or more than [`MAX_AGENTS`]; otherwise the
+/// input errors of [`Predictor::predict`].
 pub fn check_batch(
     candidates: &[f64],
     out: &[f64],
     horizon: usize,
     n_agents: usize,
+    ego_last: [f64; 2],
 ) -> Result<usize> {
+    check_horizon(horizon)?;
+    if n_agents == 0 || n_agents > MAX_AGENTS {
+        return Err(PredictorError::AgentCount {
+            got: n_agents,
+            max: MAX_AGENTS,
+        });
+    }
     let per = horizon * 2;
-    if candidates.is_empty() || candidates.len() % per != 0 {
+    if candidates.is_empty() || !candidates.len().is_multiple_of(per) {
         return Err(PredictorError::InputShape {
             what: "candidates",
             shape: format!("[batch, {horizon}, 2]"),
@@ -166,6 +202,22 @@ pub fn check_batch(
     }
     let batch = candidates.len() / per;
     history::check_finite("candidates", candidates)?;
+    limits::check_candidates(candidates, horizon, ego_last)?;
+    // batch * (n - 1) * horizon * 2 ≤ candidates.len() * MAX_AGENTS: cannot overflow.
     history::check_len("out", out, &[batch, n_agents - 1, horizon, 2])?;
     Ok(batch)
+}
+
+/// Checks a prediction horizon (steps).
+///
+/// # Errors
+/// [`PredictorError::Horizon`] unless `1 <= horizon <= MAX_HORIZON`.
+pub fn check_horizon(horizon: usize) -> Result<()> {
+    if horizon == 0 || horizon > MAX_HORIZON {
+        return Err(PredictorError::Horizon {
+            got: horizon,
+            max: MAX_HORIZON,
+        });
+    }
+    Ok(())
 }

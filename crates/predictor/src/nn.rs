@@ -1,37 +1,44 @@
-//! f32 building blocks of the fast networks: packed linear layers, an LSTM cell with the
-//! spatial embedding folded into its input weights, and the split pooling module.
+//! f32 building blocks of the fast networks: packed linear layers evaluated for many rows at
+//! once, an LSTM cell with the spatial embedding folded into its input weights, and the split
+//! pooling module. Every kernel is generic over the instruction set ([`Simd`]) and runs through
+//! [`Isa::run`], so one build carries a portable, an AVX2 and an AVX-512 version of each.
 //!
-//! Weights are repacked at load time into blocks of `BW` output rows stored input-major
-//! (`[n_blocks][in][BW]`), so a matrix-vector product is a sequence of `BW`-wide
-//! multiply-adds into a register-resident accumulator: every output sums its terms in input
-//! order (deterministic, no reassociation), and the compiler vectorises over the outputs.
+//! Weights are repacked at load time into blocks of 16 output rows stored input-major
+//! (`[n_blocks][in][16]`). A layer applied to `m` rows (agents, or agent pairs) is a small
+//! matrix product evaluated in register tiles of `TILE_ROWS` rows × `TILE_BLOCKS` 16-lane
+//! output blocks: per input `k`, one load of each weight block is reused for every row of the
+//! tile (one broadcast multiply-add each). Every output still sums its terms in input order,
+//! starting from its bias, so the result of a row does not depend on the tiling, the number of
+//! rows, nor (between the fused paths) the vector width: see [`simd`](crate::simd).
 
-/// `a * b + c`, fused (one rounding) when the build targets FMA hardware
-/// (e.g. `-C target-cpu=x86-64-v3`), two operations otherwise. The choice is made at compile
-/// time, so results are reproducible for a given build.
-#[inline(always)]
-fn fmadd(a: f32, b: f32, c: f32) -> f32 {
-    if cfg!(target_feature = "fma") {
-        a.mul_add(b, c)
-    } else {
-        a * b + c
-    }
-}
+use crate::simd::{Isa, Kernel, LANES, LANES_D, Simd, SimdPath};
 
-/// Block width for a layer with `out` outputs. 16 lanes (4 SSE / 2 AVX registers) is the
-/// widest block LLVM reliably keeps in registers and vectorises; 32 was measured to fall back
-/// to scalar code (2-3x more instructions).
-fn pick_bw(out: usize) -> usize {
-    if out > 8 { 16 } else { 8 }
-}
+/// 16 output lanes of one packed weight row.
+type Block = [f32; LANES];
+/// 8 output lanes of one packed f64 weight row.
+type BlockD = [f64; LANES_D];
 
-/// Packs a row-major `[out, in]` matrix into `[ceil(out/BW)][in]` rows of `BW` lanes, zero
+/// Packs a row-major `[out, in]` matrix into `[ceil(out/8)][in]` rows of 8 f64 lanes, zero
 /// padded.
-fn pack<const BW: usize>(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<[f32; BW]> {
-    let nblk = out_dim.div_ceil(BW);
-    let mut p = vec![[0.0f32; BW]; nblk * in_dim];
+fn pack_d(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<BlockD> {
+    let nblk = out_dim.div_ceil(LANES_D);
+    let mut p = vec![[0.0f64; LANES_D]; nblk * in_dim];
     for o in 0..out_dim {
-        let (blk, l) = (o / BW, o % BW);
+        let (blk, l) = (o / LANES_D, o % LANES_D);
+        for k in 0..in_dim {
+            p[blk * in_dim + k][l] = f64::from(w[o * in_dim + k]);
+        }
+    }
+    p
+}
+
+/// Packs a row-major `[out, in]` matrix into `[ceil(out/16)][in]` rows of 16 lanes, zero
+/// padded.
+fn pack(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<Block> {
+    let nblk = out_dim.div_ceil(LANES);
+    let mut p = vec![[0.0f32; LANES]; nblk * in_dim];
+    for o in 0..out_dim {
+        let (blk, l) = (o / LANES, o % LANES);
         for k in 0..in_dim {
             p[blk * in_dim + k][l] = w[o * in_dim + k];
         }
@@ -39,54 +46,211 @@ fn pack<const BW: usize>(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<[f32; 
     p
 }
 
-/// Packed rows of one of the two block widths.
+/// `v` zero padded to whole blocks.
+fn pad(v: &[f32]) -> Vec<Block> {
+    pack(v, v.len(), 1)
+}
+
+/// The 16-lane blocks of `x` (whose length must be a multiple of 16).
+#[inline(always)]
+fn blocks(x: &[f32]) -> &[Block] {
+    let (b, rest) = x.as_chunks::<LANES>();
+    debug_assert!(rest.is_empty());
+    b
+}
+
+/// Mutable 16-lane blocks of `x` (whose length must be a multiple of 16).
+#[inline(always)]
+fn blocks_mut(x: &mut [f32]) -> &mut [Block] {
+    let (b, rest) = x.as_chunks_mut::<LANES>();
+    debug_assert!(rest.is_empty());
+    b
+}
+
+/// Multiply-adds executed by the kernels on this thread (test builds only), to check the
+/// analytical counts of [`cost`](crate::cost).
+#[cfg(test)]
+pub(crate) mod counter {
+    use std::cell::Cell;
+
+    thread_local! {
+        static MACS: Cell<u64> = const { Cell::new(0) };
+    }
+
+    /// Adds `n` multiply-adds.
+    pub(crate) fn add(n: usize) {
+        MACS.with(|c| c.set(c.get() + n as u64));
+    }
+
+    /// Returns the count and resets it.
+    pub(crate) fn take() -> u64 {
+        MACS.with(|c| c.replace(0))
+    }
+}
+
+/// Records `n` multiply-adds (a no-op outside test builds).
+#[inline(always)]
+fn count_macs(n: usize) {
+    #[cfg(test)]
+    counter::add(n);
+    #[cfg(not(test))]
+    let _ = n;
+}
+
+/// Calls `$f::<$S, MB, OB>($args)` for the runtime tile shape `($mb, $ob)`,
+/// `1 <= $mb <= 8`, `1 <= $ob <= 2`.
+macro_rules! by_tile {
+    ($mb:expr, $ob:expr, $f:ident::<$S:ty>($($arg:expr),* $(,)?)) => {
+        match ($mb, $ob) {
+            (1, 1) => $f::<$S, 1, 1>($($arg),*),
+            (2, 1) => $f::<$S, 2, 1>($($arg),*),
+            (3, 1) => $f::<$S, 3, 1>($($arg),*),
+            (4, 1) => $f::<$S, 4, 1>($($arg),*),
+            (5, 1) => $f::<$S, 5, 1>($($arg),*),
+            (6, 1) => $f::<$S, 6, 1>($($arg),*),
+            (7, 1) => $f::<$S, 7, 1>($($arg),*),
+            (8, 1) => $f::<$S, 8, 1>($($arg),*),
+            (1, 2) => $f::<$S, 1, 2>($($arg),*),
+            (2, 2) => $f::<$S, 2, 2>($($arg),*),
+            (3, 2) => $f::<$S, 3, 2>($($arg),*),
+            (4, 2) => $f::<$S, 4, 2>($($arg),*),
+            (5, 2) => $f::<$S, 5, 2>($($arg),*),
+            (6, 2) => $f::<$S, 6, 2>($($arg),*),
+            (7, 2) => $f::<$S, 7, 2>($($arg),*),
+            (8, 2) => $f::<$S, 8, 2>($($arg),*),
+            _ => unreachable!("tile shapes are at most 8 rows x 2 blocks"),
+        }
+    };
+}
+
+/// Largest `TILE_ROWS` of any path (scratch sizing).
+pub(crate) const MAX_TILE_ROWS: usize = 8;
+
+/// The register tile: rows `r0..r0+MB` of `x` (row `r` is `x[r*ldx..][..k]`) times output
+/// blocks `blk0..blk0+OB` of the packed `w` (`[n_blocks][k]` blocks), accumulated onto
+/// `init` in input order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn tile<S: Simd, const MB: usize, const OB: usize>(
+    s: S,
+    w: &[Block],
+    k: usize,
+    blk0: usize,
+    x: &[f32],
+    ldx: usize,
+    r0: usize,
+    init: [S::V; OB],
+) -> [[S::V; OB]; MB] {
+    // Slices of length exactly `k` (`[..k]`), so that the loop below needs no bounds checks.
+    let mut ws: [&[Block]; OB] = [&[]; OB];
+    for (o, wo) in ws.iter_mut().enumerate() {
+        *wo = &w[(blk0 + o) * k..][..k];
+    }
+    let mut xs: [&[f32]; MB] = [&[]; MB];
+    for (r, xr) in xs.iter_mut().enumerate() {
+        *xr = &x[(r0 + r) * ldx..][..k];
+    }
+    let mut acc = [init; MB];
+    for kk in 0..k {
+        let mut wv = init;
+        for o in 0..OB {
+            wv[o] = s.load(&ws[o][kk]);
+        }
+        for r in 0..MB {
+            let xv = s.splat(xs[r][kk]);
+            for o in 0..OB {
+                acc[r][o] = s.mul_add(xv, wv[o], acc[r][o]);
+            }
+        }
+    }
+    acc
+}
+
+/// The f64 register tile of the dense layers: as [`tile`], with 8-lane f64 blocks and the
+/// f32 inputs widened exactly.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn tile_d<S: Simd, const MB: usize, const OB: usize>(
+    s: S,
+    w: &[BlockD],
+    k: usize,
+    blk0: usize,
+    x: &[f32],
+    ldx: usize,
+    r0: usize,
+    init: [S::D; OB],
+) -> [[S::D; OB]; MB] {
+    let mut ws: [&[BlockD]; OB] = [&[]; OB];
+    for (o, wo) in ws.iter_mut().enumerate() {
+        *wo = &w[(blk0 + o) * k..][..k];
+    }
+    let mut xs: [&[f32]; MB] = [&[]; MB];
+    for (r, xr) in xs.iter_mut().enumerate() {
+        *xr = &x[(r0 + r) * ldx..][..k];
+    }
+    let mut acc = [init; MB];
+    for kk in 0..k {
+        let mut wv = init;
+        for o in 0..OB {
+            wv[o] = s.load_d(&ws[o][kk]);
+        }
+        for r in 0..MB {
+            let xv = s.splat_d(f64::from(xs[r][kk]));
+            for o in 0..OB {
+                acc[r][o] = s.mul_add_d(xv, wv[o], acc[r][o]);
+            }
+        }
+    }
+    acc
+}
+
+/// Precision of the sums of a [`Dense`] layer (its inputs and outputs are f32 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Accumulate {
+    /// f32 accumulators (16 lanes per vector).
+    F32,
+    /// f64 accumulators (8 lanes per vector; weights widened at load time, inputs widened
+    /// exactly), rounded to f32 once per output.
+    F64,
+}
+
+/// Packed weights and bias of a [`Dense`] layer, in the precision of its sums.
 #[derive(Debug, Clone)]
-enum Rows {
-    /// 16-lane blocks.
-    R16(Vec<[f32; 16]>),
-    /// 8-lane blocks.
-    R8(Vec<[f32; 8]>),
+enum Packed {
+    /// `[n_blocks][in]` blocks of 16 f32 lanes, `[n_blocks]` bias blocks.
+    F32(Vec<Block>, Vec<Block>),
+    /// `[n_blocks][in]` blocks of 8 f64 lanes, `[n_blocks]` bias blocks.
+    F64(Vec<BlockD>, Vec<BlockD>),
 }
 
-impl Rows {
-    fn pack(w: &[f32], out_dim: usize, in_dim: usize) -> Self {
-        if pick_bw(out_dim) == 16 {
-            Self::R16(pack::<16>(w, out_dim, in_dim))
-        } else {
-            Self::R8(pack::<8>(w, out_dim, in_dim))
-        }
-    }
-
-    /// Total lanes (padded output count times rows per block).
-    fn lanes(&self) -> usize {
-        match self {
-            Self::R16(r) => 16 * r.len(),
-            Self::R8(r) => 8 * r.len(),
-        }
-    }
-}
-
-/// `y = W x + b` with `W` `[out, in]`, repacked for vectorised evaluation.
+/// `y = W x + b` with `W` `[out, in]`, repacked for vectorised evaluation, summing in the
+/// chosen [`Accumulate`] precision (zero padded to whole blocks).
 #[derive(Debug, Clone)]
 pub(crate) struct Dense {
     in_dim: usize,
     out_dim: usize,
-    /// `[n_blocks][in]` rows of `BW` lanes.
-    w: Rows,
-    /// `[n_blocks]` bias blocks, zero padded (same width as `w`).
-    b: Rows,
+    packed: Packed,
 }
 
 impl Dense {
     /// From a row-major `[out, in]` weight and an `[out]` bias.
-    pub(crate) fn new(w: &[f32], b: &[f32], out_dim: usize, in_dim: usize) -> Self {
+    pub(crate) fn new(
+        w: &[f32],
+        b: &[f32],
+        out_dim: usize,
+        in_dim: usize,
+        acc: Accumulate,
+    ) -> Self {
         debug_assert_eq!(w.len(), out_dim * in_dim);
         debug_assert_eq!(b.len(), out_dim);
+        let packed = match acc {
+            Accumulate::F32 => Packed::F32(pack(w, out_dim, in_dim), pad(b)),
+            Accumulate::F64 => Packed::F64(pack_d(w, out_dim, in_dim), pack_d(b, out_dim, 1)),
+        };
         Self {
             in_dim,
             out_dim,
-            w: Rows::pack(w, out_dim, in_dim),
-            b: Rows::pack(b, out_dim, 1),
+            packed,
         }
     }
 
@@ -95,115 +259,176 @@ impl Dense {
         self.out_dim
     }
 
-    /// Output size rounded up to whole blocks (scratch length for outputs).
-    pub(crate) fn padded_out(&self) -> usize {
-        self.b.lanes()
+    /// `y[r*ldy..][..out] = W x[r*ldx..][..in] + b` for the `m` rows `r < m`, ReLU applied
+    /// when `relu`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn rows(
+        &self,
+        isa: Isa,
+        x: &[f32],
+        ldx: usize,
+        m: usize,
+        y: &mut [f32],
+        ldy: usize,
+        relu: bool,
+    ) {
+        isa.run(DenseRows {
+            d: self,
+            x,
+            ldx,
+            m,
+            y,
+            ldy,
+            relu,
+        });
     }
+}
 
-    /// `y[..out] = W x[..in] + b`.
+struct DenseRows<'a> {
+    d: &'a Dense,
+    x: &'a [f32],
+    ldx: usize,
+    m: usize,
+    y: &'a mut [f32],
+    ldy: usize,
+    relu: bool,
+}
+
+impl Kernel for DenseRows<'_> {
+    type Out = ();
     #[inline(always)]
-    pub(crate) fn forward(&self, x: &[f32], y: &mut [f32]) {
-        let x = &x[..self.in_dim];
-        match (&self.w, &self.b) {
-            (Rows::R16(w), Rows::R16(b)) => fwd::<16>(w, b, self.in_dim, self.out_dim, x, y),
-            (Rows::R8(w), Rows::R8(b)) => fwd::<8>(w, b, self.in_dim, self.out_dim, x, y),
-            _ => unreachable!("weights and bias are packed with the same width"),
-        }
-    }
-
-    /// `y[..out] = W [d ; h] + b` for a layer whose input is a 2-vector followed by `h`
-    /// (same sums, in the same order, as [`Dense::forward`] on the concatenation).
-    #[inline]
-    pub(crate) fn forward_dh(&self, d: [f32; 2], h: &[f32], y: &mut [f32]) {
-        debug_assert_eq!(2 + h.len(), self.in_dim);
-        match (&self.w, &self.b) {
-            (Rows::R16(w), Rows::R16(b)) => fwd_dh::<16>(w, b, self.in_dim, self.out_dim, d, h, y),
-            (Rows::R8(w), Rows::R8(b)) => fwd_dh::<8>(w, b, self.in_dim, self.out_dim, d, h, y),
-            _ => unreachable!("weights and bias are packed with the same width"),
-        }
-    }
-
-    /// `y[..out] = relu(W x[..in] + b)`.
-    #[inline(always)]
-    pub(crate) fn forward_relu(&self, x: &[f32], y: &mut [f32]) {
-        self.forward(x, y);
-        relu(&mut y[..self.out_dim]);
+    fn run<S: Simd>(self, s: S) {
+        dense_rows(
+            s, self.d, self.x, self.ldx, self.m, self.y, self.ldy, self.relu,
+        );
     }
 }
 
 #[inline(always)]
-fn fwd<const BW: usize>(
-    w: &[[f32; BW]],
-    b: &[[f32; BW]],
-    in_dim: usize,
-    out_dim: usize,
+#[allow(clippy::too_many_arguments)]
+fn dense_rows<S: Simd>(
+    s: S,
+    d: &Dense,
     x: &[f32],
+    ldx: usize,
+    m: usize,
     y: &mut [f32],
+    ldy: usize,
+    relu: bool,
 ) {
-    for (blk, (bias, block)) in b.iter().zip(w.chunks_exact(in_dim)).enumerate() {
-        let mut acc = *bias;
-        for (&xk, row) in x.iter().zip(block) {
-            for l in 0..BW {
-                acc[l] = fmadd(xk, row[l], acc[l]);
+    count_macs(m * d.in_dim * d.out_dim);
+    let nblk = match &d.packed {
+        Packed::F32(_, b) => b.len(),
+        Packed::F64(_, b) => b.len(),
+    };
+    let mut r = 0;
+    while r < m {
+        let mb = (m - r).min(S::TILE_ROWS);
+        let mut blk = 0;
+        while blk < nblk {
+            let ob = (nblk - blk).min(S::TILE_BLOCKS);
+            match &d.packed {
+                Packed::F32(w, b) => by_tile!(
+                    mb,
+                    ob,
+                    dense_tile::<S>(s, d, w, b, x, ldx, r, blk, y, ldy, relu)
+                ),
+                Packed::F64(w, b) => by_tile!(
+                    mb,
+                    ob,
+                    dense_tile_d::<S>(s, d, w, b, x, ldx, r, blk, y, ldy, relu)
+                ),
             }
+            blk += ob;
         }
-        store(&acc, y, blk * BW, out_dim);
+        r += mb;
     }
 }
 
 #[inline(always)]
-fn fwd_dh<const BW: usize>(
-    w: &[[f32; BW]],
-    b: &[[f32; BW]],
-    in_dim: usize,
-    out_dim: usize,
-    d: [f32; 2],
-    h: &[f32],
+#[allow(clippy::too_many_arguments)]
+fn dense_tile<S: Simd, const MB: usize, const OB: usize>(
+    s: S,
+    d: &Dense,
+    w: &[Block],
+    b: &[Block],
+    x: &[f32],
+    ldx: usize,
+    r0: usize,
+    blk0: usize,
     y: &mut [f32],
+    ldy: usize,
+    relu: bool,
 ) {
-    for (blk, (bias, block)) in b.iter().zip(w.chunks_exact(in_dim)).enumerate() {
-        let mut acc = *bias;
-        let (head, tail) = block.split_at(2);
-        for (&xk, row) in d.iter().zip(head) {
-            for l in 0..BW {
-                acc[l] = fmadd(xk, row[l], acc[l]);
+    let mut init = [s.splat(0.0); OB];
+    for (o, v) in init.iter_mut().enumerate() {
+        *v = s.load(&b[blk0 + o]);
+    }
+    let acc = tile::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
+    let zero = s.splat(0.0);
+    for (r, row) in acc.into_iter().enumerate() {
+        for (o, mut v) in row.into_iter().enumerate() {
+            if relu {
+                v = s.max(v, zero);
+            }
+            let lane0 = (blk0 + o) * LANES;
+            let start = (r0 + r) * ldy + lane0;
+            let n = (d.out_dim - lane0).min(LANES);
+            let dst = &mut y[start..start + n];
+            if let Ok(full) = <&mut Block>::try_from(&mut *dst) {
+                s.store(v, full);
+            } else {
+                let mut t = [0.0f32; LANES];
+                s.store(v, &mut t);
+                dst.copy_from_slice(&t[..n]);
             }
         }
-        for (&xk, row) in h.iter().zip(tail) {
-            for l in 0..BW {
-                acc[l] = fmadd(xk, row[l], acc[l]);
-            }
-        }
-        store(&acc, y, blk * BW, out_dim);
     }
 }
 
-/// Writes block `acc` at `y[start..]`: the whole block when `y` has room for it (a
-/// fixed-size copy; the padded outputs are exact zeros), else only the real outputs.
 #[inline(always)]
-fn store<const BW: usize>(acc: &[f32; BW], y: &mut [f32], start: usize, out_dim: usize) {
-    if let Some(dst) = y.get_mut(start..start + BW) {
-        dst.copy_from_slice(acc);
-    } else {
-        let n = out_dim - start;
-        y[start..start + n].copy_from_slice(&acc[..n]);
+#[allow(clippy::too_many_arguments)]
+fn dense_tile_d<S: Simd, const MB: usize, const OB: usize>(
+    s: S,
+    d: &Dense,
+    w: &[BlockD],
+    b: &[BlockD],
+    x: &[f32],
+    ldx: usize,
+    r0: usize,
+    blk0: usize,
+    y: &mut [f32],
+    ldy: usize,
+    relu: bool,
+) {
+    let mut init = [s.splat_d(0.0); OB];
+    for (o, v) in init.iter_mut().enumerate() {
+        *v = s.load_d(&b[blk0 + o]);
     }
-}
-
-/// In-place ReLU.
-#[inline]
-pub(crate) fn relu(x: &mut [f32]) {
-    for v in x {
-        *v = v.max(0.0);
+    let acc = tile_d::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
+    for (r, row) in acc.into_iter().enumerate() {
+        for (o, v) in row.into_iter().enumerate() {
+            let lane0 = (blk0 + o) * LANES_D;
+            let start = (r0 + r) * ldy + lane0;
+            let n = (d.out_dim - lane0).min(LANES_D);
+            let mut t = [0.0f32; LANES_D];
+            s.store_d_f32(v, &mut t);
+            if relu {
+                // Rounding is monotonic: relu after rounding equals rounding after relu.
+                t = t.map(|v| if v > 0.0 { v } else { 0.0 });
+            }
+            y[start..start + n].copy_from_slice(&t[..n]);
+        }
     }
 }
 
 /// `e^x` in f32 for the activations, branch-free so that loops over slices vectorise:
 /// range reduction `x = n ln2 + r` (ln 2 split in two for exactness), a degree-7 polynomial
 /// for `e^r` on |r| ≤ ln2/2, and `2^n` built from the exponent bits. Relative error
-/// ≈ 1 ulp over the clamped range [-87, 88] (checked in the tests).
+/// ≈ 1 ulp over the clamped range [-87, 88] (checked in the tests). Multiply-adds round as
+/// the path's [`Simd::fma1`].
 #[inline(always)]
-fn exp_f32(x: f32) -> f32 {
+fn exp_f32<S: Simd>(s: S, x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
@@ -211,14 +436,14 @@ fn exp_f32(x: f32) -> f32 {
     const ROUND: f32 = 12_582_912.0;
     let x = x.clamp(-87.0, 88.0);
     let n = (x * LOG2E + ROUND) - ROUND;
-    let r = fmadd(-n, LN2_LO, fmadd(-n, LN2_HI, x));
+    let r = s.fma1(-n, LN2_LO, s.fma1(-n, LN2_HI, x));
     let r2 = r * r;
-    let mut p = fmadd(1.987_569_1e-4, r, 1.398_199_9e-3);
-    p = fmadd(p, r, 8.333_452e-3);
-    p = fmadd(p, r, 4.166_579_6e-2);
-    p = fmadd(p, r, 1.666_666_5e-1);
-    p = fmadd(p, r, 0.5);
-    let p = fmadd(p, r2, r) + 1.0;
+    let mut p = s.fma1(1.987_569_1e-4, r, 1.398_199_9e-3);
+    p = s.fma1(p, r, 8.333_452e-3);
+    p = s.fma1(p, r, 4.166_579_6e-2);
+    p = s.fma1(p, r, 1.666_666_5e-1);
+    p = s.fma1(p, r, 0.5);
+    let p = s.fma1(p, r2, r) + 1.0;
     // 2^n without a float-to-int conversion (which would not vectorise): n + 127 + 2^23
     // holds the biased exponent n + 127 in its low mantissa bits; shift it into place.
     let scale = f32::from_bits((n + 8_388_735.0).to_bits() << 23);
@@ -227,20 +452,24 @@ fn exp_f32(x: f32) -> f32 {
 
 /// Logistic sigmoid `1 / (1 + e^-x)`.
 #[inline(always)]
-fn sigmoid_f32(x: f32) -> f32 {
-    1.0 / (1.0 + exp_f32(-x))
+fn sigmoid_f32<S: Simd>(s: S, x: f32) -> f32 {
+    1.0 / (1.0 + exp_f32(s, -x))
 }
 
 /// `tanh x = 2 σ(2x) − 1`: absolute error ≈ 1e-7 (checked in the tests), the relative
 /// accuracy near 0 being traded for one shared, branch-free code path.
 #[inline(always)]
-fn tanh_f32(x: f32) -> f32 {
-    2.0 * sigmoid_f32(2.0 * x) - 1.0
+fn tanh_f32<S: Simd>(s: S, x: f32) -> f32 {
+    2.0 * sigmoid_f32(s, 2.0 * x) - 1.0
 }
 
 /// One-layer LSTM cell whose input is a 2-D displacement passed through a spatial embedding
 /// `Linear(2, E)`, folded into the input weights at load time:
 /// `W_ih (W_e d + b_e) + b_ih + b_hh = (W_ih W_e) d + (W_ih b_e + b_ih + b_hh)`.
+///
+/// It steps many rows (agents) at once; a row is `[d_x, d_y, h_0 .. h_{H-1}]` (see
+/// [`Lstm::row_len`]), the gate product reading the displacement and the hidden state in one
+/// pass.
 #[derive(Debug, Clone)]
 pub(crate) struct Lstm {
     h: usize,
@@ -251,6 +480,7 @@ pub(crate) struct Lstm {
 impl Lstm {
     /// From the PyTorch tensors: `emb_w [E, 2]`, `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`,
     /// `b_ih`, `b_hh` `[4H]`. Folding is done in f64 and rounded once.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         emb_w: &[f32],
         emb_b: &[f32],
@@ -259,6 +489,7 @@ impl Lstm {
         b_ih: &[f32],
         b_hh: &[f32],
         h: usize,
+        acc: Accumulate,
     ) -> Self {
         let e = emb_b.len();
         let rows = 4 * h;
@@ -289,66 +520,105 @@ impl Lstm {
         }
         Self {
             h,
-            gates: Dense::new(&w, &b, rows, in_dim),
+            gates: Dense::new(&w, &b, rows, in_dim, acc),
         }
     }
 
-    /// Scratch size of the gates one step needs.
-    pub(crate) fn scratch_len(&self) -> usize {
-        self.gates.padded_out()
+    /// Length of one row `[d ; h]`: `2 + H`.
+    pub(crate) fn row_len(&self) -> usize {
+        2 + self.h
     }
 
-    /// One step on displacement `d` (metres): updates `h` and `c` (`[H]` each) in place.
-    /// `g` is scratch of at least [`Lstm::scratch_len`].
-    #[inline]
-    pub(crate) fn step(&self, d: [f32; 2], h: &mut [f32], c: &mut [f32], g: &mut [f32]) {
-        let n = self.h;
-        self.gates.forward_dh(d, &h[..n], g);
+    /// Gate scratch of `m` rows: `m * 4H`.
+    pub(crate) fn gates_len(&self, m: usize) -> usize {
+        m * 4 * self.h
+    }
+
+    /// One step of `m` rows. `xh` holds the rows `[d ; h]` (`[m, 2 + H]`, displacement in
+    /// metres); their `h` part is updated in place. `c` is the cell state `[m, H]`, updated in
+    /// place; `g` is scratch of at least [`Lstm::gates_len`].
+    pub(crate) fn step(&self, isa: Isa, xh: &mut [f32], c: &mut [f32], g: &mut [f32], m: usize) {
+        isa.run(LstmRows {
+            l: self,
+            xh,
+            c,
+            g,
+            m,
+        });
+    }
+}
+
+struct LstmRows<'a> {
+    l: &'a Lstm,
+    xh: &'a mut [f32],
+    c: &'a mut [f32],
+    g: &'a mut [f32],
+    m: usize,
+}
+
+impl Kernel for LstmRows<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self { l, xh, c, g, m } = self;
+        let (n, rl) = (l.h, l.row_len());
+        let g = &mut g[..m * 4 * n];
+        dense_rows(s, &l.gates, xh, rl, m, g, 4 * n, false);
         // The g̃ rows were scaled by 2 at load time (exact), so one sigmoid pass serves all
         // four gates: tanh(x) = 2 σ(2x) − 1.
-        let g = &mut g[..4 * n];
         for v in g.iter_mut() {
-            *v = sigmoid_f32(*v);
+            *v = sigmoid_f32(s, *v);
         }
-        let (gi, rest) = g.split_at(n);
-        let (gf, rest) = rest.split_at(n);
-        let (gg, go) = rest.split_at(n);
-        let (h, c) = (&mut h[..n], &mut c[..n]);
-        for k in 0..n {
-            let gt = 2.0 * gg[k] - 1.0;
-            let cn = fmadd(gf[k], c[k], gi[k] * gt);
-            c[k] = cn;
-            h[k] = go[k] * tanh_f32(cn);
+        for (r, gr) in g.chunks_exact(4 * n).enumerate() {
+            let (gi, rest) = gr.split_at(n);
+            let (gf, rest) = rest.split_at(n);
+            let (gg, go) = rest.split_at(n);
+            let h = &mut xh[r * rl + 2..r * rl + 2 + n];
+            let c = &mut c[r * n..(r + 1) * n];
+            for k in 0..n {
+                let gt = 2.0 * gg[k] - 1.0;
+                let cn = s.fma1(gf[k], c[k], gi[k] * gt);
+                c[k] = cn;
+                h[k] = go[k] * tanh_f32(s, cn);
+            }
         }
     }
+}
+
+/// One (query, neighbour) pair of the pooling: running-max row `q`, agent-term row `j`, and
+/// the offset `d = p_j - p_i` (metres).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Pair {
+    /// Row of the running maximum (the query agent's slot).
+    pub(crate) q: u32,
+    /// Row of the neighbour's agent term.
+    pub(crate) j: u32,
+    /// Offset from the query to the neighbour, metres.
+    pub(crate) d: [f32; 2],
 }
 
 /// Social-GAN's `PoolHiddenNet` with the first layer split:
 /// `u_ij = relu(W2 relu(W1 [W_e (p_j - p_i) + b_e ; h_j] + b1) + b2)`, `pool_i = max_j u_ij`.
 ///
 /// `W1 [W_e d + b_e ; h_j] + b1 = t_j + (W1e W_e) d` with the per-agent term
-/// `t_j = W1h h_j + (W1e b_e + b1)` computed once per agent ([`Pool::agent_term`]); per pair
-/// only two multiply-adds per hidden unit remain, then the second layer (`O(n²)` part). The
-/// second layer skips the hidden units the ReLU zeroed, and its bias and ReLU are applied
-/// after the max (exact: rounding is monotonic). Skipping zeros leaves every sum unchanged
-/// (adding `0 · w` is exact), so the dense and sparse variants give identical results.
+/// `t_j = W1h h_j + (W1e b_e + b1)` computed once per agent ([`Pool::terms`]); per pair only
+/// two multiply-adds per hidden unit remain, then the second layer (the `O(n²)` part), which
+/// runs on register tiles of pairs ([`Pool::fold`]). Its bias and ReLU are applied after the
+/// max ([`Pool::finish`]; exact: rounding is monotonic).
 #[derive(Debug, Clone)]
 pub(crate) struct Pool {
     p: usize,
     b: usize,
-    /// `W1e W_e`, x column `[P]`.
-    wpx: Vec<f32>,
-    /// `W1e W_e`, y column `[P]`.
-    wpy: Vec<f32>,
+    /// `W1e W_e`, x column `[P]` (zero padded to blocks).
+    wpx: Vec<Block>,
+    /// `W1e W_e`, y column `[P]` (zero padded to blocks).
+    wpy: Vec<Block>,
     /// `t_j = W1h h_j + (W1e b_e + b1)`, in = hidden size of h, out = P.
     l1h: Dense,
-    /// Second layer without bias, packed `[n_blocks][P][BW2]`.
-    w2: Rows,
+    /// Second layer without bias, packed `[n_blocks][P]`.
+    w2: Vec<Block>,
     /// `[B]`.
     b2: Vec<f32>,
-    /// Dense second layer (all P hidden units) instead of skipping the zeros: faster when
-    /// fused multiply-adds are available or P is small (the skip costs a scalar compaction).
-    dense: bool,
 }
 
 impl Pool {
@@ -363,6 +633,7 @@ impl Pool {
         w2: &[f32],
         b2: &[f32],
         h: usize,
+        acc: Accumulate,
     ) -> Self {
         let e = emb_b.len();
         let p = b1.len();
@@ -388,20 +659,17 @@ impl Pool {
         Self {
             p,
             b,
-            wpx,
-            wpy,
-            l1h: Dense::new(&w1h, &c, p, h),
-            w2: Rows::pack(w2, b, p),
+            wpx: pad(&wpx),
+            wpy: pad(&wpy),
+            l1h: Dense::new(&w1h, &c, p, h, acc),
+            w2: pack(w2, b, p),
             b2: b2.to_vec(),
-            dense: cfg!(target_feature = "fma")
-                || p <= DENSE_MAX_P
-                || std::env::var_os("DENSE").is_some(),
         }
     }
 
-    /// Hidden width P (length of an agent term).
-    pub(crate) fn hidden(&self) -> usize {
-        self.p
+    /// Row stride of agent terms: P rounded up to whole blocks.
+    pub(crate) fn term_stride(&self) -> usize {
+        self.p.div_ceil(LANES) * LANES
     }
 
     /// Output width B.
@@ -409,65 +677,52 @@ impl Pool {
         self.b
     }
 
-    /// Length of a running-max accumulator (B rounded up to the block width).
+    /// Length of a running-max row (B rounded up to whole blocks).
     pub(crate) fn acc_len(&self) -> usize {
-        self.w2.lanes() / self.p
+        self.b.div_ceil(LANES) * LANES
     }
 
-    /// Per-agent term `t_j` (`[P]`) from the agent's hidden state `h_j`.
-    #[inline]
-    pub(crate) fn agent_term(&self, h: &[f32], t: &mut [f32]) {
-        self.l1h.forward(h, t);
+    /// Scratch length [`Pool::fold`] needs for its first-layer rows.
+    pub(crate) fn val_len(&self) -> usize {
+        MAX_TILE_ROWS * self.term_stride()
     }
 
-    /// Starts a running max (`acc` of [`Pool::acc_len`]).
-    #[inline]
-    pub(crate) fn reset(acc: &mut [f32]) {
-        acc.fill(f32::NEG_INFINITY);
+    /// Agent terms `t_j` of `m` agents: hidden states `h[r*ldh..]` (`[m, H]`) to
+    /// `terms[r*term_stride..][..P]`. The padding lanes of a term row are never written.
+    pub(crate) fn terms(&self, isa: Isa, h: &[f32], ldh: usize, m: usize, terms: &mut [f32]) {
+        self.l1h
+            .rows(isa, h, ldh, m, terms, self.term_stride(), false);
     }
 
-    /// Folds agent `j` (offset `d = p_j - p_i` in metres, term `tj`) into agent `i`'s running
-    /// max `acc`: `acc = max(acc, W2 relu(t_j + (W1e W_e) d))` (second-layer bias and ReLU come
-    /// in [`Pool::finish`]). `idx`, `val` are scratch of length P.
-    #[inline]
-    pub(crate) fn pair(
+    /// Starts running maxima: rows `rows` of `acc` (stride [`Pool::acc_len`]) to `-inf`.
+    pub(crate) fn reset(&self, acc: &mut [f32], rows: std::ops::Range<usize>) {
+        let al = self.acc_len();
+        acc[rows.start * al..rows.end * al].fill(f32::NEG_INFINITY);
+    }
+
+    /// Folds every pair into its query's running maximum:
+    /// `acc[q] = max(acc[q], W2 relu(t_j + (W1e W_e) d))` (second-layer bias and ReLU come in
+    /// [`Pool::finish`]). `terms` rows have stride [`Pool::term_stride`], `acc` rows
+    /// [`Pool::acc_len`]; `val` is scratch of [`Pool::val_len`]. The padding lanes of the
+    /// referenced term rows must be finite (they are multiplied by zero weights).
+    pub(crate) fn fold(
         &self,
-        d: [f32; 2],
-        tj: &[f32],
+        isa: Isa,
+        pairs: &[Pair],
+        terms: &[f32],
         acc: &mut [f32],
-        idx: &mut [u32],
         val: &mut [f32],
     ) {
-        let [dx, dy] = d;
-        let p = self.p;
-        let (tj, wpx, wpy) = (&tj[..p], &self.wpx[..p], &self.wpy[..p]);
-        let (idx, val) = (&mut idx[..p], &mut val[..p]);
-        if self.dense {
-            for k in 0..p {
-                val[k] = fmadd(wpy[k], dy, fmadd(wpx[k], dx, tj[k])).max(0.0);
-            }
-            match &self.w2 {
-                Rows::R16(w2) => pair_l2_dense::<16>(w2, p, val, acc),
-                Rows::R8(w2) => pair_l2_dense::<8>(w2, p, val, acc),
-            }
-            return;
-        }
-        // First layer, keeping only the units the ReLU lets through (branch-free compaction).
-        let mut nz = 0usize;
-        for k in 0..p {
-            let v = fmadd(wpy[k], dy, fmadd(wpx[k], dx, tj[k]));
-            val[nz] = v;
-            idx[nz] = k as u32;
-            nz += usize::from(v > 0.0);
-        }
-        let (idx, val) = (&idx[..nz], &val[..nz]);
-        match &self.w2 {
-            Rows::R16(w2) => pair_l2::<16>(w2, p, idx, val, acc),
-            Rows::R8(w2) => pair_l2::<8>(w2, p, idx, val, acc),
-        }
+        isa.run(PoolPairs {
+            pool: self,
+            pairs,
+            terms,
+            acc,
+            val,
+        });
     }
 
-    /// `out[..B] = relu(acc + b2)`: the pooled vector of one agent.
+    /// `out[..B] = relu(acc + b2)`: the pooled vector of one agent from its running max.
     #[inline]
     pub(crate) fn finish(&self, acc: &[f32], out: &mut [f32]) {
         for k in 0..self.b {
@@ -476,41 +731,89 @@ impl Pool {
     }
 }
 
-#[inline(always)]
-fn pair_l2_dense<const BW: usize>(w2: &[[f32; BW]], p: usize, val: &[f32], acc: &mut [f32]) {
-    for (block, m) in w2.chunks_exact(p).zip(acc.chunks_exact_mut(BW)) {
-        let mut s = [0.0f32; BW];
-        for (&v, row) in val.iter().zip(block) {
-            for l in 0..BW {
-                s[l] = fmadd(v, row[l], s[l]);
+struct PoolPairs<'a> {
+    pool: &'a Pool,
+    pairs: &'a [Pair],
+    terms: &'a [f32],
+    acc: &'a mut [f32],
+    val: &'a mut [f32],
+}
+
+impl Kernel for PoolPairs<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            pool,
+            pairs,
+            terms,
+            acc,
+            val,
+        } = self;
+        let (p, ts) = (pool.p, pool.term_stride());
+        count_macs(pairs.len() * (2 * p + p * pool.b));
+        let nblk = pool.w2.len() / p;
+        let zero = s.splat(0.0);
+        for chunk in pairs.chunks(S::TILE_ROWS) {
+            // First layer, row by row: relu(t_j + wpx dx + wpy dy).
+            for (pr, v) in chunk.iter().zip(val.chunks_exact_mut(ts)) {
+                let t = blocks(&terms[pr.j as usize * ts..(pr.j as usize + 1) * ts]);
+                let (dx, dy) = (s.splat(pr.d[0]), s.splat(pr.d[1]));
+                for (((vb, tb), wx), wy) in blocks_mut(v)
+                    .iter_mut()
+                    .zip(t)
+                    .zip(&pool.wpx)
+                    .zip(&pool.wpy)
+                {
+                    let u = s.mul_add(dy, s.load(wy), s.mul_add(dx, s.load(wx), s.load(tb)));
+                    s.store(s.max(u, zero), vb);
+                }
             }
-        }
-        let m: &mut [f32; BW] = m.try_into().expect("chunks_exact_mut(BW) yields BW values");
-        for l in 0..BW {
-            m[l] = m[l].max(s[l]);
+            // Second layer on the whole tile, then the max into each pair's query row.
+            let mb = chunk.len();
+            let mut blk = 0;
+            while blk < nblk {
+                let ob = (nblk - blk).min(S::TILE_BLOCKS);
+                by_tile!(mb, ob, pool_tile::<S>(s, pool, chunk, val, blk, acc));
+                blk += ob;
+            }
         }
     }
 }
 
 #[inline(always)]
-fn pair_l2<const BW: usize>(w2: &[[f32; BW]], p: usize, idx: &[u32], val: &[f32], acc: &mut [f32]) {
-    for (block, m) in w2.chunks_exact(p).zip(acc.chunks_exact_mut(BW)) {
-        let mut s = [0.0f32; BW];
-        for (&k, &v) in idx.iter().zip(val) {
-            let row = &block[k as usize];
-            for l in 0..BW {
-                s[l] = fmadd(v, row[l], s[l]);
+fn pool_tile<S: Simd, const MB: usize, const OB: usize>(
+    s: S,
+    pool: &Pool,
+    chunk: &[Pair],
+    val: &[f32],
+    blk0: usize,
+    acc: &mut [f32],
+) {
+    let (p, al) = (pool.p, pool.acc_len());
+    let zero = s.splat(0.0);
+    let sums = tile::<S, MB, OB>(s, &pool.w2, p, blk0, val, pool.term_stride(), 0, [zero; OB]);
+    // Consecutive pairs of the same query are reduced in registers first, so that each
+    // running-max row is read and written once per run instead of once per pair.
+    let mut r = 0;
+    while r < MB {
+        let q = chunk[r].q;
+        let mut best = sums[r];
+        r += 1;
+        while r < MB && chunk[r].q == q {
+            for o in 0..OB {
+                best[o] = s.max(best[o], sums[r][o]);
             }
+            r += 1;
         }
-        let m: &mut [f32; BW] = m.try_into().expect("chunks_exact_mut(BW) yields BW values");
-        for l in 0..BW {
-            m[l] = m[l].max(s[l]);
+        let a = blocks_mut(&mut acc[q as usize * al..(q as usize + 1) * al]);
+        for (o, v) in best.into_iter().enumerate() {
+            let m = &mut a[blk0 + o];
+            let new = s.max(s.load(m), v);
+            s.store(new, m);
         }
     }
 }
-
-/// Largest pooling width P evaluated densely without FMA hardware.
-const DENSE_MAX_P: usize = 64;
 
 /// Two-layer mlp `relu(W2 relu(W1 x + b1) + b2)`.
 #[derive(Debug, Clone)]
@@ -521,18 +824,25 @@ pub(crate) struct Mlp2 {
 
 impl Mlp2 {
     /// From `w1 [M, in]`, `b1 [M]`, `w2 [out, M]`, `b2 [out]`.
-    pub(crate) fn new(w1: &[f32], b1: &[f32], w2: &[f32], b2: &[f32], in_dim: usize) -> Self {
+    pub(crate) fn new(
+        w1: &[f32],
+        b1: &[f32],
+        w2: &[f32],
+        b2: &[f32],
+        in_dim: usize,
+        acc: Accumulate,
+    ) -> Self {
         let m = b1.len();
         let out = b2.len();
         Self {
-            l1: Dense::new(w1, b1, m, in_dim),
-            l2: Dense::new(w2, b2, out, m),
+            l1: Dense::new(w1, b1, m, in_dim, acc),
+            l2: Dense::new(w2, b2, out, m, acc),
         }
     }
 
-    /// Scratch length of the hidden layer.
-    pub(crate) fn hidden_len(&self) -> usize {
-        self.l1.padded_out()
+    /// Hidden-layer scratch of `m` rows.
+    pub(crate) fn hidden_len(&self, m: usize) -> usize {
+        m * self.l1.out_dim()
     }
 
     /// Output size.
@@ -540,35 +850,172 @@ impl Mlp2 {
         self.l2.out_dim()
     }
 
-    /// `y[..out] = mlp(x)`; `hid` is scratch of [`Mlp2::hidden_len`].
-    #[inline]
-    pub(crate) fn forward(&self, x: &[f32], hid: &mut [f32], y: &mut [f32]) {
-        self.l1.forward_relu(x, hid);
-        self.l2.forward_relu(hid, y);
+    /// `y[r*ldy..][..out] = mlp(x[r*ldx..])` for `m` rows; `hid` is scratch of
+    /// [`Mlp2::hidden_len`].
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn rows(
+        &self,
+        isa: Isa,
+        x: &[f32],
+        ldx: usize,
+        m: usize,
+        hid: &mut [f32],
+        y: &mut [f32],
+        ldy: usize,
+    ) {
+        isa.run(MlpRows {
+            mlp: self,
+            x,
+            ldx,
+            m,
+            hid,
+            y,
+            ldy,
+        });
     }
 }
 
+struct MlpRows<'a> {
+    mlp: &'a Mlp2,
+    x: &'a [f32],
+    ldx: usize,
+    m: usize,
+    hid: &'a mut [f32],
+    y: &'a mut [f32],
+    ldy: usize,
+}
+
+impl Kernel for MlpRows<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            mlp,
+            x,
+            ldx,
+            m,
+            hid,
+            y,
+            ldy,
+        } = self;
+        let hd = mlp.l1.out_dim();
+        dense_rows(s, &mlp.l1, x, ldx, m, hid, hd, true);
+        dense_rows(s, &mlp.l2, hid, hd, m, y, ldy, true);
+    }
+}
+
+/// `iterations` rounds of `A` independent 16-lane multiply-adds: the instruction set's
+/// multiply-add throughput with no memory traffic. Returns the multiply-adds done and a
+/// checksum (so the loop cannot be optimised away).
+pub(crate) struct PeakLoop {
+    pub(crate) iterations: u64,
+    /// Multiplier close to 1 (kept opaque to the optimiser by the caller).
+    pub(crate) a: f32,
+}
+
+impl Kernel for PeakLoop {
+    type Out = (u64, f32);
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> (u64, f32) {
+        // Enough independent chains to cover the multiply-add latency of each unit.
+        match S::PATH {
+            SimdPath::Avx512 => peak::<S, 12>(s, self.iterations, self.a),
+            SimdPath::Avx2 => peak::<S, 6>(s, self.iterations, self.a),
+            SimdPath::Portable => peak::<S, 3>(s, self.iterations, self.a),
+        }
+    }
+}
+
+#[inline(always)]
+fn peak<S: Simd, const A: usize>(s: S, iterations: u64, a: f32) -> (u64, f32) {
+    let (av, bv) = (s.splat(a), s.splat(1e-3));
+    let mut acc = [s.splat(0.0); A];
+    for (i, v) in acc.iter_mut().enumerate() {
+        *v = s.splat(i as f32 * 1e-2);
+    }
+    for _ in 0..iterations {
+        for v in &mut acc {
+            *v = s.mul_add(*v, av, bv);
+        }
+    }
+    let mut sum = 0.0f32;
+    for v in acc {
+        let mut t = [0.0f32; LANES];
+        s.store(v, &mut t);
+        sum += t.iter().sum::<f32>();
+    }
+    (iterations * (A * LANES) as u64, sum)
+}
+
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use crate::simd::supported_simd_paths;
+
+    /// Evaluates the activations on one instruction set (test helper).
+    struct Activations<'a> {
+        xs: &'a [f32],
+        sig: &'a mut Vec<f32>,
+        tanh: &'a mut Vec<f32>,
+        exp: &'a mut Vec<f32>,
+    }
+    impl Kernel for Activations<'_> {
+        type Out = ();
+        #[inline(always)]
+        fn run<S: Simd>(self, s: S) {
+            self.sig.extend(self.xs.iter().map(|&x| sigmoid_f32(s, x)));
+            self.tanh.extend(self.xs.iter().map(|&x| tanh_f32(s, x)));
+            self.exp.extend(self.xs.iter().map(|&x| exp_f32(s, x)));
+        }
+    }
+
+    fn isas() -> Vec<Isa> {
+        supported_simd_paths()
+            .into_iter()
+            .map(|p| Isa::new(p).unwrap())
+            .collect()
+    }
 
     #[test]
-    fn activations_are_accurate() {
-        let mut worst_sig = 0.0f64;
-        let mut worst_tanh = 0.0f64;
+    fn activations_are_accurate_on_every_path() {
         let mut xs: Vec<f32> = (-400_000..=400_000).map(|i| i as f32 * 5e-5).collect();
         xs.extend([-100.0, -60.0, -30.0, 30.0, 60.0, 100.0, 1e-30, -1e-30, 0.0]);
-        let s: Vec<f32> = xs.iter().map(|&x| sigmoid_f32(x)).collect();
-        let t: Vec<f32> = xs.iter().map(|&x| tanh_f32(x)).collect();
-        for ((&x, &sv), &tv) in xs.iter().zip(&s).zip(&t) {
-            let x = f64::from(x);
-            let se = 1.0 / (1.0 + (-x).exp());
-            let te = x.tanh();
-            worst_sig = worst_sig.max((f64::from(sv) - se).abs());
-            worst_tanh = worst_tanh.max((f64::from(tv) - te).abs());
+        let mut fused: Option<Vec<f32>> = None;
+        for isa in isas() {
+            let (mut sig, mut tanh, mut exp) = (Vec::new(), Vec::new(), Vec::new());
+            isa.run(Activations {
+                xs: &xs,
+                sig: &mut sig,
+                tanh: &mut tanh,
+                exp: &mut exp,
+            });
+            let (mut worst_sig, mut worst_tanh, mut worst_exp) = (0.0f64, 0.0f64, 0.0f64);
+            for (((&x, &sv), &tv), &ev) in xs.iter().zip(&sig).zip(&tanh).zip(&exp) {
+                let x = f64::from(x);
+                worst_sig = worst_sig.max((f64::from(sv) - 1.0 / (1.0 + (-x).exp())).abs());
+                worst_tanh = worst_tanh.max((f64::from(tv) - x.tanh()).abs());
+                if (-86.9..=87.9).contains(&x) {
+                    let e = x.exp();
+                    worst_exp = worst_exp.max(((f64::from(ev) - e) / e).abs());
+                }
+            }
+            let p = isa.path();
+            assert!(worst_sig < 1.5e-7, "{p}: sigmoid abs error {worst_sig:e}");
+            assert!(worst_tanh < 2.5e-7, "{p}: tanh abs error {worst_tanh:e}");
+            assert!(worst_exp < 3e-7, "{p}: exp rel error {worst_exp:e}");
+            // The fused paths compute the same operations: same bits.
+            if p.is_fused() {
+                let all: Vec<f32> = sig.into_iter().chain(tanh).chain(exp).collect();
+                match &fused {
+                    None => fused = Some(all),
+                    Some(f) => assert!(
+                        f.iter().zip(&all).all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{p}: activations differ from the other fused path"
+                    ),
+                }
+            }
         }
-        assert!(worst_sig < 1.5e-7, "sigmoid abs error {worst_sig:e}");
-        assert!(worst_tanh < 2.5e-7, "tanh abs error {worst_tanh:e}");
     }
 
     /// Deterministic values in [-1, 1).
@@ -584,8 +1031,64 @@ mod tests {
             .collect()
     }
 
+    fn dot(w: &[f32], x: &[f32]) -> f64 {
+        w.iter()
+            .zip(x)
+            .map(|(a, b)| f64::from(*a) * f64::from(*b))
+            .sum()
+    }
+
+    /// Dense rows on every path and every row count / output width that exercises partial
+    /// tiles and blocks: close to the f64 product, identical to row-by-row evaluation, and
+    /// identical between the fused paths.
+    #[test]
+    fn dense_rows_match_f64_and_are_tiling_invariant() {
+        for (out, inp) in [(2, 9), (13, 7), (16, 16), (24, 64), (33, 5), (128, 34)] {
+            let w = values(11, out * inp);
+            let b = values(12, out);
+            for acc in [Accumulate::F32, Accumulate::F64] {
+                let d = Dense::new(&w, &b, out, inp, acc);
+                let m = 11;
+                let ldx = inp + 3;
+                let x = values(13, m * ldx);
+                let mut fused: Option<Vec<u32>> = None;
+                for isa in isas() {
+                    for relu in [false, true] {
+                        let ldy = out + 1;
+                        let mut y = vec![f32::NAN; m * ldy];
+                        d.rows(isa, &x, ldx, m, &mut y, ldy, relu);
+                        for r in 0..m {
+                            // One row at a time gives the same bits.
+                            let mut y1 = vec![f32::NAN; out];
+                            d.rows(isa, &x[r * ldx..], ldx, 1, &mut y1, out, relu);
+                            assert_eq!(y1[..], y[r * ldy..r * ldy + out]);
+                            assert!(y[r * ldy + out].is_nan(), "wrote past the row");
+                            for o in 0..out {
+                                let mut e =
+                                    dot(&w[o * inp..(o + 1) * inp], &x[r * ldx..r * ldx + inp])
+                                        + f64::from(b[o]);
+                                if relu {
+                                    e = e.max(0.0);
+                                }
+                                let got = f64::from(y[r * ldy + o]);
+                                assert!((got - e).abs() < 1e-5, "{} {out}x{inp}", isa.path());
+                            }
+                        }
+                        if isa.path().is_fused() && relu {
+                            let bits: Vec<u32> = y.iter().map(|v| v.to_bits()).collect();
+                            match &fused {
+                                None => fused = Some(bits),
+                                Some(f) => assert_eq!(f, &bits, "fused paths differ"),
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// The split pooling equals the literal one (embed, concatenate, two layers, max) to
-    /// rounding, and its dense and zero-skipping variants agree bit for bit.
+    /// rounding on every path, whatever the order and grouping of the pairs.
     #[test]
     fn split_pool_matches_literal_pool() {
         let (e, h, p, b, n) = (16, 24, 40, 20, 6);
@@ -597,72 +1100,84 @@ mod tests {
         let b2 = values(6, b);
         let hs = values(7, n * h);
         let pos: Vec<f32> = values(8, n * 2).iter().map(|v| v * 30.0).collect();
-        let mut pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h);
-        let dot = |w: &[f32], x: &[f32]| -> f64 {
-            w.iter()
-                .zip(x)
-                .map(|(a, b)| f64::from(*a) * f64::from(*b))
-                .sum()
-        };
-        let mut terms = vec![0.0f32; n * p];
-        for j in 0..n {
-            pool.agent_term(&hs[j * h..(j + 1) * h], &mut terms[j * p..(j + 1) * p]);
-        }
-        let mut results = Vec::new();
-        for dense in [true, false] {
-            pool.dense = dense;
-            let mut out = vec![0.0f32; n * b];
-            let mut acc = vec![0.0f32; pool.acc_len()];
-            let (mut idx, mut val) = (vec![0u32; p], vec![0.0f32; p]);
-            for i in 0..n {
-                Pool::reset(&mut acc);
-                for j in 0..n {
-                    let d = [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]];
-                    pool.pair(d, &terms[j * p..(j + 1) * p], &mut acc, &mut idx, &mut val);
+        for acc in [Accumulate::F32, Accumulate::F64] {
+            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let (ts, al) = (pool.term_stride(), pool.acc_len());
+            let mut val = vec![0.0f32; pool.val_len()];
+            let pairs: Vec<Pair> = (0..n)
+                .flat_map(|i| (0..n).map(move |j| (i, j)))
+                .map(|(i, j)| Pair {
+                    q: i as u32,
+                    j: j as u32,
+                    d: [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]],
+                })
+                .collect();
+            for isa in isas() {
+                let mut terms = vec![0.0f32; n * ts];
+                pool.terms(isa, &hs, h, n, &mut terms);
+                let mut out = vec![0.0f32; n * b];
+                let mut acc = vec![0.0f32; n * al];
+                pool.reset(&mut acc, 0..n);
+                pool.fold(isa, &pairs, &terms, &mut acc, &mut val);
+                for i in 0..n {
+                    pool.finish(&acc[i * al..], &mut out[i * b..(i + 1) * b]);
                 }
-                pool.finish(&acc, &mut out[i * b..(i + 1) * b]);
-            }
-            results.push(out.clone());
-            // Literal evaluation in f64.
-            for i in 0..n {
-                let mut best = vec![f64::NEG_INFINITY; b];
-                for j in 0..n {
-                    let d = [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]];
-                    let mut x: Vec<f32> = (0..e)
-                        .map(|k| (dot(&emb_w[2 * k..2 * k + 2], &d) + f64::from(emb_b[k])) as f32)
-                        .collect();
-                    x.extend_from_slice(&hs[j * h..(j + 1) * h]);
-                    let h1: Vec<f32> = (0..p)
-                        .map(|r| {
-                            (dot(&w1[r * (e + h)..(r + 1) * (e + h)], &x) + f64::from(b1[r]))
-                                .max(0.0) as f32
-                        })
-                        .collect();
-                    for (o, m) in best.iter_mut().enumerate() {
-                        let u = (dot(&w2[o * p..(o + 1) * p], &h1) + f64::from(b2[o])).max(0.0);
-                        *m = m.max(u);
+                // Reversed pair order, one pair per call: same bits.
+                let mut acc2 = vec![0.0f32; n * al];
+                pool.reset(&mut acc2, 0..n);
+                for pr in pairs.iter().rev() {
+                    pool.fold(isa, std::slice::from_ref(pr), &terms, &mut acc2, &mut val);
+                }
+                assert_eq!(
+                    acc,
+                    acc2,
+                    "{}: pair order or grouping changed bits",
+                    isa.path()
+                );
+                // Literal evaluation in f64.
+                for i in 0..n {
+                    let mut best = vec![f64::NEG_INFINITY; b];
+                    for j in 0..n {
+                        let d = [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]];
+                        let mut x: Vec<f32> = (0..e)
+                            .map(|k| {
+                                (dot(&emb_w[2 * k..2 * k + 2], &d) + f64::from(emb_b[k])) as f32
+                            })
+                            .collect();
+                        x.extend_from_slice(&hs[j * h..(j + 1) * h]);
+                        let h1: Vec<f32> = (0..p)
+                            .map(|r| {
+                                (dot(&w1[r * (e + h)..(r + 1) * (e + h)], &x) + f64::from(b1[r]))
+                                    .max(0.0) as f32
+                            })
+                            .collect();
+                        for (o, m) in best.iter_mut().enumerate() {
+                            let u = (dot(&w2[o * p..(o + 1) * p], &h1) + f64::from(b2[o])).max(0.0);
+                            *m = m.max(u);
+                        }
+                    }
+                    for (o, m) in best.iter().enumerate() {
+                        let got = f64::from(out[i * b + o]);
+                        assert!(
+                            (got - m).abs() < 1e-4 * (1.0 + m.abs()),
+                            "{}: {got} vs {m}",
+                            isa.path()
+                        );
                     }
                 }
-                for (o, m) in best.iter().enumerate() {
-                    let got = f64::from(out[i * b + o]);
-                    assert!((got - m).abs() < 1e-4 * (1.0 + m.abs()), "{got} vs {m}");
-                }
             }
         }
-        assert_eq!(
-            results[0], results[1],
-            "dense and sparse second layers differ"
-        );
     }
 
     #[test]
-    fn exp_is_accurate() {
-        let mut worst = 0.0f64;
-        for i in -86_900..=87_900 {
-            let x = i as f32 * 1e-3;
-            let e = f64::from(x).exp();
-            worst = worst.max(((f64::from(exp_f32(x)) - e) / e).abs());
+    fn peak_loop_counts_its_work() {
+        for isa in isas() {
+            let (macs, sum) = isa.run(PeakLoop {
+                iterations: 1000,
+                a: 0.999,
+            });
+            assert!(macs >= 1000 * 48, "{}", isa.path());
+            assert!(sum.is_finite() && sum > 0.0);
         }
-        assert!(worst < 3e-7, "exp rel error {worst:e}");
     }
 }

@@ -146,8 +146,8 @@ mod tests {
 
     #[test]
     fn records_distinct_candidates_with_the_inner_prediction() {
-        let mut rec = Recording::new(Box::new(ConstantVelocity::new(6)));
-        let mut plain = ConstantVelocity::new(6);
+        let mut rec = Recording::new(Box::new(ConstantVelocity::default()));
+        let mut plain = ConstantVelocity::default();
         let h = history(3);
         rec.set_scene(&h).expect("scene");
         plain.set_scene(&h).expect("scene");
@@ -179,7 +179,7 @@ mod tests {
 
     #[test]
     fn errors_pass_through_and_record_nothing() {
-        let mut rec = Recording::new(Box::new(ConstantVelocity::new(6)));
+        let mut rec = Recording::new(Box::new(ConstantVelocity::default()));
         rec.set_scene(&history(2)).expect("scene");
         let bad = vec![f64::NAN; 12];
         assert!(rec.predict(&bad, &mut [0.0; 12]).is_err());
@@ -188,11 +188,11 @@ mod tests {
 
     #[test]
     fn append_shifts_context_indices() {
-        let mut a = Recording::new(Box::new(ConstantVelocity::new(6)));
+        let mut a = Recording::new(Box::new(ConstantVelocity::default()));
         a.set_scene(&history(3)).expect("scene");
         let c1: Vec<f64> = (1..13).map(f64::from).collect();
         a.predict(&c1, &mut [0.0; 2 * 12]).expect("predict");
-        let mut b = Recording::new(Box::new(ConstantVelocity::new(6)));
+        let mut b = Recording::new(Box::new(ConstantVelocity::default()));
         b.set_scene(&history(2)).expect("scene");
         b.predict(&c1, &mut [0.0; 12]).expect("predict");
         b.predict(&c1, &mut [0.0; 12]).expect("predict");

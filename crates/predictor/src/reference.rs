@@ -3,7 +3,7 @@
 //! It follows the PyTorch modules operation by operation (embedding, then concatenation,
 //! unsplit pooling over every pair, separate LSTM biases, no caching, no folding) and
 //! allocates freely. It computes in **f64** (the f32 weights widened), like the golden
-//! generator `python/train/scripts/make_goldens.py`, so it is a precision reference as well:
+//! generator `nudge-train goldens`, so it is a precision reference as well:
 //! [`Teacher`](crate::Teacher) and [`Student`](crate::Student) (f32) must agree with it to
 //! ≤ 1e-5 m; the property tests check that.
 
@@ -221,7 +221,7 @@ pub fn predict(
     let n = history.n_agents();
     let t = cfg.t_plan;
     let mut out = vec![0.0f64; (candidates.len() / (2 * t).max(1)) * (n - 1) * t * 2];
-    let batch = check_batch(candidates, &out, t, n)?;
+    let batch = check_batch(candidates, &out, t, n, history.at(0, T_OBS - 1))?;
     let win0 = window(history);
     for b in 0..batch {
         let cand: Vec<[f64; 2]> = (0..t)

@@ -102,11 +102,8 @@ pub fn model_path(assets: &Path, kind: ModelKind) -> PathBuf {
 /// [`PredictorSpec::build`] clones the loaded network.
 #[derive(Debug, Clone)]
 pub enum PredictorSpec {
-    /// The constant-velocity baseline with this horizon (steps).
-    ConstantVelocity {
-        /// Prediction horizon (steps).
-        horizon: usize,
-    },
+    /// The constant-velocity baseline (its horizon checked at construction).
+    ConstantVelocity(ConstantVelocity),
     /// A loaded teacher.
     Teacher(Box<Teacher>),
     /// A loaded student.
@@ -152,7 +149,9 @@ impl PredictorSpec {
         let given = name_or_path.as_ref();
         let kind = given.to_str().and_then(|s| s.parse::<PredictorKind>().ok());
         match kind {
-            Some(PredictorKind::ConstantVelocity) => Ok(Self::ConstantVelocity { horizon }),
+            Some(PredictorKind::ConstantVelocity) => {
+                Ok(Self::ConstantVelocity(ConstantVelocity::new(horizon)?))
+            }
             Some(k) => {
                 let model = k.model().unwrap_or(ModelKind::Teacher);
                 let path = model_path(assets, model);
@@ -174,7 +173,7 @@ impl PredictorSpec {
     #[must_use]
     pub fn kind(&self) -> PredictorKind {
         match self {
-            Self::ConstantVelocity { .. } => PredictorKind::ConstantVelocity,
+            Self::ConstantVelocity(_) => PredictorKind::ConstantVelocity,
             Self::Teacher(_) => PredictorKind::Teacher,
             Self::Student(_) => PredictorKind::Student,
         }
@@ -184,7 +183,7 @@ impl PredictorSpec {
     #[must_use]
     pub fn horizon(&self) -> usize {
         match self {
-            Self::ConstantVelocity { horizon } => *horizon,
+            Self::ConstantVelocity(cv) => cv.horizon(),
             Self::Teacher(t) => t.horizon(),
             Self::Student(s) => s.horizon(),
         }
@@ -194,7 +193,7 @@ impl PredictorSpec {
     #[must_use]
     pub fn build(&self) -> Box<dyn Predictor> {
         match self {
-            Self::ConstantVelocity { horizon } => Box::new(ConstantVelocity::new(*horizon)),
+            Self::ConstantVelocity(cv) => Box::new(cv.clone()),
             Self::Teacher(t) => Box::new(t.as_ref().clone()),
             Self::Student(s) => Box::new(s.as_ref().clone()),
         }

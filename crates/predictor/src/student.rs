@@ -6,9 +6,9 @@ use std::path::Path;
 use crate::error::{PredictorError, Result};
 use crate::generator::{Generator, Scratch};
 use crate::history::check_finite;
-use crate::nn::Pool;
+use crate::simd::{Isa, SimdPath, simd_path};
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
-use crate::{History, Predictor, T_OBS, check_batch};
+use crate::{History, Predictor, T_OBS, check_batch, limits};
 
 /// The student predictor.
 ///
@@ -18,6 +18,9 @@ use crate::{History, Predictor, T_OBS, check_batch};
 /// terms and its running max over the non-ego agents. Each candidate then costs the rest of
 /// the `t_plan`-step decoder, in which the ego's predicted displacement and position are
 /// overwritten by the candidate's after every step, before the pooling and the next input.
+///
+/// The kernels run on the instruction-set path [`simd_path`](crate::simd_path) chose at load
+/// time; see [`Student::set_simd_path`].
 #[derive(Debug, Clone)]
 pub struct Student {
     generator: Generator,
@@ -35,7 +38,7 @@ pub struct Student {
     c1: Vec<f32>,
     d1: Vec<f32>,
     pos1: Vec<f64>,
-    /// Pool terms of step 1 `[n, P]` and running maxima over agents 1..n `[n, acc_len]`.
+    /// Pool terms of step 1 `[n, term_stride]` and running maxima over agents 1..n `[n, acc_len]`.
     terms1: Vec<f32>,
     max1: Vec<f32>,
     /// Working displacements `[n, 2]` (f32) and positions `[n, 2]` (f64 metres).
@@ -61,15 +64,19 @@ impl Student {
         Self::from_weights(&ModelWeights::from_bytes(bytes)?)
     }
 
-    /// Builds a student from validated weights.
+    /// Builds a student from validated weights and runs the load-time self-check
+    /// ([`limits::canonical_scene`]).
     ///
     /// # Errors
-    /// [`PredictorError::WrongModelKind`] if the weights are a teacher's.
+    /// [`PredictorError::WrongModelKind`] if the weights are a teacher's;
+    /// [`PredictorError::SelfCheck`] (naming the weights' file) if its predictions on the
+    /// canonical scene are non-finite or implausible.
+    /// [`PredictorError::SimdPath`] if `NUDGE_SIMD` names a path this CPU lacks.
     pub fn from_weights(weights: &ModelWeights) -> Result<Self> {
         weights.expect_kind(ModelKind::Student)?;
-        let generator = Generator::new(weights);
+        let generator = Generator::new(weights, Isa::require(simd_path()?)?);
         let noise = generator.fixed_noise.clone();
-        Ok(Self {
+        let mut student = Self {
             generator,
             noise,
             s: Scratch::default(),
@@ -84,7 +91,10 @@ impl Student {
             max1: Vec::new(),
             d: Vec::new(),
             pos: Vec::new(),
-        })
+        };
+        limits::self_check(&mut student, weights.path())?;
+        student.n = 0;
+        Ok(student)
     }
 
     /// The network configuration.
@@ -110,8 +120,26 @@ impl Student {
             });
         }
         check_finite("noise", z)?;
+        limits::check_noise(z)?;
         self.noise.clear();
         self.noise.extend(z.iter().map(|&v| v as f32));
+        self.n = 0;
+        Ok(())
+    }
+
+    /// The instruction-set path the kernels run on.
+    #[must_use]
+    pub fn simd_path(&self) -> SimdPath {
+        self.generator.isa.path()
+    }
+
+    /// Runs the kernels on `path` from now on. Clears the current scene (its cache was
+    /// computed on the old path; paths differ at the 1e-6 m level, see [`SimdPath`]).
+    ///
+    /// # Errors
+    /// [`PredictorError::SimdPath`] if this CPU lacks `path`.
+    pub fn set_simd_path(&mut self, path: SimdPath) -> Result<()> {
+        self.generator.set_isa(Isa::require(path)?);
         self.n = 0;
         Ok(())
     }
@@ -135,48 +163,37 @@ impl Predictor for Student {
         let s = &mut self.s;
         g.reserve(s, n);
         let (he, hd) = (g.cfg.encoder_h_dim, g.cfg.decoder_h_dim);
-        for a in 0..n {
-            g.encode_agent(&self.win0, a, &mut s.h_enc, &mut s.ls);
-        }
+        let mut h_enc = std::mem::take(&mut s.h_enc);
+        g.encode(&self.win0, 0..n, &mut h_enc, s);
         self.last.clear();
         for a in 0..n {
             let k = (a * T_OBS + T_OBS - 1) * 2;
             self.last.extend_from_slice(&self.win0[k..k + 2]);
         }
-        for a in 0..n {
-            Generator::pool_term(&g.pool, &s.h_enc, he, a, &mut s.terms);
-        }
-        Generator::pool_all(
-            &g.pool,
-            &self.last,
-            &s.terms,
-            n,
-            0..n,
-            &mut s.ps,
-            &mut s.pooled,
-        );
+        let mut terms = std::mem::take(&mut s.terms);
+        g.pool_terms(&g.pool, &h_enc, he, 0..n, &mut terms);
+        g.pool_all(&g.pool, &self.last, &terms, n, 0..n, s);
+        s.terms = terms;
         let mut h0 = std::mem::take(&mut s.h);
-        let h_enc = std::mem::take(&mut s.h_enc);
-        for i in 0..n {
-            g.context(i, &h_enc, &self.noise, s, &mut h0[i * hd..(i + 1) * hd]);
-        }
+        g.context(0..n, &h_enc, &self.noise, s, &mut h0, hd);
         s.h_enc = h_enc;
         s.h = h0;
         s.cd[..n * hd].fill(0.0);
         // Decoder step 1: input is the last observed displacement, candidate-independent.
         self.d1.clear();
-        self.pos1.clear();
         for i in 0..n {
             let k = (i * T_OBS + T_OBS - 1) * 2;
-            let d = [
+            self.d1.extend_from_slice(&[
                 (self.win0[k] - self.win0[k - 2]) as f32,
                 (self.win0[k + 1] - self.win0[k - 1]) as f32,
-            ];
-            let dp = g.decode_step(i, d, s);
-            self.d1.extend_from_slice(&dp);
+            ]);
+        }
+        g.decode_steps(0..n, &mut self.d1, s);
+        self.pos1.clear();
+        for i in 0..n {
             self.pos1.extend_from_slice(&[
-                self.last[2 * i] + f64::from(dp[0]),
-                self.last[2 * i + 1] + f64::from(dp[1]),
+                self.last[2 * i] + f64::from(self.d1[2 * i]),
+                self.last[2 * i + 1] + f64::from(self.d1[2 * i + 1]),
             ]);
         }
         self.h1.clear();
@@ -189,17 +206,13 @@ impl Predictor for Student {
         if let Some(pool) = &g.dec_pool
             && g.cfg.t_plan > 1
         {
-            let (p, al) = (pool.hidden(), pool.acc_len());
-            self.terms1.resize(n * p, 0.0);
-            for a in 0..n {
-                Generator::pool_term(pool, &self.h1, hd, a, &mut self.terms1);
-            }
+            let (ts, al) = (pool.term_stride(), pool.acc_len());
+            self.terms1.resize(n * ts, 0.0);
+            g.pool_terms(pool, &self.h1, hd, 0..n, &mut self.terms1);
             self.max1.resize(n * al, 0.0);
-            for i in 1..n {
-                Pool::reset(&mut s.ps.acc);
-                Generator::pool_fold(pool, &self.pos1, &self.terms1, i, 1..n, &mut s.ps);
-                self.max1[i * al..(i + 1) * al].copy_from_slice(&s.ps.acc[..al]);
-            }
+            pool.reset(&mut s.acc, 1..n);
+            g.pool_fold(pool, &self.pos1, &self.terms1, 1..n, 1..n, s);
+            self.max1[al..n * al].copy_from_slice(&s.acc[al..n * al]);
         }
         self.n = n;
         Ok(())
@@ -211,7 +224,7 @@ impl Predictor for Student {
             return Err(PredictorError::NoScene);
         }
         let t = self.horizon();
-        let batch = check_batch(candidates, out, t, n)?;
+        let batch = check_batch(candidates, out, t, n, [self.last[0], self.last[1]])?;
         if n == 1 {
             return Ok(());
         }
@@ -230,55 +243,27 @@ impl Predictor for Student {
             for k in 0..t {
                 if k > 0 {
                     if let Some(pool) = &g.dec_pool {
-                        let (b_dim, al) = (pool.out_dim(), pool.acc_len());
+                        let al = pool.acc_len();
                         if k == 1 {
                             // Cached terms and maxima over the others; add the ego's pairs.
-                            for i in 1..n {
-                                s.ps.acc[..al].copy_from_slice(&self.max1[i * al..(i + 1) * al]);
-                                Generator::pool_fold(
-                                    pool,
-                                    &self.pos,
-                                    &self.terms1,
-                                    i,
-                                    0..1,
-                                    &mut s.ps,
-                                );
-                                pool.finish(&s.ps.acc, &mut s.pooled[i * b_dim..(i + 1) * b_dim]);
-                            }
-                            Generator::pool_all(
-                                pool,
-                                &self.pos,
-                                &self.terms1,
-                                n,
-                                0..1,
-                                &mut s.ps,
-                                &mut s.pooled,
-                            );
+                            s.acc[al..n * al].copy_from_slice(&self.max1[al..n * al]);
+                            g.pool_fold(pool, &self.pos, &self.terms1, 1..n, 0..1, s);
+                            Generator::pool_finish(pool, 1..n, s);
+                            g.pool_all(pool, &self.pos, &self.terms1, n, 0..1, s);
                         } else {
-                            for a in 0..n {
-                                Generator::pool_term(pool, &s.h, hd, a, &mut s.terms);
-                            }
-                            Generator::pool_all(
-                                pool,
-                                &self.pos,
-                                &s.terms,
-                                n,
-                                0..n,
-                                &mut s.ps,
-                                &mut s.pooled,
-                            );
+                            let mut terms = std::mem::take(&mut s.terms);
+                            g.pool_terms(pool, &s.h, hd, 0..n, &mut terms);
+                            g.pool_all(pool, &self.pos, &terms, n, 0..n, s);
+                            s.terms = terms;
                         }
                         g.refine_all(n, s);
                     }
                     // The ego's state is not needed after the last step.
                     let first = usize::from(k + 1 == t);
+                    g.decode_steps(first..n, &mut self.d, s);
                     for i in first..n {
-                        let d = [self.d[2 * i], self.d[2 * i + 1]];
-                        let dp = g.decode_step(i, d, s);
-                        self.d[2 * i] = dp[0];
-                        self.d[2 * i + 1] = dp[1];
-                        self.pos[2 * i] += f64::from(dp[0]);
-                        self.pos[2 * i + 1] += f64::from(dp[1]);
+                        self.pos[2 * i] += f64::from(self.d[2 * i]);
+                        self.pos[2 * i + 1] += f64::from(self.d[2 * i + 1]);
                     }
                 }
                 // Ego override: displacement and position from the candidate.
@@ -292,6 +277,7 @@ impl Predictor for Student {
                     out[o..o + 2].copy_from_slice(&self.pos[2 * a..2 * a + 2]);
                 }
             }
+            limits::check_output("student", b, &self.last, out, t)?;
         }
         Ok(())
     }

@@ -5,9 +5,9 @@ use std::path::Path;
 use crate::error::{PredictorError, Result};
 use crate::generator::{Generator, Scratch};
 use crate::history::check_finite;
-use crate::nn::Pool;
+use crate::simd::{Isa, SimdPath, simd_path};
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
-use crate::{History, Predictor, T_OBS, check_batch};
+use crate::{History, Predictor, T_OBS, check_batch, limits};
 
 /// The teacher predictor (Social-GAN generator, one step per call, `t_plan` calls).
 ///
@@ -23,6 +23,9 @@ use crate::{History, Predictor, T_OBS, check_batch};
 ///
 /// The noise `z` (`[noise_dim]`, the same for every agent: "global" noise) defaults to the
 /// file's `fixed_noise`.
+///
+/// The kernels run on the instruction-set path [`simd_path`](crate::simd_path) chose at load
+/// time; see [`Teacher::set_simd_path`].
 #[derive(Debug, Clone)]
 pub struct Teacher {
     generator: Generator,
@@ -33,12 +36,14 @@ pub struct Teacher {
     n: usize,
     /// `[n, T_OBS, 2]` scene history (metres).
     win0: Vec<f64>,
+    /// `[n, 2]` last observed positions (metres).
+    last: Vec<f64>,
     /// `[n, 2]` candidate-independent τ = 1 prediction (entry 0 unused).
     q1: Vec<f64>,
     /// Working window `[n, T_OBS, 2]` and one-step prediction `[n, 2]` (metres).
     win: Vec<f64>,
     q: Vec<f64>,
-    /// τ = 2 cache: encodings `[n, He]` and pool terms `[n, P]` (slot 0, the ego's, is
+    /// τ = 2 cache: encodings `[n, He]` and pool terms `[n, term_stride]` (slot 0, the ego's, is
     /// rewritten per candidate), running maxima over agents 1..n `[n, acc_len]`.
     h_enc2: Vec<f32>,
     terms2: Vec<f32>,
@@ -63,27 +68,35 @@ impl Teacher {
         Self::from_weights(&ModelWeights::from_bytes(bytes)?)
     }
 
-    /// Builds a teacher from validated weights.
+    /// Builds a teacher from validated weights and runs the load-time self-check
+    /// ([`limits::canonical_scene`], with the file's noise).
     ///
     /// # Errors
-    /// [`PredictorError::WrongModelKind`] if the weights are a student's.
+    /// [`PredictorError::WrongModelKind`] if the weights are a student's;
+    /// [`PredictorError::SelfCheck`] (naming the weights' file) if its predictions on the
+    /// canonical scene are non-finite or implausible.
+    /// [`PredictorError::SimdPath`] if `NUDGE_SIMD` names a path this CPU lacks.
     pub fn from_weights(weights: &ModelWeights) -> Result<Self> {
         weights.expect_kind(ModelKind::Teacher)?;
-        let generator = Generator::new(weights);
+        let generator = Generator::new(weights, Isa::require(simd_path()?)?);
         let noise = generator.fixed_noise.clone();
-        Ok(Self {
+        let mut teacher = Self {
             generator,
             noise,
             s: Scratch::default(),
             n: 0,
             win0: Vec::new(),
+            last: Vec::new(),
             q1: Vec::new(),
             win: Vec::new(),
             q: Vec::new(),
             h_enc2: Vec::new(),
             terms2: Vec::new(),
             max2: Vec::new(),
-        })
+        };
+        limits::self_check(&mut teacher, weights.path())?;
+        teacher.n = 0;
+        Ok(teacher)
     }
 
     /// The network configuration.
@@ -118,6 +131,7 @@ impl Teacher {
             });
         }
         check_finite("noise", z)?;
+        limits::check_noise(z)?;
         self.noise.clear();
         self.noise.extend(z.iter().map(|&v| v as f32));
         self.n = 0;
@@ -128,6 +142,23 @@ impl Teacher {
     #[must_use]
     pub fn noise(&self) -> Vec<f64> {
         self.noise.iter().map(|&v| f64::from(v)).collect()
+    }
+
+    /// The instruction-set path the kernels run on.
+    #[must_use]
+    pub fn simd_path(&self) -> SimdPath {
+        self.generator.isa.path()
+    }
+
+    /// Runs the kernels on `path` from now on. Clears the current scene (its cache was
+    /// computed on the old path; paths differ at the 1e-6 m level, see [`SimdPath`]).
+    ///
+    /// # Errors
+    /// [`PredictorError::SimdPath`] if this CPU lacks `path`.
+    pub fn set_simd_path(&mut self, path: SimdPath) -> Result<()> {
+        self.generator.set_isa(Isa::require(path)?);
+        self.n = 0;
+        Ok(())
     }
 }
 
@@ -155,6 +186,10 @@ impl Predictor for Teacher {
         self.n = 0;
         self.win0.clear();
         self.win0.extend_from_slice(history.positions());
+        self.last.clear();
+        for a in 0..n {
+            self.last.extend_from_slice(&history.at(a, T_OBS - 1));
+        }
         let g = &self.generator;
         let s = &mut self.s;
         g.reserve(s, n);
@@ -163,21 +198,17 @@ impl Predictor for Teacher {
         self.q.resize(2 * n, 0.0);
         g.one_step(&self.win0, n, &self.noise, s, &mut self.q1);
         // τ = 2: everything that involves only the non-ego agents.
-        let (he, p, al) = (g.cfg.encoder_h_dim, g.pool.hidden(), g.pool.acc_len());
+        let (he, ts, al) = (g.cfg.encoder_h_dim, g.pool.term_stride(), g.pool.acc_len());
         self.win.copy_from_slice(&self.win0);
         slide(&mut self.win, &self.q1, n);
         self.h_enc2.resize(n * he, 0.0);
-        self.terms2.resize(n * p, 0.0);
+        self.terms2.resize(n * ts, 0.0);
         self.max2.resize(n * al, 0.0);
-        for a in 1..n {
-            g.encode_agent(&self.win, a, &mut self.h_enc2, &mut s.ls);
-            Generator::pool_term(&g.pool, &self.h_enc2, he, a, &mut self.terms2);
-        }
-        for i in 1..n {
-            Pool::reset(&mut s.ps.acc);
-            Generator::pool_fold(&g.pool, &self.q1, &self.terms2, i, 1..n, &mut s.ps);
-            self.max2[i * al..(i + 1) * al].copy_from_slice(&s.ps.acc[..al]);
-        }
+        g.encode(&self.win, 1..n, &mut self.h_enc2, s);
+        g.pool_terms(&g.pool, &self.h_enc2, he, 1..n, &mut self.terms2);
+        g.pool.reset(&mut s.acc, 1..n);
+        g.pool_fold(&g.pool, &self.q1, &self.terms2, 1..n, 1..n, s);
+        self.max2[al..n * al].copy_from_slice(&s.acc[al..n * al]);
         self.n = n;
         Ok(())
     }
@@ -188,13 +219,13 @@ impl Predictor for Teacher {
             return Err(PredictorError::NoScene);
         }
         let t = self.horizon();
-        let batch = check_batch(candidates, out, t, n)?;
+        let batch = check_batch(candidates, out, t, n, [self.last[0], self.last[1]])?;
         if n == 1 {
             return Ok(());
         }
         let g = &self.generator;
         let s = &mut self.s;
-        let (he, al, bd) = (g.cfg.encoder_h_dim, g.pool.acc_len(), g.pool.out_dim());
+        let (he, al) = (g.cfg.encoder_h_dim, g.pool.acc_len());
         let per = (n - 1) * t * 2;
         let write = |out: &mut [f64], q: &[f64], tau: usize| {
             for a in 1..n {
@@ -207,6 +238,7 @@ impl Predictor for Teacher {
             let out = &mut out[b * per..(b + 1) * per];
             write(out, &self.q1, 0);
             if t < 2 {
+                limits::check_output("teacher", b, &self.last, out, t)?;
                 continue;
             }
             // τ = 2 from the cache: the ego's encoding, term and pairs only.
@@ -214,14 +246,11 @@ impl Predictor for Teacher {
             self.q.copy_from_slice(&self.q1);
             self.q[..2].copy_from_slice(&cand[..2]);
             slide(&mut self.win, &self.q, n);
-            g.encode_agent(&self.win, 0, &mut self.h_enc2, &mut s.ls);
-            Generator::pool_term(&g.pool, &self.h_enc2, he, 0, &mut self.terms2);
-            for i in 1..n {
-                s.ps.acc[..al].copy_from_slice(&self.max2[i * al..(i + 1) * al]);
-                Generator::pool_fold(&g.pool, &self.q, &self.terms2, i, 0..1, &mut s.ps);
-                g.pool
-                    .finish(&s.ps.acc, &mut s.pooled[i * bd..(i + 1) * bd]);
-            }
+            g.encode(&self.win, 0..1, &mut self.h_enc2, s);
+            g.pool_terms(&g.pool, &self.h_enc2, he, 0..1, &mut self.terms2);
+            s.acc[al..n * al].copy_from_slice(&self.max2[al..n * al]);
+            g.pool_fold(&g.pool, &self.q, &self.terms2, 1..n, 0..1, s);
+            Generator::pool_finish(&g.pool, 1..n, s);
             g.decode_one(&self.win, n, &self.h_enc2, &self.noise, s, &mut self.q);
             write(out, &self.q, 1);
             // τ = 3.. : full generator calls.
@@ -231,6 +260,7 @@ impl Predictor for Teacher {
                 g.one_step(&self.win, n, &self.noise, s, &mut self.q);
                 write(out, &self.q, tau);
             }
+            limits::check_output("teacher", b, &self.last, out, t)?;
         }
         Ok(())
     }

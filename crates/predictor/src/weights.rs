@@ -6,24 +6,43 @@
 //! * `"config"`: the JSON [`ModelConfig`] (required);
 //! * `"format"`: `"nudge.weights/1"` (optional; any other value is rejected);
 //! * `"trained"`: `"true"` / `"false"` (optional, informative);
-//! * `"provenance"`: free-form JSON (optional, ignored).
+//! * `"provenance"`: free-form JSON (optional, ignored);
+//! * `"sha256"`: the content hash below, 64 lowercase hex digits (required).
+//!
+//! **Content hash.** SHA-256 over the concatenation of these fields, each preceded by its
+//! length in bytes as a u64 little endian: the format string `nudge.weights/1`; the `"config"`
+//! metadata string, byte for byte as stored; then, for every tensor in ascending byte order of
+//! its name: the name (UTF-8), the dtype name as safetensors writes it (`F32`), the shape
+//! (here the field is the dimension count as a u64 little endian, followed by each dimension
+//! as a u64 little endian) and the raw data bytes as stored (little endian). [`content_sha256`]
+//! computes it; `python/train/nudge_train/export.py` (`weights_sha256`) writes it. It covers
+//! everything that changes a prediction and nothing else (`trained` and `provenance` are
+//! informative), and it does not depend on the file's header layout or tensor order.
+//!
+//! A file without the hash is refused ([`PredictorError::MissingHash`]): an optional hash would
+//! let a flipped bit in the key `"sha256"` itself turn a corrupted file into an unchecked one.
+//! Files from older exporters are re-stamped (tensor bytes unchanged) with the exporter's
+//! `stamp_weights`.
 //!
 //! [`ModelWeights::from_file`] / [`ModelWeights::from_bytes`] check, in this order: the file is
 //! safetensors; the config is present, valid JSON, of a known kind, has exactly the fields of
 //! [`ModelConfig`] (unknown fields are **rejected**: a field the Rust side does not understand
 //! could change the network, so it must not be silently ignored) and sane values; then every
 //! tensor the config calls for, in [`expected_tensors`] order, exists, is F32, has the expected
-//! shape and finite values; finally no other tensor is present. The first problem found is
-//! returned as the matching [`PredictorError`] variant naming the file and tensor.
+//! shape and finite values; no other tensor is present; finally the content hash matches. The
+//! first problem found is returned as the matching [`PredictorError`] variant naming the file
+//! and tensor. [`ModelWeights::from_file`] reads only regular files of at most
+//! [`MAX_WEIGHTS_BYTES`](crate::file::MAX_WEIGHTS_BYTES).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use crate::error::{PredictorError, Result};
-use crate::{DT, T_OBS};
+use crate::{DT, MAX_HORIZON, T_OBS};
 
 /// Value of the `"format"` metadata entry this crate reads.
 pub const WEIGHTS_FORMAT: &str = "nudge.weights/1";
@@ -201,7 +220,19 @@ pub fn synthetic_weights(config: &ModelConfig, seed: u64) -> Result<Vec<u8>> {
         path: PathBuf::from(MEMORY),
         reason: e.to_string(),
     })?;
+    let hash = content_sha256(
+        &config_json,
+        tensors.iter().map(|(name, shape, bytes)| {
+            (
+                name.as_str(),
+                Dtype::F32,
+                shape.as_slice(),
+                bytes.as_slice(),
+            )
+        }),
+    );
     let metadata = std::collections::HashMap::from([
+        ("sha256".to_owned(), hash),
         ("config".to_owned(), config_json),
         ("format".to_owned(), WEIGHTS_FORMAT.to_owned()),
         ("trained".to_owned(), "false".to_owned()),
@@ -216,6 +247,66 @@ pub fn synthetic_weights(config: &ModelConfig, seed: u64) -> Result<Vec<u8>> {
         path: PathBuf::from(MEMORY),
         reason: e.to_string(),
     })
+}
+
+/// The content hash of a weights file (see the module documentation for the exact bytes):
+/// `config` is the `"config"` metadata string, `tensors` yields `(name, dtype, shape, data)`
+/// in any order. Returns 64 lowercase hex digits.
+pub fn content_sha256<'a>(
+    config: &str,
+    tensors: impl IntoIterator<Item = (&'a str, Dtype, &'a [usize], &'a [u8])>,
+) -> String {
+    fn field(h: &mut Sha256, bytes: &[u8]) {
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(bytes);
+    }
+    let mut tensors: Vec<_> = tensors.into_iter().collect();
+    tensors.sort_unstable_by(|a, b| a.0.as_bytes().cmp(b.0.as_bytes()));
+    let mut h = Sha256::new();
+    field(&mut h, WEIGHTS_FORMAT.as_bytes());
+    field(&mut h, config.as_bytes());
+    for (name, dtype, shape, data) in tensors {
+        field(&mut h, name.as_bytes());
+        field(&mut h, dtype.to_string().as_bytes());
+        h.update((shape.len() as u64).to_le_bytes());
+        for &d in shape {
+            h.update((d as u64).to_le_bytes());
+        }
+        field(&mut h, data);
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A copy of the safetensors image `bytes` with the `"sha256"` metadata entry set to its
+/// content hash (tensor bytes and other metadata unchanged; the header is re-serialised). For
+/// tests and tools that edit weights on purpose.
+///
+/// # Errors
+/// [`PredictorError::NotSafetensors`] if `bytes` is not a safetensors image,
+/// [`PredictorError::BadConfig`] if it has no `"config"` entry.
+pub fn restamp(bytes: &[u8]) -> Result<Vec<u8>> {
+    let bad = |e: safetensors::SafeTensorError| PredictorError::NotSafetensors {
+        path: PathBuf::from(MEMORY),
+        reason: e.to_string(),
+    };
+    let st = SafeTensors::deserialize(bytes).map_err(bad)?;
+    let (_, header) = SafeTensors::read_metadata(bytes).map_err(bad)?;
+    let mut meta = header.metadata().clone().unwrap_or_default();
+    let config = meta
+        .get("config")
+        .ok_or_else(|| PredictorError::BadConfig {
+            path: PathBuf::from(MEMORY),
+            reason: "no \"config\" metadata entry".to_owned(),
+        })?;
+    let views = st.tensors();
+    let hash = content_sha256(
+        config,
+        views
+            .iter()
+            .map(|(n, v)| (n.as_str(), v.dtype(), v.shape(), v.data())),
+    );
+    meta.insert("sha256".to_owned(), hash);
+    safetensors::serialize(views, Some(meta)).map_err(bad)
 }
 
 /// Largest accepted size of any one dimension (guards against absurd configs).
@@ -234,6 +325,12 @@ impl ModelConfig {
             return Err(format!(
                 "activation {:?} is not supported (only \"relu\")",
                 self.activation
+            ));
+        }
+        if self.t_plan > MAX_HORIZON {
+            return Err(format!(
+                "t_plan is {}, expected 1..={MAX_HORIZON}",
+                self.t_plan
             ));
         }
         let dims = [
@@ -351,14 +448,13 @@ impl ModelWeights {
     /// Reads and validates a `.safetensors` weights file.
     ///
     /// # Errors
-    /// [`PredictorError::Io`] if the file cannot be read, otherwise as
-    /// [`ModelWeights::from_bytes`] (with `path` in every error).
+    /// [`PredictorError::Io`] if the file cannot be read,
+    /// [`PredictorError::NotRegularFile`] / [`PredictorError::FileTooLarge`] (checked before
+    /// reading; see [`crate::file::read_bounded`]), otherwise as [`ModelWeights::from_bytes`]
+    /// (with `path` in every error).
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|source| PredictorError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let bytes = crate::file::read_bounded(path, crate::file::MAX_WEIGHTS_BYTES)?;
         Self::parse(&bytes, path.to_path_buf())
     }
 
@@ -368,8 +464,9 @@ impl ModelWeights {
     /// [`PredictorError::NotSafetensors`], [`PredictorError::BadConfig`],
     /// [`PredictorError::UnknownModelKind`], [`PredictorError::MissingTensor`],
     /// [`PredictorError::WrongDtype`], [`PredictorError::ShapeMismatch`],
-    /// [`PredictorError::NonFiniteWeight`], [`PredictorError::UnexpectedTensor`]; see the
-    /// module documentation for the order of the checks.
+    /// [`PredictorError::NonFiniteWeight`], [`PredictorError::UnexpectedTensor`],
+    /// [`PredictorError::MissingHash`], [`PredictorError::HashMismatch`]; see the module
+    /// documentation for the order of the checks.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self> {
         Self::parse(bytes, PathBuf::from(MEMORY))
     }
@@ -481,6 +578,22 @@ impl ModelWeights {
                 path,
                 tensor: extra.to_owned(),
                 kind: config.kind.as_str().to_owned(),
+            });
+        }
+        let Some(expected) = meta.get("sha256") else {
+            return Err(PredictorError::MissingHash { path });
+        };
+        let found = content_sha256(
+            raw,
+            st.tensors()
+                .iter()
+                .map(|(n, v)| (n.as_str(), v.dtype(), v.shape(), v.data())),
+        );
+        if *expected != found {
+            return Err(PredictorError::HashMismatch {
+                path,
+                expected: expected.clone(),
+                found,
             });
         }
         Ok(Self {

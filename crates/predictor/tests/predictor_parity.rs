@@ -1,5 +1,5 @@
 //! Parity of the Rust networks with PyTorch (golden files written by
-//! `python/train/scripts/make_goldens.py`, in `tests/golden`) and their properties: permutation equivariance,
+//! `nudge-train goldens`, in `tests/golden`) and their properties: permutation equivariance,
 //! cached == uncached (fast path vs the literal reference implementation), determinism, and
 //! the exact constant-velocity baseline.
 #![allow(clippy::unwrap_used, clippy::print_stdout)]

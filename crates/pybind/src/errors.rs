@@ -63,6 +63,8 @@ pub fn predictor_err(err: PredictorError) -> PyErr {
         PredictorError::AgentCount { .. }
         | PredictorError::InputShape { .. }
         | PredictorError::NonFiniteInput { .. }
+        | PredictorError::InputOutOfRange { .. }
+        | PredictorError::Horizon { .. }
         | PredictorError::NoScene => InputError::new_err(msg),
         _ => WeightsError::new_err(msg),
     }

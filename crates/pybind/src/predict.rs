@@ -51,8 +51,9 @@ impl PyPredictor {
     /// The constant-velocity baseline with a horizon of `horizon` steps.
     #[staticmethod]
     #[pyo3(signature = (horizon = 6))]
-    fn constant_velocity(horizon: usize) -> Self {
-        Self::wrap(Box::new(ConstantVelocity::new(horizon)))
+    fn constant_velocity(horizon: usize) -> PyResult<Self> {
+        let cv = ConstantVelocity::new(horizon).map_err(predictor_err)?;
+        Ok(Self::wrap(Box::new(cv)))
     }
 
     /// `"teacher"`, `"student"` or `"constant_velocity"`.

@@ -126,10 +126,11 @@ pub fn simulate<'py>(
     let mut outputs: Vec<RunOutput> = py.detach(|| {
         pool.install(|| simulate_many(&scenes, &specs, &settings, &cfg, &predictors, record))
     });
-    if !skip && let Some(pos) = outputs.iter().position(|o| o.result.is_err()) {
-        if let Err(e) = outputs.swap_remove(pos).result {
-            return Err(sim_err(e));
-        }
+    if !skip
+        && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
+        && let Err(e) = outputs.swap_remove(pos).result
+    {
+        return Err(sim_err(e));
     }
     let out = PyDict::new(py);
     out.set_item("runs", table_dict(py, run_table(&scenes, &outputs))?)?;

@@ -171,7 +171,9 @@ impl LinearisedProblem {
             .enumerate()
             .map(|(k, zk)| {
                 (1..4)
-                    .map(|j| (self.lower[k][j] - zk[j]).max(0.0) + (zk[j] - self.upper[k][j]).max(0.0))
+                    .map(|j| {
+                        (self.lower[k][j] - zk[j]).max(0.0) + (zk[j] - self.upper[k][j]).max(0.0)
+                    })
                     .sum::<f64>()
             })
             .sum()
@@ -206,12 +208,17 @@ fn state_bounds(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (Vec<S
     let [length, width] = p.sizes[0];
     let bounded = s.heading_max < std::f64::consts::FRAC_PI_2;
     let goal = p.y_target - y0;
-    let (corridor_low, corridor_high) = (goal.min(0.0) - s.overshoot_max, goal.max(0.0) + s.overshoot_max);
+    let (corridor_low, corridor_high) = (
+        goal.min(0.0) - s.overshoot_max,
+        goal.max(0.0) + s.overshoot_max,
+    );
     let mut lower = Vec::with_capacity(t);
     let mut upper = Vec::with_capacity(t);
     for k in 0..t {
         let (heading, half_extent) = if bounded {
-            let h = s.heading_max.max(p.ego.psi.abs() - (k + 1) as f64 * s.heading_recovery);
+            let h = s
+                .heading_max
+                .max(p.ego.psi.abs() - (k + 1) as f64 * s.heading_recovery);
             (h, half_extent_across(length, width, h))
         } else {
             (f64::INFINITY, 0.5 * width)
@@ -225,7 +232,12 @@ fn state_bounds(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (Vec<S
             high = mid;
         }
         lower.push(State::new(f64::NEG_INFINITY, low.min(0.0), -heading, 0.0));
-        upper.push(State::new(f64::INFINITY, high.max(0.0), heading, s.v_max.max(p.ego.v)));
+        upper.push(State::new(
+            f64::INFINITY,
+            high.max(0.0),
+            heading,
+            s.v_max.max(p.ego.v),
+        ));
     }
     (lower, upper)
 }

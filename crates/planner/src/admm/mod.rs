@@ -98,6 +98,8 @@ struct Finished {
     delta: Vec<f64>,
     accel: Vec<f64>,
     z: Vec<State>,
+    /// ADMM's Z at the end of its loop (empty after a QP failure).
+    admm_z: Vec<State>,
     duals: Vec<State>,
     min_b: Option<f64>,
     rollout_min_b: Option<f64>,
@@ -186,7 +188,7 @@ impl Planner {
     ///     road: [-1.85, 5.55],
     /// };
     /// let mut planner = Planner::new(PlannerSettings::default())?;
-    /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6))?;
+    /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6)?)?;
     /// assert_eq!(plan.states.len(), 6);
     /// assert!(plan.states[5][1] > 0.0, "the ego moves towards the left lane");
     /// assert!(plan.min_safety.is_some_and(|b| b > 0.0) && plan.status != PlanStatus::Unsafe);
@@ -315,7 +317,7 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
     let Iterates {
         delta,
         accel,
-        z: _,
+        z: admm_z,
         duals,
     } = admm.iterates;
     let counts = (admm.iterations, admm.change_residual, admm.qp_solves);
@@ -327,31 +329,61 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
                 status: failure.status,
             };
             let zeros = vec![State::zeros(); duals.len()];
-            return Ok(Finished::adopt(c, zeros, status, counts));
+            return Ok(Finished::adopt(c, zeros, Vec::new(), status, counts));
         }
         Stop::Converged => PlanStatus::Converged,
         Stop::MaxIterations => PlanStatus::MaxIterations,
     };
     let rollout = r.check(delta, accel)?;
     if rollout.rank.safe {
-        return Ok(Finished::adopt(rollout, duals, status, counts));
+        return Ok(Finished::adopt(rollout, duals, admm_z, status, counts));
     }
     if s.rollout_check {
         if let Some(c) = r.refine(&rollout)? {
-            return Ok(Finished::adopt(c, duals, PlanStatus::Refined, counts));
+            return Ok(Finished::adopt(
+                c,
+                duals,
+                admm_z,
+                PlanStatus::Refined,
+                counts,
+            ));
         }
         if let Some(c) = r.backtrack(&rollout.delta, &rollout.accel)? {
-            return Ok(Finished::adopt(c, duals, PlanStatus::Backtracked, counts));
+            return Ok(Finished::adopt(
+                c,
+                duals,
+                admm_z,
+                PlanStatus::Backtracked,
+                counts,
+            ));
         }
         let c = r.best_fallback()?;
         if c.rank.safe {
-            return Ok(Finished::adopt(c, duals, PlanStatus::Fallback, counts));
+            return Ok(Finished::adopt(
+                c,
+                duals,
+                admm_z,
+                PlanStatus::Fallback,
+                counts,
+            ));
         }
         if c.rank.beats(&rollout.rank) {
-            return Ok(Finished::adopt(c, duals, PlanStatus::Unsafe, counts));
+            return Ok(Finished::adopt(
+                c,
+                duals,
+                admm_z,
+                PlanStatus::Unsafe,
+                counts,
+            ));
         }
     }
-    Ok(Finished::adopt(rollout, duals, PlanStatus::Unsafe, counts))
+    Ok(Finished::adopt(
+        rollout,
+        duals,
+        admm_z,
+        PlanStatus::Unsafe,
+        counts,
+    ))
 }
 
 impl Finished {
@@ -360,6 +392,7 @@ impl Finished {
     fn adopt(
         c: Candidate,
         duals: Vec<State>,
+        admm_z: Vec<State>,
         status: PlanStatus,
         counts: (usize, f64, usize),
     ) -> Self {
@@ -367,6 +400,7 @@ impl Finished {
             delta: c.delta,
             accel: c.accel,
             z: c.rollout,
+            admm_z,
             duals,
             min_b: c.min_b,
             rollout_min_b: c.min_b,
@@ -391,6 +425,7 @@ impl Finished {
             .residual(&self.delta, &self.accel, &self.z, &mut residual);
         let plan = Plan {
             states: lp.to_world(&self.z),
+            admm_states: lp.to_world(&self.admm_z),
             cost: lp.cost(s, &self.delta, &self.accel, &self.z),
             primal_residual: max_abs(&residual),
             delta: self.delta.clone(),

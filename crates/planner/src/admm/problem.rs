@@ -282,6 +282,10 @@ pub struct Plan {
     pub accel: Vec<f64>,
     /// Planned states z_1..z_T as (x, y, ψ, v) in the road frame (m, m, rad, m/s), `[T]`.
     pub states: Vec<[f64; 4]>,
+    /// ADMM's own states Z at the end of its loop, (x, y, ψ, v) in the road frame, `[T]`
+    /// (empty after a QP failure): they satisfy the linearised dynamics up to the primal
+    /// residual; [`Plan::states`] are the nonlinear roll-out of the returned inputs.
+    pub admm_states: Vec<[f64; 4]>,
     /// Cost J = Φ1 + Φ2 + Φ3 at the returned (Δ, α, Z).
     pub cost: f64,
     /// ADMM iterations run (the failed one included after a QP failure).

@@ -189,7 +189,10 @@ pub(crate) fn simple_inputs(
     for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
         let mut a = vec![a_cmd; t];
         repair_box_rate(&mut a, lp.accel_box);
-        inputs.push((align_with_road(model, &lp.start, &a, lp.delta_box), a.clone()));
+        inputs.push((
+            align_with_road(model, &lp.start, &a, lp.delta_box),
+            a.clone(),
+        ));
         let d = steer_towards(model, &lp.start, &a, lp.reference[1], lp.delta_box);
         inputs.push((d, a));
     }

@@ -126,6 +126,18 @@ fn rollout_world(
     out.iter().map(|z| [z[0], z[1], z[2], z[3]]).collect()
 }
 
+/// The defaults with the refinement and the heading and corridor bounds off: the repair
+/// branches after the execution check (backtracking, fallbacks) alone, as they are reached
+/// when the refinement fails.
+fn repairs_only() -> PlannerSettings {
+    PlannerSettings {
+        refine_iters: 0,
+        heading_max: 3.0,
+        overshoot_max: 100.0,
+        ..PlannerSettings::default()
+    }
+}
+
 fn model(s: &PlannerSettings) -> Bicycle {
     Bicycle {
         l_f: s.l_f,
@@ -160,7 +172,7 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
         let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
         let constraint = SafetyConstraint::new(&p, &s);
         assert_eq!(constraint.vehicles().len(), 1);
-        let mut cv = ConstantVelocity::new(6);
+        let mut cv = ConstantVelocity::default();
         cv.set_scene(&h).unwrap();
         let threshold = s.safety_min + s.plan_buffer;
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
@@ -243,7 +255,7 @@ fn z_updates_restore_then_descend_safely() {
     let p = problem(&h, &sizes, 12.0);
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
     let constraint = SafetyConstraint::new(&p, &s);
-    let mut cv = ConstantVelocity::new(6);
+    let mut cv = ConstantVelocity::default();
     cv.set_scene(&h).unwrap();
     let threshold = s.safety_min + s.plan_buffer;
     let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
@@ -314,7 +326,7 @@ fn y_end(s: &PlannerSettings, p: &PlanningProblem<'_>, plan: &Plan, theta: f64) 
 /// inputs, the states their roll-out, and min b that of the far vehicle.
 #[test]
 fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
-    let s = PlannerSettings::default();
+    let s = repairs_only();
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let admm = reference_plan(&s, &p);
@@ -340,7 +352,7 @@ fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
 /// sequence (safe = ending below the gate), checked on its roll-out.
 #[test]
 fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
-    let s = PlannerSettings::default();
+    let s = repairs_only();
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let admm = reference_plan(&s, &p);
@@ -389,7 +401,7 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
 /// fallback the best by rank, both checked on their roll-outs.
 #[test]
 fn repairer_checks_every_candidate_on_its_rollout() {
-    let s = PlannerSettings::default();
+    let s = repairs_only();
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
@@ -453,15 +465,22 @@ fn repairer_checks_every_candidate_on_its_rollout() {
 /// roll-out, with the failing QP named.
 #[test]
 fn qp_failure_ends_in_a_checked_fallback_plan() {
-    // A = 1e308 overflows the α-QP's Hessian to ∞: Clarabel stops with a numerical error.
+    // w_a = 1e308 overflows the α-QP's Hessian to ∞: Clarabel stops with a numerical error.
+    // Validation refuses such a weight, so the planner is built without it (the failure
+    // stands for any Clarabel failure on valid settings).
     let s = PlannerSettings {
         w_a: 1e308,
         ..PlannerSettings::default()
     };
+    assert!(s.validate().is_err());
     let (h, sizes) = scene(12.0, 0.0, &[(6.0, 3.7, 12.0)]);
     let p = problem(&h, &sizes, 12.0);
-    let mut planner = Planner::new(s.clone()).unwrap();
-    let mut cv = ConstantVelocity::new(6);
+    let mut planner = Planner {
+        model: Planner::new(PlannerSettings::default()).unwrap().model,
+        settings: s.clone(),
+        warm: None,
+    };
+    let mut cv = ConstantVelocity::default();
     let plan = planner.plan(&p, &mut cv).unwrap();
     match plan.status {
         PlanStatus::SolverFailed { qp, status } => {

@@ -380,7 +380,7 @@ impl ClosedLoop<'_> {
 ///     .join("../../assets/scenes/us101-11_1-t02.1-ego144.safetensors");
 /// let sc = Scenario::from_file(&scene)?;
 /// let cfg = SimConfig { world: World::LogReplay, ..SimConfig::default() };
-/// let mut cv = ConstantVelocity::new(6);
+/// let mut cv = ConstantVelocity::new(6)?;
 /// let run = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None)?;
 /// assert!(run.success && !run.collision);
 /// assert_eq!(run.steps.len(), run.steps_to_target.unwrap_or(0));

@@ -7,12 +7,15 @@ little-endian; metadata (all strings):
 * ``config``: :meth:`ModelConfig.to_json` (sizes, kind, seeds, ...)
 * ``trained``: ``"true"`` or ``"false"`` (random initialisation)
 * ``provenance``: JSON object, free form (data, run, commit, ...)
+* ``sha256``: content hash of the config and the tensors (:func:`weights_sha256`); the Rust loader
+  refuses files without it or whose content does not match it
 
 The Rust predictor reads the same files; docs/models.md lists every name and shape.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from typing import Any
@@ -31,6 +34,8 @@ __all__ = [
     "load_generator",
     "read_weights",
     "save_safetensors",
+    "stamp_weights",
+    "weights_sha256",
 ]
 
 
@@ -56,6 +61,53 @@ def save_safetensors(tensors: dict[str, torch.Tensor], path: Path, metadata: dic
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(len(text).to_bytes(8, "little") + text + raw[8 + header_len :])
     return path
+
+
+def weights_sha256(config_json: str, tensors: dict[str, torch.Tensor]) -> str:
+    """Content hash of a weights file: 64 lowercase hex digits.
+
+    SHA-256 over these fields, each preceded by its byte length as a u64 little endian: the
+    format string ``nudge.weights/1``; the ``config`` metadata string (UTF-8, as stored); then for
+    every tensor in ascending byte order of its name: the name (UTF-8), the dtype name ``F32``, the
+    shape (here: the dimension count, then each dimension, all u64 little endian) and the raw
+    little-endian data bytes. The same layout is documented and verified in Rust
+    (``crates/predictor/src/weights.rs``); ``trained`` and ``provenance`` are not covered.
+    """
+    h = hashlib.sha256()
+
+    def field(data: bytes) -> None:
+        h.update(len(data).to_bytes(8, "little"))
+        h.update(data)
+
+    field(WEIGHTS_FORMAT.encode("utf-8"))
+    field(config_json.encode("utf-8"))
+    for name in sorted(tensors, key=lambda n: n.encode("utf-8")):
+        tensor = tensors[name].detach().to("cpu").contiguous()
+        if tensor.dtype != torch.float32:
+            raise ValueError(f"{name}: dtype {tensor.dtype}, expected float32")
+        field(name.encode("utf-8"))
+        field(b"F32")
+        h.update(len(tensor.shape).to_bytes(8, "little"))
+        for dim in tensor.shape:
+            h.update(int(dim).to_bytes(8, "little"))
+        field(tensor.numpy().astype("<f4", copy=False).tobytes())
+    return h.hexdigest()
+
+
+def stamp_weights(path: Path) -> str:
+    """Adds (or refreshes) the ``sha256`` entry of an existing weights file, tensors untouched.
+
+    For files written before the hash existed; returns the hash.
+    """
+    path = Path(path)
+    with safe_open(str(path), framework="pt", device="cpu") as f:
+        metadata = dict(f.metadata() or {})
+        tensors = {name: f.get_tensor(name) for name in f.keys()}  # noqa: SIM118 (safe_open API)
+    if "config" not in metadata:
+        raise ValueError(f"{path}: metadata key 'config' missing")
+    metadata["sha256"] = weights_sha256(metadata["config"], tensors)
+    save_safetensors(tensors, path, metadata)
+    return metadata["sha256"]
 
 
 class WeightsFile:
@@ -97,6 +149,7 @@ def export_generator(
         "trained": "true" if trained else "false",
         "provenance": json.dumps(provenance, sort_keys=True, separators=(",", ":")),
     }
+    metadata["sha256"] = weights_sha256(metadata["config"], tensors)
     return save_safetensors(tensors, Path(path), metadata)
 
 
@@ -130,6 +183,10 @@ def read_weights(path: Path) -> WeightsFile:
     for name, tensor in tensors.items():
         if tensor.dtype != torch.float32:
             raise ValueError(f"{path}: tensor {name} has dtype {tensor.dtype}, expected float32")
+    if "sha256" in metadata:
+        found = weights_sha256(metadata["config"], tensors)
+        if found != metadata["sha256"]:
+            raise ValueError(f"{path}: content sha256 mismatch: metadata {metadata['sha256']}, content {found}")
     return WeightsFile(config, metadata["trained"] == "true", provenance, tensors)
 
 

@@ -1,0 +1,17 @@
+//! The short mode of the fuzzing suite (`examples/fuzz`): a few seconds of seeded mutations of
+//! weights, scenario and settings files, every outcome a typed error or a valid result.
+#![allow(clippy::print_stderr)]
+
+#[path = "../examples/fuzz/harness.rs"]
+mod harness;
+
+#[test]
+fn fuzz_short_mode_finds_no_defect() {
+    let cfg = harness::Config::short(std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")));
+    let report = harness::run(&cfg);
+    eprint!("{}", report.render());
+    for (target, stats) in &report.targets {
+        assert!(stats.tries > 0, "{}: no try ran", target.name());
+    }
+    assert_eq!(report.defects(), 0, "{}", report.render());
+}
