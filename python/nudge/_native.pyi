@@ -150,7 +150,8 @@ class Timings(TypedDict):
 class PlanResult(TypedDict, total=False):
     delta: _F64  # [T] rad
     accel: _F64  # [T] m/s^2
-    states: _F64  # [T, 4] (x, y, psi, v)
+    states: _F64  # [T, 4] (x, y, psi, v): the nonlinear roll-out of delta, accel
+    admm_states: _F64  # [T, 4] ADMM's own Z at the end of its loop ([0, 4] after a QP failure)
     cost: float
     iterations: int
     predictor_calls: int
@@ -160,7 +161,7 @@ class PlanResult(TypedDict, total=False):
     min_safety: float | None
     rollout_min_safety: float | None
     checked: int
-    status: Literal["Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"]
+    status: Literal["Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"]
     solver_failure: tuple[str, str] | None  # (qp "delta" | "alpha", Clarabel status) for SolverFailed
     timings: Timings
     target_lane: int  # plan_scenario only

@@ -10,7 +10,7 @@ import pytest
 import nudge
 
 TIMING = {"mpc_s", "z_s", "z_median_s"}
-STATUSES = {"Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"}
+STATUSES = {"Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"}
 
 
 def _same_records(a: dict, b: dict) -> None:

@@ -13,6 +13,7 @@
 
 mod admm;
 mod error;
+pub mod lane;
 mod model;
 mod qp;
 mod safety;

@@ -45,6 +45,14 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
             .reshape([t, 4])
             .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))?,
     )?;
+    let admm: Vec<f64> = plan.admm_states.iter().flatten().copied().collect();
+    let admm_rows = plan.admm_states.len();
+    d.set_item(
+        "admm_states",
+        admm.into_pyarray(py)
+            .reshape([admm_rows, 4])
+            .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))?,
+    )?;
     d.set_item("cost", plan.cost)?;
     d.set_item("iterations", plan.iterations)?;
     d.set_item("predictor_calls", plan.predictor_calls)?;

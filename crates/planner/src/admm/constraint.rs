@@ -4,6 +4,8 @@
 //! evaluates the very same function on the executed step
 //! ([`SafetyConstraint::executed_min_b`]).
 
+use std::time::{Duration, Instant};
+
 use nudge_predictor::{Predictor, T_OBS};
 
 use crate::error::PlannerError;
@@ -170,6 +172,73 @@ pub(crate) struct SafetyEval<'c> {
     /// The (vehicle, step) pairs of the last evaluation with b below [`ROW_B`], linearised
     /// in the ego's position (prediction and ellipse frozen), for the refinement.
     pub rows: Vec<SafetyRow>,
+    /// The call's work budget.
+    pub budget: Budget,
+}
+
+/// The work budget of one MPC call: a wall-clock deadline and/or a number of predictor calls
+/// (`PlannerSettings::budget_s`, `budget_calls`). While it lasts every evaluation calls the
+/// predictor; once it is spent an evaluation returns "not evaluated" — unsafe, never safe —
+/// without calling it, so trial points are rejected and the ADMM loop stops. `reserve`
+/// predictor calls (and their estimated time) are kept back during the ADMM loop for the
+/// execution check.
+#[derive(Debug, Clone)]
+pub(crate) struct Budget {
+    deadline: Option<Instant>,
+    max_calls: Option<usize>,
+    /// Calls held back for the execution check (0 once it runs).
+    pub reserve: usize,
+    /// Time spent in the predictor so far.
+    predictor_time: Duration,
+    /// An evaluation was refused for lack of budget.
+    pub exhausted: bool,
+}
+
+/// Calls the execution check is guaranteed under a budget: the roll-out of the ADMM inputs
+/// and the shifted previous plan.
+pub(crate) const RESERVED_CALLS: usize = 2;
+
+impl Budget {
+    /// The budget of `settings` for a call that started at `start`; none when both are 0.
+    pub(crate) fn new(settings: &PlannerSettings, start: Instant) -> Self {
+        Self {
+            deadline: (settings.budget_s > 0.0)
+                .then(|| start + Duration::from_secs_f64(settings.budget_s)),
+            max_calls: (settings.budget_calls > 0).then_some(settings.budget_calls),
+            reserve: RESERVED_CALLS,
+            predictor_time: Duration::ZERO,
+            exhausted: false,
+        }
+    }
+
+    /// No budget at all.
+    pub(crate) fn unlimited() -> Self {
+        Self {
+            deadline: None,
+            max_calls: None,
+            reserve: 0,
+            predictor_time: Duration::ZERO,
+            exhausted: false,
+        }
+    }
+
+    /// Whether one more predictor call (after `calls`) would eat into the reserve: the call
+    /// count, or now plus the time of the call and of the reserve at the mean call time so
+    /// far (plus 0.5 ms for the QPs and bookkeeping between calls) past the deadline.
+    pub(crate) fn spent(&self, calls: usize) -> bool {
+        if self.max_calls.is_some_and(|m| calls + 1 + self.reserve > m) {
+            return true;
+        }
+        self.deadline.is_some_and(|d| {
+            let mean = if calls == 0 {
+                Duration::ZERO
+            } else {
+                self.predictor_time / u32::try_from(calls).unwrap_or(u32::MAX)
+            };
+            let reserve = u32::try_from(self.reserve + 1).unwrap_or(u32::MAX);
+            Instant::now() + mean * reserve + Duration::from_micros(500) > d
+        })
+    }
 }
 
 /// Pairs with b below this value are kept as [`SafetyRow`]s (far pairs cannot become active
@@ -207,6 +276,7 @@ impl<'c> SafetyEval<'c> {
             violation_gradient: vec![[0.0; 2]; horizon],
             calls: 0,
             rows: Vec::new(),
+            budget: Budget::unlimited(),
         }
     }
 
@@ -236,7 +306,17 @@ impl<'c> SafetyEval<'c> {
             self.violation_gradient[k] = [0.0; 2];
             self.ego_direction[k] = heading_direction(zk[2]);
         }
+        if self.budget.spent(self.calls) {
+            self.budget.exhausted = true;
+            self.rows.clear();
+            return Ok(Evaluation {
+                min_b: Some(f64::NEG_INFINITY),
+                violation: f64::INFINITY,
+            });
+        }
+        let t0 = Instant::now();
         predictor.predict(&self.candidate, &mut self.prediction)?;
+        self.budget.predictor_time += t0.elapsed();
         self.calls += 1;
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;

@@ -42,7 +42,7 @@ pub use constraint::{CheckedVehicle, SafetyConstraint};
 pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
 
-use constraint::SafetyEval;
+use constraint::{Budget, SafetyEval};
 use inputs::Input;
 use inputs::InputQps;
 use linearised::{LinearisedProblem, WarmStart};
@@ -82,6 +82,8 @@ enum Stop {
     MaxIterations,
     /// A QP gave no usable solution.
     SolverFailed(QpFailure),
+    /// The work budget ran out.
+    Budget,
 }
 
 /// What the ADMM loop hands to the execution check.
@@ -211,6 +213,7 @@ impl Planner {
         let n_agents = problem.history.n_agents();
         let threshold = s.safety_min + s.plan_buffer;
         let mut safety = SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, threshold);
+        safety.budget = Budget::new(s, start);
         let mut timings = PhaseTimings::default();
         let iterates = Iterates::start(&lp);
         let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);
@@ -221,6 +224,10 @@ impl Planner {
                 let mut stop = Stop::MaxIterations;
                 let mut iterations = 0;
                 for iteration in 0..s.max_iter {
+                    if safety.budget.spent(safety.calls) {
+                        stop = Stop::Budget;
+                        break;
+                    }
                     iterations = iteration + 1;
                     let (delta_s, alpha_s) = (&mut timings.delta_s, &mut timings.alpha_s);
                     let inputs = qps
@@ -233,7 +240,12 @@ impl Planner {
                         break;
                     }
                     ws.update_z(s, &lp, &mut safety, predictor, &mut timings)?;
-                    if ws.update_duals(s, &lp) {
+                    let converged = ws.update_duals(s, &lp);
+                    if safety.budget.exhausted {
+                        stop = Stop::Budget;
+                        break;
+                    }
+                    if converged {
                         stop = Stop::Converged;
                         break;
                     }
@@ -242,7 +254,9 @@ impl Planner {
             }
             Err(failure) => AdmmResult::new(ws, Stop::SolverFailed(failure), 0, 0),
         };
-        // Execution check: the roll-out of (Δ, α), repaired when unsafe.
+        // Execution check: the roll-out of (Δ, α), repaired when unsafe; it may use the calls
+        // the budget held back.
+        safety.budget.reserve = 0;
         let mut repairer = Repairer {
             s,
             model: &self.model,
@@ -333,10 +347,23 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
         }
         Stop::Converged => PlanStatus::Converged,
         Stop::MaxIterations => PlanStatus::MaxIterations,
+        Stop::Budget => PlanStatus::BudgetExhausted,
     };
     let rollout = r.check(delta, accel)?;
     if rollout.rank.safe {
         return Ok(Finished::adopt(rollout, duals, admm_z, status, counts));
+    }
+    if status == PlanStatus::BudgetExhausted {
+        // The budget's reserved second call: the shifted previous plan.
+        let nominal = r.check(r.lp.nominal_delta.clone(), r.lp.nominal_accel.clone())?;
+        let (best, status) = if nominal.rank.safe {
+            (nominal, PlanStatus::BudgetExhausted)
+        } else if nominal.rank.beats(&rollout.rank) {
+            (nominal, PlanStatus::Unsafe)
+        } else {
+            (rollout, PlanStatus::Unsafe)
+        };
+        return Ok(Finished::adopt(best, duals, admm_z, status, counts));
     }
     if s.rollout_check {
         if let Some(c) = r.refine(&rollout)? {

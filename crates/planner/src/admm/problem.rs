@@ -144,9 +144,13 @@ pub enum PlanStatus {
     /// dynamics only up to `eps_primal`, and Z sits on the safety boundary); SQP refinement
     /// steps on the nonlinear model from those inputs made it admissible.
     Refined,
-    /// No admissible plan was found (refinement, backtracking and fallbacks failed); the plan
-    /// is the least-violating one found.
+    /// No admissible plan was found (refinement, backtracking and fallbacks failed, or the
+    /// work budget ran out before one was); the plan is the least-violating one found.
     Unsafe,
+    /// The work budget (`budget_s`, `budget_calls`) ran out during the ADMM loop; the plan is
+    /// the roll-out of the ADMM inputs at that point, or else the shifted previous plan, and it
+    /// is admissible (checked with the calls the budget held back).
+    BudgetExhausted,
     /// The roll-out of the ADMM inputs was not admissible and the refinement failed; the plan
     /// is the ADMM inputs pulled towards the shifted previous plan (by 3/4, 1/2 or 1/4) until
     /// the roll-out was admissible, and that roll-out.
@@ -197,6 +201,9 @@ pub enum StepStatus {
     Refined,
     /// No admissible plan was found.
     Unsafe,
+    /// The work budget ran out; the plan (ADMM's inputs at that point, or the previous plan)
+    /// is admissible.
+    BudgetExhausted,
     /// The ADMM inputs were pulled towards the previous plan until their roll-out was safe.
     Backtracked,
     /// A simple input sequence replaced the ADMM inputs.
@@ -207,11 +214,12 @@ pub enum StepStatus {
 
 impl StepStatus {
     /// Every status, in declaration order.
-    pub const ALL: [Self; 7] = [
+    pub const ALL: [Self; 8] = [
         Self::Converged,
         Self::MaxIterations,
         Self::Refined,
         Self::Unsafe,
+        Self::BudgetExhausted,
         Self::Backtracked,
         Self::Fallback,
         Self::SolverFailed,
@@ -225,6 +233,7 @@ impl StepStatus {
             Self::MaxIterations => "MaxIterations",
             Self::Refined => "Refined",
             Self::Unsafe => "Unsafe",
+            Self::BudgetExhausted => "BudgetExhausted",
             Self::Backtracked => "Backtracked",
             Self::Fallback => "Fallback",
             Self::SolverFailed => "SolverFailed",
@@ -245,6 +254,7 @@ impl From<PlanStatus> for StepStatus {
             PlanStatus::MaxIterations => Self::MaxIterations,
             PlanStatus::Refined => Self::Refined,
             PlanStatus::Unsafe => Self::Unsafe,
+            PlanStatus::BudgetExhausted => Self::BudgetExhausted,
             PlanStatus::Backtracked => Self::Backtracked,
             PlanStatus::Fallback => Self::Fallback,
             PlanStatus::SolverFailed { .. } => Self::SolverFailed,

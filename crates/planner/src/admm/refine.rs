@@ -15,9 +15,12 @@
 //!      with b_ik < [`ROW_B`](super::constraint::ROW_B) — the prediction and the ellipse
 //!      held at the current roll-out.
 //!
-//! Each step is followed by a predictor call on the new roll-out (the prediction depends on
-//! the ego's trajectory); the first admissible roll-out ends the refinement. One step is a
-//! 2T-variable Clarabel QP.
+//! The state-bound and safety rows are elastic: each has a slack s ≥ 0 penalised by
+//! [`SLACK_PENALTY`]·s, so the step is always defined and moves towards admissibility even
+//! when the trust region cannot reach it at once (the input bounds and the trust region stay
+//! hard). Each step is followed by a predictor call on the new roll-out (the prediction
+//! depends on the ego's trajectory); the first admissible roll-out ends the refinement. One
+//! step is a Clarabel QP in the 2T input changes and one slack per elastic row.
 
 use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
 
@@ -28,6 +31,10 @@ use crate::qp::{
 use crate::settings::PlannerSettings;
 
 use super::constraint::SafetyRow;
+
+/// Cost per unit of violation of an elastic row (units of J per m, rad or unit of b): large
+/// against the cost changes a step makes, so a step removes violations first.
+const SLACK_PENALTY: f64 = 1e4;
 use super::linearised::{LinearisedProblem, input_hessian};
 
 /// The nonlinear roll-out (speed clamped at 0) of `delta`, `accel` (`[T]` each) from `start`
@@ -146,38 +153,51 @@ pub(crate) fn step(
         a.push((row + 1, i, -1.0));
         b.push(r);
     }
-    // State bounds on y and ψ.
+    // Elastic rows g·du ≤ h (state bounds on y and ψ, linearised safety), each with its own
+    // slack: g·du − s ≤ h, s ≥ 0.
+    let mut elastic: Vec<(Vec<f64>, f64)> = Vec::new();
     for (k, (zk, sk)) in rollout.iter().zip(&sens).enumerate() {
         for c in [1usize, 2] {
             for (sign, bound) in [(1.0, lp.upper[k][c]), (-1.0, lp.lower[k][c])] {
-                if !bound.is_finite() {
-                    continue;
+                if bound.is_finite() {
+                    let g = sk.iter().map(|si| sign * si[c]).collect();
+                    elastic.push((g, sign * (bound - zk[c])));
                 }
-                let row = b.len();
-                for (i, si) in sk.iter().enumerate() {
-                    if si[c] != 0.0 {
-                        a.push((row, i, sign * si[c]));
-                    }
-                }
-                b.push(sign * (bound - zk[c]));
             }
         }
     }
-    // Linearised safety rows.
     let target = s.safety_min + s.refine_margin;
     for r in rows {
+        let g = sens[r.step]
+            .iter()
+            .map(|si| -(r.gradient[0] * si[0] + r.gradient[1] * si[1]))
+            .collect();
+        elastic.push((g, r.b - target));
+    }
+    let n_all = nv + elastic.len();
+    for (j, (g, h)) in elastic.iter().enumerate() {
         let row = b.len();
-        for (i, si) in sens[r.step].iter().enumerate() {
-            let v = r.gradient[0] * si[0] + r.gradient[1] * si[1];
-            if v != 0.0 {
-                a.push((row, i, -v));
+        for (i, gi) in g.iter().enumerate() {
+            if *gi != 0.0 {
+                a.push((row, i, *gi));
             }
         }
-        b.push(r.b - target);
+        a.push((row, nv + j, -1.0));
+        b.push(*h);
+        a.push((row + 1, nv + j, -1.0));
+        b.push(0.0);
     }
+    let mut p_all = vec![0.0; n_all * n_all];
+    for i in 0..nv {
+        for j in 0..nv {
+            p_all[i * n_all + j] = p[i * nv + j];
+        }
+    }
+    q.resize(n_all, SLACK_PENALTY);
+    let (p, nv_all) = (p_all, n_all);
     let m = b.len();
-    let pm = upper_csc(&p, nv);
-    let am = triplets_csc(m, nv, a);
+    let pm = upper_csc(&p, nv_all);
+    let am = triplets_csc(m, nv_all, a);
     let cones = [NonnegativeConeT(m)];
     for equilibrate in [true, false] {
         let Ok(mut solver) =

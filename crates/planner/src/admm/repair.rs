@@ -127,6 +127,9 @@ impl Repairer<'_, '_> {
             if c.rank.safe {
                 return Ok(Some(c));
             }
+            if self.safety.budget.exhausted {
+                return Ok(None);
+            }
             (delta, accel, rows) = (c.delta, c.accel, c.rows);
         }
         Ok(None)
@@ -193,7 +196,15 @@ pub(crate) fn simple_inputs(
             align_with_road(model, &lp.start, &a, lp.delta_box),
             a.clone(),
         ));
-        let d = steer_towards(model, &lp.start, &a, lp.reference[1], lp.delta_box);
+        let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
+        let d = steer_towards(
+            model,
+            &lp.start,
+            &a,
+            lp.reference[1],
+            max_heading,
+            lp.delta_box,
+        );
         inputs.push((d, a));
     }
     inputs
@@ -219,22 +230,27 @@ pub(crate) fn align_with_road(
 
 /// Steering that turns the vehicle towards the lateral goal `y_goal` (m, same frame as
 /// `start`) while it follows `accel` (m/s²): each step aims at the heading
-/// ψ* = clamp(0.05·(y_goal − y), ±0.08) rad and steers to reach it in one step, within the
-/// box and rate bounds.
+/// ψ* = clamp(0.05·(y_goal − y), ±min(0.08, `max_heading`)) rad and steers to reach it in one
+/// step, within the box and rate bounds.
 pub(crate) fn steer_towards(
     model: &Bicycle,
     start: &State,
     accel: &[f64],
     y_goal: f64,
+    max_heading: f64,
     bounds: RateBox,
 ) -> Vec<f64> {
+    let cap = max_heading.min(0.08);
     steer_to_heading(model, start, accel, bounds, |z| {
-        (0.05 * (y_goal - z[1])).clamp(-0.08, 0.08)
+        (0.05 * (y_goal - z[1])).clamp(-cap, cap)
     })
 }
 
-/// Steering that reaches the heading `goal(z)` (rad) of the current state in one step where
-/// the box and rate bounds allow, while the vehicle follows `accel` (m/s²).
+/// Steering towards the heading `goal(z)` (rad) of the current state while the vehicle
+/// follows `accel` (m/s²), within the box and rate bounds: each step takes, among the
+/// steering values the bounds allow, the one whose heading after this step plus the turn it
+/// takes to unwind the steering back to zero at the rate bound lands closest to the goal (so
+/// the heading does not overshoot because the steering cannot be undone at once).
 fn steer_to_heading(
     model: &Bicycle,
     start: &State,
@@ -242,16 +258,33 @@ fn steer_to_heading(
     bounds: RateBox,
     goal: impl Fn(&State) -> f64,
 ) -> Vec<f64> {
+    const CHOICES: usize = 40;
     let mut z = *start;
     let mut prev = bounds.prev.clamp(bounds.lo, bounds.hi);
     let mut out = Vec::with_capacity(accel.len());
     for a in accel {
         let heading_goal = goal(&z);
-        // ψ⁺ − ψ ≈ dt·v·sin β / l_r with β ≈ δ·l_r/(l_f + l_r).
+        // ψ⁺ − ψ ≈ gain·δ with gain = dt·v·sin β / (l_r δ), β ≈ δ·l_r/(l_f + l_r).
         let gain = model.dt * z[3].max(1.0) / (model.l_f + model.l_r);
         let lo = bounds.lo.max(prev - bounds.rate);
         let hi = bounds.hi.min(prev + bounds.rate);
-        let d = ((heading_goal - z[2]) / gain).clamp(lo, hi);
+        let unwind = |d: f64| {
+            let (mut rest, mut turn) = (d.abs(), 0.0);
+            while rest > bounds.rate {
+                rest -= bounds.rate;
+                turn += rest;
+            }
+            gain * turn * d.signum()
+        };
+        let mut best = (f64::INFINITY, prev.clamp(lo, hi));
+        for i in 0..=CHOICES {
+            let d = lo + (hi - lo) * i as f64 / CHOICES as f64;
+            let miss = (z[2] + gain * d + unwind(d) - heading_goal).abs();
+            if miss < best.0 {
+                best = (miss, d);
+            }
+        }
+        let d = best.1;
         z = model.advance(&z, d, *a);
         out.push(d);
         prev = d;

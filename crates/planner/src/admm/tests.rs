@@ -611,3 +611,251 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
         None
     );
 }
+
+/// Predicts agent 1 at a fixed road position for every step from call `from` on; before that
+/// (and every other agent always) 200 m ahead of the candidate (always safe). A smooth obstacle
+/// that appears only for the execution check.
+struct Obstacle {
+    from: usize,
+    at: [f64; 2],
+    n_agents: usize,
+    calls: usize,
+}
+
+impl Predictor for Obstacle {
+    fn name(&self) -> &'static str {
+        "obstacle"
+    }
+    fn horizon(&self) -> usize {
+        6
+    }
+    fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
+        self.n_agents = history.n_agents();
+        Ok(())
+    }
+    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+        let present = self.calls >= self.from;
+        self.calls += 1;
+        for agent in 0..self.n_agents - 1 {
+            for k in 0..6 {
+                let o = (agent * 6 + k) * 2;
+                let p = if present && agent == 0 {
+                    self.at
+                } else {
+                    [candidates[10] + 200.0, candidates[2 * k + 1]]
+                };
+                out[o] = p[0];
+                out[o + 1] = p[1];
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An obstacle that appears for the execution check just beside where the ADMM roll-out
+/// ends (b slightly below 0): the refinement moves the inputs until the roll-out is safe,
+/// and the plan is that roll-out — admissible, within the bounds, cheaper than what
+/// backtracking towards the (zero) nominal gives.
+#[test]
+fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
+    // A loose heading bound: the reference ADMM roll-out is admissible as it is.
+    let s = PlannerSettings {
+        heading_max: 0.5,
+        ..PlannerSettings::default()
+    };
+    let (h, sizes) = car_behind_in_target_lane();
+    let p = problem(&h, &sizes, 12.0);
+    let admm = reference_plan(&s, &p);
+    let admm_calls = admm.predictor_calls - 1;
+    let end = admm.states[5];
+    // The ellipse's lateral semi-axis for two road-aligned cars, and an obstacle 0.97 of it
+    // to the left of the roll-out's last position (b ≈ −0.06 there).
+    let a_y = s.ellipse_scale * 1.9 + s.margin_y;
+    let at = [end[0], end[1] + 0.97 * a_y];
+    let mut obstacle = Obstacle {
+        from: admm_calls,
+        at,
+        n_agents: 0,
+        calls: 0,
+    };
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let plan = planner.plan(&p, &mut obstacle).unwrap();
+    assert_eq!(plan.status, PlanStatus::Refined, "{:?}", plan.status);
+    assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
+    // Independent check of safety: b of the obstacle at every step of the returned states.
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let v = constraint.vehicles()[0];
+    let mut min_b = f64::INFINITY;
+    for z in &plan.states {
+        let dir = [z[2].cos().abs(), z[2].sin().abs()];
+        let b = constraint.ellipse(&v, dir, at, at).value([z[0], z[1]], at);
+        min_b = min_b.min(b);
+    }
+    assert!(min_b > s.safety_min, "refined plan unsafe: b = {min_b}");
+    assert_eq!(
+        plan.min_safety,
+        Some(min_b).map(|_| plan.min_safety.unwrap())
+    );
+    assert!((plan.min_safety.unwrap() - min_b).abs() < 1e-9);
+    // Within the bounds.
+    for (k, z) in plan.states.iter().enumerate() {
+        assert!(z[2].abs() <= lp.upper[k][2] + 1e-12, "heading {z:?}");
+        assert!(z[1] - p.ego.y <= lp.upper[k][1] + 1e-12, "lateral {z:?}");
+    }
+    // Away from the obstacle, and no more than needed: cheaper than the backtracked plan.
+    assert!(plan.states[5][1] < end[1]);
+    let backtracked = {
+        let mut o = Obstacle {
+            from: admm_calls,
+            at,
+            n_agents: 0,
+            calls: 0,
+        };
+        let mut planner = Planner::new(PlannerSettings {
+            refine_iters: 0,
+            ..s.clone()
+        })
+        .unwrap();
+        planner.plan(&p, &mut o).unwrap()
+    };
+    assert!(
+        matches!(
+            backtracked.status,
+            PlanStatus::Backtracked | PlanStatus::Fallback
+        ),
+        "{:?}",
+        backtracked.status
+    );
+    assert!(
+        plan.cost < backtracked.cost,
+        "refined {} vs {:?} {}",
+        plan.cost,
+        backtracked.status,
+        backtracked.cost
+    );
+}
+
+/// The heading bound and the lateral corridor hold on every returned state of a free lane
+/// change (constant-velocity predictor, nobody in range), whatever the status; with them off
+/// the same problem turns the ego further and overshoots less tightly.
+#[test]
+fn returned_states_keep_the_heading_bound_and_the_corridor() {
+    for heading_max in [0.1, 0.15, 0.2] {
+        let s = PlannerSettings {
+            heading_max,
+            overshoot_max: 0.1,
+            ..PlannerSettings::default()
+        };
+        let (h, sizes) = scene(12.0, 0.0, &[(200.0, 3.7, 12.0)]);
+        let p = problem(&h, &sizes, 12.0);
+        let mut planner = Planner::new(s.clone()).unwrap();
+        let mut cv = ConstantVelocity::default();
+        let mut ego = State::new(0.0, 0.0, 0.0, 12.0);
+        let (mut last_delta, mut last_accel) = (0.0, 0.0);
+        for step in 0..40 {
+            let hist = h.clone();
+            let q = PlanningProblem {
+                ego: EgoState {
+                    x: ego[0],
+                    y: ego[1],
+                    psi: ego[2],
+                    v: ego[3],
+                },
+                last_delta,
+                last_accel,
+                history: &hist,
+                ..p
+            };
+            let plan = planner.plan(&q, &mut cv).unwrap();
+            assert_ne!(plan.status, PlanStatus::Unsafe, "step {step}");
+            for z in &plan.states {
+                assert!(z[2].abs() <= heading_max + 1e-9, "{heading_max}: {z:?}");
+                assert!(z[1] <= 3.7 + 0.1 + 1e-9 && z[1] >= -0.1 - 1e-9, "{z:?}");
+            }
+            ego = model(&s).advance(&ego, plan.delta[0], plan.accel[0]);
+            (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        }
+        if heading_max >= 0.1 {
+            assert!((ego[1] - 3.7).abs() < 0.3, "{heading_max}: ends at {ego:?}");
+        }
+    }
+}
+
+/// The road-aligning fallback turns the heading back towards 0 as fast as the steering box
+/// and rate bounds allow, never past it.
+#[test]
+fn align_with_road_turns_parallel_to_the_road() {
+    let s = PlannerSettings::default();
+    let m = model(&s);
+    let start = State::new(0.0, 0.0, 0.15, 12.0);
+    let bounds = RateBox {
+        lo: -s.delta_max,
+        hi: s.delta_max,
+        rate: s.ddelta_max,
+        prev: 0.1,
+    };
+    let accel = [0.0; 12];
+    let d = super::repair::align_with_road(&m, &start, &accel, bounds);
+    let mut z = start;
+    let mut prev = 0.1;
+    for dk in &d {
+        // Within the bounds, and never steering further left once the heading is left.
+        assert!((dk - prev).abs() <= s.ddelta_max + 1e-12 && dk.abs() <= s.delta_max + 1e-12);
+        prev = *dk;
+        z = m.advance(&z, *dk, 0.0);
+        assert!(z[2] > -0.02, "turned past the road's direction: {z:?}");
+    }
+    assert!(z[2].abs() < 0.01, "still turned: {z:?}");
+}
+
+/// A predictor-call budget bounds the work of one call deterministically: at most
+/// `budget_calls` calls, status `BudgetExhausted` with an admissible plan (or `Unsafe`), the
+/// same plan on every run.
+#[test]
+fn a_call_budget_bounds_the_work_and_returns_an_admissible_plan() {
+    let (h, sizes) = scene(12.0, 0.0, &[(-12.0, 3.7, 12.0), (25.0, 0.0, 11.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let free = Planner::new(PlannerSettings::default())
+        .unwrap()
+        .plan(&p, &mut ConstantVelocity::default())
+        .unwrap();
+    for budget_calls in [3, 5, 8] {
+        assert!(free.predictor_calls > budget_calls);
+        let s = PlannerSettings {
+            budget_calls,
+            ..PlannerSettings::default()
+        };
+        let run = || {
+            Planner::new(s.clone())
+                .unwrap()
+                .plan(&p, &mut ConstantVelocity::default())
+                .unwrap()
+        };
+        let plan = run();
+        assert!(
+            plan.predictor_calls <= budget_calls,
+            "{}",
+            plan.predictor_calls
+        );
+        assert!(
+            matches!(
+                plan.status,
+                PlanStatus::BudgetExhausted | PlanStatus::Unsafe
+            ),
+            "{:?}",
+            plan.status
+        );
+        if plan.status == PlanStatus::BudgetExhausted {
+            assert!(plan.min_safety.unwrap() > s.safety_min);
+        }
+        assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
+        assert_eq!(
+            plan,
+            Plan {
+                timings: plan.timings.clone(),
+                ..run()
+            }
+        );
+    }
+}

@@ -9,6 +9,7 @@ use nudge_predictor::{History, Predictor, T_OBS};
 
 use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
 use crate::error::{PlannerError, SimError};
+use crate::lane::LaneChange;
 use crate::model::State;
 use crate::safety::{OrientedBox, motion_heading};
 use crate::scenario::Scenario;
@@ -45,65 +46,6 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
         });
     }
     Ok(options[((splitmix(seed) >> 32) % options.len() as u64) as usize])
-}
-
-/// The lane change's goal and its aborts: after `abort_after` consecutive steps without a
-/// safe plan while the ego is not wholly inside the target lane, aim at the own lane's centre
-/// for `abort_hold` steps, then retry.
-struct LaneChange {
-    y_target: f64,
-    y_own: f64,
-    /// |y − y_target| below which the ego is wholly inside the target lane (m).
-    inside: f64,
-    abort_after: usize,
-    abort_hold: usize,
-    unsafe_steps: usize,
-    hold: usize,
-    aborts: usize,
-}
-
-impl LaneChange {
-    fn new(sc: &Scenario, cfg: &SimConfig, y_target: f64) -> Self {
-        let y_own = sc.lane_centres[sc.ego_lane];
-        Self {
-            y_target,
-            y_own,
-            inside: (0.5 * (y_target - y_own).abs() - 0.5 * sc.size[0][1]).max(cfg.settle_y),
-            abort_after: cfg.abort_after,
-            abort_hold: cfg.abort_hold,
-            unsafe_steps: 0,
-            hold: 0,
-            aborts: 0,
-        }
-    }
-
-    /// Where the planner aims this step (m).
-    fn goal(&self) -> f64 {
-        if self.hold > 0 {
-            self.y_own
-        } else {
-            self.y_target
-        }
-    }
-
-    /// Counts a planning step of the ego at lateral position `y` (m) that ended in `status`.
-    fn after_plan(&mut self, status: StepStatus, y: f64) {
-        if self.hold > 0 {
-            self.hold -= 1;
-        } else if self.abort_after > 0
-            && status.is_unsafe_plan()
-            && (y - self.y_target).abs() > self.inside
-        {
-            self.unsafe_steps += 1;
-            if self.unsafe_steps >= self.abort_after {
-                self.hold = self.abort_hold;
-                self.unsafe_steps = 0;
-                self.aborts += 1;
-            }
-        } else {
-            self.unsafe_steps = 0;
-        }
-    }
 }
 
 /// What moves the other vehicles.
@@ -417,7 +359,14 @@ pub fn simulate(
         ego: State::new(p0[0], p0[1], sc.heading[0], sc.speed[0]),
         v_ref: sc.speed[0],
         last_inputs: (0.0, 0.0),
-        lane: LaneChange::new(sc, cfg, y_target),
+        lane: LaneChange::new(
+            sc.lane_centres[sc.ego_lane],
+            y_target,
+            sc.size[0][1],
+            cfg.settle_y,
+            cfg.abort_after,
+            cfg.abort_hold,
+        ),
     };
     let mut rec = RunRecord {
         scenario: sc.name.clone(),
@@ -455,6 +404,6 @@ pub fn simulate(
             break;
         }
     }
-    rec.aborts = run.lane.aborts;
+    rec.aborts = run.lane.aborts();
     Ok(rec)
 }
