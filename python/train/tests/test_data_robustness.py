@@ -138,7 +138,8 @@ def test_commonroad_absurd_values_name_file_line_and_field(tmp_path: Path) -> No
     t = text.index("<exact>1</exact>", i)
     bad = tmp_path / "frac.xml"
     bad.write_text(text[:t] + "<exact>1.5</exact>" + text[t + len("<exact>1</exact>"):])
-    with pytest.raises(DataError, match=r"frac\.xml, row \d+: .*time step 1\.5 is not an integer") as ei:
+    frac = r"frac\.xml, row \d+: obstacle \d+ time step = 1\.5 is not a non-negative integer"
+    with pytest.raises(DataError, match=frac) as ei:
         read_commonroad(bad)
     assert ei.value.row == _line_of(text, t) and ei.value.field == "time"
     # A negative vehicle length, a huge lanelet coordinate, a negative obstacle id.
@@ -158,7 +159,7 @@ def test_commonroad_absurd_values_name_file_line_and_field(tmp_path: Path) -> No
     o = text.index('<dynamicObstacle id="')
     bad = tmp_path / "id.xml"
     bad.write_text(re.sub(r'<dynamicObstacle id="\d+"', '<dynamicObstacle id="-1"', text, count=1))
-    with pytest.raises(DataError, match=r"id\.xml, row \d+: obstacle id -1 is negative") as ei:
+    with pytest.raises(DataError, match=r"id\.xml, row \d+: obstacle id = -1 is not a non-negative integer") as ei:
         read_commonroad(bad)
     assert ei.value.row == _line_of(text, o)
 
@@ -336,7 +337,7 @@ def _oracle(read, path: Path) -> None:  # type: ignore[no-untyped-def]
     event("valid output")
 
 
-PROPS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+PROPS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @PROPS
@@ -398,7 +399,7 @@ def _mutated_xml(draw: st.DrawFn) -> str:
     return text
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_mutated_xml(), st.booleans(), st.data())
 def test_commonroad_reader_property(text: str, gz: bool, data: st.DataObject) -> None:
     raw = text.encode("utf-8", "surrogatepass")

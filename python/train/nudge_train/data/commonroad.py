@@ -32,8 +32,6 @@ SIZE = FieldRule(0.0, 100.0, "m", lo_open=True)
 TIME_STEP = FieldRule(0.0, 1e7, integer=True)
 OBSTACLE_ID = FieldRule(0.0, 1e9, integer=True)
 STEP_SIZE = FieldRule(0.0, 60.0, "s", lo_open=True)
-COORD_FREE = FieldRule(-math.inf, math.inf)
-"""No range (checked separately, e.g. time steps: integer first, then TIME_STEP)."""
 
 
 def _parse_xml(path: Path) -> ET.Element:
@@ -87,11 +85,22 @@ def _num(elem: ET.Element | None, path: Path, what: str, rule: FieldRule, parent
     return v
 
 
+def _integer(path: Path, tok: str, what: str, rule: FieldRule, row: int | None, field: str) -> int:
+    """The integer written ``tok`` (named ``what`` in errors), checked against ``rule``."""
+    v = number(tok)
+    if v is None or not math.isfinite(v):
+        raise DataError(path, f"{what} {tok!r} is not an integer", row=row, field=field)
+    why = rule.problem(what, tok, v)
+    if why is not None:
+        raise DataError(path, why, row=row, field=field)
+    return int(v)
+
+
 def _points(bound: ET.Element | None, path: Path, lid: str, parent: ET.Element) -> np.ndarray:
     if bound is None:
         raise DataError(path, f"lanelet {lid}: missing bound", row=_line(parent))
-    pts = [(_num(p.find("x"), path, f"lanelet {lid} x", COORD, p), _num(p.find("y"), path, f"lanelet {lid} y", COORD, p))
-           for p in bound.findall("point")]
+    pts = [(_num(p.find("x"), path, f"lanelet {lid} x", COORD, p),
+            _num(p.find("y"), path, f"lanelet {lid} y", COORD, p)) for p in bound.findall("point")]
     if len(pts) < 2:
         raise DataError(path, f"lanelet {lid}: bound with fewer than 2 points", row=_line(bound))
     return np.asarray(pts, dtype=np.float64)
@@ -277,7 +286,8 @@ def read_commonroad(path: Path | str) -> TrackTable:
     for ll in root.findall("lanelet"):
         lid = ll.get("id", "?")
         names.append((str(lid), _line(ll)))
-        raw_lanelets.append((_points(ll.find("leftBound"), path, lid, ll), _points(ll.find("rightBound"), path, lid, ll)))
+        raw_lanelets.append((_points(ll.find("leftBound"), path, lid, ll),
+                             _points(ll.find("rightBound"), path, lid, ll)))
     if not raw_lanelets:
         raise DataError(path, "no <lanelet> elements: no lane map")
 
@@ -315,17 +325,8 @@ def read_commonroad(path: Path | str) -> TrackTable:
     cols: dict[str, list[float]] = {k: [] for k in ("vehicle", "step", "x", "y", "heading", "speed", "length", "width")}
     seen: dict[int, int] = {}
     for ob in obstacles:
-        oid_s = str(ob.get("id", "")).strip()
         row = _line(ob)
-        oid_v = number(oid_s)
-        if oid_v is None or not math.isfinite(oid_v) or oid_v != math.floor(oid_v):
-            raise DataError(path, f"obstacle id {oid_s!r} is not an integer", row=row, field="id")
-        if oid_v < 0:
-            raise DataError(path, f"obstacle id {oid_s} is negative", row=row, field="id")
-        why = OBSTACLE_ID.problem("obstacle id", oid_s, oid_v)
-        if why is not None:
-            raise DataError(path, why, row=row, field="id")
-        oid = int(oid_v)
+        oid = _integer(path, str(ob.get("id", "")).strip(), "obstacle id", OBSTACLE_ID, row, "id")
         if oid in seen:
             raise DataError(path, f"obstacle id {oid} appears twice (first at row {seen[oid]})", row=row, field="id")
         seen[oid] = row or 0
@@ -341,21 +342,17 @@ def read_commonroad(path: Path | str) -> TrackTable:
         for st in states:
             assert st is not None
             te = st.find("time/exact")
-            t_val = _num(te, path, f"obstacle {oid} time", COORD_FREE, st, field="time")
-            if t_val != math.floor(t_val):
-                raise DataError(path, f"obstacle {oid}: time step {te.text.strip()} is not an integer",  # type: ignore[union-attr]
-                                row=_line(te, st), field="time")
-            why = TIME_STEP.problem(f"obstacle {oid} time step", str(t_val), t_val)
-            if why is not None:
-                raise DataError(path, why, row=_line(te, st), field="time")
-            step = int(t_val)
+            if te is None or te.text is None:
+                raise DataError(path, f"missing obstacle {oid} time", row=_line(st), field="time")
+            step = _integer(path, te.text.strip(), f"obstacle {oid} time step", TIME_STEP, _line(te), "time")
             if step <= last:
                 raise DataError(path, f"obstacle {oid}: non-monotonic time (step {step} after {last})",
                                 row=_line(te, st), field="time")
             last = step
             pt = st.find("position/point")
-            x = _num(pt.find("x") if pt is not None else None, path, f"obstacle {oid} step {step} x", COORD, pt if pt is not None else st)
-            y = _num(pt.find("y") if pt is not None else None, path, f"obstacle {oid} step {step} y", COORD, pt if pt is not None else st)
+            at = pt if pt is not None else st
+            x = _num(at.find("x") if pt is not None else None, path, f"obstacle {oid} step {step} x", COORD, at)
+            y = _num(at.find("y") if pt is not None else None, path, f"obstacle {oid} step {step} y", COORD, at)
             cols["vehicle"].append(oid)
             cols["step"].append(step)
             cols["x"].append(x)

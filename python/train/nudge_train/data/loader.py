@@ -177,7 +177,8 @@ def _shards_of(manifest: dict, split: str, path: Path) -> list[dict]:
     if split not in splits:
         raise ValueError(f"{path}: no split {split!r} (has {sorted(splits)})")
     entries = splits[split].get("shards", []) if isinstance(splits[split], dict) else None
-    if not isinstance(entries, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str) for e in entries):
+    ok = isinstance(entries, list) and all(isinstance(e, dict) and isinstance(e.get("file"), str) for e in entries)
+    if not ok:
         raise ValueError(f"{path}: split {split!r}: 'shards' must be a list of {{file, sha256, ...}} entries")
     return entries
 

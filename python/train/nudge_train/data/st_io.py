@@ -68,8 +68,9 @@ def _is_entry(v: object) -> bool:
     if not isinstance(v, dict):
         return False
     offs = v.get("data_offsets")
-    return (isinstance(offs, list) and len(offs) == 2 and all(isinstance(x, int) and not isinstance(x, bool) for x in offs)
-            and offs[0] <= offs[1])
+    if not (isinstance(offs, list) and len(offs) == 2):
+        return False
+    return all(isinstance(x, int) and not isinstance(x, bool) for x in offs) and offs[0] <= offs[1]
 
 
 def _split(raw: bytes, source: Path | str) -> tuple[dict[str, Any], bytes]:
