@@ -85,10 +85,14 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
 def _run_data_build(a: argparse.Namespace) -> int:
     from nudge_train.data.build import BuildConfig, build
 
+    from nudge_train.data.sources import decision_lines
+
     phases = tuple(int(p) for p in a.phases.split(",") if p.strip())
     manifest = build(BuildConfig(data_root=a.data_root, out=a.out, raw=tuple(a.raw), seed=a.seed, phases=phases,
                                  include_i80=not a.no_i80), progress=not a.no_progress)
     print(f"wrote {a.out / 'manifest.json'}: {manifest['counts']['windows']} windows")
+    for line in decision_lines([(s["split"], s.get("rule", ""), s.get("reason", "")) for s in manifest["sources"]]):
+        print(f"  {line}")
     return 0
 
 
@@ -105,11 +109,14 @@ def _run_data_scenes(a: argparse.Namespace) -> int:
     from nudge_train.data.splits import SplitConfig
 
     out = a.out or (paths.shipped_scenes() if a.ship else paths.scenes(a.split))
-    written, drops = write_scenes(a.data_root, out, ScenesConfig(split=a.split, ship=a.ship, dense_range_m=a.range),
-                                  SplitConfig(seed=a.seed), progress=not a.no_progress)
+    written, drops, notes = write_scenes(a.data_root, out, ScenesConfig(split=a.split, ship=a.ship,
+                                                                        dense_range_m=a.range),
+                                         SplitConfig(seed=a.seed), progress=not a.no_progress)
     print(f"wrote {len(written)} scenarios to {out}")
     for k, v in sorted(drops.items()):
         print(f"  dropped candidates ({k}): {v}")
+    for line in notes:
+        print(f"  {line}")
     return 0
 
 
@@ -427,13 +434,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Runs ``nudge-train`` with ``argv`` (default: the command line); returns the exit status
-    (2 for a typed data error, printed without a traceback)."""
+    (2 for a typed error of :mod:`nudge_train.errors` — bad data, a damaged artefact, a malformed
+    config, a training failure — printed as ``error: ...`` without a traceback)."""
     args = build_parser().parse_args(argv)
-    from nudge_train.data.errors import DataError
+    from nudge_train.errors import NudgeTrainError
 
     try:
         return args.run(args)
-    except DataError as err:
+    except NudgeTrainError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
 

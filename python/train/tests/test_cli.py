@@ -120,6 +120,7 @@ def _processed(out: Path, windows: dict[str, int]) -> Path:
     3-6 agents each, 14 steps of 0.3 s."""
     from nudge_train.constants import DATASET_SCHEMA, OBS_LEN, PRED_LEN
     from nudge_train.data.st_io import write_safetensors
+    from nudge_train.provenance import sha256_file
     from nudge_train.testing.synthetic import highway_history
 
     out.mkdir(parents=True)
@@ -128,9 +129,10 @@ def _processed(out: Path, windows: dict[str, int]) -> Path:
     for split, count in windows.items():
         pos = [highway_history(rng, int(rng.integers(3, 7)), obs_len=OBS_LEN + PRED_LEN) for _ in range(count)]
         offsets = np.concatenate([[0], np.cumsum([len(p) for p in pos])]).astype(np.int64)
-        write_safetensors(out / f"{split}-000.safetensors", {
+        shard = out / f"{split}-000.safetensors"
+        write_safetensors(shard, {
             "positions": np.concatenate(pos), "offsets": offsets, "interactive": np.zeros(count, np.uint8)}, {})
-        splits[split] = {"shards": [{"file": f"{split}-000.safetensors"}]}
+        splits[split] = {"shards": [{"file": shard.name, "sha256": sha256_file(shard)}]}
     (out / "manifest.json").write_text(json.dumps({"schema": DATASET_SCHEMA, "splits": splits}))
     return out
 

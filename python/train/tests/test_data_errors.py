@@ -148,11 +148,12 @@ def test_commonroad_errors(tmp_path: Path) -> None:
     i = text.index("<trajectory>")
     j = text.index("<x>", i)
     k = text.index("</x>", j)
-    with pytest.raises(DataError, match=r"n\.xml: .*x is not finite: 'nan'"):
+    with pytest.raises(DataError, match=rf"n\.xml, row {text.count(chr(10), 0, j) + 1}: .*x is not finite: 'nan'"):
         read_commonroad(_xml(tmp_path, "n.xml", text[:j] + "<x>nan" + text[k:]))
     # Non-monotonic time: the first trajectory state claims step 0 again.
     t = text.index("<exact>1</exact>", i)
-    with pytest.raises(DataError, match=r"t\.xml: obstacle \d+: non-monotonic time"):
+    line = text.count("\n", 0, t) + 1
+    with pytest.raises(DataError, match=rf"t\.xml, row {line}: obstacle \d+: non-monotonic time"):
         read_commonroad(_xml(tmp_path, "t.xml", text[:t] + "<exact>0</exact>" + text[t + len("<exact>1</exact>"):]))
     # No vehicles.
     a = text.index("<dynamicObstacle")

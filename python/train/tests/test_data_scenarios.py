@@ -111,7 +111,7 @@ def test_write_scenes_deterministic_and_split_only(data_root: Path, tmp_path: Pa
     outs = []
     for k in range(2):
         out = tmp_path / f"s{k}"
-        paths, _ = write_scenes(data_root, out, ScenesConfig(split="test"), SplitConfig(), progress=False)
+        paths, _, _ = write_scenes(data_root, out, ScenesConfig(split="test"), SplitConfig(), progress=False)
         assert paths
         outs.append({p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in paths})
         for p in paths:

@@ -4,6 +4,7 @@ split handling, bad input and the Ray fan-out."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -138,7 +139,7 @@ def test_failed_shard_leaves_no_file(tmp_path: Path, scenes_root: Path, monkeypa
     def failing_replace(src: object, dst: object) -> None:
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(gen_mod.os, "replace", failing_replace)
+    monkeypatch.setattr(os, "replace", failing_replace)
     with pytest.raises(OSError, match="simulated"):
         generate(cfg, log=lambda _: None)
     monkeypatch.undo()

@@ -1,7 +1,9 @@
 """`nudge-train data build`: every source -> windows -> safetensors shards + manifest.json.
 
 Deterministic: sources and windows in a fixed order, seeded splits, no timestamps; a rebuild
-gives byte-identical shards and manifest (sha256 of each shard in the manifest).
+gives byte-identical shards and manifest (sha256 of each shard in the manifest, verified by
+:func:`nudge_train.data.loader.load_split`). Every file is written temp-then-rename, the
+manifest last; stale temp files of a killed build are removed by the next one.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from nudge_train.constants import DATASET_SCHEMA, SPLITS, WINDOWS_SCHEMA
+from nudge_train.artefacts import atomic_write_text, remove_stale_temps
 from nudge_train.provenance import sha256_file
 
 from .coifman import CoifmanConfig, read_coifman
@@ -22,7 +25,7 @@ from .grid import build_grid
 from .raw import RawConfig, read_raw_ngsim
 from .st_io import write_safetensors
 from .sources import COIFMAN, SourceEntry, us101_sources
-from .splits import SplitConfig, assign
+from .splits import TOO_FEW_GROUPS, SplitConfig, assign_or_test
 from .tracks import TrackTable
 from .windows import Window, WindowConfig, WindowStats, extract_windows
 
@@ -79,9 +82,11 @@ def collect_units(cfg: BuildConfig, progress: bool) -> tuple[list[Unit], list[So
         keys = [f"{prefix}-block-{b:02d}" for b in range(len(blocks))]
         span = int(round(cfg.window.step_s / table.dt)) * (cfg.window.n_steps - 1)
         weights = {k: float(max(hi - lo - span, 0)) + 1e-6 for k, (lo, hi) in zip(keys, blocks)}
-        split_of = assign(weights, split_cfg, salt=salt) if len(blocks) >= 3 else {k: "train" for k in keys}
+        what = "I-80 time block" if kind == "coifman_block" else f"time block of {table.source} ({table.scene})"
+        split_of, note = assign_or_test(weights, split_cfg, salt=salt, what=what)
         for key, (lo, hi) in zip(keys, blocks):
-            e = SourceEntry(name=f"{table.source}#{key}", kind=kind, group=key, split=split_of[key], table=table)
+            e = SourceEntry(name=f"{table.source}#{key}", kind=kind, group=key, split=split_of[key], table=table,
+                            reason=note, rule=TOO_FEW_GROUPS if note else "")
             entries.append(e)
             units.append(Unit(e, (lo, hi)))
     return units, entries
@@ -143,8 +148,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
             "agents_dropped": dict(sorted(st.agents_dropped.items())),
         }
     cfg.out.mkdir(parents=True, exist_ok=True)
-    for old in cfg.out.glob("*.safetensors"):
-        old.unlink()
+    remove_stale_temps(cfg.out)
     splits_out: dict[str, dict] = {}
     for s in SPLITS:
         ws = per_split[s]
@@ -173,6 +177,8 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
         rec = {"index": i, "name": e.name, "kind": e.kind, "group": e.group, "split": e.split}
         if e.reason:
             rec["reason"] = e.reason
+        if e.rule:
+            rec["rule"] = e.rule
         if e.table is not None:
             rec["scene"] = e.table.scene
             rec["reader_notes"] = dict(sorted(e.table.notes.items()))
@@ -193,5 +199,11 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
         "splits": splits_out,
         "sources": sources,
     }
-    (cfg.out / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    atomic_write_text(cfg.out / "manifest.json", json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    # Shards of an earlier build that this manifest no longer lists (written before it, so a
+    # build killed midway leaves the old manifest, whose sha256 entries expose any replaced shard).
+    listed = {sh["file"] for sp in splits_out.values() for sh in sp["shards"]}
+    for old in cfg.out.glob("*.safetensors"):
+        if old.name not in listed:
+            old.unlink()
     return manifest

@@ -23,13 +23,20 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError
-from .raw import FT, _columns, read_rows, smooth_flicker
+from .raw import FT, RAW_RULES, FieldRule, _columns, read_rows, smooth_flicker
 from .tracks import FLAG_LATERAL_SYNTHETIC, FLAG_SIZE_ASSUMED, LaneMap, TrackTable
 
 FLAG_LC_INTERPOLATED = 4
 """Track has a lane change whose lateral motion was interpolated (Coifman & Li I-80)."""
 
 LANE_W = 12 * FT
+
+COIFMAN_RULES: dict[str, FieldRule] = {
+    **RAW_RULES,
+    "v_length": FieldRule(0, 1000, "ft"),  # not filled in this file (0): sizes are assumed
+    "v_width": FieldRule(0, 1000, "ft"),
+}
+"""Accepted values per column (as the raw reader, except the unused, zero, vehicle sizes)."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +75,7 @@ def read_coifman(path: Path | str, cfg: CoifmanConfig = CoifmanConfig()) -> Trac
     """
     path = Path(path)
     header, data, first_line, _ = read_rows(path)
-    cols, _ = _columns(path, header, data, first_line)
+    cols, _ = _columns(path, header, data, first_line, COIFMAN_RULES)
     veh = cols["vehicle_id"].astype(np.int64)
     frame = cols["frame_id"].astype(np.int64)
     # File order must be time order within each vehicle.
@@ -86,6 +93,12 @@ def read_coifman(path: Path | str, cfg: CoifmanConfig = CoifmanConfig()) -> Trac
         raise DataError(path, f"unknown Lane_ID {lane_raw[r]} (expected 1-7 or 9)", row=first_line + r)
     lane_num = np.where(lane_raw == 9, 7, lane_raw)
     order = np.lexsort((frame, veh))
+    # A vehicle whose rows are split in the file may repeat a frame across the split.
+    dup = (veh[order][1:] == veh[order][:-1]) & (frame[order][1:] == frame[order][:-1])
+    if dup.any():
+        k = int(np.flatnonzero(dup)[0])
+        r = int(max(order[k], order[k + 1]))
+        raise DataError(path, f"duplicate frame: vehicle {veh[r]} frame {frame[r]} appears twice", row=first_line + r)
     veh, frame, lane_num = veh[order], frame[order], lane_num[order]
     local_y = cols["local_y"][order] * FT
     speed = cols["v_vel"][order] * FT

@@ -8,54 +8,101 @@ lane drops) give per-x pieces of the lane map.
 
 from __future__ import annotations
 
-import gzip
 import math
 import xml.etree.ElementTree as ET
+from xml.parsers import expat
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from .errors import DataError, read_source
+from .raw import FieldRule, number
 from .tracks import LaneMap, TrackTable, lane_index_from_left, sort_and_check
 
 
-def _open_xml(path: Path) -> ET.Element:
-    try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rb") as fh:
-                data = fh.read()
-        else:
-            data = path.read_bytes()
-    except OSError as exc:
-        raise DataError(path, f"cannot read file: {exc}") from exc
+_LINE = "\x00line"
+"""Attribute under which the parser records each element's 1-based line (internal)."""
+
+COORD = FieldRule(-1e5, 1e5, "m")
+"""Lanelet points and vehicle positions (m): a scene spans a few hundred metres."""
+ORIENTATION = FieldRule(-4 * math.pi, 4 * math.pi, "rad")
+VELOCITY = FieldRule(-300.0, 300.0, "m/s")
+SIZE = FieldRule(0.0, 100.0, "m", lo_open=True)
+TIME_STEP = FieldRule(0.0, 1e7, integer=True)
+OBSTACLE_ID = FieldRule(0.0, 1e9, integer=True)
+STEP_SIZE = FieldRule(0.0, 60.0, "s", lo_open=True)
+
+
+def _parse_xml(path: Path) -> ET.Element:
+    """The element tree of the file, each element carrying its line number (expat's position)."""
+    data = read_source(path)
     if not data.strip():
         raise DataError(path, "empty file")
+    parser = expat.ParserCreate()
+    builder = ET.TreeBuilder()
+
+    def start(tag: str, attrs: dict[str, object]) -> None:
+        attrs[_LINE] = parser.CurrentLineNumber
+        builder.start(tag, attrs)  # type: ignore[arg-type]
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = builder.end
+    parser.CharacterDataHandler = builder.data
+    parser.buffer_text = True
     try:
-        return ET.fromstring(data)
-    except ET.ParseError as exc:
-        raise DataError(path, f"not valid XML: {exc}", row=exc.position[0]) from exc
+        parser.Parse(data, True)
+    except expat.ExpatError as exc:
+        raise DataError(path, f"not valid XML: {expat.errors.messages[exc.code]} (column {exc.offset})",
+                        row=exc.lineno) from None
+    return builder.close()
 
 
-def _num(elem: ET.Element | None, path: Path, what: str) -> float:
+def _line(*elems: ET.Element | None) -> int | None:
+    """Line of the first element given that exists."""
+    for e in elems:
+        if e is not None:
+            return int(e.get(_LINE))  # type: ignore[arg-type]
+    return None
+
+
+def _num(elem: ET.Element | None, path: Path, what: str, rule: FieldRule, parent: ET.Element | None = None,
+         field: str | None = None) -> float:
+    """The number in ``elem`` (named ``what`` in errors), checked against ``rule``."""
+    field = field or what.split()[-1]
+    row = _line(elem, parent)
     if elem is None or elem.text is None:
-        raise DataError(path, f"missing {what}")
-    try:
-        v = float(elem.text)
-    except ValueError as exc:
-        raise DataError(path, f"{what} is not a number: {elem.text!r}") from exc
+        raise DataError(path, f"missing {what}", row=row, field=field)
+    tok = elem.text.strip()
+    v = number(tok)
+    if v is None:
+        raise DataError(path, f"{what} is not a number: {elem.text!r}", row=row, field=field)
     if not math.isfinite(v):
-        raise DataError(path, f"{what} is not finite: {elem.text!r}")
+        raise DataError(path, f"{what} is not finite: {tok!r}", row=row, field=field)
+    why = rule.problem(what, tok, v)
+    if why is not None:
+        raise DataError(path, why, row=row, field=field)
     return v
 
 
-def _points(bound: ET.Element | None, path: Path, lid: str) -> np.ndarray:
+def _integer(path: Path, tok: str, what: str, rule: FieldRule, row: int | None, field: str) -> int:
+    """The integer written ``tok`` (named ``what`` in errors), checked against ``rule``."""
+    v = number(tok)
+    if v is None or not math.isfinite(v):
+        raise DataError(path, f"{what} {tok!r} is not an integer", row=row, field=field)
+    why = rule.problem(what, tok, v)
+    if why is not None:
+        raise DataError(path, why, row=row, field=field)
+    return int(v)
+
+
+def _points(bound: ET.Element | None, path: Path, lid: str, parent: ET.Element) -> np.ndarray:
     if bound is None:
-        raise DataError(path, f"lanelet {lid}: missing bound")
-    pts = [(_num(p.find("x"), path, f"lanelet {lid} x"), _num(p.find("y"), path, f"lanelet {lid} y"))
-           for p in bound.findall("point")]
+        raise DataError(path, f"lanelet {lid}: missing bound", row=_line(parent))
+    pts = [(_num(p.find("x"), path, f"lanelet {lid} x", COORD, p),
+            _num(p.find("y"), path, f"lanelet {lid} y", COORD, p)) for p in bound.findall("point")]
     if len(pts) < 2:
-        raise DataError(path, f"lanelet {lid}: bound with fewer than 2 points")
+        raise DataError(path, f"lanelet {lid}: bound with fewer than 2 points", row=_line(bound))
     return np.asarray(pts, dtype=np.float64)
 
 
@@ -146,8 +193,13 @@ class RoadCurve:
         return np.stack([np.interp(x_foot, g, arc), y_road], axis=1)
 
 
-def _lane_map(lanelets: list[tuple[np.ndarray, np.ndarray]], path: Path) -> LaneMap:
-    """Build the straight lane map from rotated lanelets [(left [P,2], right [Q,2])]."""
+def _lane_map(lanelets: list[tuple[np.ndarray, np.ndarray]], path: Path,
+              names: list[tuple[str, int | None]]) -> LaneMap:
+    """Build the straight lane map from rotated lanelets [(left [P,2], right [Q,2])] named
+    ``names`` [(id, line)].
+
+    Raises DataError when a lanelet's left bound is not left of its right bound, or the lanelets
+    give lane boundaries that are not strictly ascending (overlapping or inverted lanes)."""
     # Breakpoints: where a lanelet starts or ends.
     extents = [(min(l[:, 0].min(), r[:, 0].min()), max(l[:, 0].max(), r[:, 0].max())) for l, r in lanelets]
     xs = sorted({round(v, 3) for e in extents for v in e})
@@ -167,6 +219,10 @@ def _lane_map(lanelets: list[tuple[np.ndarray, np.ndarray]], path: Path) -> Lane
             yl = _interp_bound(left, grid)
             yr = _interp_bound(right, grid)
             worst = max(worst, float(np.ptp(yl)) / 2, float(np.ptp(yr)) / 2)
+            if not np.mean(yl) > np.mean(yr):
+                lid, line = names[i]
+                raise DataError(path, f"lanelet {lid}: left bound is not left of the right bound over "
+                                f"x {x0:.1f}..{x1:.1f} m (road frame)", row=line, field="leftBound")
             rows.append((float(np.mean(yr)), float(np.mean(yl))))
         rows.sort()
         # Lanelets that overlap laterally at this x (e.g. successor pieces) are merged.
@@ -180,6 +236,9 @@ def _lane_map(lanelets: list[tuple[np.ndarray, np.ndarray]], path: Path) -> Lane
         for k in range(len(merged) - 1):
             b.append(0.5 * (merged[k][1] + merged[k + 1][0]))
         b.append(merged[-1][1])
+        if any(hi <= lo for lo, hi in zip(b[:-1], b[1:])):
+            raise DataError(path, f"lanelets give overlapping or inverted lanes over x {x0:.1f}..{x1:.1f} m "
+                            f"(boundaries {', '.join(f'{v:.2f}' for v in b)} m are not ascending)", field="lanelet")
         pieces.append((x0, x1, np.asarray(b, dtype=np.float64)))
     if not pieces:
         raise DataError(path, "lanelet map has no lanes")
@@ -208,24 +267,27 @@ def read_commonroad(path: Path | str) -> TrackTable:
     values, a scene without lanelets or without dynamic obstacles, or non-monotonic time.
     """
     path = Path(path)
-    root = _open_xml(path)
+    root = _parse_xml(path)
     if root.tag != "commonRoad":
         raise DataError(path, f"unknown layout: root element <{root.tag}>, expected <commonRoad>")
     version = root.get("commonRoadVersion", "")
     if version not in ("2020a", "2018b"):
-        raise DataError(path, f"unknown CommonRoad version {version!r} (supported: 2020a, 2018b)")
-    try:
-        dt = float(root.get("timeStepSize", "nan"))
-    except ValueError:
-        dt = float("nan")
-    if not (dt > 0):
-        raise DataError(path, "missing or invalid timeStepSize")
+        raise DataError(path, f"unknown CommonRoad version {version!r} (supported: 2020a, 2018b)",
+                        field="commonRoadVersion")
+    dt_tok = str(root.get("timeStepSize", "")).strip()
+    dt = number(dt_tok)
+    if dt is None or not math.isfinite(dt) or STEP_SIZE.problem("timeStepSize", dt_tok, dt) is not None:
+        raise DataError(path, f"missing or invalid timeStepSize {dt_tok!r} (expected a number in (0, 60] s)",
+                        field="timeStepSize")
     scene = root.get("benchmarkID") or path.name.split(".")[0]
 
     raw_lanelets = []
+    names: list[tuple[str, int | None]] = []
     for ll in root.findall("lanelet"):
         lid = ll.get("id", "?")
-        raw_lanelets.append((_points(ll.find("leftBound"), path, lid), _points(ll.find("rightBound"), path, lid)))
+        names.append((str(lid), _line(ll)))
+        raw_lanelets.append((_points(ll.find("leftBound"), path, lid, ll),
+                             _points(ll.find("rightBound"), path, lid, ll)))
     if not raw_lanelets:
         raise DataError(path, "no <lanelet> elements: no lane map")
 
@@ -251,7 +313,7 @@ def read_commonroad(path: Path | str) -> TrackTable:
     rot_lanelets = [(_rot(l, theta), _rot(r, theta)) for l, r in raw_lanelets]
     road = RoadCurve.fit(rot_lanelets)
     lanelets = [(road.to_road(l), road.to_road(r)) for l, r in rot_lanelets]
-    lanes = _lane_map(lanelets, path)
+    lanes = _lane_map(lanelets, path, names)
 
     if version == "2020a":
         obstacles = root.findall("dynamicObstacle")
@@ -261,36 +323,44 @@ def read_commonroad(path: Path | str) -> TrackTable:
         raise DataError(path, "no dynamic obstacles (vehicles) in the scene")
 
     cols: dict[str, list[float]] = {k: [] for k in ("vehicle", "step", "x", "y", "heading", "speed", "length", "width")}
+    seen: dict[int, int] = {}
     for ob in obstacles:
-        oid_s = ob.get("id", "")
-        try:
-            oid = int(oid_s)
-        except ValueError as exc:
-            raise DataError(path, f"obstacle id {oid_s!r} is not an integer") from exc
+        row = _line(ob)
+        oid = _integer(path, str(ob.get("id", "")).strip(), "obstacle id", OBSTACLE_ID, row, "id")
+        if oid in seen:
+            raise DataError(path, f"obstacle id {oid} appears twice (first at row {seen[oid]})", row=row, field="id")
+        seen[oid] = row or 0
         rect = ob.find("shape/rectangle")
         if rect is None:
-            raise DataError(path, f"obstacle {oid}: no rectangle shape")
-        length = _num(rect.find("length"), path, f"obstacle {oid} length")
-        width = _num(rect.find("width"), path, f"obstacle {oid} width")
+            raise DataError(path, f"obstacle {oid}: no rectangle shape", row=row, field="shape")
+        length = _num(rect.find("length"), path, f"obstacle {oid} length", SIZE, rect)
+        width = _num(rect.find("width"), path, f"obstacle {oid} width", SIZE, rect)
         states = [ob.find("initialState")] + ob.findall("trajectory/state")
         if states[0] is None:
-            raise DataError(path, f"obstacle {oid}: no initialState")
+            raise DataError(path, f"obstacle {oid}: no initialState", row=row, field="initialState")
         last = -1
         for st in states:
             assert st is not None
-            step = int(round(_num(st.find("time/exact"), path, f"obstacle {oid} time")))
+            te = st.find("time/exact")
+            if te is None or te.text is None:
+                raise DataError(path, f"missing obstacle {oid} time", row=_line(st), field="time")
+            step = _integer(path, te.text.strip(), f"obstacle {oid} time step", TIME_STEP, _line(te), "time")
             if step <= last:
-                raise DataError(path, f"obstacle {oid}: non-monotonic time (step {step} after {last})")
+                raise DataError(path, f"obstacle {oid}: non-monotonic time (step {step} after {last})",
+                                row=_line(te, st), field="time")
             last = step
             pt = st.find("position/point")
-            x = _num(pt.find("x") if pt is not None else None, path, f"obstacle {oid} step {step} x")
-            y = _num(pt.find("y") if pt is not None else None, path, f"obstacle {oid} step {step} y")
+            at = pt if pt is not None else st
+            x = _num(at.find("x") if pt is not None else None, path, f"obstacle {oid} step {step} x", COORD, at)
+            y = _num(at.find("y") if pt is not None else None, path, f"obstacle {oid} step {step} y", COORD, at)
             cols["vehicle"].append(oid)
             cols["step"].append(step)
             cols["x"].append(x)
             cols["y"].append(y)
-            cols["heading"].append(_num(st.find("orientation/exact"), path, f"obstacle {oid} orientation"))
-            cols["speed"].append(_num(st.find("velocity/exact"), path, f"obstacle {oid} velocity"))
+            cols["heading"].append(_num(st.find("orientation/exact"), path, f"obstacle {oid} step {step} orientation",
+                                        ORIENTATION, st))
+            cols["speed"].append(_num(st.find("velocity/exact"), path, f"obstacle {oid} step {step} velocity",
+                                      VELOCITY, st))
             cols["length"].append(length)
             cols["width"].append(width)
     xy_rot = _rot(np.stack([np.asarray(cols["x"]), np.asarray(cols["y"])], axis=1), theta)

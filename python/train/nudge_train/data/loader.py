@@ -13,16 +13,17 @@ translation invariant and float32 keeps more precision near 0.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.numpy import load_file
 
 from nudge_train.constants import DISTILL_SCHEMA, OBS_LEN, PRED_LEN
+from nudge_train.jsonio import load_json
+
+from .st_io import load_verified_shard
 
 __all__ = ["Batch", "WindowSet", "load_distill_split", "load_split"]
 
@@ -127,9 +128,13 @@ class WindowSet:
 def load_split(manifest_path: Path, split: str, max_windows: int | None = None) -> WindowSet:
     """Reads every shard of ``split`` listed in the processed-data manifest (``nudge.dataset/1``)
     or in a distillation-set manifest (``nudge.distill/1``, see :func:`load_distill_split`).
+    Every shard is checked against the sha256 the manifest records for it before it is used.
 
     Raises:
         FileNotFoundError: the manifest or a shard is missing (the path is in the message).
+        ArtefactError: a shard's sha256 differs from the manifest's (modified or damaged), none is
+            recorded, or the shard cannot be parsed (naming the shard).
+        ConfigError: the manifest is not valid JSON or repeats a key.
         ValueError: the manifest has no such split or a shard is malformed.
     """
     manifest_path = Path(manifest_path)
@@ -137,7 +142,9 @@ def load_split(manifest_path: Path, split: str, max_windows: int | None = None) 
         manifest_path = manifest_path / "manifest.json"
     if not manifest_path.exists():
         raise FileNotFoundError(f"processed-data manifest not found: {manifest_path} (run `make data`)")
-    manifest = json.loads(manifest_path.read_text())
+    manifest = load_json(manifest_path)
+    if not isinstance(manifest, dict):
+        raise ValueError(f"{manifest_path}: not a manifest (expected a JSON object)")
     if manifest.get("schema") == DISTILL_SCHEMA:
         ws = load_distill_split(manifest_path, manifest, split)
         if max_windows is not None and len(ws) > max_windows:
@@ -146,11 +153,8 @@ def load_split(manifest_path: Path, split: str, max_windows: int | None = None) 
     shards = _shards_of(manifest, split, manifest_path)
     pos, offs, inter = [], [np.zeros(1, np.int64)], []
     base = 0
-    for rel in shards:
-        path = manifest_path.parent / rel
-        if not path.exists():
-            raise FileNotFoundError(f"shard listed in {manifest_path} is missing: {path}")
-        t = load_file(str(path))
+    for entry in shards:
+        path, t = load_verified_shard(manifest_path, entry)
         for key in ("positions", "offsets", "interactive"):
             if key not in t:
                 raise ValueError(f"{path}: missing tensor {key!r}")
@@ -166,13 +170,17 @@ def load_split(manifest_path: Path, split: str, max_windows: int | None = None) 
     return ws
 
 
-def _shards_of(manifest: dict, split: str, path: Path) -> list[str]:
+def _shards_of(manifest: dict, split: str, path: Path) -> list[dict]:
     splits = manifest.get("splits")
     if not isinstance(splits, dict):
         raise ValueError(f"{path}: no 'splits' table (not a nudge processed-data manifest?)")
     if split not in splits:
         raise ValueError(f"{path}: no split {split!r} (has {sorted(splits)})")
-    return [entry["file"] for entry in splits[split].get("shards", [])]
+    entries = splits[split].get("shards", []) if isinstance(splits[split], dict) else None
+    ok = isinstance(entries, list) and all(isinstance(e, dict) and isinstance(e.get("file"), str) for e in entries)
+    if not ok:
+        raise ValueError(f"{path}: split {split!r}: 'shards' must be a list of {{file, sha256, ...}} entries")
+    return entries
 
 
 def load_distill_split(manifest_path: Path, manifest: dict, split: str) -> WindowSet:
@@ -183,22 +191,19 @@ def load_distill_split(manifest_path: Path, manifest: dict, split: str) -> Windo
     the teacher's prediction of the other ``n - 1`` agents under it. A student trained on these
     windows with the ego imposed (``ego_future`` = the candidate) learns the teacher's reaction.
     ``interactive`` is the flag of the example's scene. Only the shards listed as complete in the
-    manifest are read.
+    manifest are read, each checked against the sha256 the manifest records for it.
 
     Raises:
-        FileNotFoundError: a listed shard is missing. ValueError: the split is absent or empty, or
-        a shard's tensors are inconsistent.
+        FileNotFoundError: a listed shard is missing. ArtefactError: a shard fails its sha256
+        check. ValueError: the split is absent or empty, or a shard's tensors are inconsistent.
     """
     shards = _shards_of(manifest, split, manifest_path)
     parts: list[np.ndarray] = []
     offs: list[np.ndarray] = [np.zeros(1, np.int64)]
     inter: list[np.ndarray] = []
     base = 0
-    for rel in shards:
-        path = manifest_path.parent / rel
-        if not path.exists():
-            raise FileNotFoundError(f"shard listed in {manifest_path} is missing: {path}")
-        t = load_file(str(path))
+    for entry in shards:
+        path, t = load_verified_shard(manifest_path, entry)
         need = ("history", "context_offsets", "context_run", "example_context", "candidate", "prediction",
                 "prediction_offsets", "run_scene", "scene_interactive")
         for key in need:

@@ -30,15 +30,15 @@ Cleaning, every step counted in ``TrackTable.notes``:
 from __future__ import annotations
 
 import csv
-import gzip
 import io
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from .errors import DataError, read_source
 from .tracks import LaneMap, TrackTable
 
 FT = 0.3048
@@ -65,13 +65,12 @@ class RawConfig:
 
 
 def _read_text(path: Path) -> str:
+    data = read_source(path)
     try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rt", newline="") as fh:
-                return fh.read()
-        return path.read_text()
-    except (OSError, UnicodeDecodeError, EOFError) as exc:
-        raise DataError(path, f"cannot read file: {exc}") from exc
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise DataError(path, f"not UTF-8 text (byte {exc.start})", row=line) from None
 
 
 def _is_number(tok: str) -> bool:
@@ -92,10 +91,18 @@ def read_rows(path: Path) -> tuple[list[str], list[list[str]], int, str]:
         raise DataError(path, "empty file")
     first = lines[0]
     delim_comma = "," in first
+    if "\x00" in text:
+        line = text.count("\n", 0, text.index("\x00")) + 1
+        raise DataError(path, "NUL byte in a text file (binary or corrupted data)", row=line)
     if delim_comma:
-        rows = list(csv.reader(io.StringIO("\n".join(lines))))
+        try:
+            rows = list(csv.reader(io.StringIO("\n".join(lines))))
+        except csv.Error as exc:
+            raise DataError(path, f"not a CSV table: {exc}") from None
     else:
         rows = [ln.split() for ln in lines]
+    if not rows or not rows[0]:
+        raise DataError(path, "empty first row", row=1)
     if _is_number(rows[0][0].strip()):
         header_row = None
         n = len(rows[0])
@@ -121,8 +128,61 @@ def read_rows(path: Path) -> tuple[list[str], list[list[str]], int, str]:
     return header, data, first_line, layout
 
 
-def _columns(path: Path, header: list[str], data: list[list[str]], first_line: int
-             ) -> tuple[dict[str, np.ndarray], list[str]]:
+@dataclass(frozen=True)
+class FieldRule:
+    """Accepted values of one column, in the file's unit: ``lo`` .. ``hi`` (``lo`` excluded when
+    ``lo_open``); ``integer`` columns must hold non-negative whole numbers."""
+
+    lo: float
+    hi: float
+    unit: str = ""
+    integer: bool = False
+    lo_open: bool = False
+
+    def problem(self, label: str, tok: str, v: float) -> str | None:
+        """Why ``v`` (written ``tok``) of the field ``label`` is refused, or None when accepted."""
+        if self.integer and (v < 0 or v != math.floor(v)):
+            return f"{label} = {tok} is not a non-negative integer"
+        below = v <= self.lo if self.lo_open else v < self.lo
+        if below or v > self.hi:
+            interval = ("(" if self.lo_open else "[") + f"{self.lo:g}, {self.hi:g}]"
+            return f"{label} = {v:g} outside {interval}" + (f" {self.unit}" if self.unit else "")
+        return None
+
+
+RAW_RULES: dict[str, FieldRule] = {
+    "vehicle_id": FieldRule(0, 1e9, integer=True),
+    "frame_id": FieldRule(0, 1e9, integer=True),
+    "global_time": FieldRule(0, 1e14, "ms", integer=True),
+    "local_x": FieldRule(-1e5, 1e5, "ft"),
+    "local_y": FieldRule(-1e5, 1e5, "ft"),
+    "v_length": FieldRule(0, 1000, "ft", lo_open=True),
+    "v_width": FieldRule(0, 1000, "ft", lo_open=True),
+    "v_vel": FieldRule(-1000, 1000, "ft/s"),
+    "v_acc": FieldRule(-1000, 1000, "ft/s^2"),
+    "lane_id": FieldRule(0, 1e4, integer=True),
+    "direction": FieldRule(0, 1e4, integer=True),
+}
+"""What the raw reader accepts per column (docs/data_schema.md, section 3). A value outside is a
+DataError naming file, row and column: such a value is a corrupted or foreign file, not noise."""
+
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+
+
+def number(tok: str) -> float | None:
+    """A plain decimal number (or a NaN/inf spelling, returned as such); None for anything else
+    (words, hex, digit separators, empty)."""
+    if _NUMBER.fullmatch(tok):
+        return float(tok)
+    try:
+        v = float(tok)
+    except ValueError:
+        return None
+    return None if math.isfinite(v) else v
+
+
+def _columns(path: Path, header: list[str], data: list[list[str]], first_line: int,
+             rules: dict[str, FieldRule] = RAW_RULES) -> tuple[dict[str, np.ndarray], list[str]]:
     low = [h.lower() for h in header]
     idx = {c: low.index(c) for c in REQUIRED}
     extra = {c: low.index(c) for c in ("direction", "v_acc") if c in low}
@@ -135,12 +195,15 @@ def _columns(path: Path, header: list[str], data: list[list[str]], first_line: i
             raise DataError(path, f"{len(row)} fields, expected {ncol}", row=first_line + r)
         for c, i in list(idx.items()) + list(extra.items()):
             tok = row[i].strip()
-            try:
-                v = float(tok)
-            except ValueError:
-                raise DataError(path, f"column {header[i]} is not a number: {tok!r}", row=first_line + r) from None
+            v = number(tok)
+            if v is None:
+                raise DataError(path, f"column {header[i]} is not a number: {tok!r}", row=first_line + r,
+                                field=header[i])
             if not math.isfinite(v):
-                raise DataError(path, f"column {header[i]} is {tok!r} (NaN/inf)", row=first_line + r)
+                raise DataError(path, f"column {header[i]} is {tok!r} (NaN/inf)", row=first_line + r, field=header[i])
+            why = rules[c].problem(f"column {header[i]}", tok, v)
+            if why is not None:
+                raise DataError(path, why, row=first_line + r, field=header[i])
             cols[c][r] = v
         locs.append(row[loc_i].strip() if loc_i is not None else "")
     return cols, locs

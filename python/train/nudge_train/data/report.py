@@ -7,18 +7,22 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from safetensors.numpy import load_file
 
+from nudge_train.artefacts import atomic_write_text
 from nudge_train.constants import DT, OBS_LEN, SPLITS
+from nudge_train.jsonio import load_json
 
 from .errors import DataError
+from .st_io import load_verified_shard
 
 KIND_NAMES = {"commonroad": "US-101 (CommonRoad)", "coifman_block": "I-80 (Coifman & Li)", "raw_block": "raw NGSIM"}
 
 
 def load_split(processed: Path, manifest: dict, split: str) -> dict[str, np.ndarray]:
-    """Concatenate the shards of one split (offsets re-based)."""
-    parts = [load_file(str(processed / s["file"])) for s in manifest["splits"][split]["shards"]]
+    """Concatenate the shards of one split (offsets re-based), each checked against the sha256
+    the manifest records for it."""
+    mpath = processed / "manifest.json"
+    parts = [load_verified_shard(mpath, s)[1] for s in manifest["splits"][split]["shards"]]
     if not parts:
         return {}
     out: dict[str, np.ndarray] = {}
@@ -72,6 +76,50 @@ def window_stats(d: dict[str, np.ndarray], kinds: np.ndarray) -> dict[str, dict[
     return out
 
 
+def _legacy_rule(reason: str) -> str:
+    """The rule of an exclusion recorded by a build that wrote only the reason text."""
+    if reason.startswith("criticality-modified"):
+        return "criticality_modified"
+    if reason.startswith("variant of scene"):
+        return "duplicate_variant"
+    return reason
+
+
+def drop_table(manifest: dict) -> list[str]:
+    """Markdown lines: everything the build dropped or decided, by reason, with counts: source
+    files excluded (per rule), split decisions, rows dropped by the readers, windows and agents
+    dropped by the window filters (all splits)."""
+    counts: dict[tuple[str, str], int] = defaultdict(int)
+    tables_seen: set[tuple[str, str]] = set()
+    for src in manifest["sources"]:
+        rule = src.get("rule") or _legacy_rule(src.get("reason", ""))
+        if src["split"] == "excluded":
+            counts[("source excluded", rule)] += 1
+        elif src.get("rule"):
+            counts[("split decision", rule)] += 1
+        table = (src["name"].split("#")[0], src.get("scene", ""))  # time blocks share their table's notes
+        if table in tables_seen:
+            continue
+        tables_seen.add(table)
+        for k, v in (src.get("reader_notes") or {}).items():
+            if k.endswith("_dropped") and v:
+                counts[("rows dropped by a reader", k)] += int(v)
+    for sp in manifest["splits"].values():
+        for k, v in sp["windows_dropped"].items():
+            counts[("window dropped", k)] += int(v)
+        for k, v in sp["agents_dropped"].items():
+            counts[("agent dropped", k)] += int(v)
+    lines = ["", "## Everything dropped, by reason", "",
+             "Source files excluded (US-101: criticality-modified or duplicate variants, scenes without an "
+             "overlap-group row, files that are no benchmark scene), split decisions (fewer than 3 independent "
+             "groups: every unit to test), rows the readers dropped, windows and agents the filters dropped:", "",
+             "| stage | reason | count |", "|---|---|---|"]
+    lines += [f"| {stage} | {reason} | {n} |" for (stage, reason), n in sorted(counts.items())]
+    if not counts:
+        lines.append("| - | nothing dropped | 0 |")
+    return lines
+
+
 def _shown(path: Path) -> str:
     """``path`` relative to the working directory when inside it (stable across machines)."""
     try:
@@ -92,7 +140,7 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
     mpath = processed / "manifest.json"
     if not mpath.exists():
         raise DataError(mpath, "no manifest.json: run `nudge-train data build` first")
-    manifest = json.loads(mpath.read_text())
+    manifest = load_json(mpath)
     sources = manifest["sources"]
     kinds = np.asarray([s["kind"] for s in sources])
     import matplotlib
@@ -179,6 +227,7 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
         wd = ", ".join(f"{k}: {v}" for k, v in sp["windows_dropped"].items()) or "none"
         ad = ", ".join(f"{k}: {v}" for k, v in sp["agents_dropped"].items()) or "none"
         L.append(f"| {s} | {sp['candidates']} | {sp['windows']} | {wd} | {ad} |")
+    L += drop_table(manifest)
     # Distributions.
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     all_by_kind: dict[str, dict[str, list[np.ndarray]]] = defaultdict(lambda: defaultdict(list))
@@ -240,4 +289,4 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
     L.append("- US-101 CommonRoad: frame rotated and straightened per scene (rotation in reader_notes of "
              "manifest.json as rotation_mrad).")
     L.append("")
-    doc.write_text("\n".join(L))
+    atomic_write_text(doc, "\n".join(L))

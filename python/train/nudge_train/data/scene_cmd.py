@@ -10,7 +10,7 @@ from tqdm import tqdm
 
 from .grid import build_grid
 from .scenarios import Scenario, ScenarioConfig, scene_scenarios, select_shipped
-from .sources import us101_sources
+from .sources import decision_lines, us101_sources
 from .splits import SplitConfig
 
 PROVENANCE = ("NGSIM US-101 (FHWA, public domain), Los Angeles 15 June 2005, via the CommonRoad "
@@ -30,9 +30,12 @@ class ScenesConfig:
 
 
 def write_scenes(data_root: Path, out_dir: Path, cfg: ScenesConfig, split_cfg: SplitConfig,
-                 progress: bool = True) -> tuple[list[Path], Counter]:
-    """Write scenarios; returns written paths and drop counts (reason -> count)."""
-    entries = [e for e in us101_sources(data_root, split_cfg) if e.split == cfg.split and e.table is not None]
+                 progress: bool = True) -> tuple[list[Path], Counter, list[str]]:
+    """Write scenarios; returns written paths, candidate drop counts (reason -> count) and the
+    source-level decisions (excluded files per rule, split decisions) as printable lines."""
+    sources = us101_sources(data_root, split_cfg)
+    notes = decision_lines([(e.split, e.rule, e.reason) for e in sources])
+    entries = [e for e in sources if e.split == cfg.split and e.table is not None]
     drops: Counter = Counter()
     base = ScenarioConfig()
     written: list[Path] = []
@@ -55,4 +58,4 @@ def write_scenes(data_root: Path, out_dir: Path, cfg: ScenesConfig, split_cfg: S
         chosen = [sc for sc, _, _ in dense]
     for sc in chosen:
         written.append(sc.save(out_dir))
-    return written, drops
+    return written, drops, notes

@@ -30,11 +30,16 @@ class SplitConfig:
 
 
 def read_overlap_groups(path: Path) -> dict[int, int]:
-    """Scene number -> overlap_group from commonroad_us101_scene_overlap_groups.csv."""
+    """Scene number -> overlap_group from commonroad_us101_scene_overlap_groups.csv.
+
+    Raises:
+        DataError: naming the file (and row) when it is missing, unreadable, lacks the columns,
+        holds a non-integer value, or lists one scene twice with different groups.
+    """
     try:
         with open(path, newline="") as fh:
             rows = list(csv.reader(fh))
-    except OSError as exc:
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise DataError(path, f"cannot read: {exc}") from exc
     if not rows:
         raise DataError(path, "empty file")
@@ -45,11 +50,35 @@ def read_overlap_groups(path: Path) -> dict[int, int]:
     si, gi = head.index("scene"), head.index("overlap_group")
     out: dict[int, int] = {}
     for r, row in enumerate(rows[1:], start=2):
+        if not row:
+            continue
         try:
-            out[int(row[si])] = int(row[gi])
+            scene, group = int(row[si]), int(row[gi])
         except (ValueError, IndexError) as exc:
             raise DataError(path, f"bad scene/overlap_group value: {row}", row=r) from exc
+        if scene in out and out[scene] != group:
+            raise DataError(path, f"scene {scene} listed twice (overlap groups {out[scene]} and {group})", row=r,
+                            field="overlap_group")
+        out[scene] = group
     return out
+
+
+MIN_GROUPS = 3
+"""A train/val/test split needs at least this many independent groups."""
+
+TOO_FEW_GROUPS = "too_few_groups"
+"""Rule name of the decision taken for fewer than MIN_GROUPS groups: every unit to test."""
+
+
+def assign_or_test(weights: dict[str, float], cfg: SplitConfig, salt: int, what: str) -> tuple[dict[str, str], str]:
+    """:func:`assign` when there are at least :data:`MIN_GROUPS` groups; otherwise every group to
+    ``test`` (nothing of this family is trained on, so nothing can leak) and the decision as a
+    sentence naming ``what`` (e.g. "US-101 overlap group"); the note is "" when split normally."""
+    if len(weights) >= MIN_GROUPS:
+        return assign(weights, cfg, salt), ""
+    note = (f"only {len(weights)} {what}(s): every unit to test "
+            f"(a train/val/test split needs at least {MIN_GROUPS} independent groups)")
+    return {k: "test" for k in weights}, note
 
 
 SCENE_RE = re.compile(r"USA_US101-(\d+)_(\d+)")
@@ -71,10 +100,15 @@ def assign(weights: dict[str, float], cfg: SplitConfig, salt: int) -> dict[str, 
     closest to (test_frac, val_frac of the rest) wins (first one on ties).
     """
     keys = sorted(weights)
-    if len(keys) < 3:
-        raise ValueError(f"need at least 3 groups to split, got {len(keys)}")
+    if len(keys) < MIN_GROUPS:
+        raise ValueError(f"need at least {MIN_GROUPS} groups to split, got {len(keys)}")
     w = np.asarray([weights[k] for k in keys], dtype=np.float64)
+    if not (np.all(np.isfinite(w)) and np.all(w >= 0)):
+        raise ValueError(f"group weights must be finite and non-negative, got {w.tolist()}")
     total = float(w.sum())
+    if total <= 0:  # every group empty: split by count
+        w = np.ones_like(w)
+        total = float(w.sum())
     target_test = cfg.test_frac
     target_val = cfg.val_frac * (1.0 - cfg.test_frac)
     rng = np.random.default_rng([cfg.seed, salt])

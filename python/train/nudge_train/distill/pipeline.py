@@ -6,25 +6,35 @@ predictor, recording every candidate it is asked to evaluate), written to a temp
 renamed when complete; a rerun skips every shard whose file exists with the same content key.
 Shard contents depend only on the scenes, their seeds and the content key (never on timings,
 thread counts or where it ran), so Ray and single-process runs write identical shards.
+
+Storage integrity (:func:`shard_bytes`, :func:`verified_shard`): a shard's bytes are canonical
+(metadata keys sorted, so two processes write identical files) and carry a ``content_sha256``
+over their whole content; the manifest lists each shard's file sha256 and content hash. A rerun
+verifies every existing shard: one that fails (flipped bytes, edited metadata, no hash) is named
+in the log and in ``last_run.replaced`` and regenerated, never kept. Stale temp files of a killed
+run are removed at the start of the next one.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from safetensors import safe_open
-from safetensors.numpy import load_file, save
+from safetensors.numpy import load as load_bytes
+from safetensors.numpy import save
 from tqdm import tqdm
 
 import nudge
 
+from nudge_train.artefacts import atomic_write_bytes, atomic_write_text, remove_stale_temps, sha256_bytes
 from nudge_train.constants import DISTILL_SCHEMA
+from nudge_train.data.st_io import CONTENT_HASH, add_content_hash, canonicalize, verify_content_hash
+from nudge_train.errors import ArtefactError, ConfigError
+from nudge_train.jsonio import load_json, loads_json
 from nudge_train.provenance import sha256_file
 
 from .config import DistillConfig
@@ -119,34 +129,52 @@ def compute_shard(spec: ShardSpec, teacher: str, world: str, runs: int, max_step
     return tensors, meta, summary
 
 
-def write_shard(path: Path, tensors: dict[str, np.ndarray], meta: dict[str, str]) -> int:
-    """Writes to a temporary name in the same folder and renames when complete; returns bytes."""
-    data = save(tensors, metadata=meta)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+def shard_bytes(tensors: dict[str, np.ndarray], meta: dict[str, str]) -> bytes:
+    """The file bytes of a shard: safetensors with the header in canonical order (identical in
+    every process) and the ``content_sha256`` metadata entry."""
+    return add_content_hash(canonicalize(save(tensors, metadata=meta)))
+
+
+def _file_summary(data: bytes) -> dict:
+    """What the manifest records about a shard's file: size, sha256, content hash."""
+    meta = verify_content_hash(data, "<shard>")
+    return {"bytes": len(data), "sha256": sha256_bytes(data), CONTENT_HASH: meta[CONTENT_HASH]}
+
+
+def write_shard(path: Path, tensors: dict[str, np.ndarray], meta: dict[str, str]) -> dict:
+    """Writes the shard temp-then-rename; returns its :func:`_file_summary`."""
+    data = shard_bytes(tensors, meta)
+    atomic_write_bytes(path, data)
+    return _file_summary(data)
+
+
+def verified_shard(path: Path) -> tuple[bytes, dict[str, str]]:
+    """The bytes and metadata of an existing shard whose content hash checks out.
+
+    Raises:
+        ArtefactError: naming the file: unreadable, malformed, no content hash or a mismatch.
+    """
     try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return len(data)
+        data = path.read_bytes()
+    except OSError as err:
+        raise ArtefactError(path, f"cannot read: {err}") from None
+    return data, verify_content_hash(data, path)
 
 
 def complete_summary(path: Path, spec: ShardSpec, content_key: str) -> dict | None:
-    """The summary of an existing complete shard for ``spec`` (``None`` if absent or stale)."""
+    """The summary of an existing complete shard for ``spec``: ``None`` if absent or written for
+    other inputs (another content key or scene list).
+
+    Raises:
+        ArtefactError: the file exists but fails its content hash (it must not be kept).
+    """
     if not path.exists():
         return None
-    try:
-        with safe_open(str(path), "numpy") as f:
-            meta = f.metadata() or {}
-    except Exception:  # a corrupt file is regenerated
-        return None
+    data, meta = verified_shard(path)
     if meta.get("content_key") != content_key or meta.get("scenes") != json.dumps([Path(p).stem for p in spec.scenes]):
         return None
-    s = json.loads(meta["summary"])
+    s = loads_json(meta["summary"], f"{path}: summary")
+    s.update(_file_summary(data))
     s["wall_s"] = 0.0
     return s
 
@@ -155,12 +183,15 @@ def run_shard(spec: ShardSpec, out: Path, teacher: str, world: str, runs: int, m
               content_key: str, teacher_sha256: str) -> dict:
     """Computes and writes one shard unless it is already complete; returns its summary."""
     path = out / spec.file
-    done = complete_summary(path, spec, content_key)
+    try:
+        done = complete_summary(path, spec, content_key)
+    except ArtefactError:
+        done = None  # damaged: regenerated below (generate() names it in the log)
     if done is not None:
         done["skipped"] = True
         return done
     tensors, meta, summary = compute_shard(spec, teacher, world, runs, max_steps, threads, content_key, teacher_sha256)
-    summary["bytes"] = write_shard(path, tensors, meta)
+    summary.update(write_shard(path, tensors, meta))
     summary["skipped"] = False
     return summary
 
@@ -177,7 +208,7 @@ def _ray_map(specs: list[ShardSpec], ray_address: str | None, args: tuple) -> It
     @ray.remote(num_cpus=1)
     def work(spec: ShardSpec) -> tuple[bytes, dict]:
         tensors, meta, summary = compute_shard(spec, teacher, world, runs, max_steps, 1, content_key, teacher_sha256)
-        return save(tensors, metadata=meta), summary
+        return shard_bytes(tensors, meta), summary
 
     pending = {work.remote(s): s for s in specs}
     while pending:
@@ -215,19 +246,29 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
         "config": cfg.to_json(),
         "splits": {},
     }
+    stale = remove_stale_temps(cfg.out)
+    if stale:
+        log(f"distill: removed {len(stale)} stale temp file(s) of an interrupted run: {', '.join(stale)}")
     previous_runs: list[dict] = []
     if (cfg.out / "manifest.json").exists():
         try:
-            old = json.loads((cfg.out / "manifest.json").read_text())
-            if old.get("content_key") == key:
+            old = load_json(cfg.out / "manifest.json")
+            if isinstance(old, dict) and old.get("content_key") == key:
                 previous_runs = list(old.get("generation_runs", []))
-        except (OSError, ValueError):
+        except (OSError, ConfigError) as err:
+            log(f"distill: the previous manifest is unreadable ({err}); it is rebuilt from the shards")
             previous_runs = []
     todo: list[ShardSpec] = []
+    replaced: list[str] = []
     results: dict[tuple[str, int], dict] = {}
     for split, specs in shards.items():
         for spec in specs:
-            done = complete_summary(cfg.out / spec.file, spec, key)
+            try:
+                done = complete_summary(cfg.out / spec.file, spec, key)
+            except ArtefactError as err:
+                log(f"distill: {err}; regenerating {spec.file}")
+                replaced.append(spec.file)
+                done = None
             if done is None:
                 todo.append(spec)
             else:
@@ -254,9 +295,7 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
                 "agents_hist": np.sum([e["agents_hist"] for e in entries], axis=0).tolist() if entries else [],
                 "complete": len(entries) == len(specs),
             }
-        tmp = cfg.out / ".manifest.json.tmp"
-        tmp.write_text(json.dumps(manifest, indent=1))
-        os.replace(tmp, cfg.out / "manifest.json")
+        atomic_write_text(cfg.out / "manifest.json", json.dumps(manifest, indent=1))
 
     t0 = time.perf_counter()
     made = 0
@@ -265,10 +304,8 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
         if use_ray or ray_address is not None:
             it = _ray_map(todo, ray_address, (teacher, cfg.world, cfg.runs, cfg.max_steps, key, teacher_sha))
             for spec, data, summary in it:
-                tmp = cfg.out / f".{spec.file}.tmp-{os.getpid()}"
-                tmp.write_bytes(data)
-                os.replace(tmp, cfg.out / spec.file)
-                summary["bytes"] = len(data)
+                atomic_write_bytes(cfg.out / spec.file, data)
+                summary.update(_file_summary(data))
                 results[(spec.split, spec.index)] = summary
                 made += summary["examples"]
                 bar.update(len(spec.scenes))
@@ -288,16 +325,19 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
     _write_manifest()
     wall = time.perf_counter() - t0
     this_run = {"examples": made, "wall_s": wall, "examples_per_s": made / wall if wall > 0 else 0.0,
-                "ray": bool(use_ray or ray_address is not None)}
+                "ray": bool(use_ray or ray_address is not None), "replaced": replaced}
     manifest["last_run"] = this_run
     # Every invocation that generated shards, so a resume keeps the earlier throughput.
     manifest["generation_runs"] = previous_runs + ([this_run] if made else [])
-    tmp = cfg.out / ".manifest.json.tmp"
-    tmp.write_text(json.dumps(manifest, indent=1))
-    os.replace(tmp, cfg.out / "manifest.json")
+    atomic_write_text(cfg.out / "manifest.json", json.dumps(manifest, indent=1))
     return manifest
 
 
 def load_shard(path: Path) -> dict[str, np.ndarray]:
-    """A shard's tensors (see docs/distill.md for the layout)."""
-    return load_file(str(path))
+    """A shard's tensors (see docs/distill.md for the layout), after checking its content hash.
+
+    Raises:
+        ArtefactError: naming the file when it fails the check (see :func:`verified_shard`).
+    """
+    data, _ = verified_shard(Path(path))
+    return load_bytes(data)

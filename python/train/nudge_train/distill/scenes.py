@@ -5,7 +5,6 @@ with the split assignment of the processed dataset, plus a per-scene interactive
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import shutil
 from pathlib import Path
@@ -16,6 +15,7 @@ from safetensors.numpy import load_file
 
 from ..constants import SPLITS
 from ..data.windows import WindowConfig
+from ..jsonio import load_json
 from .config import DistillConfig
 
 SCENES_DONE = ".complete"
@@ -28,7 +28,7 @@ def _split_config(processed: Path) -> object:
     manifest = processed / "manifest.json"
     if not manifest.exists():
         return SplitConfig()
-    cfg = json.loads(manifest.read_text()).get("config", {}).get("split", {})
+    cfg = load_json(manifest).get("config", {}).get("split", {})
     known = set(SplitConfig.__dataclass_fields__)
     return SplitConfig(**{k: v for k, v in cfg.items() if k in known})
 

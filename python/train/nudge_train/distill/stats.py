@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
+
+from nudge_train.jsonio import load_json
 
 
 def describe(out: Path, manifest: dict | None = None) -> dict:
     """Examples, contexts, runs per split, agents-per-example histogram, interactive share
     (examples and scenes), disk size and the last run's throughput."""
     if manifest is None:
-        manifest = json.loads((out / "manifest.json").read_text())
+        manifest = load_json(out / "manifest.json")
     res: dict = {"splits": {}, "disk_bytes": 0}
     for split, s in manifest["splits"].items():
         shards = s["shards"]

@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from nudge_train.jsonio import load_json
+
 __all__ = ["median_ms"]
 
 
@@ -18,7 +20,7 @@ def median_ms(criterion_dir: Path, *bench_id: str) -> float | None:
     if not path.is_file():
         return None
     try:
-        return float(json.loads(path.read_text())["median"]["point_estimate"]) / 1e6
+        return float(load_json(path)["median"]["point_estimate"]) / 1e6
     except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         print(f"warning: cannot read {path}: {err}", file=sys.stderr)
         return None

@@ -16,7 +16,6 @@ Imports only numpy, matplotlib (and the ``nudge`` extension to read scenario fil
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from nudge_train.jsonio import load_json
 from nudge_train.training.log import read_metrics
 
 __all__ = ["plot_curves", "plot_runs"]
@@ -50,7 +50,7 @@ def plot_runs(*, records_dir: Path, scenes: Path, png: Path | None, max_runs: in
     if not records_path.exists():
         print(f"error: {records_path} not found (run `nudge simulate --out {records_dir}` first)", file=sys.stderr)
         return 2
-    runs = json.loads(records_path.read_text())[:max_runs]
+    runs = load_json(records_path)[:max_runs]
     if not runs:
         print(f"error: {records_path} holds no runs", file=sys.stderr)
         return 2

@@ -19,7 +19,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ import torch
 from nudge_train import paths
 from nudge_train.data.loader import load_split
 from nudge_train.experiments.plots import plot_curves
+from nudge_train.jsonio import load_json
 from nudge_train.provenance import git_commit, sha256_file
 from nudge_train.training.config import load_config
 from nudge_train.training.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
@@ -66,7 +66,7 @@ def run(
         over["epochs"] = epochs
     tcfg = dataclasses.replace(tcfg, **over).validate()
     distill_dir = Path(distill)
-    manifest = json.loads((distill_dir / "manifest.json").read_text())
+    manifest = load_json(distill_dir / "manifest.json")
     teacher_sha = sha256_file(Path(teacher))
     if manifest["teacher"]["sha256"] != teacher_sha:
         raise SystemExit(
@@ -78,7 +78,7 @@ def run(
     out = Path(tcfg.out_dir)
     t0 = time.perf_counter()
     if (out / "summary.json").exists():
-        summary = json.loads((out / "summary.json").read_text())
+        summary = load_json(out / "summary.json")
         print(f"student already trained (best epoch {summary['best_epoch'] + 1})")
     else:
         summary = train(mcfg, tcfg, resume=(out / "last.pt").exists(), train_set=train_set, val_set=val_set)

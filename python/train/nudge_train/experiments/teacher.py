@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ from nudge_train import paths
 from nudge_train.constants import PRED_LEN
 from nudge_train.data.loader import WindowSet, load_split
 from nudge_train.experiments.plots import plot_curves
+from nudge_train.jsonio import load_json
 from nudge_train.provenance import git_commit, sha256_file
 from nudge_train.training.config import load_config
 from nudge_train.training.evaluate import Metrics, evaluate_constant_velocity, evaluate_generator
@@ -93,7 +93,7 @@ def run(
         runs[path.stem] = out
         t0 = time.perf_counter()
         if (out / "summary.json").exists():
-            summary = json.loads((out / "summary.json").read_text())
+            summary = load_json(out / "summary.json")
             print(f"{path.stem}: already trained (best epoch {summary['best_epoch']})")
         else:
             print(f"== training {path.stem}")

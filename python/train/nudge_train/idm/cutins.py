@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from nudge_train.data.tracks import TrackTable
+from nudge_train.jsonio import load_json
 
 from .model import simulate_follower
 from .sources import Sources
@@ -410,7 +411,7 @@ def write_events(path: Path, cs: CutInSet, cfg: CutInConfig, provenance: dict) -
 
 def read_events(path: Path) -> list[CutIn]:
     """Events of a ``nudge.cutins/1`` file (ValueError naming the file on a wrong schema)."""
-    doc = json.loads(Path(path).read_text())
+    doc = load_json(path)
     if doc.get("schema") != CUTINS_SCHEMA:
         raise ValueError(f"{path}: schema {doc.get('schema')!r}, expected {CUTINS_SCHEMA!r}")
     return [CutIn(**e) for e in doc["events"]]

@@ -22,6 +22,8 @@ import numpy as np
 from scipy.optimize import differential_evolution
 from tqdm import tqdm
 
+from nudge_train.jsonio import loads_json
+
 from .model import PairBatch, batch_errors, constant_speed_errors
 from .pairs import Pair
 
@@ -163,7 +165,7 @@ def fit_drivers(pairs: list[Pair], cfg: FitConfig, cache: Path | None = None, pr
     if cache is not None and cache.exists():
         for line in cache.read_text().splitlines():
             if line.strip():
-                d = DriverFit(**json.loads(line))
+                d = DriverFit(**loads_json(line, cache))
                 if d.driver in groups:
                     done[d.driver] = d
     todo = [k for k in groups if k not in done]

@@ -13,13 +13,13 @@
 from __future__ import annotations
 
 import csv
-import gzip
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from nudge_train.data.errors import DataError
+from nudge_train.data.errors import DataError, read_source
 from nudge_train.data.tracks import TrackTable
 
 from .sources import SceneSource, Sources
@@ -86,9 +86,8 @@ def read_i80_pairs(path: Path, sources: Sources | None, stats: PairStats | None 
     path = Path(path)
     stats = stats if stats is not None else PairStats()
     try:
-        with gzip.open(path, "rt", newline="") if path.suffix == ".gz" else open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
+        rows = list(csv.reader(io.StringIO(read_source(path).decode("utf-8"), newline="")))
+    except (UnicodeDecodeError, csv.Error) as exc:
         raise DataError(path, f"cannot read: {exc}") from exc
     if len(rows) < 2:
         raise DataError(path, "no data rows")

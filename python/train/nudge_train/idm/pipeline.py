@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from nudge_train import paths
+from nudge_train.jsonio import load_json
 from nudge_train.paths import repo_relative
 from nudge_train.provenance import git_commit, sha256_file
 
@@ -179,7 +180,7 @@ def run_fit(s: Settings, sources: Sources | None = None) -> dict:
 def write_idm_json(s: Settings, fit: dict, train_ok: list[DriverFit]) -> dict:
     """``assets/worlds/idm.json``: the train population, pooled sets, model constants, metrics."""
     path = s.assets / "idm.json"
-    old = json.loads(path.read_text()) if path.exists() else {}
+    old = load_json(path) if path.exists() else {}
     doc = {
         "schema": IDM_SCHEMA,
         "units": {"T": "s", "s0": "m", "a_max": "m/s^2", "b": "m/s^2", "v0_ratio": "1", "gap": "m",
@@ -219,7 +220,7 @@ def run_cutins(s: Settings, sources: Sources | None = None) -> dict:
     idm_path = s.assets / "idm.json"
     if not idm_path.exists():
         raise FileNotFoundError(f"{idm_path}: run the fit stage first")
-    idm = json.loads(idm_path.read_text())
+    idm = load_json(idm_path)
     population = np.asarray(idm["drivers"], dtype=np.float64)
     pooled = {k: np.asarray(v) for k, v in idm["pooled"].items()}
     delta = float(idm["model"]["delta"])

@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from nudge_train.jsonio import load_json
 from nudge_train.paths import repo_relative
 
 from .fit import FIT_NAMES
@@ -133,8 +133,8 @@ def _figures(fit: dict, cut: dict, figdir: Path) -> list[str]:
 
 def write_report(runs: Path, doc: Path, figdir: Path, runtime_note: str = "") -> Path:
     """Write the markdown report (and figures) from the stage results in ``runs``."""
-    fit = json.loads((runs / "fit.json").read_text())
-    cut = json.loads((runs / "cutins.json").read_text())
+    fit = load_json(runs / "fit.json")
+    cut = load_json(runs / "cutins.json")
     figs = _figures(fit, cut, figdir)
     rel = Path("..") / "figures"
     L: list[str] = []

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from nudge_train.constants import DT, OBS_LEN, PRED_LEN
+from nudge_train.jsonio import loads_json
 
 ModelKind = Literal["teacher", "student"]
 
@@ -158,12 +159,13 @@ class ModelConfig:
 
     @classmethod
     def from_json(cls, text: str) -> ModelConfig:
-        """Parses :meth:`to_json` output (or any JSON object with valid keys)."""
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ValueError(f"config: not valid JSON ({err})") from err
-        return cls.from_dict(data)
+        """Parses :meth:`to_json` output (or any JSON object with valid keys).
+
+        Raises:
+            ConfigError (a ValueError): not JSON, or a duplicate key (naming it).
+            ValueError: unknown or missing keys, or a field failing :meth:`validate`.
+        """
+        return cls.from_dict(loads_json(text, "config"))
 
     def replace(self, **changes: Any) -> ModelConfig:
         """Copy with some fields changed, validated."""

@@ -3,18 +3,22 @@
 A config file (``python/train/configs/*.toml``) has a ``[model]`` table (``kind`` picks the teacher
 or student defaults of :mod:`nudge_train.models.config`, any other :class:`ModelConfig` field
 overrides them) and a ``[train]`` table (:class:`TrainConfig`); unknown tables or keys and
-impossible values are refused. ``nudge-train train --config FILE`` trains one.
+impossible values are refused, and so are duplicate keys and tables (naming the key and its
+line). ``nudge-train train --config FILE`` trains one.
 """
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from nudge_train.constants import PRED_LEN
+from nudge_train.errors import ConfigError
 from nudge_train.models.config import ModelConfig, student_config, teacher_config
 
 __all__ = ["TrainConfig", "load_config"]
@@ -96,39 +100,77 @@ class TrainConfig:
         return self
 
 
+_TOML_POS = re.compile(r"\(at line (\d+), column (\d+)\)")
+_TOML_TWICE = re.compile(r"Cannot declare (\(.*\)) twice")
+
+
+def _toml_error(path: Path, text: str, err: tomllib.TOMLDecodeError) -> ConfigError:
+    """A ConfigError naming the file, line and, for a duplicate, the key (tomllib's own message
+    names neither the key nor, before Python 3.14, offers the line as data)."""
+    msg = str(err)
+    pos = _TOML_POS.search(msg)
+    row = int(pos.group(1)) if pos else None
+    twice = _TOML_TWICE.search(msg)
+    if twice:
+        try:
+            key = ".".join(str(k) for k in ast.literal_eval(twice.group(1)))
+        except (ValueError, SyntaxError):
+            key = twice.group(1)
+        return ConfigError(path, f"duplicate key {key!r} (a table declared twice)", key=key, row=row)
+    if msg.startswith("Cannot overwrite a value") and row is not None:
+        line = text.splitlines()[row - 1] if row - 1 < len(text.splitlines()) else ""
+        key = ".".join(part.strip().strip('"').strip("'") for part in line.split("=", 1)[0].split("."))
+        return ConfigError(path, f"duplicate key {key!r}", key=key, row=row)
+    return ConfigError(path, f"invalid TOML: {_TOML_POS.sub('', msg).strip()}", row=row)
+
+
 def load_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     """Reads a TOML training config: ``[model]`` (``kind`` picks the teacher/student defaults,
-    other keys override sizes) and ``[train]``. Unknown tables or keys raise ValueError."""
+    other keys override sizes) and ``[train]``.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ConfigError (a ValueError): invalid TOML, a duplicate key or table (naming it and its
+            line), unknown tables or keys, or a value its dataclass refuses.
+    """
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text())
+        text = path.read_text()
     except FileNotFoundError:
         raise FileNotFoundError(f"training config not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(path, f"cannot read: {err}") from None
+    try:
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"{path}: invalid TOML: {err}") from None
+        raise _toml_error(path, text, err) from None
+    for table in ("model", "train"):
+        if not isinstance(raw.get(table, {}), dict):
+            raise ConfigError(path, f"{table} must be a table ([{table}])", key=table)
     unknown = set(raw) - {"model", "train"}
     if unknown:
-        raise ValueError(f"{path}: unknown table(s) {sorted(unknown)} (expected [model] and [train])")
+        raise ConfigError(path, f"unknown table(s) {sorted(unknown)} (expected [model] and [train])",
+                          key=sorted(unknown)[0])
     model = dict(raw.get("model", {}))
     kind = model.pop("kind", "teacher")
     base = {"teacher": teacher_config, "student": student_config}.get(kind)
     if base is None:
-        raise ValueError(f"{path}: model.kind must be 'teacher' or 'student', got {kind!r}")
+        raise ConfigError(path, f"model.kind must be 'teacher' or 'student', got {kind!r}", key="kind")
     fields = {f.name for f in dataclasses.fields(ModelConfig)}
     bad = set(model) - fields
     if bad:
-        raise ValueError(f"{path}: unknown [model] key(s) {sorted(bad)}")
+        raise ConfigError(path, f"unknown [model] key(s) {sorted(bad)}", key=sorted(bad)[0])
     try:
         mcfg = base().replace(**model).validate()
     except (TypeError, ValueError) as err:
-        raise ValueError(f"{path}: [model]: {err}") from None
+        raise ConfigError(path, f"[model]: {err}") from None
     train_raw = raw.get("train", {})
     tfields = {f.name for f in dataclasses.fields(TrainConfig)}
     bad = set(train_raw) - tfields
     if bad:
-        raise ValueError(f"{path}: unknown [train] key(s) {sorted(bad)}")
+        raise ConfigError(path, f"unknown [train] key(s) {sorted(bad)}", key=sorted(bad)[0])
     try:
         tcfg = TrainConfig(**train_raw).validate()
     except (TypeError, ValueError) as err:
-        raise ValueError(f"{path}: [train]: {err}") from None
+        raise ConfigError(path, f"[train]: {err}") from None
     return mcfg, tcfg

@@ -24,7 +24,11 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save as save_bytes
 
+from nudge_train.artefacts import atomic_write_bytes
 from nudge_train.constants import WEIGHTS_FORMAT
+from nudge_train.data.st_io import canonicalize
+from nudge_train.errors import ConfigError
+from nudge_train.jsonio import loads_json
 from nudge_train.models.config import ModelConfig
 from nudge_train.models.networks import TrajectoryGenerator, build_model
 
@@ -40,26 +44,18 @@ __all__ = [
 
 
 def save_safetensors(tensors: dict[str, torch.Tensor], path: Path, metadata: dict[str, str]) -> Path:
-    """``safetensors.torch.save_file`` with byte-for-byte reproducible output.
+    """``safetensors.torch.save_file`` with byte-for-byte reproducible output, written
+    temp-then-rename.
 
     The safetensors library writes the ``__metadata__`` entries in hash-map order, which changes
     from one process to the next; this rewrites the header with the metadata keys sorted (tensor
-    entries and data untouched), so regenerating a file gives identical bytes.
+    entries and data untouched, :func:`nudge_train.data.st_io.canonicalize`), so regenerating a
+    file gives identical bytes.
     """
     raw = save_bytes({k: tensors[k] for k in sorted(tensors)}, metadata=metadata)
-    header_len = int.from_bytes(raw[:8], "little")
-    header = json.loads(raw[8 : 8 + header_len].decode("utf-8"))
-    meta = header.pop("__metadata__", None)
-    canonical: dict[str, Any] = {}
-    if meta is not None:
-        canonical["__metadata__"] = {k: meta[k] for k in sorted(meta)}
-    for name in sorted(header, key=lambda k: (header[k]["data_offsets"], k)):
-        canonical[name] = header[name]
-    text = json.dumps(canonical, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
-    text += b" " * (-len(text) % 8)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(len(text).to_bytes(8, "little") + text + raw[8 + header_len :])
+    atomic_write_bytes(path, canonicalize(raw, path))
     return path
 
 
@@ -158,6 +154,8 @@ def read_weights(path: Path) -> WeightsFile:
 
     Raises:
         ValueError: missing/wrong metadata or tensors that are not float32.
+        ConfigError (a ValueError): the config or provenance entry is not JSON or repeats a key
+            (naming the file, the entry and the key).
         FileNotFoundError: no such file.
     """
     path = Path(path)
@@ -174,12 +172,13 @@ def read_weights(path: Path) -> WeightsFile:
     if metadata["trained"] not in ("true", "false"):
         raise ValueError(f"{path}: trained must be 'true' or 'false', got {metadata['trained']!r}")
     try:
-        provenance = json.loads(metadata["provenance"])
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: provenance is not JSON ({err})") from err
+        provenance = loads_json(metadata["provenance"], "provenance")
+        config_data = loads_json(metadata["config"], "config")
+    except ConfigError as err:
+        raise ConfigError(path, f"{err.path}: {err.message}", key=err.key) from None
     if not isinstance(provenance, dict):
         raise ValueError(f"{path}: provenance must be a JSON object")
-    config = ModelConfig.from_json(metadata["config"])
+    config = ModelConfig.from_dict(config_data)
     for name, tensor in tensors.items():
         if tensor.dtype != torch.float32:
             raise ValueError(f"{path}: tensor {name} has dtype {tensor.dtype}, expected float32")

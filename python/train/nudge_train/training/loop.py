@@ -11,6 +11,13 @@ One command trains one configuration (``nudge-train train --config FILE``):
 * Adam, gradient clipping, seeded shuffling and noise; a checkpoint (``last.pt``) after every epoch
   and ``best.pt`` on every validation improvement; ``--resume`` continues from ``last.pt``; early
   stopping on validation ADE (single sample, fixed z); ``metrics.jsonl`` logs every epoch.
+* Integrity (docs/reliability_data.md): checkpoints carry a content hash and are verified on
+  resume (:mod:`nudge_train.training.checkpoint`); a non-finite loss or validation metric stops
+  training with a :class:`~nudge_train.errors.TrainingError` naming epoch and batch. Every file
+  is written temp-then-rename, in the order ``best.pt``, ``last.pt`` (which holds the metrics rows
+  so far), ``metrics.jsonl`` (rewritten from those rows), so the checkpoint is the one commit
+  point of an epoch: a resume after a kill at any moment replays at most the unfinished epoch and
+  ends with the same weights and metrics rows as an uninterrupted run.
 
 The teacher decodes ``train_steps`` (6) steps from one call during training so that every future
 step supervises it, while the planner calls it recursively with one step; both uses share every
@@ -24,6 +31,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -33,13 +41,22 @@ from torch import Tensor
 from torch.nn import functional as F
 from tqdm import tqdm
 
+from nudge_train.artefacts import atomic_write_text, remove_stale_temps
 from nudge_train.data.loader import Batch, WindowSet, load_split
+from nudge_train.errors import ArtefactError, NudgeTrainError, TrainingError
 from nudge_train.models.config import ModelConfig
 from nudge_train.models.networks import TrajectoryGenerator, build_model, positions_to_rel
+from nudge_train.training.checkpoint import load_checkpoint, save_checkpoint
 from nudge_train.training.config import TrainConfig, load_config
-from nudge_train.training.log import METRICS_FILE
+from nudge_train.training.log import METRICS_FILE, metrics_text
 
-__all__ = ["load_best", "run", "train", "variety_loss"]
+__all__ = ["FaultHook", "load_best", "run", "train", "variety_loss"]
+
+FaultHook = Callable[[str, int, "int | None"], None]
+"""Called as ``hook(point, epoch, batch)`` at the named points of an epoch (``"batch"`` after
+each optimiser step, ``"validated"``, ``"best_written"``, ``"checkpoint_temp"`` (last.pt's temp
+file complete, not renamed), ``"checkpoint"``, ``"metrics"``); used by the tests to interrupt
+training anywhere. ``batch`` is None except at ``"batch"``."""
 
 
 def resolve_device(name: str) -> torch.device:
@@ -131,19 +148,6 @@ def epoch_lr(tcfg: TrainConfig, epoch: int) -> float:
     return low + 0.5 * (tcfg.lr - low) * (1.0 + math.cos(math.pi * frac))
 
 
-def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)
-
-
-def _load_checkpoint(path: Path) -> dict[str, Any]:
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupted file
-        raise RuntimeError(f"cannot resume: checkpoint {path} is corrupted or unreadable ({err})") from None
-
-
 def train(
     mcfg: ModelConfig,
     tcfg: TrainConfig,
@@ -151,11 +155,17 @@ def train(
     train_set: WindowSet | None = None,
     val_set: WindowSet | None = None,
     progress: bool = True,
+    fault_hook: FaultHook | None = None,
 ) -> dict[str, Any]:
     """Trains one configuration; returns a summary (best epoch, best validation ADE, paths).
 
     ``train_set``/``val_set`` default to the ``train``/``val`` splits of ``tcfg.data``.
-    Resuming needs ``out_dir/last.pt``; a corrupted checkpoint raises RuntimeError naming it.
+    Resuming needs ``out_dir/last.pt``. ``fault_hook``: see :data:`FaultHook`.
+
+    Raises:
+        FileNotFoundError: resuming without ``last.pt``.
+        ArtefactError: ``last.pt`` fails its content hash or holds non-finite values (naming it).
+        TrainingError: a non-finite loss or validation metric (naming epoch and batch).
     """
     tcfg.validate()
     mcfg.validate()
@@ -164,6 +174,8 @@ def train(
     device = resolve_device(tcfg.device)
     out = Path(tcfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(out)
+    hook: FaultHook = fault_hook or (lambda point, epoch, batch: None)
     if train_set is None:
         train_set = load_split(Path(tcfg.data), "train", tcfg.max_train_windows or None)
     if val_set is None:
@@ -178,22 +190,30 @@ def train(
     start_epoch, best_ade, best_epoch, stale = 0, math.inf, -1, 0
     metrics_path = out / METRICS_FILE
     last = out / "last.pt"
+    rows: list[dict[str, Any]] = []
     if resume:
         if not last.exists():
             raise FileNotFoundError(f"cannot resume: no checkpoint at {last}")
-        state = _load_checkpoint(last)
-        gen.load_state_dict(state["generator"])
-        disc.load_state_dict(state["discriminator"])
-        opt_g.load_state_dict(state["opt_g"])
-        opt_d.load_state_dict(state["opt_d"])
-        rng.set_state(state["rng"])
-        start_epoch = int(state["epoch"]) + 1
-        best_ade, best_epoch, stale = float(state["best_ade"]), int(state["best_epoch"]), int(state["stale"])
-    elif metrics_path.exists():
-        metrics_path.unlink()
-    (out / "config.json").write_text(
-        json.dumps({"model": mcfg.to_dict(), "train": dataclasses.asdict(tcfg)}, indent=2)
-    )
+        state = load_checkpoint(last)
+        try:
+            gen.load_state_dict(state["generator"])
+            disc.load_state_dict(state["discriminator"])
+            opt_g.load_state_dict(state["opt_g"])
+            opt_d.load_state_dict(state["opt_d"])
+            rng.set_state(state["rng"])
+            start_epoch = int(state["epoch"]) + 1
+            best_ade, best_epoch, stale = float(state["best_ade"]), int(state["best_epoch"]), int(state["stale"])
+            rows = list(state["metrics"])
+        except (KeyError, RuntimeError, ValueError, TypeError) as err:
+            raise ArtefactError(last, f"does not fit this configuration ({err})") from None
+        if [r.get("epoch") for r in rows] != list(range(start_epoch)):
+            raise ArtefactError(last, f"holds metrics rows for epochs {[r.get('epoch') for r in rows]}, "
+                                f"expected 0..{start_epoch - 1}")
+    # The log always equals the checkpoint's rows: rows of an epoch the checkpoint does not hold
+    # (a kill after they were written) are dropped here and rewritten when the epoch is redone.
+    atomic_write_text(metrics_path, metrics_text(rows))
+    atomic_write_text(out / "config.json",
+                      json.dumps({"model": mcfg.to_dict(), "train": dataclasses.asdict(tcfg)}, indent=2))
 
     gen.train()
     disc.train()
@@ -226,6 +246,9 @@ def train(
                 fake_logits = disc(_full_rel(batch.obs, rel[0]))
                 loss_adv = F.binary_cross_entropy_with_logits(fake_logits, torch.ones_like(fake_logits))
                 loss = loss + loss_adv
+            if not bool(torch.isfinite(loss)):
+                raise TrainingError(f"non-finite generator loss (variety {float(loss_var.detach()):.4g}, "
+                                    f"adversarial {float(loss_adv.detach()):.4g})", epoch, i)
             opt_g.zero_grad(set_to_none=True)
             loss.backward()
             if tcfg.clip_grad > 0:
@@ -238,6 +261,8 @@ def train(
                 loss_d = F.binary_cross_entropy_with_logits(
                     real, torch.ones_like(real)
                 ) + F.binary_cross_entropy_with_logits(fake, torch.zeros_like(fake))
+                if not bool(torch.isfinite(loss_d)):
+                    raise TrainingError(f"non-finite discriminator loss ({float(loss_d.detach()):.4g})", epoch, i)
                 opt_d.zero_grad(set_to_none=True)
                 loss_d.backward()
                 if tcfg.clip_grad > 0:
@@ -247,6 +272,7 @@ def train(
             sums["loss_var"] += float(loss_var.detach())
             sums["loss_adv"] += float(loss_adv.detach())
             bar.set_postfix(var=f"{sums['loss_var'] / (i + 1):.4f}", adv=f"{sums['loss_adv'] / (i + 1):.3f}")
+            hook("batch", epoch, i)
         if tcfg.val_metric == "recursive_fde":
             from nudge_train.training.evaluate import evaluate_generator
 
@@ -254,10 +280,14 @@ def train(
             gen.train()
         else:
             val_ade = validation_ade(gen, val_set, tcfg.train_steps, device)
+        if not math.isfinite(val_ade):
+            raise TrainingError(f"non-finite validation metric ({tcfg.val_metric} = {val_ade})", epoch)
+        hook("validated", epoch, None)
         improved = val_ade < best_ade
         if improved:
             best_ade, best_epoch, stale = val_ade, epoch, 0
-            torch.save({"generator": gen.state_dict(), "epoch": epoch}, out / "best.pt")
+            save_checkpoint(out / "best.pt", {"generator": gen.state_dict(), "epoch": epoch})
+            hook("best_written", epoch, None)
         else:
             stale += 1
         row = {
@@ -268,14 +298,13 @@ def train(
             "lr": lr,
             "seconds": time.perf_counter() - t0,
         }
-        with metrics_path.open("a") as fh:
-            fh.write(json.dumps(row) + "\n")
+        rows.append(row)
         if progress:
             tqdm.write(
                 f"epoch {epoch + 1}: var {row['loss_var']:.4f} adv {row['loss_adv']:.3f} "
                 f"val ADE {val_ade:.4f} m{' *' if improved else ''} ({row['seconds']:.1f} s)"
             )
-        _save_checkpoint(
+        save_checkpoint(
             last,
             {
                 "generator": gen.state_dict(),
@@ -287,10 +316,15 @@ def train(
                 "best_ade": best_ade,
                 "best_epoch": best_epoch,
                 "stale": stale,
+                "metrics": rows,
             },
+            before_rename=lambda: hook("checkpoint_temp", epoch, None),
         )
+        hook("checkpoint", epoch, None)
+        atomic_write_text(metrics_path, metrics_text(rows))
+        hook("metrics", epoch, None)
     summary = {"best_epoch": best_epoch, "best_val_ade": best_ade, "out_dir": str(out)}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     return summary
 
 
@@ -298,7 +332,7 @@ def load_best(out_dir: Path, mcfg: ModelConfig, device: torch.device | str = "cp
     """The best-validation generator of a finished run."""
     gen, _ = build_model(mcfg, device)
     path = Path(out_dir) / "best.pt"
-    state = _load_checkpoint(path)
+    state = load_checkpoint(path)
     gen.load_state_dict(state["generator"])
     gen.eval()
     return gen
@@ -313,7 +347,7 @@ def run(*, config: Path, resume: bool, out_dir: str | None, data: str | None, ep
         over = {k: v for k, v in (("out_dir", out_dir), ("data", data), ("epochs", epochs)) if v is not None}
         tcfg = dataclasses.replace(tcfg, **over).validate()
         summary = train(mcfg, tcfg, resume=resume)
-    except (ValueError, FileNotFoundError, RuntimeError) as err:
+    except (ValueError, FileNotFoundError, RuntimeError, NudgeTrainError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(json.dumps(summary))
