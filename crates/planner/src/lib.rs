@@ -24,7 +24,9 @@ pub use admm::{
     CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner,
     PlanningProblem, SafetyConstraint, StepStatus,
 };
-pub use error::{PlannerError, ScenarioError, SettingsError, SimConfigError, SimError};
+pub use error::{
+    PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
+};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
@@ -34,6 +36,6 @@ pub use safety::{
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary, World, run_specs,
-    simulate, simulate_many, target_lane,
+    IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary,
+    World, WorldModel, WorldSpec, run_specs, simulate, simulate_many, target_lane,
 };
