@@ -6,7 +6,10 @@
 //! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory ([`Planner`]; the
 //! phases are described in its module). Plus the scenario reader ("nudge.scenario/1"
 //! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
-//! [`simulate_many`]) with the records and columns both front ends report.
+//! [`simulate_many`]) in three worlds (the teacher's predictions, IDM traffic fitted to real
+//! car-following, the log; [`World`]), with the metrics every run is judged by
+//! ([`sim::metrics`]: collisions at fault or not, off-road, straddling, slow steps, time to
+//! collision, comfort, the score) and the records and columns both front ends report.
 //!
 //! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
 //! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.

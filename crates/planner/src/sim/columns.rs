@@ -13,7 +13,7 @@ use super::records::{RunRecord, StepRecord, StepStatus};
 
 /// Run columns, in order (one row per run, failed runs included). The metric columns are
 /// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
-pub const RUN_COLUMNS: [&str; 37] = [
+pub const RUN_COLUMNS: [&str; 39] = [
     "scenario",
     "scene_index",
     "seed",
@@ -48,6 +48,8 @@ pub const RUN_COLUMNS: [&str; 37] = [
     "min_accel",
     "max_accel",
     "comfortable",
+    "max_abs_heading",
+    "max_overshoot",
     "free_gap",
     "score",
     "error",
@@ -321,6 +323,8 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
         float("min_accel", |m| m.comfort.accel_range.0),
         float("max_accel", |m| m.comfort.accel_range.1),
         ("comfortable", flag(|r| r.metrics.comfort.comfortable)),
+        float("max_abs_heading", |m| m.max_abs_heading),
+        float("max_overshoot", |m| m.max_overshoot),
         float("free_gap", |m| m.free_gap),
         float("score", |m| m.score),
         (

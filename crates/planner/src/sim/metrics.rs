@@ -31,6 +31,8 @@
 //!   overlap along the road; none when nobody closes in).
 //! * **Progress**: the ego's centre x minus its start x (m), and its ratio to the logged
 //!   ego's progress at the last step the log covers.
+//! * **Heading and overshoot**: the largest |ψ| relative to the road, and how far the ego's
+//!   centre went beyond the target lane's centre in the direction of the lane change (m).
 //! * **Comfort** ([`kinematics`]): longitudinal jerk from the applied accelerations, yaw rate
 //!   and lateral acceleration (v · yaw rate) from the executed states, each per step; per run
 //!   the largest magnitude and the RMS, and `comfortable` when every value is within nuPlan's
@@ -562,6 +564,11 @@ pub struct RunMetrics {
     pub progress_ratio: Option<f64>,
     /// Comfort.
     pub comfort: Comfort,
+    /// The largest |heading| relative to the road over the run (rad).
+    pub max_abs_heading: f64,
+    /// The farthest the ego's centre went beyond the target lane's centre in the direction of
+    /// the lane change (m, ≥ 0).
+    pub max_overshoot: f64,
     /// The free gap in the target lane at the start ([`free_gap`], m).
     pub free_gap: f64,
     /// The aggregate score in [0, 1] ([`score`]).
@@ -609,6 +616,8 @@ pub struct RunObserver {
     bounds: Vec<f64>,
     /// Target lane's (right, left) bounds (m).
     target: (f64, f64),
+    /// Target lane's centre (m) and the sign of the lane change (+1 to the left).
+    target_centre: (f64, f64),
     ego_size: [f64; 2],
     start: [f64; 4],
     start_overhang: f64,
@@ -621,6 +630,8 @@ pub struct RunObserver {
     touching: Vec<usize>,
     collisions: Vec<Collision>,
     steps: Vec<(StepMetrics, f64)>,
+    /// The ego's state after every step.
+    states: Vec<[f64; 4]>,
 }
 
 impl RunObserver {
@@ -634,6 +645,10 @@ impl RunObserver {
         Self {
             bounds: b.clone(),
             target: (b[target_lane], b[target_lane + 1]),
+            target_centre: (
+                sc.lane_centres[target_lane],
+                (sc.lane_centres[target_lane] - p[1]).signum(),
+            ),
             ego_size: sc.size[0],
             start,
             start_overhang: road_excess(&ego_box(start, sc.size[0]), b).max(0.0),
@@ -647,6 +662,7 @@ impl RunObserver {
             touching: Vec::new(),
             collisions: Vec::new(),
             steps: Vec::new(),
+            states: Vec::new(),
         }
     }
 
@@ -705,6 +721,7 @@ impl RunObserver {
             kinematics: kin,
         };
         self.steps.push((m, accel));
+        self.states.push(ego);
         let near = nearest(&b, others);
         (m, touching, near)
     }
@@ -732,6 +749,7 @@ impl RunObserver {
             .filter(|&(_, logged)| logged >= MIN_LOG_PROGRESS_M)
             .map(|(k, logged)| self.steps[k - 1].0.progress / logged);
         let kin: Vec<Kinematics> = self.steps.iter().map(|(m, _)| m.kinematics).collect();
+        let (y_target, side) = self.target_centre;
         let accels: Vec<f64> = self.steps.iter().map(|(_, a)| *a).collect();
         let mut m = RunMetrics {
             collisions_at_fault: at_fault,
@@ -750,6 +768,11 @@ impl RunObserver {
             progress,
             progress_ratio,
             comfort: Comfort::of(&kin, &accels),
+            max_abs_heading: self.states.iter().fold(0.0, |m, z| m.max(z[2].abs())),
+            max_overshoot: self
+                .states
+                .iter()
+                .fold(0.0, |m, z| m.max((z[1] - y_target) * side)),
             free_gap: self.free_gap,
             score: 0.0,
         };

@@ -339,6 +339,8 @@ fn the_observer_judges_a_lane_change_run() {
     assert!((m.free_gap - 30.5).abs() < 1e-12);
     assert_eq!(m.min_ttc, None);
     assert!(m.score > 0.0);
+    // Straight, and never beyond the target centre (3.5 m).
+    assert_eq!((m.max_abs_heading, m.max_overshoot), (0.0, 0.0));
 }
 
 #[test]
@@ -366,4 +368,28 @@ fn one_event_per_contact_and_off_road_beyond_the_tolerance() {
     assert_eq!((m.collisions_at_fault, m.collisions_not_at_fault), (1, 1));
     assert_eq!(m.off_road_steps, 1);
     assert_eq!(m.score, 0.0);
+}
+
+#[test]
+fn heading_and_overshoot_of_a_run() {
+    // Target lane 1 (centre 3.5) to the left of the ego at y = 0: the ego swings to 3.9 m at
+    // heading 0.12 rad, comes back to 3.5 m turned −0.05 rad.
+    let sc = two_lane_scene(0.0, 6);
+    let mut obs = RunObserver::new(&sc, 1, 3.0);
+    for (k, (y, psi)) in [(1.5, 0.1), (3.9, 0.12), (3.5, -0.05)]
+        .into_iter()
+        .enumerate()
+    {
+        let _ = obs.observe(k, [3.0 * (k + 1) as f64, y, psi, 10.0], 0.0, 10.0, &[]);
+    }
+    let (_, m) = obs.finish(true);
+    assert!((m.max_abs_heading - 0.12).abs() < 1e-12);
+    assert!((m.max_overshoot - 0.4).abs() < 1e-12);
+    // To the right (target lane 0 from y = 3.5): overshooting means going below 0.
+    let mut sc = two_lane_scene(3.5, 6);
+    sc.ego_lane = 1;
+    let mut obs = RunObserver::new(&sc, 0, 3.0);
+    let _ = obs.observe(0, [3.0, -0.25, 0.0, 10.0], 0.0, 10.0, &[]);
+    let (_, m) = obs.finish(false);
+    assert!((m.max_overshoot - 0.25).abs() < 1e-12);
 }

@@ -265,14 +265,16 @@ def time_to_target(chunk: Chunk, budget_steps: int, column: str = "steps_to_targ
     return np.where(s >= 0, s, budget_steps) * nudge.DT
 
 
-def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP) -> dict:
-    """The report's numbers of one arm (runs that could not run are counted, not averaged)."""
+def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoot_tol: float = 0.3) -> dict:
+    """The report's numbers of one arm (runs that could not run are counted, not averaged);
+    ``overshoot_tol`` (m): runs whose centre went farther beyond the target centre are counted."""
     ok = np.array([e is None for e in chunk.runs["error"]])
     scen = np.asarray(chunk.runs["scenario"])[ok]
     f = {k: _arr(chunk, k)[ok] for k in ("success", "collisions_at_fault", "collisions_not_at_fault",
                                            "off_road_steps", "straddle_steps", "slow_steps", "slow_planned_steps",
                                            "min_ttc", "max_abs_jerk", "max_abs_lat_accel", "max_abs_yaw_rate",
-                                           "comfortable", "progress_ratio", "score", "n_steps", "start_overhang")}
+                                           "comfortable", "progress_ratio", "score", "n_steps", "start_overhang",
+                                           "max_abs_heading", "max_overshoot")}
     ttt = time_to_target(chunk, budget_steps)[ok]
     ttl = time_to_target(chunk, budget_steps, "steps_to_lane")[ok]
     n = int(ok.sum())
@@ -301,6 +303,8 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP) -> dict:
         "yaw_max": float(np.max(f["max_abs_yaw_rate"], initial=0.0)),
         "time_to_target": float(ttt.mean()) if n else math.nan, "time_to_lane": float(ttl.mean()) if n else math.nan,
         "progress_ratio": med(f["progress_ratio"]),
+        "heading": (med(f["max_abs_heading"]), float(np.max(f["max_abs_heading"], initial=0.0))),
+        "overshoot": (float(np.max(f["max_overshoot"], initial=0.0)), int((f["max_overshoot"] > overshoot_tol).sum())),
         "score": cluster_bootstrap(f["score"], scen, n_boot=n_boot, seed=1) if n else (math.nan,) * 3,
         "mpc_ms": (med(mpc), float(np.percentile(mpc, 90)) if mpc.size else math.nan),
         "status": dict(zip(status.tolist(), counts.tolist(), strict=True)),
@@ -390,6 +394,9 @@ rule is documented) and reach Python and the CLI as the same columns.
   the ego's centre first lies inside the target lane, failures at the budget.
 - **Progress**: the ego's progress along the road over the logged ego's at the last step the log
   covers (median over runs).
+- **Heading and overshoot**: the largest |ψ| relative to the road over a run (median over runs, and
+  the largest); how far the ego's centre went beyond the target lane's centre in the direction of the
+  lane change (the largest, and the runs beyond the settling tolerance {settle:g} m).
 - **Score** (nuPlan-style, per run in [0, 1]): 0 with an at-fault collision or an off-road step,
   else (5·success + 5·min(1, progress ratio) + 5·[min TTC > 0.95 s] + 4·(1 − slow steps / steps)
   + 2·comfortable) / 21.
@@ -443,25 +450,27 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         f"Wall time: {sum(c.wall_s for c in chunks) / 60:.1f} min of simulation (the sum over the cached chunk "
         f"parts, each measured when it ran, {cfg.threads} runs side by side on a 2-core machine shared with other "
         f"jobs); this invocation {meta['wall_s'] / 60:.1f} min "
-        f"({sum(c.computed_s for c in chunks) / 60:.1f} min computed, the rest read from `runs/closed_loop/`).",
+        f"({sum(c.computed_s for c in chunks) / 60:.1f} min computed, the rest read from the cache).",
         "",
         f"Egos that start with a corner over the road's edge: {len(over)} of {len(overhang)} scenes"
         + (f" (overhang {over.min():.2f}–{over.max():.2f} m, median {np.median(over):.2f} m); the off-road "
            "test allows each ego its own start overhang + 0.1 m." if len(over) else "."),
         "",
         RULES.format(budget=budget, budget_s=budget * nudge.DT, brake=brake, t1=cuts[0], t2=cuts[1],
-                     boot=cfg.bootstrap),
+                     boot=cfg.bootstrap, settle=float(sim_cfg.settle_y)),
+        "",
         "## Results per world and planner",
         "",
         "| world | planner | runs (scenes) | success % [95 % CI] | collisions at fault: events (runs) | "
         "not at fault | off-road steps (runs) | straddle s / run | slow steps executed (runs) | planned (runs) | "
         "min TTC median s (runs ≤ 0.95 s) | comfortable % | max jerk / lat acc / yaw rate, median (max) | "
+        "max abs heading rad, median (max) | overshoot m, max (runs > tol) | "
         "time to target s | time to lane s | progress vs log | score [95 % CI] | planning ms median (p90) |",
-        "|" + "---|" * 18,
+        "|" + "---|" * 20,
     ]
     summaries = {}
     for c in chunks:
-        s = summarise(c, budget, cfg.bootstrap)
+        s = summarise(c, budget, cfg.bootstrap, float(sim_cfg.settle_y))
         summaries[c.arm] = s
         err = f" +{s['errors']} failed" if s["errors"] else ""
         lines.append(
@@ -471,6 +480,7 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
             f"{s['slow_planned'][0]} ({s['slow_planned'][1]}) | {_f(s['min_ttc_median'])} ({s['ttc_below']}) | "
             f"{_f(100 * s['comfortable'], 1)} | {_f(s['jerk_median'], 1)} / {_f(s['lat_median'])} / "
             f"{_f(s['yaw_median'], 3)} ({_f(s['jerk_max'], 1)} / {_f(s['lat_max'])} / {_f(s['yaw_max'], 3)}) | "
+            f"{_f(s['heading'][0], 3)} ({_f(s['heading'][1], 3)}) | {_f(s['overshoot'][0])} ({s['overshoot'][1]}) | "
             f"{_f(s['time_to_target'])} | {_f(s['time_to_lane'])} | {_f(s['progress_ratio'], 3)} | "
             f"{_ci(s['score'], 1.0, 3)} | {_f(s['mpc_ms'][0])} ({_f(s['mpc_ms'][1])}) |")
     lines += ["", "Planner status per step: " + "; ".join(
