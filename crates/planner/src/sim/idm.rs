@@ -26,17 +26,19 @@
 //! walking pace rather than divide by zero).
 //!
 //! **Leaders.** A follower's leader is the nearest vehicle ahead (centre ahead of its centre)
-//! among the others in its lane (lane of the centre, fixed for the run) and the ego when the
-//! ego counts as being in its lane. The ego counts by the file's **intrusion rule**
-//! ([`IntrusionRule`], fitted to real US-101 cut-ins): each follower draws once per run
-//! whether it yields (probability `p_yield`, seeded by the run's seed and its index); a
-//! yielding follower treats the ego as a leader once the ego's nearest edge is more than
-//! `threshold_m` inside the follower's lane (lateral overlap of the ego's box with the lane >
-//! threshold), a non-yielding one only once the ego is entirely inside the lane. Once the ego
-//! is a follower's leader it stays one while any part of it is in the lane (a follower does
-//! not ignore a car that is leaving its lane). The gap to the ego is measured to the rear of
-//! the ego's rotated box, its speed along the road is v·cos ψ, and within a 0.3 s step the ego
-//! moves linearly from its state before the step to its state after it.
+//! among the others in its lane (lane of the centre, fixed for the run; or whose box overlaps
+//! its own across the road) and the ego when the ego counts as being in its lane. At the start
+//! the ego counts in the lane of its centre, like every other vehicle. Afterwards it enters a
+//! follower's lane by the file's **intrusion rule** ([`IntrusionRule`], fitted to real US-101
+//! cut-ins): each follower draws once per run whether it yields (probability `p_yield`, seeded
+//! by the run's seed and its index); a yielding follower counts the ego once the ego's nearest
+//! edge is more than `threshold_m` inside the follower's lane (lateral overlap of the ego's box
+//! with the lane > threshold), a non-yielding one only once the ego is entirely inside the
+//! lane. The ego keeps counting while any part of it is in the lane (a follower does not
+//! ignore a car that is leaving its lane) and stops once it is wholly out. The gap to the ego
+//! is measured to the rear of the ego's rotated box, its speed along the road is v·cos ψ, and
+//! within a 0.3 s step the ego moves linearly from its state before the step to its state
+//! after it.
 //!
 //! Deterministic: the same scene, population and seed give the same traffic, bit for bit.
 
@@ -181,10 +183,10 @@ pub struct IntrusionRule {
 }
 
 impl IntrusionRule {
-    /// Whether a follower in the lane `[lane.0, lane.1]` (y, m) treats an intruder with
-    /// lateral extent `[extent.0, extent.1]` (y, m) as a leader candidate: `yields` (its draw)
+    /// Whether a follower in the lane `[lane.0, lane.1]` (y, m) counts an intruder with
+    /// lateral extent `[extent.0, extent.1]` (y, m) as being in its lane: `yields` (its draw)
     /// and the overlap beyond the threshold, or the intruder entirely inside the lane, or
-    /// (`latched`: it was the follower's leader a sub-step ago) any overlap at all.
+    /// (`latched`: it counted a sub-step ago) any overlap at all.
     #[must_use]
     pub fn reacts(
         &self,
@@ -485,8 +487,8 @@ pub struct IdmVehicle {
     pub v0: f64,
     /// Whether it yields early to an intruder ([`IntrusionRule`]).
     pub yields: bool,
-    /// Whether the ego was its leader at the last sub-step.
-    pub follows_ego: bool,
+    /// Whether the ego counts as being in its lane ([`IntrusionRule::reacts`]).
+    pub ego_in_lane: bool,
 }
 
 /// The ego as the other vehicles see it at one sub-step.
@@ -575,26 +577,29 @@ pub fn highest_logged_speed(sc: &Scenario, agent: usize) -> f64 {
 impl IdmTraffic {
     /// The traffic of scene `sc` for the run with `seed`: every other vehicle at its last
     /// observed position and speed, in the lane of its centre, with a driver drawn from the
-    /// rows of the scene's source ([`IdmPopulation::rows_for`]) and a yield draw.
+    /// rows of the scene's source ([`IdmPopulation::rows_for`]) and a yield draw; the ego
+    /// counts as being in the lane of its centre.
     #[must_use]
     pub fn new(sc: &Scenario, population: &IdmPopulation, seed: u64) -> Self {
         let rows = population.rows_for(DriverSource::of_scene(sc));
+        let ego_lane = lane_index(&sc.lane_bounds, sc.position(0, T_OBS - 1)[1]);
         let vehicles = (1..sc.n_agents)
             .map(|i| {
                 let p = sc.position(i, T_OBS - 1);
                 let row = rows[(draw(seed, i, 1) % rows.len() as u64) as usize];
                 let driver = population.drivers[row];
+                let lane = lane_index(&sc.lane_bounds, p[1]);
                 IdmVehicle {
                     x: p[0],
                     y: p[1],
                     v: sc.speed[i],
                     length: sc.size[i][0],
                     width: sc.size[i][1],
-                    lane: lane_index(&sc.lane_bounds, p[1]),
+                    lane,
                     driver,
                     v0: driver.v0_ratio * highest_logged_speed(sc, i).max(V_REF_MIN),
                     yields: uniform(seed, i, 2) < population.intrusion.p_yield,
-                    follows_ego: false,
+                    ego_in_lane: lane == ego_lane,
                 }
             })
             .collect();
@@ -607,8 +612,18 @@ impl IdmTraffic {
         }
     }
 
-    /// The leader of vehicle `f` with the ego seen as `ego`, and the gap (m) and speed (m/s)
-    /// it is followed at; `None` on a free road.
+    /// Updates whether each vehicle counts the ego, seen as `ego`, as being in its lane
+    /// ([`IntrusionRule::reacts`]).
+    pub fn observe_ego(&mut self, ego: &EgoView) {
+        for v in &mut self.vehicles {
+            let lane = (self.lane_bounds[v.lane], self.lane_bounds[v.lane + 1]);
+            v.ego_in_lane = self.rule.reacts(lane, ego.extent, v.yields, v.ego_in_lane);
+        }
+    }
+
+    /// The leader of vehicle `f` with the ego seen as `ego` (counted as in its lane as last
+    /// observed, [`IdmTraffic::observe_ego`]), and the gap (m) and speed (m/s) it is followed
+    /// at; `None` on a free road.
     #[must_use]
     pub fn leader(&self, f: usize, ego: &EgoView) -> Option<(Leader, f64, f64)> {
         let me = &self.vehicles[f];
@@ -620,24 +635,22 @@ impl IdmTraffic {
             }
         };
         for (j, o) in self.vehicles.iter().enumerate() {
-            if j != f && o.lane == me.lane && o.x > me.x {
+            let side_by_side = (o.y - me.y).abs() < 0.5 * (o.width + me.width);
+            if j != f && (o.lane == me.lane || side_by_side) && o.x > me.x {
                 consider(Leader::Vehicle(j), o.x - 0.5 * o.length - front, o.v);
             }
         }
-        let lane = (self.lane_bounds[me.lane], self.lane_bounds[me.lane + 1]);
-        if ego.x > me.x
-            && self
-                .rule
-                .reacts(lane, ego.extent, me.yields, me.follows_ego)
-        {
+        if ego.x > me.x && me.ego_in_lane {
             consider(Leader::Ego, ego.rear - front, ego.vx);
         }
         best
     }
 
-    /// One sub-step of `dt` seconds with the ego seen as `ego`: every vehicle's acceleration
-    /// from the current states, then the ballistic update of all.
+    /// One sub-step of `dt` seconds with the ego seen as `ego`: whether each vehicle counts
+    /// the ego in its lane, every vehicle's acceleration from the current states, then the
+    /// ballistic update of all.
     pub fn substep(&mut self, ego: &EgoView, dt: f64) {
+        self.observe_ego(ego);
         let leaders: Vec<Option<(Leader, f64, f64)>> = (0..self.vehicles.len())
             .map(|f| self.leader(f, ego))
             .collect();
@@ -645,7 +658,6 @@ impl IdmTraffic {
             let a = self
                 .model
                 .accel(&veh.driver, veh.v, veh.v0, lead.map(|(_, s, v)| (s, v)));
-            veh.follows_ego = matches!(lead, Some((Leader::Ego, _, _)));
             let v_next = (veh.v + a * dt).max(0.0);
             veh.x += 0.5 * (veh.v + v_next) * dt;
             veh.v = v_next;
@@ -701,7 +713,7 @@ mod tests {
             driver: driver(),
             v0,
             yields,
-            follows_ego: false,
+            ego_in_lane: false,
         }
     }
 
@@ -721,6 +733,11 @@ mod tests {
     /// An ego far behind everyone in lane 1 (never a leader of anyone in lane 0).
     fn far_ego() -> State {
         State::new(-1000.0, 3.5, 0.0, 0.0)
+    }
+
+    /// The same ego as the others see it.
+    fn far_view() -> EgoView {
+        EgoView::new([-1000.0, 3.5, 0.0, 0.0], [4.0, 1.8])
     }
 
     #[test]
@@ -791,7 +808,7 @@ mod tests {
                         },
                         v0: num(&c["v0"]),
                         yields: true,
-                        follows_ego: false,
+                        ego_in_lane: false,
                     }
                 })
                 .collect(),
@@ -818,47 +835,72 @@ mod tests {
     #[test]
     fn intrusion_rule_switches_leader_by_threshold_or_full_entry() {
         // Follower in lane 0 ([-1.75, 1.75]) at x = 0 behind a vehicle 40 m ahead; the ego
-        // 15 m ahead moves left to right from lane 1 into lane 0.
+        // 15 m ahead moves from lane 1 into lane 0 and back out.
         for yields in [true, false] {
             let mut t = traffic(vec![
                 vehicle(40.0, 0.0, 10.0, 0, 12.0, true),
                 vehicle(0.0, 0.0, 10.0, 0, 12.0, yields),
             ]);
-            let leader_at = |t: &IdmTraffic, y: f64| {
+            let mut leader_at = |y: f64| {
                 let ego = EgoView::new([15.0, y, 0.0, 10.0], [4.0, 1.8]);
+                t.observe_ego(&ego);
                 t.leader(1, &ego).map(|(l, _, _)| l)
             };
-            // Nearest edge (y − 0.9) 1.0 m inside the line at 1.75: beyond the 0.7 m threshold.
-            let edge_beyond = 1.75 - 1.0 + 0.9;
-            // Nearest edge 0.5 m inside: below the threshold.
-            let edge_short = 1.75 - 0.5 + 0.9;
-            // Wholly inside: y + 0.9 ≤ 1.75.
-            let inside = 0.8;
-            assert_eq!(leader_at(&t, edge_short), Some(Leader::Vehicle(0)));
-            let expect = if yields {
+            // The ego's nearest edge (y − 0.9) 0.5 m inside the line at 1.75: below the
+            // threshold; 1.0 m inside: beyond it; y = 0.8: wholly inside; 2.66: wholly out.
+            let (short, beyond, inside, out) = (1.75 - 0.5 + 0.9, 1.75 - 1.0 + 0.9, 0.8, 2.66);
+            let ego_if_yields = if yields {
                 Leader::Ego
             } else {
                 Leader::Vehicle(0)
             };
-            assert_eq!(leader_at(&t, edge_beyond), Some(expect), "yields {yields}");
-            assert_eq!(leader_at(&t, inside), Some(Leader::Ego));
-            // Latched: once following the ego, a follower keeps it while it overlaps at all.
-            let ego_in = EgoView::new([15.0, inside, 0.0, 10.0], [4.0, 1.8]);
-            t.substep(&ego_in, 0.1);
-            assert!(t.vehicles[1].follows_ego);
-            assert_eq!(leader_at(&t, edge_short), Some(Leader::Ego));
-            assert_eq!(leader_at(&t, 1.75 + 0.9 + 0.01), Some(Leader::Vehicle(0)));
+            assert_eq!(leader_at(short), Some(Leader::Vehicle(0)));
+            assert_eq!(leader_at(beyond), Some(ego_if_yields), "yields {yields}");
+            assert_eq!(leader_at(inside), Some(Leader::Ego));
+            // Counted once, the ego stays a leader while it overlaps the lane at all ...
+            assert_eq!(leader_at(short), Some(Leader::Ego));
+            // ... until it is wholly out; coming back, the rule applies again.
+            assert_eq!(leader_at(out), Some(Leader::Vehicle(0)));
+            assert_eq!(leader_at(short), Some(Leader::Vehicle(0)));
             // An ego behind the follower is never its leader.
             let behind = EgoView::new([-15.0, 0.0, 0.0, 10.0], [4.0, 1.8]);
+            t.observe_ego(&behind);
             assert_eq!(t.leader(1, &behind).map(|l| l.0), Some(Leader::Vehicle(0)));
         }
     }
 
     #[test]
+    fn an_ego_starting_in_a_lane_leads_its_followers_even_across_a_line() {
+        // A non-yielding follower whose lane holds the ego's centre at the start follows the
+        // ego although the ego's box already crosses the lane line (a wide vehicle).
+        let mut t = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, false)]);
+        t.vehicles[0].ego_in_lane = true;
+        let ego = EgoView::new([15.0, 0.6, 0.0, 10.0], [5.0, 2.6]);
+        assert!(ego.extent.1 > 1.75, "the ego crosses the line");
+        t.substep(&ego, 0.1);
+        assert_eq!(t.leader(0, &ego).map(|l| l.0), Some(Leader::Ego));
+        // Without that start, the same follower ignores it until it is wholly inside.
+        let mut fresh = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, false)]);
+        fresh.substep(&ego, 0.1);
+        assert_eq!(fresh.leader(0, &ego), None);
+        // Another vehicle whose box overlaps the follower's across the road leads it although
+        // its centre is in the next lane.
+        let t = traffic(vec![
+            vehicle(0.0, 1.0, 10.0, 0, 12.0, true),
+            vehicle(20.0, 2.5, 10.0, 1, 12.0, true),
+        ]);
+        assert_eq!(
+            t.leader(0, &far_view()).map(|l| l.0),
+            Some(Leader::Vehicle(1))
+        );
+    }
+
+    #[test]
     fn the_gap_to_the_ego_is_to_its_rotated_rear() {
-        let t = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, true)]);
+        let mut t = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, true)]);
         let psi: f64 = 0.2;
         let ego = EgoView::new([20.0, 0.0, psi, 10.0], [4.0, 1.8]);
+        t.observe_ego(&ego);
         let (who, gap, v) = t.leader(0, &ego).expect("the ego leads");
         assert_eq!(who, Leader::Ego);
         let half = 0.5 * (4.0 * psi.cos() + 1.8 * psi.sin());
@@ -894,7 +936,9 @@ mod tests {
         assert_eq!(a, IdmTraffic::new(&sc, &pop, 7));
         let b = IdmTraffic::new(&sc, &pop, 8);
         assert_ne!(a.vehicles, b.vehicles, "another seed draws other drivers");
+        let ego_lane = lane_index(&sc.lane_bounds, sc.position(0, T_OBS - 1)[1]);
         for (i, v) in a.vehicles.iter().enumerate() {
+            assert_eq!(v.ego_in_lane, v.lane == ego_lane);
             let row = pop
                 .drivers
                 .iter()

@@ -337,9 +337,11 @@ def paired(a: Chunk, b: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP) -> di
 
 def explain(c: dict, brake_limit: float) -> str:
     """Why one collision row (a dict of the collision columns) is or is not the ego's fault."""
+    faster = f" closing at {c['other_v'] - c['ego_v']:.1f} m/s" if c["other_behind"] else ""
     if not c["at_fault"]:
-        return f"hit from behind inside its lane, braking {c['ego_accel']:+.1f} m/s² (≥ −{brake_limit:g})"
-    why = []
+        return (f"hit from behind inside its lane by a vehicle{faster}, the ego at {c['ego_accel']:+.1f} m/s² "
+                f"(≥ −{brake_limit:g})")
+    why = [f"hit from behind by a vehicle{faster}"] if c["rear_hit"] else []
     if not c["other_behind"]:
         why.append("the other vehicle is ahead (the ego ran into it)" if c["dx"] > 0 else "side by side")
     elif not c["rear_hit"]:
@@ -410,11 +412,13 @@ rule is documented) and reach Python and the CLI as the same columns.
   on the time to target.
 
 Worlds: `teacher` (the shipped teacher predicts the others given the ego's plan), `idm` (every other
-vehicle keeps its lane and follows IDM with a driver drawn from the population fitted to real NGSIM
-car-following, `assets/worlds/idm.json`, and the fitted intrusion rule: a follower treats the ego as
-its leader once its nearest edge is 0.7 m inside the follower's lane with probability 0.7, else only at
-full entry; see `nudge_planner::sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged
-future; constant velocity once the log ends; the others never react).
+vehicle keeps its lane and lateral position and follows IDM with a driver drawn per vehicle from the
+population fitted to real NGSIM car-following, `assets/worlds/idm.json`; the ego counts as being in
+the lane of its centre at the start and enters another lane by the fitted intrusion rule: a follower
+counts it once its nearest edge is 0.7 m inside the follower's lane with probability 0.7, otherwise
+only once it is wholly inside, and keeps counting it while any part of it is in the lane; see
+`nudge_planner::sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged future; constant
+velocity once the log ends; the others never react).
 """
 
 
@@ -453,12 +457,18 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         f"({sum(c.computed_s for c in chunks) / 60:.1f} min computed, the rest read from the cache).",
         "",
         f"Egos that start with a corner over the road's edge: {len(over)} of {len(overhang)} scenes"
-        + (f" (overhang {over.min():.2f}–{over.max():.2f} m, median {np.median(over):.2f} m); the off-road "
-           "test allows each ego its own start overhang + 0.1 m." if len(over) else "."),
+        + (f" ({int((over >= 0.1).sum())} by 0.1 m or more; overhang {over.min():.3f}–{over.max():.2f} m, median "
+           f"{np.median(over):.2f} m); the off-road test allows each ego its own start overhang + 0.1 m."
+           if len(over) else "."),
         "",
+        "In the `teacher` and `log_replay` worlds a run depends on its seed only through the target lane (both "
+        "worlds are deterministic), so seeds of one scene that draw the same lane repeat a run exactly; in the "
+        "`idm` world the seed also draws the drivers. The intervals resample scenes, which accounts for runs of "
+        "one scene being alike.",
+        "",
+        "@SUMMARY@",
         RULES.format(budget=budget, budget_s=budget * nudge.DT, brake=brake, t1=cuts[0], t2=cuts[1],
                      boot=cfg.bootstrap, settle=float(sim_cfg.settle_y)),
-        "",
         "## Results per world and planner",
         "",
         "| world | planner | runs (scenes) | success % [95 % CI] | collisions at fault: events (runs) | "
@@ -483,6 +493,14 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
             f"{_f(s['heading'][0], 3)} ({_f(s['heading'][1], 3)}) | {_f(s['overshoot'][0])} ({s['overshoot'][1]}) | "
             f"{_f(s['time_to_target'])} | {_f(s['time_to_lane'])} | {_f(s['progress_ratio'], 3)} | "
             f"{_ci(s['score'], 1.0, 3)} | {_f(s['mpc_ms'][0])} ({_f(s['mpc_ms'][1])}) |")
+    key = []
+    for c in chunks:
+        s = summaries[c.arm]
+        key.append(f"- **{c.arm.world} world, {c.arm.label(many)}**: success {_ci(s['success'])} %, "
+                   f"{s['at_fault'][0]} at-fault and {s['not_at_fault'][0]} not-at-fault collisions, "
+                   f"off the road in {s['off_road'][1]} of {s['runs']} runs, slow in a live lane in {s['slow'][1]} "
+                   f"runs (planned in {s['slow_planned'][1]}), score {s['score'][0]:.3f}.")
+    lines[lines.index("@SUMMARY@")] = "## Summary\n\n" + "\n".join(key) + "\n"
     lines += ["", "Planner status per step: " + "; ".join(
         f"{c.arm.world}/{c.arm.label(many)}: " + ", ".join(f"{k} {v}" for k, v in summaries[c.arm]["status"].items())
         for c in chunks), ""]
