@@ -71,8 +71,8 @@ def test_resume_reads_the_cache_and_recomputes_a_part_whose_inputs_changed(repo:
 
 def test_collisions_are_explained_by_the_rule() -> None:
     row = {"at_fault": False, "other_behind": True, "rear_hit": True, "ego_in_lane": True, "ego_accel": -1.0,
-           "dx": -4.0, "dy": 0.1}
-    assert "hit from behind" in explain(row, 3.0)
+           "dx": -4.0, "dy": 0.1, "ego_v": 10.0, "other_v": 14.5}
+    assert "hit from behind inside its lane by a vehicle closing at 4.5 m/s" in explain(row, 3.0)
     row.update(at_fault=True, ego_in_lane=False, ego_accel=-4.0)
     why = explain(row, 3.0)
     assert "not inside one lane" in why and "brakes" in why
