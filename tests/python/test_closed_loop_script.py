@@ -115,3 +115,20 @@ def test_command_writes_the_report(repo: Path, tmp_path: Path) -> None:
     assert data["idm/constant_velocity/default"]["runs"] == 4
     assert main(["closed-loop", "--scenes", str(tmp_path), "--n", "2", "--out", str(out)]) == 2
     assert main(["closed-loop", "--seeds", "0"]) == 2
+
+
+def test_compare_runs_two_settings_on_the_same_pairs(repo: Path, tmp_path: Path) -> None:
+    a, b = tmp_path / "base.json", tmp_path / "fewer_iterations.json"
+    a.write_text("{}")
+    b.write_text(json.dumps({"max_iter": 2}))
+    out = tmp_path / "cmp.md"
+    rc = main(["closed-loop", "--scenes", str(repo / "assets" / "scenes"), "--n", "2", "--seeds", "1",
+               "--planners", "constant_velocity", "--worlds", "log_replay", "--compare", str(a), str(b),
+               "--threads", "1", "--cache", str(tmp_path / "cache"), "--bootstrap", "50", "--out", str(out),
+               "--no-progress"])
+    assert rc == 0
+    text = out.read_text()
+    assert "Reference: settings base" in text
+    rows = [line for line in text.splitlines()
+            if line.startswith("| log_replay | constant_velocity [base] | constant_velocity [fewer_iterations] |")]
+    assert len(rows) == 1 and rows[0].split("|")[4].strip() == "2"  # two (scene, seed) pairs
