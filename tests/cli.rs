@@ -6,7 +6,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use nudge::planner::sim::{RUN_COLUMNS, STEP_COLUMNS, Table, run_table, step_table};
+use nudge::planner::sim::{
+    COLLISION_COLUMNS, RUN_COLUMNS, STEP_COLUMNS, Table, collision_table, run_table, step_table,
+};
 use nudge::planner::{
     PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
 };
@@ -110,16 +112,19 @@ fn cli_writes_the_shared_columns_of_the_library_runs() {
     assert_eq!(cfg.world, World::Teacher);
     let specs = run_specs(loaded.len(), 2, 5, None).unwrap();
     let assets = repo().join("assets");
-    let predictors = Predictors::resolve("student", cfg.world, None, &assets, 6).unwrap();
+    let predictors = Predictors::resolve("student", cfg.world, None, None, &assets, 6).unwrap();
     let outputs = simulate_many(&loaded, &specs, &settings, &cfg, &predictors, false);
     let runs = run_table(&loaded, &outputs);
     let steps = step_table(&outputs);
+    let collisions = collision_table(&loaded, &outputs);
     let names = |t: &Table| t.columns().iter().map(|(n, _)| *n).collect::<Vec<_>>();
     assert_eq!(names(&runs), RUN_COLUMNS);
     assert_eq!(names(&steps), STEP_COLUMNS);
+    assert_eq!(names(&collisions), COLLISION_COLUMNS);
 
     let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
     assert_eq!(read("runs.csv"), csv(&runs));
+    assert_eq!(read("collisions.csv"), csv(&collisions));
     assert_eq!(
         without_timing(&read("steps.csv")),
         without_timing(&csv(&steps))
@@ -165,6 +170,12 @@ fn cli_refuses_bad_arguments_by_name() {
             vec!["--world", "log_replay", "--world-predictor", "teacher"],
             "log_replay",
         ),
+        (vec!["--idm", "assets/worlds/idm.json"], "idm"),
+        (
+            vec!["--world", "idm", "--idm", "/nonexistent/idm.json"],
+            "/nonexistent/idm.json",
+        ),
+        (vec!["--fault-brake-limit", "0"], "fault_brake_limit"),
     ] {
         let mut all = vec!["simulate", "--scenes", sc];
         all.extend(&args);

@@ -4,8 +4,10 @@
 use std::path::{Path, PathBuf};
 
 use nudge::planner::SimError;
+use nudge::planner::sim::idm_path;
 use nudge::planner::{
-    PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, World, simulate, target_lane,
+    IdmPopulation, PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, World, WorldModel,
+    simulate, target_lane,
 };
 use nudge::predictor::{ConstantVelocity, ModelKind, load_predictor, model_path};
 
@@ -55,7 +57,15 @@ fn constant_velocity_lane_change_on_real_scene() {
     };
     for seed in 0..2 {
         let mut cv = ConstantVelocity::default();
-        let rec = simulate(&sc, &PlannerSettings::default(), &cfg, seed, &mut cv, None).unwrap();
+        let rec = simulate(
+            &sc,
+            &PlannerSettings::default(),
+            &cfg,
+            seed,
+            &mut cv,
+            WorldModel::LogReplay,
+        )
+        .unwrap();
         check(&rec);
     }
 }
@@ -68,7 +78,15 @@ fn constant_velocity_lane_change_in_dense_real_scene() {
         ..SimConfig::default()
     };
     let mut cv = ConstantVelocity::default();
-    let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
+    let rec = simulate(
+        &sc,
+        &PlannerSettings::default(),
+        &cfg,
+        0,
+        &mut cv,
+        WorldModel::LogReplay,
+    )
+    .unwrap();
     check(&rec);
 }
 
@@ -88,7 +106,7 @@ fn lane_change_in_teacher_world(plan_weights: &Path) -> RunRecord {
         &cfg,
         3,
         plan.as_mut(),
-        Some(world.as_mut()),
+        WorldModel::Teacher(world.as_mut()),
     )
     .unwrap();
     assert_eq!(rec.world, World::Teacher);
@@ -134,7 +152,7 @@ fn student_lane_change_with_teacher_world() {
 }
 
 /// The world model must match the world: a teacher world needs a teacher (not a student, not
-/// none), a log-replay world none.
+/// none), an idm world its population, a log-replay world none.
 #[test]
 fn world_models_are_checked_against_the_world() {
     let sc = scene("us101-11_1-t02.1-ego144");
@@ -149,13 +167,77 @@ fn world_models_are_checked_against_the_world() {
     let mut student =
         load_predictor(model_path(&repo().join("assets"), ModelKind::Student)).unwrap();
     let mut other_cv = ConstantVelocity::default();
+    let idm_world = SimConfig {
+        world: World::Idm,
+        ..teacher_world
+    };
+    let population = IdmPopulation::from_file(idm_path(&repo().join("assets"))).unwrap();
     let errors = [
-        simulate(&sc, &s, &teacher_world, 0, &mut cv, None).unwrap_err(),
-        simulate(&sc, &s, &teacher_world, 0, &mut cv, Some(student.as_mut())).unwrap_err(),
-        simulate(&sc, &s, &replay, 0, &mut cv, Some(&mut other_cv)).unwrap_err(),
+        simulate(&sc, &s, &teacher_world, 0, &mut cv, WorldModel::LogReplay).unwrap_err(),
+        simulate(
+            &sc,
+            &s,
+            &teacher_world,
+            0,
+            &mut cv,
+            WorldModel::Teacher(student.as_mut()),
+        )
+        .unwrap_err(),
+        simulate(
+            &sc,
+            &s,
+            &replay,
+            0,
+            &mut cv,
+            WorldModel::Teacher(&mut other_cv),
+        )
+        .unwrap_err(),
+        simulate(&sc, &s, &replay, 0, &mut cv, WorldModel::Idm(&population)).unwrap_err(),
+        simulate(&sc, &s, &idm_world, 0, &mut cv, WorldModel::LogReplay).unwrap_err(),
     ];
     for err in errors {
         assert!(matches!(err, SimError::WorldModel { .. }), "{err}");
+    }
+}
+
+/// Lane changes in the idm world on a shipped real scene: the run completes, the other
+/// vehicles move by IDM (they keep their lateral positions, unlike the log), and the same seed
+/// gives the same run bit for bit.
+#[test]
+fn lane_change_in_idm_world_on_real_scene() {
+    let sc = scene("us101-11_1-t02.1-ego144");
+    let population = IdmPopulation::from_file(idm_path(&repo().join("assets"))).unwrap();
+    let cfg = SimConfig {
+        world: World::Idm,
+        ..SimConfig::default()
+    };
+    let run = |seed: u64| {
+        let mut cv = ConstantVelocity::default();
+        simulate(
+            &sc,
+            &PlannerSettings::default(),
+            &cfg,
+            seed,
+            &mut cv,
+            WorldModel::Idm(&population),
+        )
+        .unwrap()
+    };
+    for seed in 0..2 {
+        let rec = run(seed);
+        assert_eq!(rec.world, World::Idm);
+        check(&rec);
+        assert_eq!(rec.metrics.collisions_at_fault, 0);
+        assert_eq!(rec.metrics.off_road_steps, 0);
+        assert!(rec.metrics.score > 0.5, "score {}", rec.metrics.score);
+        assert_eq!(rec, {
+            let mut again = run(seed);
+            for (a, b) in again.steps.iter_mut().zip(&rec.steps) {
+                a.mpc_s = b.mpc_s;
+                a.z_updates_s.clone_from(&b.z_updates_s);
+            }
+            again
+        });
     }
 }
 
@@ -209,7 +291,15 @@ fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
             ..SimConfig::default()
         };
         let mut cv = ConstantVelocity::default();
-        let rec = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None).unwrap();
+        let rec = simulate(
+            &sc,
+            &PlannerSettings::default(),
+            &cfg,
+            0,
+            &mut cv,
+            WorldModel::LogReplay,
+        )
+        .unwrap();
         assert!(!rec.collision, "collision with abort_after {abort_after}");
         assert!(!rec.success, "a lane change through a closed convoy");
         if abort_after == 0 {

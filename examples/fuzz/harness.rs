@@ -36,7 +36,7 @@ use nudge::planner::scenario::{
 use nudge::planner::settings::RANGES;
 use nudge::planner::{
     EgoState, Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, State, World,
-    simulate,
+    WorldModel, simulate,
 };
 use nudge::predictor::limits::{MAX_STEP, canonical_scene};
 use nudge::predictor::weights::{restamp, synthetic_weights};
@@ -1052,7 +1052,7 @@ fn scenario_try(rng: &mut Rng, seeds: &[Vec<u8>], student: Option<&Student>) -> 
         &cfg,
         rng.next_u64() % 1000,
         planner_pred,
-        None,
+        WorldModel::LogReplay,
     ) {
         Ok(rec) => {
             for st in &rec.steps {

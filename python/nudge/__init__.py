@@ -8,7 +8,7 @@ name resolution for the shipped models and scenes::
     teacher = nudge.Predictor.load(nudge.model_path("teacher"))
     out = teacher.predict(sc.history, cands)   # [agents, 8, 2], [batch, 6, 2] -> [batch, agents-1, 6, 2]
     plan = nudge.Planner(nudge.PlannerSettings.default(), teacher).plan_scenario(sc)
-    rec = nudge.simulate(nudge.scene_paths(), "student", world="teacher", max_steps=20)
+    rec = nudge.simulate(nudge.scene_paths(), "student", world="idm", max_steps=20)
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from nudge._native import (
     SimConfig,
     SolverError,
     WeightsError,
+    WorldFileError,
     __version__,
 )
 from nudge._native import model_path as _model_path
@@ -55,6 +56,7 @@ __all__ = [
     "SimConfig",
     "SolverError",
     "WeightsError",
+    "WorldFileError",
     "__version__",
     "assets_dir",
     "model_path",
@@ -100,6 +102,7 @@ def simulate(
     predictor: str | os.PathLike[str] = DEFAULTS["predictor"],
     *,
     world_predictor: str | os.PathLike[str] | None = None,
+    idm: str | os.PathLike[str] | None = None,
     seed: int = DEFAULTS["seed"],
     scene_seeds: Sequence[int] | None = None,
     runs: int = DEFAULTS["runs"],
@@ -111,13 +114,15 @@ def simulate(
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop lane changes: :func:`nudge._native.simulate` with the named models
-    (``"teacher"``, ``"student"``) resolved under :func:`assets_dir`. Defaults come from Rust
+    (``"teacher"``, ``"student"``) and the ``idm`` world's driver population
+    (``worlds/idm.json``) resolved under :func:`assets_dir`. Defaults come from Rust
     (:data:`DEFAULTS`, :meth:`SimConfig.default`); ``config_overrides`` are ``SimConfig``
-    fields (``world="log_replay"``, ``max_steps=4``, ...)."""
+    fields (``world="idm"``, ``max_steps=4``, ...)."""
     return _simulate(
         [os.fspath(p) for p in scene_paths],
         os.fspath(predictor),
         world_predictor=None if world_predictor is None else os.fspath(world_predictor),
+        idm=None if idm is None else os.fspath(idm),
         seed=seed,
         scene_seeds=None if scene_seeds is None else [int(s) for s in scene_seeds],
         runs=runs,

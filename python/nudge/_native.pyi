@@ -41,6 +41,9 @@ class ScenarioError(NudgeError):
 class SolverError(NudgeError):
     """An optimisation step failed."""
 
+class WorldFileError(NudgeError):
+    """A world file (the idm world's driver population, "nudge.idm/1") is missing or malformed."""
+
 _F64 = npt.NDArray[np.float64]
 _F32 = npt.NDArray[np.float32]
 _I64 = npt.NDArray[np.int64]
@@ -80,8 +83,8 @@ class PlannerSettings:
 
 class SimConfig:
     """Closed-loop settings; fields are readable as attributes (``c.max_steps``): max_steps,
-    settle_y (m), settle_psi (rad), settle_steps, world ("teacher" or "log_replay"),
-    abort_after, abort_hold (steps)."""
+    settle_y (m), settle_psi (rad), settle_steps, world ("teacher", "idm" or "log_replay"),
+    abort_after, abort_hold (steps), fault_brake_limit (m/s^2)."""
 
     def __init__(self, **overrides: int | float | str) -> None: ...
     @staticmethod
@@ -197,6 +200,7 @@ def simulate(
     predictor: _Path = ...,
     *,
     world_predictor: _Path | None = None,
+    idm: _Path | None = None,
     seed: int = ...,
     scene_seeds: list[int] | None = None,
     runs: int = ...,
@@ -215,27 +219,47 @@ def simulate(
     ``predictor`` (default ``DEFAULTS["predictor"]``) and ``world_predictor`` (the world model
     of a ``"teacher"`` world, default the shipped teacher; must be a teacher): ``"teacher"``,
     ``"student"``, ``"constant_velocity"`` (named models under ``assets``) or a weights path.
+    ``idm``: the driver population of an ``"idm"`` world (default ``<assets>/worlds/idm.json``).
     ``config`` (default ``SimConfig.default()``) with ``config_overrides`` (``SimConfig`` fields:
     ``world``, ``max_steps``, ``settle_y``, ``settle_psi``, ``settle_steps``, ``abort_after``,
-    ``abort_hold``) sets the closed loop. Lane-change aborts: after ``abort_after`` consecutive
-    steps without a safe plan (status ``Fallback``, ``Unsafe`` or ``SolverFailed``) while the
-    ego is not yet wholly inside the target lane, the ego aims at its own lane's centre for
-    ``abort_hold`` steps, then retries (``abort_after = 0`` disables aborts).
+    ``abort_hold``, ``fault_brake_limit``) sets the closed loop. Lane-change aborts: after
+    ``abort_after`` consecutive steps without a safe plan (status ``Fallback``, ``Unsafe`` or
+    ``SolverFailed``) while the ego is not yet wholly inside the target lane, the ego aims at its
+    own lane's centre for ``abort_hold`` steps, then retries (``abort_after = 0`` disables aborts).
+    The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).
 
-    Returns ``{"runs": ..., "steps": ...}`` (+ ``"examples"`` when ``record``), the columns of
-    ``nudge_planner::sim::columns`` (the CLI's CSV has the same names and values):
+    Returns ``{"runs": ..., "steps": ..., "collisions": ...}`` (+ ``"examples"`` when
+    ``record``), the columns of ``nudge_planner::sim::columns`` (the CLI's CSV has the same names
+    and values):
 
     - runs (one row per run): scenario list[str], scene_index i64, seed u64,
       predictor list[str], world list[str], n_agents i64, target_lane i64 (-1 on error),
-      y_target f64 (NaN on error), success bool, steps_to_target i64 (-1 = never),
-      collision bool, aborts i64, n_steps i64, error list[str | None];
+      y_target f64 (NaN on error), success bool (settled without any collision),
+      steps_to_target i64 (-1 = never), collision bool, aborts i64, n_steps i64,
+      collisions_at_fault i64, collisions_not_at_fault i64, start_overhang f64 (m),
+      off_road_steps i64, straddle_steps i64, steps_to_lane i64 (-1 = never), slow_steps i64,
+      slow_planned_steps i64, min_ttc f64 (s, inf = nobody closed in), progress f64 (m),
+      progress_ratio f64 (NaN = no log), max_abs_jerk, rms_jerk f64 (m/s^3),
+      max_abs_lat_accel, rms_lat_accel f64 (m/s^2), max_abs_yaw_rate, rms_yaw_rate f64
+      (rad/s), max_abs_yaw_accel f64 (rad/s^2), min_accel, max_accel f64 (m/s^2),
+      comfortable bool, max_abs_heading f64 (rad), max_overshoot f64 (m, beyond the target lane's
+      centre), free_gap f64 (m), score f64, error list[str | None] (metric columns of
+      a failed run: -1 / NaN / False);
     - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
       z_updates i64, z_s f64 (sum of the Z-update times), z_median_s f64, iterations i64,
       predictor_calls i64, cost f64, primal_residual f64, min_b f64 (the planner's constraint
       at the executed step; NaN = none checked), collision bool, status list[str] (a
       ``PlanStatus`` name), delta f64, accel f64, x, y, psi, v f64 (the ego after the step),
       y_goal f64 (the lateral position aimed at: the target lane's centre, or the ego's own
-      lane's during an abort); plus ego f64 [S, 4] = (x, y, psi, v);
+      lane's during an abort), v_planned f64 (speed at the end of the applied plan),
+      road_excess f64 (m), off_road bool, straddle bool, in_target_lane bool, traffic_v f64
+      (NaN = no traffic), slow bool, slow_planned bool, ttc f64 (inf = none), progress f64,
+      jerk f64 (NaN at the first step), yaw_rate f64, lat_accel f64, yaw_accel f64;
+      plus ego f64 [S, 4] = (x, y, psi, v);
+    - collisions (one row per collision event): run i64, step i64, other i64 (agent index),
+      other_id i64 (source vehicle id), at_fault bool, other_behind bool, rear_hit bool,
+      ego_in_lane bool, ego_accel f64, dx, dy f64 (other minus ego, m), ego_heading,
+      other_heading f64 (rad), ego_v, other_v f64 (m/s), free_gap f64 (m);
     - examples (every distinct candidate the planning predictor evaluated, float32 m):
       history [H, 8, 2], context_offsets i64 [C + 1], context_run i64 [C],
       example_context i64 [E], candidate [E, T, 2], prediction [P, T, 2],

@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use nudge_planner::sim::defaults;
-use nudge_planner::sim::{Summary, run_table, step_listing, step_table, thread_pool};
+use nudge_planner::sim::{
+    Summary, collision_table, run_table, step_listing, step_table, thread_pool,
+};
 use nudge_planner::{
     PlannerSettings, Predictors, RunRecord, Scenario, SimConfig, World, run_specs, simulate_many,
 };
@@ -32,8 +34,12 @@ pub struct SimulateArgs {
     pub predictor: PathBuf,
     #[arg(long, help = noted("World model of a teacher world: teacher or a teacher weights file", defaults::WORLD_PREDICTOR))]
     pub world_predictor: Option<PathBuf>,
-    /// Directory of the named models (<assets>/models/<name>.safetensors)
-    /// [default: $NUDGE_ASSETS, else assets].
+    /// Driver population of an idm world ("nudge.idm/1" JSON)
+    /// [default: <assets>/worlds/idm.json].
+    #[arg(long)]
+    pub idm: Option<PathBuf>,
+    /// Directory of the named models (<assets>/models/<name>.safetensors) and worlds
+    /// (<assets>/worlds/idm.json) [default: $NUDGE_ASSETS, else assets].
     #[arg(long)]
     pub assets: Option<PathBuf>,
     /// Planner settings JSON (missing fields default).
@@ -52,7 +58,7 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub threads: Option<usize>,
     #[arg(long, value_parser = clap::builder::ValueParser::new(parse_world),
-          help = noted("How the other vehicles move: teacher or log_replay", DEFAULT.world))]
+          help = noted("How the other vehicles move: teacher, idm or log_replay", DEFAULT.world))]
     pub world: Option<World>,
     #[arg(long, help = noted("Most planning steps per run", DEFAULT.max_steps))]
     pub max_steps: Option<usize>,
@@ -70,7 +76,13 @@ pub struct SimulateArgs {
     pub abort_after: Option<usize>,
     #[arg(long, help = noted("Steps an aborted lane change keeps to the ego's own lane before retrying", DEFAULT.abort_hold))]
     pub abort_hold: Option<usize>,
-    /// Output directory for steps.csv, runs.csv and records.json.
+    #[arg(long, help = noted(
+        "At-fault rule: an ego hit from behind while inside one lane is not at fault only if it \
+         braked no harder than this (m/s²)",
+        DEFAULT.fault_brake_limit,
+    ))]
+    pub fault_brake_limit: Option<f64>,
+    /// Output directory for steps.csv, runs.csv, collisions.csv and records.json.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Print the per-step table of the first run even when running many.
@@ -103,6 +115,7 @@ impl SimulateArgs {
         c.settle_steps = self.settle_steps.unwrap_or(c.settle_steps);
         c.abort_after = self.abort_after.unwrap_or(c.abort_after);
         c.abort_hold = self.abort_hold.unwrap_or(c.abort_hold);
+        c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);
         c.validate().map_err(|e| e.to_string())?;
         Ok(c)
     }
@@ -118,7 +131,8 @@ impl SimulateArgs {
     }
 }
 
-/// Writes steps.csv, runs.csv (the shared columns) and records.json (the runs that ran).
+/// Writes steps.csv, runs.csv, collisions.csv (the shared columns) and records.json (the runs
+/// that ran).
 fn write_outputs(
     dir: &Path,
     scenes: &[Scenario],
@@ -129,6 +143,7 @@ fn write_outputs(
     for (name, table) in [
         ("steps.csv", step_table(outputs)),
         ("runs.csv", run_table(scenes, outputs)),
+        ("collisions.csv", collision_table(scenes, outputs)),
     ] {
         let p = dir.join(name);
         let file = std::fs::File::create(&p).map_err(|e| io(&p, &e))?;
@@ -166,6 +181,7 @@ pub fn run(a: &SimulateArgs) -> Result<(), String> {
         &a.predictor,
         cfg.world,
         world_model,
+        a.idm.as_deref(),
         &assets,
         settings.horizon,
     )

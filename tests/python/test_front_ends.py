@@ -50,7 +50,8 @@ def _as_text(value: object) -> str:
     return str(value)
 
 
-@pytest.mark.parametrize(("predictor", "world"), [("student", "teacher"), ("constant_velocity", "log_replay")])
+@pytest.mark.parametrize(("predictor", "world"),
+                         [("student", "teacher"), ("constant_velocity", "log_replay"), ("student", "idm")])
 def test_cli_csv_and_python_columns_agree(repo: Path, tmp_path: Path, predictor: str, world: str) -> None:
     scenes_dir = tmp_path / "scenes"
     scenes_dir.mkdir()
@@ -64,7 +65,7 @@ def test_cli_csv_and_python_columns_agree(repo: Path, tmp_path: Path, predictor:
     assert r.returncode == 0, r.stderr
     py = nudge.simulate(sorted(scenes_dir.glob("*.safetensors")), predictor, world=world, seed=3, runs=2,
                         max_steps=4, threads=1)
-    for table, file in (("runs", "runs.csv"), ("steps", "steps.csv")):
+    for table, file in (("runs", "runs.csv"), ("steps", "steps.csv"), ("collisions", "collisions.csv")):
         cli = _read(out / file)
         columns = {k: v for k, v in py[table].items() if k != "ego"}
         assert list(cli) == list(columns), f"{file}: {list(cli)} vs {list(columns)}"

@@ -123,6 +123,16 @@ def test_errors(scenes: list[Path], tmp_path: Path) -> None:
         nudge.simulate(scenes[:1], "constant_velocity", world_predictor="student")
     with pytest.raises(nudge.InputError, match="log_replay"):
         nudge.simulate(scenes[:1], "constant_velocity", world="log_replay", world_predictor="teacher")
+    with pytest.raises(nudge.InputError, match="idm"):
+        nudge.simulate(scenes[:1], "constant_velocity", world="teacher", idm=nudge.assets_dir() / "worlds" / "idm.json")
+    with pytest.raises(nudge.WorldFileError, match="missing.json"):
+        nudge.simulate(scenes[:1], "constant_velocity", world="idm", idm=tmp_path / "missing.json")
+    bad = tmp_path / "bad_idm.json"
+    bad.write_text((nudge.assets_dir() / "worlds" / "idm.json").read_text().replace('"nudge.idm/1"', '"nudge.idm/9"'))
+    with pytest.raises(nudge.WorldFileError, match="schema"):
+        nudge.simulate(scenes[:1], "constant_velocity", world="idm", idm=bad)
+    with pytest.raises(nudge.SettingsError, match="fault_brake_limit"):
+        nudge.simulate(scenes[:1], "constant_velocity", fault_brake_limit=-1.0)
     with pytest.raises(nudge.InputError, match="threads"):
         nudge.simulate(scenes[:1], "constant_velocity", threads=0)
     with pytest.raises(nudge.InputError, match="runs"):
@@ -206,3 +216,27 @@ def test_abort_columns_and_switch(scenes: list[Path]) -> None:
 def test_bad_abort_settings_raise(scenes: list[Path]) -> None:
     with pytest.raises(nudge.SettingsError, match="abort_after"):
         nudge.simulate(scenes[:1], "constant_velocity", abort_after=10_000)
+
+
+def test_idm_world_is_seeded_and_its_metrics_are_consistent(scenes: list[Path]) -> None:
+    """The idm world gives the same runs for the same seeds, and the run metrics agree with the
+    step columns they summarise."""
+    a = nudge.simulate(scenes[:3], "constant_velocity", world="idm", seed=4, runs=2, threads=2)
+    b = nudge.simulate(scenes[:3], "constant_velocity", world="idm", seed=4, runs=2, threads=1)
+    for k in ("x", "y", "v", "ttc", "traffic_v"):
+        np.testing.assert_array_equal(a["steps"][k], b["steps"][k])
+    runs, steps = a["runs"], a["steps"]
+    assert runs["world"] == ["idm"] * 6
+    for r in range(6):
+        m = steps["run"] == r
+        assert runs["off_road_steps"][r] == steps["off_road"][m].sum()
+        assert runs["straddle_steps"][r] == steps["straddle"][m].sum()
+        assert runs["slow_steps"][r] == steps["slow"][m].sum()
+        assert runs["slow_planned_steps"][r] == steps["slow_planned"][m].sum()
+        assert runs["min_ttc"][r] == steps["ttc"][m].min()
+        assert runs["progress"][r] == steps["progress"][m][-1]
+        inside = np.flatnonzero(steps["in_target_lane"][m])
+        assert runs["steps_to_lane"][r] == (inside[0] + 1 if inside.size else -1)
+        jerk = steps["jerk"][m][1:]
+        assert np.isnan(steps["jerk"][m][0]) and runs["max_abs_jerk"][r] == np.abs(jerk).max(initial=0.0)
+        assert runs["success"][r] == (runs["steps_to_target"][r] >= 0 and not runs["collision"][r])

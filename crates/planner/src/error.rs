@@ -275,6 +275,39 @@ pub enum SimConfigError {
     },
 }
 
+/// A world file (the `idm` world's "nudge.idm/1" parameters, [`crate::sim::IdmPopulation`])
+/// cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum WorldFileError {
+    /// The file could not be read.
+    #[error("cannot read world file {path}: {source}")]
+    Io {
+        /// File that failed.
+        path: PathBuf,
+        /// Underlying I/O error.
+        source: std::io::Error,
+    },
+    /// The text is not JSON.
+    #[error("{path}: not JSON: {reason}")]
+    NotJson {
+        /// File that failed.
+        path: PathBuf,
+        /// What the JSON parser said.
+        reason: String,
+    },
+    /// A field is missing or holds a value the world cannot use (schema, units, ranges).
+    #[error("{path}: field `{field}`: {reason}")]
+    Field {
+        /// File that failed.
+        path: PathBuf,
+        /// The field, as a JSON path (`drivers[12][3]`, `intrusion.p_yield`).
+        field: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+}
+
 /// A closed-loop simulation could not run.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -321,8 +354,11 @@ pub enum SimError {
         /// The loading error, naming the file.
         source: PredictorError,
     },
-    /// The world model does not match the world: a `teacher` world needs a teacher, a
-    /// `log_replay` world none.
+    /// The world file of an `idm` world cannot be used.
+    #[error(transparent)]
+    WorldFile(#[from] WorldFileError),
+    /// The world model does not match the world: a `teacher` world needs a teacher, an `idm`
+    /// world its driver population, a `log_replay` world neither.
     #[error("world {world}: {reason}")]
     WorldModel {
         /// The world's name.

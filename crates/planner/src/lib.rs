@@ -6,7 +6,10 @@
 //! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory ([`Planner`]; the
 //! phases are described in its module). Plus the scenario reader ("nudge.scenario/1"
 //! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
-//! [`simulate_many`]) with the records and columns both front ends report.
+//! [`simulate_many`]) in three worlds (the teacher's predictions, IDM traffic fitted to real
+//! car-following, the log; [`World`]), with the metrics every run is judged by
+//! ([`sim::metrics`]: collisions at fault or not, off-road, straddling, slow steps, time to
+//! collision, comfort, the score) and the records and columns both front ends report.
 //!
 //! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
 //! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.
@@ -25,7 +28,9 @@ pub use admm::{
     CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner,
     PlanningProblem, SafetyConstraint, StepStatus,
 };
-pub use error::{PlannerError, ScenarioError, SettingsError, SimConfigError, SimError};
+pub use error::{
+    PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
+};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
@@ -35,6 +40,6 @@ pub use safety::{
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary, World, run_specs,
-    simulate, simulate_many, target_lane,
+    IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary,
+    World, WorldModel, WorldSpec, run_specs, simulate, simulate_many, target_lane,
 };

@@ -6,6 +6,7 @@
 //! ├── InputError      wrong shape / dtype / non-finite values / agent count
 //! ├── SettingsError   invalid planner or closed-loop settings (unknown key, bad value)
 //! ├── ScenarioError   bad or missing scenario file
+//! ├── WorldFileError  bad or missing world file (the idm world's driver population)
 //! └── SolverError     a QP solve or planning step failed
 //! ```
 
@@ -48,6 +49,12 @@ create_exception!(
     ScenarioError,
     NudgeError,
     "A scenario file is missing or malformed."
+);
+create_exception!(
+    nudge,
+    WorldFileError,
+    NudgeError,
+    "A world file (the idm world's driver population, \"nudge.idm/1\") is missing or malformed."
 );
 create_exception!(
     nudge,
@@ -115,6 +122,7 @@ pub fn sim_err(err: SimError) -> PyErr {
         }
         SimError::Planner { source, .. } => same_class(&planner_err(source), msg),
         SimError::WorldModel { .. } | SimError::Runs { .. } => InputError::new_err(msg),
+        SimError::WorldFile(_) => WorldFileError::new_err(msg),
         #[allow(unreachable_patterns)]
         _ => NudgeError::new_err(msg),
     }

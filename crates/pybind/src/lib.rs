@@ -42,6 +42,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SettingsError", py.get_type::<errors::SettingsError>())?;
     m.add("ScenarioError", py.get_type::<errors::ScenarioError>())?;
     m.add("SolverError", py.get_type::<errors::SolverError>())?;
+    m.add("WorldFileError", py.get_type::<errors::WorldFileError>())?;
     m.add_class::<predict::PyPredictor>()?;
     m.add_class::<settings::PySettings>()?;
     m.add_class::<settings::PySimConfig>()?;

@@ -289,5 +289,6 @@ settings_class!(
     SimConfig,
     "SimConfig",
     "Closed-loop settings: `max_steps`, `settle_y` (m), `settle_psi` (rad), `settle_steps`, \
-     `world` (\"teacher\" or \"log_replay\"), `abort_after`, `abort_hold` (steps)."
+     `world` (\"teacher\", \"idm\" or \"log_replay\"), `abort_after`, `abort_hold` (steps), \
+     `fault_brake_limit` (m/s²)."
 );

@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 
 use nudge_planner::sim::defaults;
-use nudge_planner::sim::{Column, Table, run_table, step_table, thread_pool};
+use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table, thread_pool};
 use nudge_planner::{
     PlannerSettings, Predictors, RunOutput, Scenario, SimConfig, run_specs, simulate_many,
 };
@@ -50,19 +50,22 @@ pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 ///
 /// `predictor` / `world_predictor`: `"teacher"`, `"student"`, `"constant_velocity"` (named
 /// models under `assets`, default `$NUDGE_ASSETS` or `./assets`) or a weights path; the world
-/// model of a `"teacher"` world defaults to the shipped teacher and must be a teacher.
+/// model of a `"teacher"` world defaults to the shipped teacher and must be a teacher. `idm`:
+/// the driver population of an `"idm"` world ("nudge.idm/1" JSON, default
+/// `<assets>/worlds/idm.json`).
 /// `config` (default `SimConfig.default()`) with `**config_overrides` (any `SimConfig` field,
 /// e.g. `world="log_replay"`, `max_steps=4`) sets the closed loop. `on_error`: `"raise"` (the
 /// first failing run raises) or `"skip"` (its `error` column holds the message).
 ///
-/// Returns `{"runs": {...}, "steps": {...}}` of numpy columns (plus `"examples"` when
-/// `record`): see the `.pyi` stub for every column.
+/// Returns `{"runs": {...}, "steps": {...}, "collisions": {...}}` of numpy columns (plus
+/// `"examples"` when `record`): see the `.pyi` stub for every column.
 #[pyfunction]
 #[pyo3(signature = (
     scene_paths,
     predictor = PathBuf::from(defaults::PREDICTOR.as_str()),
     *,
     world_predictor = None,
+    idm = None,
     seed = defaults::SEED,
     scene_seeds = None,
     runs = defaults::RUNS_PER_SCENE,
@@ -80,6 +83,7 @@ pub fn simulate<'py>(
     scene_paths: Vec<PathBuf>,
     predictor: PathBuf,
     world_predictor: Option<PathBuf>,
+    idm: Option<PathBuf>,
     seed: u64,
     scene_seeds: Option<Vec<u64>>,
     runs: usize,
@@ -113,7 +117,16 @@ pub fn simulate<'py>(
     let horizon = settings.horizon;
     let world_model = world_predictor.as_deref();
     let predictors = py
-        .detach(|| Predictors::resolve(&predictor, cfg.world, world_model, &assets, horizon))
+        .detach(|| {
+            Predictors::resolve(
+                &predictor,
+                cfg.world,
+                world_model,
+                idm.as_deref(),
+                &assets,
+                horizon,
+            )
+        })
         .map_err(sim_err)?;
     let scenes: Vec<Scenario> = py
         .detach(|| {
@@ -137,6 +150,10 @@ pub fn simulate<'py>(
     let steps = table_dict(py, step_table(&outputs))?;
     add_ego(&steps)?;
     out.set_item("steps", steps)?;
+    out.set_item(
+        "collisions",
+        table_dict(py, collision_table(&scenes, &outputs))?,
+    )?;
     if record {
         out.set_item("examples", examples_dict(py, outputs)?)?;
     }

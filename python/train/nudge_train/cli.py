@@ -5,7 +5,7 @@
     nudge-train teacher                    the teacher experiments (Table I), docs/results/teacher.md
     nudge-train distill                    the distillation set (planner + teacher), data/distill
     nudge-train student                    distil, evaluate and export the student
-    nudge-train closed-loop                closed-loop comparison of planning predictors
+    nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
     nudge-train bench inference|planner|python   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
@@ -249,30 +249,51 @@ def _run_distill(a: argparse.Namespace) -> int:
 
 
 def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
-    p = _command(sub, "closed-loop", "closed-loop comparison of planning predictors on held-out real scenes",
+    p = _command(sub, "closed-loop",
+                 "planners x worlds x seeds on a split's scenes, paired by (scene, seed): docs/results/closed_loop.md",
                  _run_closed_loop)
-    p.add_argument("--scenes", type=Path, default=paths.scenes("test"), help="folder of scenario files")
-    p.add_argument("--n", type=int, default=120, help="scenes drawn")
-    p.add_argument("--seed", type=int, default=0, help="seed of the draw and of the target lanes")
-    p.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"],
-                   help="planning predictors compared")
+    p.add_argument("--split", choices=SPLITS, default="val", help="the split whose scenes run")
+    p.add_argument("--scenes", type=Path, default=None,
+                   help="folder of scenario files (default data/processed/scenes/<split>)")
+    p.add_argument("--n", type=int, default=None, help="scenes drawn (seeded; default all)")
+    p.add_argument("--seeds", type=int, default=3, help="runs (target-lane seeds) per scene")
+    p.add_argument("--planners", nargs="+", default=["student", "teacher"],
+                   help="planning predictors (teacher, student, constant_velocity or weights files)")
+    p.add_argument("--worlds", nargs="+", choices=("teacher", "idm", "log_replay"),
+                   default=["teacher", "idm", "log_replay"], help="worlds that move the other vehicles")
+    p.add_argument("--teacher-n", type=int, default=60, help="scenes of the teacher planner's seeded subset")
+    p.add_argument("--settings", type=Path, default=None, help="planner settings JSON (missing fields default)")
+    p.add_argument("--config", type=Path, default=None,
+                   help="closed-loop settings JSON (SimConfig; the world is set per arm)")
+    p.add_argument("--compare", type=Path, nargs=2, default=None, metavar=("SETTINGS_A", "SETTINGS_B"),
+                   help="run every planner x world with two planner settings and compare B with A")
+    p.add_argument("--reference", default=None,
+                   help="planner the others are compared with (default: the first of --planners)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scene draw, the scene seeds and the teacher subset")
     p.add_argument("--threads", type=int, default=2, help="runs side by side")
-    p.add_argument("--settings", type=Path, default=None,
-                   help="planner settings JSON (missing fields take the defaults)")
-    p.add_argument("--abort-after", type=int, default=4,
-                   help="lane-change abort after this many steps without a safe plan (0: never)")
-    p.add_argument("--abort-hold", type=int, default=3, help="steps spent aiming back at the own lane after an abort")
-    p.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    p.add_argument("--batch", type=int, default=30, help="scenes per cached part of a chunk")
+    p.add_argument("--cache", type=Path, default=paths.runs() / "closed_loop", help="cache of the runs")
+    p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples of every interval")
+    p.add_argument("--out", type=Path, default=paths.results() / "closed_loop.md", help="the report")
     p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
                    help="also write the summaries here")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
 
 
 def _run_closed_loop(a: argparse.Namespace) -> int:
-    from nudge_train.experiments.closed_loop import run
+    from nudge_train.experiments.closed_loop import EvalConfig, command_line, run
 
-    return run(scenes=a.scenes, n=a.n, seed=a.seed, predictors=a.predictors, threads=a.threads,
-               settings=a.settings, abort_after=a.abort_after, abort_hold=a.abort_hold, markdown=a.markdown,
-               json_path=a.json_path)
+    try:
+        cfg = EvalConfig(scenes=a.scenes or paths.scenes(a.split), n=a.n, seeds=a.seeds, planners=tuple(a.planners),
+                         worlds=tuple(a.worlds), teacher_n=a.teacher_n, settings=a.settings, config=a.config,
+                         compare=tuple(a.compare) if a.compare else None, reference=a.reference, seed=a.seed,
+                         threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap,
+                         progress=not a.no_progress)
+        cfg.validate()
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []))
 
 
 # ---- benches, goldens, figures -----------------------------------------------------------------

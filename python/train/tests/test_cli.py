@@ -52,9 +52,10 @@ def test_every_subcommand_parses(argv: list[str], handler: str) -> None:
 def test_defaults_are_those_of_the_replaced_entry_points() -> None:
     p = build_parser()
     cl = p.parse_args(["closed-loop"])
-    assert (cl.scenes, cl.n, cl.seed, cl.threads, cl.abort_after, cl.abort_hold) == (
-        paths.repo() / "data" / "processed" / "scenes" / "test", 120, 0, 2, 4, 3)
-    assert cl.predictors == ["teacher", "student", "constant_velocity"] and cl.settings is None
+    assert (cl.split, cl.scenes, cl.n, cl.seeds, cl.teacher_n, cl.seed, cl.threads) == ("val", None, None, 3, 60, 0, 2)
+    assert cl.planners == ["student", "teacher"] and cl.worlds == ["teacher", "idm", "log_replay"]
+    assert (cl.settings, cl.config, cl.compare) == (None, None, None)
+    assert cl.out == paths.repo() / "docs" / "results" / "closed_loop.md"
     t = p.parse_args(["teacher"])
     assert (t.data, t.runs, t.threads, t.no_export) == (
         str(paths.repo() / "data" / "processed"), str(paths.repo() / "runs"), 2, False)

@@ -335,3 +335,11 @@ def test_shipped_cut_in_events_read_back() -> None:
     assert {e.source for e in events} == {"i80", "us101"}
     assert all(e.split in ("train", "val", "test") and 0 < e.gap <= 60.0 for e in events)
     assert len({e.key for e in events}) == len(events)
+
+
+def test_world_golden_is_current() -> None:
+    """The shared case the Rust idm world is tested against is what this model computes now."""
+    from nudge_train import paths
+    from nudge_train.idm import golden
+
+    assert (paths.repo() / golden.GOLDEN).read_text() == golden.text(), "rerun python -m nudge_train.idm.golden"

@@ -12,8 +12,10 @@ use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
 use super::config::{SimConfig, World};
+use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
 use super::run::simulate;
+use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
 /// (one source for the CLI and Python).
@@ -135,27 +137,54 @@ pub fn run_specs(
     Ok(specs)
 }
 
-/// The predictors of a batch, each loaded once and cloned for every run.
+/// The world model of a batch, loaded once.
+#[derive(Debug, Clone)]
+pub enum WorldSpec {
+    /// A `log_replay` world: none.
+    LogReplay,
+    /// A `teacher` world: the teacher, cloned for every run.
+    Teacher(PredictorSpec),
+    /// An `idm` world: the driver population, shared by every run.
+    Idm(IdmPopulation),
+}
+
+impl WorldSpec {
+    /// The world it moves.
+    #[must_use]
+    pub fn world(&self) -> World {
+        match self {
+            Self::LogReplay => World::LogReplay,
+            Self::Teacher(_) => World::Teacher,
+            Self::Idm(_) => World::Idm,
+        }
+    }
+}
+
+/// The predictors and the world model of a batch, each loaded once.
 #[derive(Debug, Clone)]
 pub struct Predictors {
     /// The planning predictor.
     pub planning: PredictorSpec,
-    /// The world model (`Some` teacher exactly when the world is [`World::Teacher`]).
-    pub world: Option<PredictorSpec>,
+    /// The world model.
+    pub world: WorldSpec,
 }
 
 impl Predictors {
-    /// Resolves the planning predictor and, for a [`World::Teacher`] world, the world model
-    /// (`world_predictor`, default the shipped teacher), each by name or path
-    /// ([`PredictorSpec::resolve`], named models under `assets`), for `horizon` steps.
+    /// Resolves the planning predictor and the world model of `world`: for a
+    /// [`World::Teacher`] world the teacher `world_predictor` (default the shipped teacher),
+    /// by name or path ([`PredictorSpec::resolve`], named models under `assets`); for a
+    /// [`World::Idm`] world the driver population of the file `idm` (default
+    /// [`idm_path`]`(assets)`), each for `horizon` steps.
     ///
     /// # Errors
-    /// [`SimError::Model`] when a predictor cannot be loaded; [`SimError::WorldModel`] when
-    /// the world model is not a teacher, or one is named for a `log_replay` world.
+    /// [`SimError::Model`] when a predictor cannot be loaded; [`SimError::WorldFile`] when
+    /// the IDM file cannot be used; [`SimError::WorldModel`] when the world model is not a
+    /// teacher, or a world model or IDM file is named for a world that does not use it.
     pub fn resolve(
         predictor: impl AsRef<Path>,
         world: World,
         world_predictor: Option<&Path>,
+        idm: Option<&Path>,
         assets: &Path,
         horizon: usize,
     ) -> Result<Self, SimError> {
@@ -165,32 +194,36 @@ impl Predictors {
                 source,
             }
         })?;
-        let world = match (world, world_predictor) {
-            (World::LogReplay, None) => None,
-            (World::LogReplay, Some(p)) => {
-                return Err(SimError::WorldModel {
-                    world: world.as_str(),
-                    reason: format!(
-                        "the logged future moves the others; world_predictor {} would be ignored",
-                        p.display()
-                    ),
-                });
+        let unused = |what: &str, p: &Path| SimError::WorldModel {
+            world: world.as_str(),
+            reason: format!("{what} {} would be ignored", p.display()),
+        };
+        if let (false, Some(p)) = (world == World::Teacher, world_predictor) {
+            return Err(unused("world_predictor", p));
+        }
+        if let (false, Some(p)) = (world == World::Idm, idm) {
+            return Err(unused("idm", p));
+        }
+        let world = match world {
+            World::LogReplay => WorldSpec::LogReplay,
+            World::Idm => {
+                let path = idm.map_or_else(|| idm_path(assets), Path::to_path_buf);
+                WorldSpec::Idm(IdmPopulation::from_file(path)?)
             }
-            (World::Teacher, given) => {
+            World::Teacher => {
                 let name = Path::new(defaults::WORLD_PREDICTOR.as_str());
-                let spec = PredictorSpec::resolve(given.unwrap_or(name), assets, horizon).map_err(
-                    |source| SimError::Model {
+                let spec = PredictorSpec::resolve(world_predictor.unwrap_or(name), assets, horizon)
+                    .map_err(|source| SimError::Model {
                         role: "world_predictor",
                         source,
-                    },
-                )?;
+                    })?;
                 if spec.kind() != PredictorKind::Teacher {
                     return Err(SimError::WorldModel {
                         world: world.as_str(),
                         reason: format!("the world model must be a teacher, got a {}", spec.kind()),
                     });
                 }
-                Some(spec)
+                WorldSpec::Teacher(spec)
             }
         };
         Ok(Self { planning, world })
@@ -224,8 +257,15 @@ pub fn simulate_many(
         .par_iter()
         .map(|&spec| {
             let sc = &scenes[spec.scene];
-            let mut world = predictors.world.as_ref().map(PredictorSpec::build);
-            let world = world.as_deref_mut().map(|w| w as &mut dyn Predictor);
+            let mut teacher = match &predictors.world {
+                WorldSpec::Teacher(t) => Some(t.build()),
+                _ => None,
+            };
+            let world = match (&predictors.world, teacher.as_deref_mut()) {
+                (WorldSpec::Teacher(_), Some(t)) => WorldModel::Teacher(t as &mut dyn Predictor),
+                (WorldSpec::Idm(p), _) => WorldModel::Idm(p),
+                _ => WorldModel::LogReplay,
+            };
             let planning = predictors.planning.build();
             let (result, examples) = if record {
                 let mut rec = Recording::new(planning);

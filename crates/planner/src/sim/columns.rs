@@ -8,10 +8,12 @@ use std::fmt::{self, Write as _};
 use crate::scenario::Scenario;
 
 use super::batch::RunOutput;
+use super::metrics::{Collision, RunMetrics};
 use super::records::{RunRecord, StepRecord, StepStatus};
 
-/// Run columns, in order (one row per run, failed runs included).
-pub const RUN_COLUMNS: [&str; 14] = [
+/// Run columns, in order (one row per run, failed runs included). The metric columns are
+/// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
+pub const RUN_COLUMNS: [&str; 39] = [
     "scenario",
     "scene_index",
     "seed",
@@ -25,11 +27,37 @@ pub const RUN_COLUMNS: [&str; 14] = [
     "collision",
     "aborts",
     "n_steps",
+    "collisions_at_fault",
+    "collisions_not_at_fault",
+    "start_overhang",
+    "off_road_steps",
+    "straddle_steps",
+    "steps_to_lane",
+    "slow_steps",
+    "slow_planned_steps",
+    "min_ttc",
+    "progress",
+    "progress_ratio",
+    "max_abs_jerk",
+    "rms_jerk",
+    "max_abs_lat_accel",
+    "rms_lat_accel",
+    "max_abs_yaw_rate",
+    "rms_yaw_rate",
+    "max_abs_yaw_accel",
+    "min_accel",
+    "max_accel",
+    "comfortable",
+    "max_abs_heading",
+    "max_overshoot",
+    "free_gap",
+    "score",
     "error",
 ];
 
-/// Step columns, in order (one row per planning step of every run that ran).
-pub const STEP_COLUMNS: [&str; 20] = [
+/// Step columns, in order (one row per planning step of every run that ran). The metric
+/// columns are those of [`crate::sim::metrics::StepMetrics`].
+pub const STEP_COLUMNS: [&str; 34] = [
     "run",
     "step",
     "mpc_s",
@@ -50,13 +78,49 @@ pub const STEP_COLUMNS: [&str; 20] = [
     "psi",
     "v",
     "y_goal",
+    "v_planned",
+    "road_excess",
+    "off_road",
+    "straddle",
+    "in_target_lane",
+    "traffic_v",
+    "slow",
+    "slow_planned",
+    "ttc",
+    "progress",
+    "jerk",
+    "yaw_rate",
+    "lat_accel",
+    "yaw_accel",
+];
+
+/// Collision columns, in order (one row per collision event of every run that ran; the
+/// fields of [`crate::sim::metrics::Collision`] and the other vehicle's source id).
+pub const COLLISION_COLUMNS: [&str; 16] = [
+    "run",
+    "step",
+    "other",
+    "other_id",
+    "at_fault",
+    "other_behind",
+    "rear_hit",
+    "ego_in_lane",
+    "ego_accel",
+    "dx",
+    "dy",
+    "ego_heading",
+    "other_heading",
+    "ego_v",
+    "other_v",
+    "free_gap",
 ];
 
 /// One column's values.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Column {
     /// Floats; NaN where a value is missing (`min_b` with no vehicle checked, `y_target` of a
-    /// failed run).
+    /// failed run, `jerk` of a first step, `traffic_v` with no traffic around); +∞ for a time
+    /// to collision with nobody closing in.
     Float(Vec<f64>),
     /// Signed integers; −1 where a value is missing (`steps_to_target` of a run that did not
     /// settle, `target_lane` of a failed run).
@@ -173,6 +237,18 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
     let from_spec = |f: &dyn Fn(&RunOutput) -> i64| outputs.iter().map(f).collect::<Vec<_>>();
     let text = |f: fn(&RunRecord) -> String| Column::Text(per_run(outputs, f, String::new()));
     let flag = |f: fn(&RunRecord) -> bool| Column::Bool(per_run(outputs, f, false));
+    let count = |name: &'static str, f: fn(&RunMetrics) -> usize| {
+        (
+            name,
+            Column::Int(per_run(outputs, |r| int(f(&r.metrics)), -1)),
+        )
+    };
+    let float = |name: &'static str, f: fn(&RunMetrics) -> f64| {
+        (
+            name,
+            Column::Float(per_run(outputs, |r| f(&r.metrics), f64::NAN)),
+        )
+    };
     let columns = vec![
         (
             "scenario",
@@ -219,6 +295,38 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
             "n_steps",
             Column::Int(per_run(outputs, |r| int(r.steps.len()), 0)),
         ),
+        count("collisions_at_fault", |m| m.collisions_at_fault),
+        count("collisions_not_at_fault", |m| m.collisions_not_at_fault),
+        float("start_overhang", |m| m.start_overhang),
+        count("off_road_steps", |m| m.off_road_steps),
+        count("straddle_steps", |m| m.straddle_steps),
+        (
+            "steps_to_lane",
+            Column::Int(per_run(
+                outputs,
+                |r| r.metrics.steps_to_lane.map_or(-1, int),
+                -1,
+            )),
+        ),
+        count("slow_steps", |m| m.slow_steps),
+        count("slow_planned_steps", |m| m.slow_planned_steps),
+        float("min_ttc", |m| m.min_ttc.unwrap_or(f64::INFINITY)),
+        float("progress", |m| m.progress),
+        float("progress_ratio", |m| m.progress_ratio.unwrap_or(f64::NAN)),
+        float("max_abs_jerk", |m| m.comfort.max_abs_jerk),
+        float("rms_jerk", |m| m.comfort.rms_jerk),
+        float("max_abs_lat_accel", |m| m.comfort.max_abs_lat_accel),
+        float("rms_lat_accel", |m| m.comfort.rms_lat_accel),
+        float("max_abs_yaw_rate", |m| m.comfort.max_abs_yaw_rate),
+        float("rms_yaw_rate", |m| m.comfort.rms_yaw_rate),
+        float("max_abs_yaw_accel", |m| m.comfort.max_abs_yaw_accel),
+        float("min_accel", |m| m.comfort.accel_range.0),
+        float("max_accel", |m| m.comfort.accel_range.1),
+        ("comfortable", flag(|r| r.metrics.comfort.comfortable)),
+        float("max_abs_heading", |m| m.max_abs_heading),
+        float("max_overshoot", |m| m.max_overshoot),
+        float("free_gap", |m| m.free_gap),
+        float("score", |m| m.score),
         (
             "error",
             Column::OptText(
@@ -263,6 +371,8 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
     let count = |f: &dyn Fn(&StepRecord) -> usize| {
         Column::Int(steps.iter().map(|(_, s)| int(f(s))).collect())
     };
+    let flag =
+        |f: &dyn Fn(&StepRecord) -> bool| Column::Bool(steps.iter().map(|(_, s)| f(s)).collect());
     let columns = vec![
         (
             "run",
@@ -278,10 +388,7 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
         ("cost", float(&|s| s.cost)),
         ("primal_residual", float(&|s| s.primal_residual)),
         ("min_b", float(&|s| s.min_b.unwrap_or(f64::NAN))),
-        (
-            "collision",
-            Column::Bool(steps.iter().map(|(_, s)| s.collision).collect()),
-        ),
+        ("collision", flag(&|s| s.collision)),
         (
             "status",
             Column::Text(steps.iter().map(|(_, s)| s.status.to_string()).collect()),
@@ -293,6 +400,83 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
         ("psi", float(&|s| s.ego[2])),
         ("v", float(&|s| s.ego[3])),
         ("y_goal", float(&|s| s.y_goal)),
+        ("v_planned", float(&|s| s.v_planned)),
+        ("road_excess", float(&|s| s.metrics.road_excess)),
+        ("off_road", flag(&|s| s.metrics.off_road)),
+        ("straddle", flag(&|s| s.metrics.straddle)),
+        ("in_target_lane", flag(&|s| s.metrics.in_target_lane)),
+        (
+            "traffic_v",
+            float(&|s| s.metrics.traffic_v.unwrap_or(f64::NAN)),
+        ),
+        ("slow", flag(&|s| s.metrics.slow)),
+        ("slow_planned", flag(&|s| s.metrics.slow_planned)),
+        ("ttc", float(&|s| s.metrics.ttc.unwrap_or(f64::INFINITY))),
+        ("progress", float(&|s| s.metrics.progress)),
+        (
+            "jerk",
+            float(&|s| s.metrics.kinematics.jerk.unwrap_or(f64::NAN)),
+        ),
+        ("yaw_rate", float(&|s| s.metrics.kinematics.yaw_rate)),
+        ("lat_accel", float(&|s| s.metrics.kinematics.lat_accel)),
+        (
+            "yaw_accel",
+            float(&|s| s.metrics.kinematics.yaw_accel.unwrap_or(f64::NAN)),
+        ),
+    ];
+    Table { columns }
+}
+
+/// The collision columns ([`COLLISION_COLUMNS`]) of a batch run on `scenes`; `run` is the
+/// row of the run in [`run_table`], `other_id` the other vehicle's source id, `free_gap`
+/// the run's ([`crate::sim::metrics::free_gap`]).
+#[must_use]
+pub fn collision_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
+    let events: Vec<(usize, &RunRecord, &Collision)> = outputs
+        .iter()
+        .enumerate()
+        .filter_map(|(i, o)| o.result.as_ref().ok().map(|r| (i, r)))
+        .flat_map(|(i, r)| r.collisions.iter().map(move |c| (i, r, c)))
+        .collect();
+    let id_of = |i: usize, c: &Collision| scenes[outputs[i].spec.scene].agent_ids[c.other];
+    let float = |f: &dyn Fn(&Collision) -> f64| {
+        Column::Float(events.iter().map(|(_, _, c)| f(c)).collect())
+    };
+    let flag = |f: &dyn Fn(&Collision) -> bool| {
+        Column::Bool(events.iter().map(|(_, _, c)| f(c)).collect())
+    };
+    let columns = vec![
+        (
+            "run",
+            Column::Int(events.iter().map(|(i, _, _)| int(*i)).collect()),
+        ),
+        (
+            "step",
+            Column::Int(events.iter().map(|(_, _, c)| int(c.step)).collect()),
+        ),
+        (
+            "other",
+            Column::Int(events.iter().map(|(_, _, c)| int(c.other)).collect()),
+        ),
+        (
+            "other_id",
+            Column::Int(events.iter().map(|(i, _, c)| id_of(*i, c)).collect()),
+        ),
+        ("at_fault", flag(&|c| c.at_fault)),
+        ("other_behind", flag(&|c| c.other_behind)),
+        ("rear_hit", flag(&|c| c.rear_hit)),
+        ("ego_in_lane", flag(&|c| c.ego_in_lane)),
+        ("ego_accel", float(&|c| c.ego_accel)),
+        ("dx", float(&|c| c.dx)),
+        ("dy", float(&|c| c.dy)),
+        ("ego_heading", float(&|c| c.ego_heading)),
+        ("other_heading", float(&|c| c.other_heading)),
+        ("ego_v", float(&|c| c.ego_v)),
+        ("other_v", float(&|c| c.other_v)),
+        (
+            "free_gap",
+            Column::Float(events.iter().map(|(_, r, _)| r.metrics.free_gap).collect()),
+        ),
     ];
     Table { columns }
 }
@@ -322,6 +506,24 @@ pub struct Summary {
     pub steps_to_target: (f64, f64),
     /// Runs with a collision.
     pub collisions: usize,
+    /// Collision events with the ego at fault, and runs with at least one.
+    pub at_fault: (usize, usize),
+    /// Collision events with the ego not at fault, and runs with at least one.
+    pub not_at_fault: (usize, usize),
+    /// Off-road steps, and runs with at least one.
+    pub off_road: (usize, usize),
+    /// Runs whose ego starts with a corner beyond the road's edge.
+    pub start_overhang_runs: usize,
+    /// Steps straddling a lane line.
+    pub straddle_steps: usize,
+    /// Steps slow in a live lane: executed, planned.
+    pub slow_steps: (usize, usize),
+    /// Smallest time to collision over every run (s; +∞ when nobody closed in).
+    pub min_ttc: f64,
+    /// Runs within every comfort limit.
+    pub comfortable: usize,
+    /// Mean score over the runs that ran.
+    pub score: f64,
     /// Lane-change aborts over all runs.
     pub aborts: usize,
     /// Runs with at least one abort.
@@ -357,6 +559,13 @@ impl Summary {
             .flat_map(|s| s.z_updates_s.iter().copied())
             .collect();
         let costs: Vec<f64> = steps().map(|s| s.cost).filter(|c| c.is_finite()).collect();
+        let metrics = || records.iter().map(|r| &r.metrics);
+        let events = |f: &dyn Fn(&RunMetrics) -> usize| {
+            (
+                metrics().map(f).sum(),
+                metrics().filter(|m| f(m) > 0).count(),
+            )
+        };
         Self {
             runs: records.len(),
             failed: outputs.len() - records.len(),
@@ -364,6 +573,20 @@ impl Summary {
             successes: records.iter().filter(|r| r.success).count(),
             steps_to_target: mean_std(&to_target),
             collisions: records.iter().filter(|r| r.collision).count(),
+            at_fault: events(&|m| m.collisions_at_fault),
+            not_at_fault: events(&|m| m.collisions_not_at_fault),
+            off_road: events(&|m| m.off_road_steps),
+            start_overhang_runs: metrics().filter(|m| m.start_overhang > 0.0).count(),
+            straddle_steps: metrics().map(|m| m.straddle_steps).sum(),
+            slow_steps: (
+                metrics().map(|m| m.slow_steps).sum(),
+                metrics().map(|m| m.slow_planned_steps).sum(),
+            ),
+            min_ttc: metrics()
+                .filter_map(|m| m.min_ttc)
+                .fold(f64::INFINITY, f64::min),
+            comfortable: metrics().filter(|m| m.comfort.comfortable).count(),
+            score: mean_std(&metrics().map(|m| m.score).collect::<Vec<_>>()).0,
             aborts: records.iter().map(|r| r.aborts).sum(),
             aborted_runs: records.iter().filter(|r| r.aborts > 0).count(),
             mpc_s: (quantile(&mut mpc, 0.5), quantile(&mut mpc, 0.9)),
@@ -392,7 +615,30 @@ impl fmt::Display for Summary {
             sm * nudge_predictor::DT,
             ss * nudge_predictor::DT
         )?;
-        writeln!(f, "runs with a collision: {}", self.collisions)?;
+        writeln!(
+            f,
+            "runs with a collision: {}; collisions at fault {} (in {} runs), not at fault {} (in {} runs)",
+            self.collisions,
+            self.at_fault.0,
+            self.at_fault.1,
+            self.not_at_fault.0,
+            self.not_at_fault.1
+        )?;
+        writeln!(
+            f,
+            "off-road steps {} (in {} runs; {} egos start over the road's edge); steps straddling a lane line {}",
+            self.off_road.0, self.off_road.1, self.start_overhang_runs, self.straddle_steps
+        )?;
+        writeln!(
+            f,
+            "steps slow in a live lane: executed {}, planned {}; min time to collision {:.2} s",
+            self.slow_steps.0, self.slow_steps.1, self.min_ttc
+        )?;
+        writeln!(
+            f,
+            "comfortable runs {}/{n}; mean score {:.3}",
+            self.comfortable, self.score
+        )?;
         writeln!(
             f,
             "lane-change aborts: {} in {} runs",
@@ -418,7 +664,25 @@ impl fmt::Display for Summary {
     }
 }
 
-/// The per-step table of one run, as the CLI prints it.
+/// A step's flags: `O` off-road, `S` straddling, `L` slow in a live lane, `T` centre inside
+/// the target lane; `.` when none.
+fn step_flags(st: &StepRecord) -> String {
+    let m = &st.metrics;
+    let f: String = [
+        (m.off_road, 'O'),
+        (m.straddle, 'S'),
+        (m.slow, 'L'),
+        (m.in_target_lane, 'T'),
+    ]
+    .iter()
+    .filter(|(on, _)| *on)
+    .map(|(_, c)| *c)
+    .collect();
+    if f.is_empty() { ".".into() } else { f }
+}
+
+/// The per-step table of one run, as the CLI prints it (flags: `O` off-road, `S` straddling,
+/// `L` slow in a live lane, `T` centre inside the target lane).
 #[must_use]
 pub fn step_listing(r: &RunRecord) -> String {
     let mut s = String::new();
@@ -429,7 +693,7 @@ pub fn step_listing(r: &RunRecord) -> String {
     );
     let _ = writeln!(
         s,
-        "{:>4} {:>9} {:>9} {:>5} {:>6} {:>10} {:>9} {:>7} {:>7} {:>8} {:>8} {:>6} {:>6} {:>6} {:>4} status",
+        "{:>4} {:>9} {:>9} {:>5} {:>6} {:>10} {:>9} {:>7} {:>7} {:>8} {:>8} {:>6} {:>6} {:>6} {:>4} {:>6} {:>4} status",
         "step",
         "mpc_ms",
         "zmed_ms",
@@ -444,12 +708,14 @@ pub fn step_listing(r: &RunRecord) -> String {
         "y",
         "y_goal",
         "v",
-        "coll"
+        "coll",
+        "ttc_s",
+        "flag"
     );
     for st in &r.steps {
         let _ = writeln!(
             s,
-            "{:>4} {:>9.2} {:>9.3} {:>5} {:>6} {:>10.2} {:>9.2e} {:>7} {:>7.3} {:>8.2} {:>8.1} {:>6.2} {:>6.2} {:>6.2} {:>4} {}",
+            "{:>4} {:>9.2} {:>9.3} {:>5} {:>6} {:>10.2} {:>9.2e} {:>7} {:>7.3} {:>8.2} {:>8.1} {:>6.2} {:>6.2} {:>6.2} {:>4} {:>6} {:>4} {}",
             st.step,
             st.mpc_s * 1e3,
             median(&st.z_updates_s) * 1e3,
@@ -466,13 +732,28 @@ pub fn step_listing(r: &RunRecord) -> String {
             st.y_goal,
             st.ego[3],
             if st.collision { "YES" } else { "no" },
+            st.metrics
+                .ttc
+                .map_or_else(|| "-".to_string(), |t| format!("{t:.2}")),
+            step_flags(st),
             st.status
         );
     }
+    let m = &r.metrics;
     let _ = writeln!(
         s,
-        "success {} after {:?} steps, collision {}, lane-change aborts {}",
-        r.success, r.steps_to_target, r.collision, r.aborts
+        "success {} after {:?} steps, collision {} (at fault {}, not at fault {}), lane-change aborts {}",
+        r.success,
+        r.steps_to_target,
+        r.collision,
+        m.collisions_at_fault,
+        m.collisions_not_at_fault,
+        r.aborts
+    );
+    let _ = writeln!(
+        s,
+        "off-road steps {}, straddling {}, slow {} (planned {}), progress {:.1} m, score {:.3}",
+        m.off_road_steps, m.straddle_steps, m.slow_steps, m.slow_planned_steps, m.progress, m.score
     );
     s
 }

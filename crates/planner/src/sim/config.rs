@@ -17,18 +17,25 @@ pub enum World {
     /// The logged future moves them; constant velocity once the log ends (real traffic that
     /// never reacts).
     LogReplay,
+    /// Every other vehicle keeps its lane and lateral position and follows the Intelligent
+    /// Driver Model longitudinally, with a driver drawn per vehicle from the population fitted
+    /// to real NGSIM car-following (`assets/worlds/idm.json`), reacting to an intruding ego by
+    /// the fitted intrusion rule (reactive traffic with a known model; see
+    /// [`crate::sim::idm`]).
+    Idm,
 }
 
 impl World {
     /// Every world.
-    pub const ALL: [Self; 2] = [Self::Teacher, Self::LogReplay];
+    pub const ALL: [Self; 3] = [Self::Teacher, Self::Idm, Self::LogReplay];
 
-    /// `"teacher"` or `"log_replay"`.
+    /// `"teacher"`, `"idm"` or `"log_replay"`.
     #[must_use]
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Teacher => "teacher",
             Self::LogReplay => "log_replay",
+            Self::Idm => "idm",
         }
     }
 }
@@ -49,7 +56,7 @@ impl FromStr for World {
             .ok_or_else(|| SimConfigError::Invalid {
                 field: "world",
                 value: format!("{s:?}"),
-                reason: "must be \"teacher\" or \"log_replay\"",
+                reason: "must be \"teacher\", \"idm\" or \"log_replay\"",
             })
     }
 }
@@ -81,6 +88,10 @@ pub struct SimConfig {
     /// Steps an aborted ego keeps aiming at its own lane before it tries the lane change again
     /// (at most [`SimConfig::MAX_STEPS`]).
     pub abort_hold: usize,
+    /// Braking limit of the at-fault rule (m/s², > 0): an ego hit from behind while wholly
+    /// inside one lane is not at fault only if its applied acceleration at that step was
+    /// ≥ −`fault_brake_limit` ([`crate::sim::metrics::classify_collision`]).
+    pub fault_brake_limit: f64,
 }
 
 impl Default for SimConfig {
@@ -99,6 +110,7 @@ impl SimConfig {
         world: World::Teacher,
         abort_after: 4,
         abort_hold: 3,
+        fault_brake_limit: 3.0,
     };
 
     /// Most steps of one run (1000 steps = 5 minutes of driving).
@@ -140,7 +152,8 @@ impl SimConfig {
         positive("settle_psi", self.settle_psi)?;
         steps("settle_steps", self.settle_steps, 1)?;
         steps("abort_after", self.abort_after, 0)?;
-        steps("abort_hold", self.abort_hold, 0)
+        steps("abort_hold", self.abort_hold, 0)?;
+        positive("fault_brake_limit", self.fault_brake_limit)
     }
 
     /// Parses JSON (missing fields default, unknown fields rejected) and validates.
@@ -185,6 +198,14 @@ mod tests {
         let w = SimConfig::from_json(r#"{"world": "log_replay", "settle_steps": 3}"#).expect("ok");
         assert_eq!((w.world, w.settle_steps), (World::LogReplay, 3));
         assert_eq!("teacher".parse::<World>().expect("name"), World::Teacher);
+        assert_eq!("idm".parse::<World>().expect("name"), World::Idm);
+        for w in World::ALL {
+            assert_eq!(w.as_str().parse::<World>().expect("round trip"), w);
+            assert_eq!(
+                serde_json::to_string(&w).expect("serialise"),
+                format!("\"{}\"", w.as_str())
+            );
+        }
     }
 
     #[test]
@@ -243,6 +264,20 @@ mod tests {
                 "abort_hold",
                 SimConfig {
                     abort_hold: 5000,
+                    ..SimConfig::default()
+                },
+            ),
+            (
+                "fault_brake_limit",
+                SimConfig {
+                    fault_brake_limit: 0.0,
+                    ..SimConfig::default()
+                },
+            ),
+            (
+                "fault_brake_limit",
+                SimConfig {
+                    fault_brake_limit: f64::INFINITY,
                     ..SimConfig::default()
                 },
             ),

@@ -2,13 +2,21 @@
 //! (the `nudge` CLI and `nudge.simulate`) share.
 //!
 //! * [`config`]: [`SimConfig`] and the [`World`] that moves the other vehicles;
+//! * [`world`]: the model of a run's world ([`WorldModel`]: the teacher, the IDM driver
+//!   population, or nothing for log replay);
+//! * [`idm`]: the `idm` world ([`IdmPopulation`], fitted to real car-following, and the
+//!   per-run [`IdmTraffic`] with its intrusion rule);
 //! * [`run`]: one run ([`simulate`]): plan, apply the first input to the vehicle
-//!   ([`crate::Bicycle::advance`]), move the others, shift the histories, repeat;
+//!   ([`crate::Bicycle::advance`]), move the others, shift the histories, judge the step,
+//!   repeat;
+//! * [`metrics`]: what a run is judged by (collisions at fault or not, off-road, straddling,
+//!   slow steps in a live lane, time to collision, progress, comfort, the score, the density
+//!   of the target lane), computed from the run's states;
 //! * [`records`]: what a run records ([`RunRecord`], [`StepRecord`], [`StepStatus`]);
 //! * [`batch`]: the run-spec rule ([`run_specs`]), the predictors of a batch loaded once
 //!   ([`Predictors`]) and [`simulate_many`];
-//! * [`columns`]: records → named columns ([`run_table`], [`step_table`]), the [`Summary`] and
-//!   the per-step listing.
+//! * [`columns`]: records → named columns ([`run_table`], [`step_table`],
+//!   [`collision_table`]), the [`Summary`] and the per-step listing.
 
 // SimError carries the planner's and predictor's errors by value; they are rare, cold paths.
 #![allow(clippy::result_large_err)]
@@ -16,16 +24,23 @@
 pub mod batch;
 pub mod columns;
 pub mod config;
+pub mod idm;
+pub mod metrics;
 pub mod records;
 pub mod run;
+pub mod world;
 
 pub use batch::{
-    MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, defaults, run_specs, simulate_many,
-    thread_pool,
+    MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, WorldSpec, defaults, run_specs,
+    simulate_many, thread_pool,
 };
 pub use columns::{
-    Column, RUN_COLUMNS, STEP_COLUMNS, Summary, Table, run_table, step_listing, step_table,
+    COLLISION_COLUMNS, Column, RUN_COLUMNS, STEP_COLUMNS, Summary, Table, collision_table,
+    run_table, step_listing, step_table,
 };
 pub use config::{SimConfig, World};
+pub use idm::{IdmPopulation, IdmTraffic, idm_path};
+pub use metrics::{Collision, RunMetrics, StepMetrics};
 pub use records::{RunRecord, StepRecord, StepStatus};
 pub use run::{simulate, target_lane};
+pub use world::WorldModel;

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 pub use crate::admm::StepStatus;
 
 use super::config::World;
+use super::metrics::{Collision, RunMetrics, StepMetrics};
 
 /// What happened at one closed-loop step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -43,6 +44,10 @@ pub struct StepRecord {
     /// Lateral position the planner aimed at this step (m): the target lane's centre, or the
     /// ego's own lane's centre while a lane-change abort holds.
     pub y_goal: f64,
+    /// Speed at the end of the applied plan (its last planned state) (m/s).
+    pub v_planned: f64,
+    /// What the step is judged by ([`crate::sim::metrics`]).
+    pub metrics: StepMetrics,
 }
 
 /// One closed-loop run.
@@ -62,12 +67,17 @@ pub struct RunRecord {
     pub target_lane: usize,
     /// Target lateral position: the target lane's centre (m).
     pub y_target: f64,
-    /// Settled in the target lane before `max_steps`.
+    /// Settled in the target lane before `max_steps` without any collision.
     pub success: bool,
     /// Steps until settled (the last of the `settle_steps` consecutive steps), if successful.
     pub steps_to_target: Option<usize>,
     /// Any step with a bounding-box collision.
     pub collision: bool,
+    /// Every collision event (first step of a contact with one vehicle), classified at fault
+    /// or not.
+    pub collisions: Vec<Collision>,
+    /// What the run is judged by ([`crate::sim::metrics`]).
+    pub metrics: RunMetrics,
     /// Lane-change aborts ([`crate::SimConfig::abort_after`]).
     pub aborts: usize,
     /// Per-step records.

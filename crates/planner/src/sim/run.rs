@@ -1,7 +1,8 @@
 //! One closed-loop lane change ([`simulate`]): at every step, plan; apply the first input to
-//! the vehicle; move the other vehicles with the [`World`]; shift the histories; record the
-//! step's safety (the planner's own constraint, [`SafetyConstraint::executed_min_b`]) and
-//! collisions; stop when the ego has settled in the target lane.
+//! the vehicle; move the other vehicles with the world ([`super::world`]); shift the
+//! histories; record the step's safety (the planner's own constraint,
+//! [`SafetyConstraint::executed_min_b`]) and judge it ([`super::metrics`]); stop when the ego
+//! has settled in the target lane.
 
 use std::time::Instant;
 
@@ -11,12 +12,13 @@ use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
 use crate::error::{PlannerError, SimError};
 use crate::lane::LaneChange;
 use crate::model::State;
-use crate::safety::{OrientedBox, motion_heading};
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
-use super::config::{SimConfig, World};
+use super::config::SimConfig;
+use super::metrics::{RunObserver, others_from_history};
 use super::records::{RunRecord, StepRecord, StepStatus};
+use super::world::{Mover, WorldModel};
 
 /// SplitMix64: a tiny deterministic generator for the target-lane draw.
 fn splitmix(seed: u64) -> u64 {
@@ -48,150 +50,6 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
     Ok(options[((splitmix(seed) >> 32) % options.len() as u64) as usize])
 }
 
-/// What moves the other vehicles.
-enum Mover<'p> {
-    /// The teacher's interactive prediction, with its buffers.
-    Teacher {
-        predictor: &'p mut dyn Predictor,
-        candidate: Vec<f64>,
-        prediction: Vec<f64>,
-    },
-    /// The logged future.
-    LogReplay,
-}
-
-impl<'p> Mover<'p> {
-    /// The mover of `cfg.world`, checked against the model given.
-    fn new(
-        cfg: &SimConfig,
-        model: Option<&'p mut dyn Predictor>,
-        n_agents: usize,
-        horizon: usize,
-    ) -> Result<Self, SimError> {
-        match (cfg.world, model) {
-            (World::Teacher, Some(predictor)) => {
-                if predictor.name() != "teacher" {
-                    return Err(SimError::WorldModel {
-                        world: World::Teacher.as_str(),
-                        reason: format!(
-                            "the world model must be a teacher, got a {}",
-                            predictor.name()
-                        ),
-                    });
-                }
-                Ok(Self::Teacher {
-                    predictor,
-                    candidate: vec![0.0; horizon * 2],
-                    prediction: vec![0.0; (n_agents.max(2) - 1) * horizon * 2],
-                })
-            }
-            (World::Teacher, None) => Err(SimError::WorldModel {
-                world: World::Teacher.as_str(),
-                reason: "no teacher given to move the other vehicles".into(),
-            }),
-            (World::LogReplay, None) => Ok(Self::LogReplay),
-            (World::LogReplay, Some(p)) => Err(SimError::WorldModel {
-                world: World::LogReplay.as_str(),
-                reason: format!(
-                    "the logged future moves the others; a {} world model would be ignored",
-                    p.name()
-                ),
-            }),
-        }
-    }
-
-    /// The others' positions after `step` (index = agent, agent 0 = the ego at `ego`): the
-    /// teacher predicts them given the ego's executed position and the rest of its `plan`;
-    /// log replay reads the log (constant velocity from the last two observations once it ends).
-    fn advance(
-        &mut self,
-        sc: &Scenario,
-        history: &History,
-        observed: &[Vec<[f64; 2]>],
-        step: usize,
-        ego: [f64; 2],
-        plan: &[[f64; 4]],
-    ) -> Result<Vec<[f64; 2]>, SimError> {
-        let n = sc.n_agents;
-        let mut moved: Vec<[f64; 2]> = Vec::with_capacity(n);
-        moved.push(ego);
-        match self {
-            Self::Teacher { .. } if n < 2 => {}
-            Self::Teacher {
-                predictor,
-                candidate,
-                prediction,
-            } => {
-                let horizon = candidate.len() / 2;
-                candidate[0] = ego[0];
-                candidate[1] = ego[1];
-                for k in 1..horizon {
-                    candidate[2 * k] = plan[k][0];
-                    candidate[2 * k + 1] = plan[k][1];
-                }
-                predictor
-                    .set_scene(history)
-                    .and_then(|()| predictor.predict(candidate, prediction))
-                    .map_err(|source| SimError::Predictor {
-                        scene: sc.name.clone(),
-                        source,
-                    })?;
-                for i in 1..n {
-                    let b = (i - 1) * horizon * 2;
-                    moved.push([prediction[b], prediction[b + 1]]);
-                }
-            }
-            Self::LogReplay => {
-                for (i, h) in observed.iter().enumerate().skip(1) {
-                    let p = sc.future_at(i, step + 1).unwrap_or_else(|| {
-                        let a = h[T_OBS - 2];
-                        let b = h[T_OBS - 1];
-                        [2.0 * b[0] - a[0], 2.0 * b[1] - a[1]]
-                    });
-                    moved.push(p);
-                }
-            }
-        }
-        Ok(moved)
-    }
-}
-
-/// Collision and nearest vehicle of the ego state `ego` against the others at `moved`, each
-/// box at the heading of its last displacement in `observed` (clamped to ±0.5 rad; the
-/// scenario's start heading when it barely moved).
-fn collisions(
-    sc: &Scenario,
-    ego: &State,
-    moved: &[[f64; 2]],
-    observed: &[Vec<[f64; 2]>],
-) -> (bool, Option<(usize, f64, f64)>) {
-    let ego_box = OrientedBox {
-        x: ego[0],
-        y: ego[1],
-        heading: ego[2],
-        length: sc.size[0][0],
-        width: sc.size[0][1],
-    };
-    let mut collision = false;
-    let mut nearest: Option<(usize, f64, f64)> = None;
-    for i in 1..sc.n_agents {
-        let (dx, dy) = (moved[i][0] - ego[0], moved[i][1] - ego[1]);
-        if nearest.is_none_or(|(_, nx, ny)| dx.hypot(dy) < nx.hypot(ny)) {
-            nearest = Some((i, dx, dy));
-        }
-        let h = &observed[i];
-        let other = OrientedBox {
-            x: moved[i][0],
-            y: moved[i][1],
-            heading: motion_heading(h[T_OBS - 2], h[T_OBS - 1], sc.heading[i]),
-            length: sc.size[i][0],
-            width: sc.size[i][1],
-        };
-        collision |= ego_box.overlaps(&other);
-    }
-    (collision, nearest)
-}
-
 /// The state of one run between steps.
 struct ClosedLoop<'a> {
     sc: &'a Scenario,
@@ -203,6 +61,7 @@ struct ClosedLoop<'a> {
     v_ref: f64,
     last_inputs: (f64, f64),
     lane: LaneChange,
+    observer: RunObserver,
 }
 
 impl ClosedLoop<'_> {
@@ -267,7 +126,8 @@ impl ClosedLoop<'_> {
             &history,
             &self.observed,
             step,
-            [next[0], next[1]],
+            &self.ego,
+            &next,
             &plan.states,
         )?;
         for (h, p) in self.observed.iter_mut().zip(&moved) {
@@ -276,7 +136,15 @@ impl ClosedLoop<'_> {
         }
         self.ego = next;
         self.last_inputs = (plan.delta[0], plan.accel[0]);
-        let (collision, nearest) = collisions(sc, &self.ego, &moved, &self.observed);
+        let v_planned = plan.states.last().map_or(next[3], |z| z[3]);
+        let others = others_from_history(sc, &self.observed);
+        let (metrics, touching, nearest) = self.observer.observe(
+            step,
+            [next[0], next[1], next[2], next[3]],
+            plan.accel[0],
+            v_planned,
+            &others,
+        );
         Ok(StepRecord {
             step,
             mpc_s,
@@ -286,21 +154,27 @@ impl ClosedLoop<'_> {
             cost: plan.cost,
             primal_residual: plan.primal_residual,
             min_b: constraint.executed_min_b([next[0], next[1], next[2]], &moved),
-            collision,
+            collision: !touching.is_empty(),
             status,
             delta: plan.delta[0],
             accel: plan.accel[0],
             ego: [next[0], next[1], next[2], next[3]],
             nearest,
             y_goal,
+            v_planned,
+            metrics,
         })
     }
 }
 
 /// Runs one closed-loop lane change of scenario `sc` towards the lane drawn from `seed`.
 ///
-/// `planner_pred` predicts inside the MPC; `world` is the teacher that moves the other
-/// vehicles in a [`World::Teacher`] world (and must be `None` for [`World::LogReplay`]).
+/// `planner_pred` predicts inside the MPC; `world` moves the other vehicles and must match
+/// `cfg.world`: the teacher of a [`crate::World::Teacher`] world, the driver population of a
+/// [`crate::World::Idm`] world, nothing for [`crate::World::LogReplay`]. Every step is judged
+/// by [`crate::sim::metrics`] (per step in [`StepRecord::metrics`], per run in
+/// [`RunRecord::metrics`] and [`RunRecord::collisions`]); a run with a collision is never a
+/// success.
 ///
 /// # Errors
 /// [`SimError::Settings`] / [`SimError::Config`] for invalid settings,
@@ -315,16 +189,17 @@ impl ClosedLoop<'_> {
 /// following their logged trajectories:
 ///
 /// ```
-/// use nudge_planner::{PlannerSettings, Scenario, SimConfig, World, simulate};
+/// use nudge_planner::{PlannerSettings, Scenario, SimConfig, World, WorldModel, simulate};
 /// use nudge_predictor::ConstantVelocity;
 ///
 /// let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
 ///     .join("../../assets/scenes/us101-11_1-t02.1-ego144.safetensors");
 /// let sc = Scenario::from_file(&scene)?;
 /// let cfg = SimConfig { world: World::LogReplay, ..SimConfig::default() };
-/// let mut cv = ConstantVelocity::new(6)?;
-/// let run = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, None)?;
+/// let mut cv = ConstantVelocity::default();
+/// let run = simulate(&sc, &PlannerSettings::default(), &cfg, 0, &mut cv, WorldModel::LogReplay)?;
 /// assert!(run.success && !run.collision);
+/// assert_eq!(run.metrics.collisions_at_fault + run.metrics.off_road_steps, 0);
 /// assert_eq!(run.steps.len(), run.steps_to_target.unwrap_or(0));
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
@@ -334,7 +209,7 @@ pub fn simulate(
     cfg: &SimConfig,
     seed: u64,
     planner_pred: &mut dyn Predictor,
-    world: Option<&mut dyn Predictor>,
+    world: WorldModel<'_>,
 ) -> Result<RunRecord, SimError> {
     cfg.validate()?;
     let planner = Planner::new(settings.clone()).map_err(|e| match e {
@@ -345,8 +220,8 @@ pub fn simulate(
             source: other,
         },
     })?;
-    let mut mover = Mover::new(cfg, world, sc.n_agents, settings.horizon)?;
     let lane = target_lane(sc, seed)?;
+    let mut mover = Mover::new(cfg, world, sc, seed, settings.horizon)?;
     let y_target = sc.lane_centres[lane];
     let p0 = sc.position(0, T_OBS - 1);
     let mut run = ClosedLoop {
@@ -367,6 +242,7 @@ pub fn simulate(
             cfg.abort_after,
             cfg.abort_hold,
         ),
+        observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
     };
     let mut rec = RunRecord {
         scenario: sc.name.clone(),
@@ -379,6 +255,8 @@ pub fn simulate(
         success: false,
         steps_to_target: None,
         collision: false,
+        collisions: Vec::new(),
+        metrics: super::metrics::RunMetrics::default(),
         aborts: 0,
         steps: Vec::new(),
     };
@@ -399,11 +277,16 @@ pub fn simulate(
             settled = 0;
         }
         if settled >= cfg.settle_steps {
-            rec.success = true;
             rec.steps_to_target = Some(step + 1);
             break;
         }
     }
+    // A run with any collision is never a success.
+    if rec.collision {
+        rec.steps_to_target = None;
+    }
+    rec.success = rec.steps_to_target.is_some();
     rec.aborts = run.lane.aborts();
+    (rec.collisions, rec.metrics) = run.observer.finish(rec.success);
     Ok(rec)
 }

@@ -1,21 +1,34 @@
-"""Closed-loop comparison of planning predictors on held-out real scenes.
+"""``nudge-train closed-loop``: planners x worlds x seeds on the scenes of a split, paired by
+(scene, seed), written to ``docs/results/closed_loop.md``.
 
-Draws ``--n`` scenes (seeded) from a folder of ``nudge.scenario/1`` files (default: the test-split
-scenes the data pipeline writes, ``data/processed/scenes/test``), gives each a seeded target lane,
-and runs the same lane changes with every ``--predictors`` entry planning while the shipped
-teacher moves the other vehicles (``world = predictor``). Prints and writes a markdown table:
-success, steps to target, collisions, planning time per step (median, p90: one planner call on
-one thread; ``--threads`` runs go side by side), Z-update time, and the plan cost compared run by
-run with the teacher planner's (same scene, same target).
+Every chosen scene runs ``--seeds`` times (run r of scene i draws its target lane from seed
+``scene_seed[i] + r``, the scene seeds drawn with ``--seed``), the same (scene, seed) pairs in
+every arm; an arm is one (planner, world, settings). The slow teacher planner runs on a seeded
+subset of ``--teacher-n`` scenes. ``--compare A B`` runs every planner x world with two planner
+settings files and compares B with A. The metrics are computed in Rust
+(``nudge_planner::sim::metrics``); this module only aggregates them:
 
-    nudge-train closed-loop --n 120 --markdown docs/results/closed_loop.md
+* per arm: success with a 95 % interval (bootstrap over scenes), collisions at fault / not
+  (each one listed and explained), off-road steps, straddle time, slow steps (executed and
+  planned), min time to collision, comfort, time to the target with failures counted at the
+  budget, progress, the score; per density stratum (terciles of the free gap in the target lane);
+* paired differences against a reference arm: McNemar's exact test on success, a paired bootstrap
+  on the time to target.
+
+Runs are cached per chunk part under ``runs/closed_loop/`` with a hash of every input (scene
+files, seeds, planner, world, settings, closed-loop config, the models, the IDM file and the
+compiled extension), verified on resume.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,120 +36,568 @@ import numpy as np
 import nudge
 
 from nudge_train import paths
+from nudge_train.experiments.stats import (BOOTSTRAP, cluster_bootstrap, mcnemar_exact, paired_bootstrap, stratum,
+                                           terciles)
+
+__all__ = ["Arm", "Chunk", "EvalConfig", "collect", "explain", "report", "run"]
+
+CACHE_SCHEMA = "nudge.closed_loop_cache/1"
+STRATA = ("dense", "medium", "sparse")
+STEP_KEEP = ("run", "mpc_s", "status")
+"""Step columns kept in the cache (the run columns hold every per-step metric's count)."""
 
 
-def summarise(res: dict, dt: float) -> dict:
-    """Per-predictor summary of one :func:`nudge.simulate` result."""
-    runs, steps = res["runs"], res["steps"]
-    ok = np.array([e is None for e in runs["error"]])
+@dataclass(frozen=True)
+class Arm:
+    """One evaluated configuration: a planning predictor in a world with one planner settings."""
+
+    planner: str
+    world: str
+    settings: str
+
+    def label(self, with_settings: bool) -> str:
+        """``planner`` or ``planner [settings]``."""
+        return f"{self.planner} [{self.settings}]" if with_settings else self.planner
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What to run (the ``nudge-train closed-loop`` arguments)."""
+
+    scenes: Path
+    n: int | None = None
+    seeds: int = 3
+    planners: tuple[str, ...] = ("student", "teacher")
+    worlds: tuple[str, ...] = ("teacher", "idm", "log_replay")
+    teacher_n: int = 60
+    settings: Path | None = None
+    config: Path | None = None
+    compare: tuple[Path, Path] | None = None
+    reference: str | None = None
+    seed: int = 0
+    threads: int = 2
+    batch: int = 30
+    cache: Path = field(default_factory=lambda: paths.runs() / "closed_loop")
+    bootstrap: int = BOOTSTRAP
+    progress: bool = True
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first bad argument."""
+        if self.n is not None and self.n < 1:
+            raise ValueError(f"--n must be >= 1, got {self.n}")
+        if self.seeds < 1:
+            raise ValueError(f"--seeds must be >= 1, got {self.seeds}")
+        if self.teacher_n < 1:
+            raise ValueError(f"--teacher-n must be >= 1, got {self.teacher_n}")
+        if self.batch < 1 or self.threads < 1:
+            raise ValueError("--batch and --threads must be >= 1")
+        for w in self.worlds:
+            if w not in ("teacher", "idm", "log_replay"):
+                raise ValueError(f"--worlds: unknown world {w!r} (teacher, idm, log_replay)")
+        if not self.planners or not self.worlds:
+            raise ValueError("--planners and --worlds need at least one entry")
+        if self.reference is not None and self.reference not in self.planners:
+            raise ValueError(f"--reference {self.reference!r} is not among --planners {list(self.planners)}")
+        if self.settings is not None and self.compare is not None:
+            raise ValueError("--settings and --compare exclude each other")
+
+
+@dataclass
+class Chunk:
+    """The merged results of one arm: run columns, collision rows, kept step columns, the wall
+    time of its computation (s) and whether any part was computed now."""
+
+    arm: Arm
+    runs: dict[str, list]
+    collisions: dict[str, list]
+    steps: dict[str, list]
+    wall_s: float
+    computed_s: float
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _file_sha(path: Path, memo: dict[Path, str]) -> str:
+    if path not in memo:
+        memo[path] = _sha(path.read_bytes())
+    return memo[path]
+
+
+def _jsonable(table: dict) -> dict[str, list]:
+    """numpy columns -> lists (floats keep NaN / inf; json writes them as NaN / Infinity)."""
+    out = {}
+    for k, v in table.items():
+        if isinstance(v, np.ndarray):
+            out[k] = v.tolist()
+        else:
+            out[k] = list(v)
+    return out
+
+
+def _settings_arms(cfg: EvalConfig) -> list[tuple[str, nudge.PlannerSettings]]:
+    """(label, settings) of every settings arm."""
+    def load(p: Path) -> nudge.PlannerSettings:
+        return nudge.PlannerSettings.from_json(Path(p).read_text())
+    if cfg.compare is not None:
+        a, b = cfg.compare
+        la, lb = Path(a).stem, Path(b).stem
+        if la == lb:
+            la, lb = f"A:{la}", f"B:{lb}"
+        return [(la, load(a)), (lb, load(b))]
+    if cfg.settings is not None:
+        return [(Path(cfg.settings).stem, load(cfg.settings))]
+    return [("default", nudge.PlannerSettings.default())]
+
+
+def _sim_config(cfg: EvalConfig) -> nudge.SimConfig:
+    return nudge.SimConfig.from_json(Path(cfg.config).read_text()) if cfg.config else nudge.SimConfig.default()
+
+
+def choose(cfg: EvalConfig) -> tuple[list[Path], list[int], list[int]]:
+    """The scenes (sorted file order of a seeded draw of ``n``), their seeds, and the indices of
+    the teacher planner's subset."""
+    files = sorted(Path(cfg.scenes).glob("*.safetensors"))
+    rng = np.random.default_rng([cfg.seed, 1])
+    order = rng.permutation(len(files))
+    pick = sorted(order[: cfg.n].tolist()) if cfg.n is not None else list(range(len(files)))
+    chosen = [files[i] for i in pick]
+    scene_seeds = np.random.default_rng([cfg.seed, 2]).integers(0, 2**31, size=len(chosen)).tolist()
+    subset = sorted(np.random.default_rng([cfg.seed, 3]).permutation(len(chosen))[: cfg.teacher_n].tolist())
+    return chosen, [int(s) for s in scene_seeds], subset
+
+
+def _model_files(planner: str, world: str) -> list[Path]:
+    files = []
+    if planner in ("teacher", "student"):
+        files.append(nudge.model_path(planner))
+    elif planner != "constant_velocity":
+        files.append(Path(planner))
+    if world == "teacher":
+        files.append(nudge.model_path("teacher"))
+    if world == "idm":
+        files.append(nudge.assets_dir() / "worlds" / "idm.json")
+    return files
+
+
+def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: ANN001 (a print-like callable)
+    """Runs (or loads from the cache) every arm; returns the chunks and what was run."""
+    cfg.validate()
+    scenes, scene_seeds, subset = choose(cfg)
+    if not scenes:
+        raise FileNotFoundError(f"no scenario files in {cfg.scenes}")
+    sim_cfg = _sim_config(cfg)
+    arms = _settings_arms(cfg)
+    memo: dict[Path, str] = {}
+    scene_sha = [_file_sha(p, memo) for p in scenes]
+    native = Path(nudge._native.__file__)
+    base = {"schema": CACHE_SCHEMA, "native": _file_sha(native, memo), "seeds": cfg.seeds}
+    chunks: list[Chunk] = []
+    todo = [(p, w, a) for a in arms for w in cfg.worlds for p in cfg.planners]
+    t_start = time.perf_counter()
+    for ci, (planner, world, (label, settings)) in enumerate(todo):
+        arm = Arm(planner, world, label)
+        idx = subset if planner == "teacher" else list(range(len(scenes)))
+        config = sim_cfg.replace(world=world)
+        inputs = dict(base, planner=planner, world=world, settings=json.loads(settings.to_json()),
+                      config=json.loads(config.to_json()),
+                      models={str(paths.repo_relative(f)): _file_sha(f, memo) for f in _model_files(planner, world)})
+        chunk_key = _sha(json.dumps(inputs, sort_keys=True).encode())
+        folder = Path(cfg.cache) / chunk_key[:20]
+        parts = [idx[i: i + cfg.batch] for i in range(0, len(idx), cfg.batch)]
+        merged = {"runs": {}, "collisions": {}, "steps": {}}
+        wall = computed = 0.0
+        offset = 0
+        for pi, part in enumerate(parts):
+            part_inputs = {"chunk": chunk_key, "scenes": [scenes[i].name for i in part],
+                           "scene_sha": [scene_sha[i] for i in part], "scene_seeds": [scene_seeds[i] for i in part]}
+            key = _sha(json.dumps(part_inputs, sort_keys=True).encode())
+            file = folder / f"part-{pi:04d}.json"
+            data = None
+            if file.is_file():
+                try:
+                    data = json.loads(file.read_text())
+                except json.JSONDecodeError:
+                    data = None
+                if data is not None and (data.get("key") != key or len(data["runs"]["seed"]) != len(part) * cfg.seeds):
+                    log(f"  {file}: inputs changed, recomputing")
+                    data = None
+            if data is None:
+                t0 = time.perf_counter()
+                res = nudge.simulate([scenes[i] for i in part], planner, scene_seeds=[scene_seeds[i] for i in part],
+                                     runs=cfg.seeds, threads=cfg.threads, settings=settings, config=config,
+                                     on_error="skip")
+                dt = time.perf_counter() - t0
+                data = {"key": key, "inputs": inputs, "part": part_inputs, "wall_s": dt,
+                        "runs": _jsonable(res["runs"]), "collisions": _jsonable(res["collisions"]),
+                        "steps": {k: _jsonable({k: res["steps"][k]})[k] for k in STEP_KEEP}}
+                folder.mkdir(parents=True, exist_ok=True)
+                tmp = file.with_suffix(".tmp")
+                tmp.write_text(json.dumps(data))
+                tmp.replace(file)
+                computed += dt
+            wall += data["wall_s"]
+            for table in ("runs", "collisions", "steps"):
+                for k, v in data[table].items():
+                    if k == "run" and table != "runs":
+                        v = [r + offset for r in v]
+                    merged[table].setdefault(k, []).extend(v)
+            offset += len(data["runs"]["seed"])
+            if cfg.progress:
+                elapsed = time.perf_counter() - t_start
+                log(f"[{ci + 1}/{len(todo)}] {planner} in {world} ({label}): part {pi + 1}/{len(parts)}, "
+                    f"{offset} runs, {wall:.0f} s of simulation ({elapsed:.0f} s elapsed)")
+        chunks.append(Chunk(arm, merged["runs"], merged["collisions"], merged["steps"], wall, computed))
+    meta = {"scenes": scenes, "scene_seeds": scene_seeds, "subset": subset, "config": sim_cfg,
+            "settings_labels": [a[0] for a in arms], "wall_s": time.perf_counter() - t_start}
+    return chunks, meta
+
+
+# ---- aggregation ---------------------------------------------------------------------------------
+def _arr(chunk: Chunk, name: str, dtype=np.float64) -> np.ndarray:  # noqa: ANN001
+    return np.asarray(chunk.runs[name], dtype=dtype)
+
+
+def time_to_target(chunk: Chunk, budget_steps: int, column: str = "steps_to_target") -> np.ndarray:
+    """Time to the target (s) of every run, failures (-1) counted at the budget."""
+    s = _arr(chunk, column)
+    return np.where(s >= 0, s, budget_steps) * nudge.DT
+
+
+def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoot_tol: float = 0.3) -> dict:
+    """The report's numbers of one arm (runs that could not run are counted, not averaged);
+    ``overshoot_tol`` (m): runs whose centre went farther beyond the target centre are counted."""
+    ok = np.array([e is None for e in chunk.runs["error"]])
+    scen = np.asarray(chunk.runs["scenario"])[ok]
+    f = {k: _arr(chunk, k)[ok] for k in ("success", "collisions_at_fault", "collisions_not_at_fault",
+                                           "off_road_steps", "straddle_steps", "slow_steps", "slow_planned_steps",
+                                           "min_ttc", "max_abs_jerk", "max_abs_lat_accel", "max_abs_yaw_rate",
+                                           "comfortable", "progress_ratio", "score", "n_steps", "start_overhang",
+                                           "max_abs_heading", "max_overshoot")}
+    ttt = time_to_target(chunk, budget_steps)[ok]
+    ttl = time_to_target(chunk, budget_steps, "steps_to_lane")[ok]
     n = int(ok.sum())
-    succ = np.asarray(runs["success"])[ok]
-    stt = np.asarray(runs["steps_to_target"])[ok]
-    coll = np.asarray(runs["collision"])[ok]
-    run_of = np.asarray(steps["run"])
-    cost = np.asarray(steps["cost"])
-    mean_cost = np.array([cost[run_of == r].mean() if (run_of == r).any() else np.nan for r in range(len(ok))])
-    mpc = np.asarray(steps["mpc_s"]) * 1e3
-    zs = np.asarray(steps["z_s"]) * 1e3
-    zn = np.asarray(steps["z_updates"])
-    z_per = zs[zn > 0] / zn[zn > 0]
-    status = steps["status"]
-    reached = stt[stt >= 0] * dt
+    ttc = f["min_ttc"]
+    mpc = np.asarray(chunk.steps.get("mpc_s", []), dtype=np.float64) * 1e3
+    status, counts = np.unique(np.asarray(chunk.steps.get("status", []), dtype=str), return_counts=True)
+
+    def med(v: np.ndarray) -> float:
+        v = v[np.isfinite(v)]
+        return float(np.median(v)) if v.size else math.nan
+
     return {
-        "runs": n,
-        "agents_mean": float(np.asarray(runs["n_agents"])[ok].mean()) if n else float("nan"),
-        "errors": int((~ok).sum()),
-        "success": float(succ.mean()) if n else float("nan"),
-        "collisions": int(coll.sum()),
-        "time_to_target_s": (float(reached.mean()), float(reached.std())) if len(reached) else (np.nan, np.nan),
-        "steps": len(mpc),
-        "mpc_ms_median": float(np.median(mpc)),
-        "mpc_ms_p90": float(np.percentile(mpc, 90)),
-        "z_ms_median": float(np.median(z_per)) if len(z_per) else float("nan"),
-        "z_total_ms_median": float(np.median(zs)),
-        "min_b_negative_steps": int(np.sum(np.asarray(steps["min_b"]) < 0)),
-        "status_counts": {s: int(c) for s, c in zip(*np.unique(np.asarray(status, dtype=str), return_counts=True))},
-        "mean_cost_per_run": mean_cost,
-        "ok": ok,
+        "runs": n, "errors": int((~ok).sum()), "scenes": len(set(scen.tolist())),
+        "success": cluster_bootstrap(f["success"], scen, n_boot=n_boot) if n else (math.nan,) * 3,
+        "at_fault": (int(f["collisions_at_fault"].sum()), int((f["collisions_at_fault"] > 0).sum())),
+        "not_at_fault": (int(f["collisions_not_at_fault"].sum()), int((f["collisions_not_at_fault"] > 0).sum())),
+        "off_road": (int(f["off_road_steps"].sum()), int((f["off_road_steps"] > 0).sum())),
+        "straddle_s": float(f["straddle_steps"].mean() * nudge.DT) if n else math.nan,
+        "slow": (int(f["slow_steps"].sum()), int((f["slow_steps"] > 0).sum())),
+        "slow_planned": (int(f["slow_planned_steps"].sum()), int((f["slow_planned_steps"] > 0).sum())),
+        "min_ttc_median": med(ttc), "ttc_below": int((ttc <= 0.95).sum()),
+        "comfortable": float(f["comfortable"].mean()) if n else math.nan,
+        "jerk_median": med(f["max_abs_jerk"]), "lat_median": med(f["max_abs_lat_accel"]),
+        "yaw_median": med(f["max_abs_yaw_rate"]), "jerk_max": float(np.max(f["max_abs_jerk"], initial=0.0)),
+        "lat_max": float(np.max(f["max_abs_lat_accel"], initial=0.0)),
+        "yaw_max": float(np.max(f["max_abs_yaw_rate"], initial=0.0)),
+        "time_to_target": float(ttt.mean()) if n else math.nan, "time_to_lane": float(ttl.mean()) if n else math.nan,
+        "progress_ratio": med(f["progress_ratio"]),
+        "heading": (med(f["max_abs_heading"]), float(np.max(f["max_abs_heading"], initial=0.0))),
+        "overshoot": (float(np.max(f["max_overshoot"], initial=0.0)), int((f["max_overshoot"] > overshoot_tol).sum())),
+        "score": cluster_bootstrap(f["score"], scen, n_boot=n_boot, seed=1) if n else (math.nan,) * 3,
+        "mpc_ms": (med(mpc), float(np.percentile(mpc, 90)) if mpc.size else math.nan),
+        "status": dict(zip(status.tolist(), counts.tolist(), strict=True)),
     }
 
 
-def run(
-    *,
-    scenes: Path,
-    n: int,
-    seed: int,
-    predictors: list[str],
-    threads: int,
-    settings: Path | None,
-    abort_after: int,
-    abort_hold: int,
-    markdown: Path | None,
-    json_path: Path | None,
-) -> int:
-    """``nudge-train closed-loop``: draws ``n`` scenes of the folder ``scenes`` with ``seed``,
-    runs every planning predictor of ``predictors`` on them (``threads`` runs side by side,
-    planner ``settings`` JSON or the defaults, lane-change aborts ``abort_after`` /
-    ``abort_hold``), prints the table and writes it to ``markdown`` and the summaries to
-    ``json_path`` when given. Returns the exit status (2 when ``scenes`` holds no scenario)."""
-    scene_files = sorted(scenes.glob("*.safetensors"))
-    if not scene_files:
-        print(f"error: no scenario files in {scenes} (run `make distill` or `make data`)", file=sys.stderr)
-        return 2
-    rng = np.random.default_rng(seed)
-    pick = sorted(rng.permutation(len(scene_files))[:n].tolist())
-    chosen = [scene_files[i] for i in pick]
-    scene_seeds = rng.integers(0, 2**31, size=len(chosen)).tolist()
-    print(f"{len(chosen)} scenes from {scenes} (seed {seed}), world = shipped teacher")
-    planner_settings = nudge.PlannerSettings.from_json(settings.read_text()) if settings else None
-    summaries: dict[str, dict] = {}
-    for pred in predictors:
-        t0 = time.perf_counter()
-        res = nudge.simulate(chosen, pred, world="teacher", world_predictor="teacher", scene_seeds=scene_seeds,
-                             settings=planner_settings, abort_after=abort_after, abort_hold=abort_hold, runs=1,
-                             threads=threads, on_error="skip")
-        s = summarise(res, nudge.DT)
-        s["wall_s"] = time.perf_counter() - t0
-        summaries[pred] = s
-        print(f"{pred}: {s['runs']} runs, success {100 * s['success']:.1f} %, collisions {s['collisions']}, "
-              f"median step {s['mpc_ms_median']:.2f} ms ({s['wall_s']:.0f} s wall)")
+def _pairs(a: Chunk, b: Chunk) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row indices of the (scene, seed) pairs both arms ran, and their scenes."""
+    def index(c: Chunk) -> dict[tuple[str, int], int]:
+        return {(s, int(d)): i for i, (s, d, e) in
+                enumerate(zip(c.runs["scenario"], c.runs["seed"], c.runs["error"], strict=True)) if e is None}
+    ia, ib = index(a), index(b)
+    common = sorted(set(ia) & set(ib))
+    return (np.array([ia[k] for k in common], dtype=int), np.array([ib[k] for k in common], dtype=int),
+            np.array([k[0] for k in common]))
 
-    base = summaries.get("teacher")
+
+def paired(a: Chunk, b: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP) -> dict:
+    """B against A on their common (scene, seed) pairs: success concordance and McNemar's exact
+    p-value; the time to target (failures at the budget) difference B - A with a paired bootstrap
+    interval over scenes."""
+    ia, ib, scen = _pairs(a, b)
+    sa, sb = _arr(a, "success")[ia] > 0, _arr(b, "success")[ib] > 0
+    only_a, only_b = int((sa & ~sb).sum()), int((~sa & sb).sum())
+    ta, tb = time_to_target(a, budget_steps)[ia], time_to_target(b, budget_steps)[ib]
+    return {"pairs": len(ia), "both": int((sa & sb).sum()), "only_a": only_a, "only_b": only_b,
+            "neither": int((~sa & ~sb).sum()), "p": mcnemar_exact(only_a, only_b),
+            "ttt": paired_bootstrap(ta, tb, scen, n_boot) if len(ia) else (math.nan,) * 3}
+
+
+def explain(c: dict, brake_limit: float) -> str:
+    """Why one collision row (a dict of the collision columns) is or is not the ego's fault."""
+    faster = f" closing at {c['other_v'] - c['ego_v']:.1f} m/s" if c["other_behind"] else ""
+    if not c["at_fault"]:
+        return (f"hit from behind inside its lane by a vehicle{faster}, the ego at {c['ego_accel']:+.1f} m/s² "
+                f"(≥ −{brake_limit:g})")
+    why = [f"hit from behind by a vehicle{faster}"] if c["rear_hit"] else []
+    if not c["other_behind"]:
+        why.append("the other vehicle is ahead (the ego ran into it)" if c["dx"] > 0 else "side by side")
+    elif not c["rear_hit"]:
+        why.append(f"side contact (|Δy| {abs(c['dy']):.2f} m ≥ half the widths)")
+    if not c["ego_in_lane"]:
+        why.append("the ego is not inside one lane (straddling or off the road)")
+    if c["ego_accel"] < -brake_limit:
+        why.append(f"the ego brakes at {c['ego_accel']:+.1f} m/s² (< −{brake_limit:g})")
+    return "; ".join(why)
+
+
+# ---- the report ----------------------------------------------------------------------------------
+def _ci(t: tuple[float, float, float], scale: float = 100.0, digits: int = 1) -> str:
+    if not np.isfinite(t[0]):
+        return "-"
+    return f"{scale * t[0]:.{digits}f} [{scale * t[1]:.{digits}f}, {scale * t[2]:.{digits}f}]"
+
+
+def _f(v: float, digits: int = 2) -> str:
+    return "-" if v is None or not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+RULES = """\
+## How runs are judged
+
+The metrics are computed in Rust from the run's states (`nudge_planner::sim::metrics`, where every
+rule is documented) and reach Python and the CLI as the same columns.
+
+- **Success**: the ego settles in the target lane (|y − y_target| ≤ 0.3 m and |ψ| ≤ 0.03 rad for 2
+  steps) within the budget of {budget} steps ({budget_s:.1f} s) **and never collides**.
+- **Collisions, at fault or not**: a collision is a step at which the ego's box overlaps another
+  vehicle's (separating-axis test); an event is the first step of a contact with one vehicle and is
+  classified at that step. The ego is **not** at fault only when (a) the other vehicle is behind it
+  (centre behind the ego's centre along the road) and hits its rear (lateral offset of the centres
+  below half the sum of the widths), (b) the ego is wholly inside one lane (its box spans no lane
+  line and is on the road) and (c) its applied acceleration is ≥ −{brake:g} m/s² (`fault_brake_limit`);
+  otherwise it is at fault.
+- **Off-road steps**: a corner of the ego's box beyond the outermost lane bounds by more than the
+  ego's own overhang at the start plus 0.1 m.
+- **Straddle time**: steps whose ego box spans a lane line (× 0.3 s).
+- **Slow steps in a live lane**: the ego's speed is below 0.3 × the median speed of the other
+  vehicles within 50 m along the road in its lane (else in the adjacent lanes) while that median
+  exceeds 3 m/s; *executed* (speed after the step) and *planned* (the applied plan's last speed).
+- **Min TTC**: per step, over the vehicles ahead whose lateral extent overlaps the ego's, bumper gap /
+  closing speed along the road; per run the minimum (runs where nobody closed in have none).
+- **Comfort**: longitudinal jerk from the applied accelerations, yaw rate and lateral acceleration
+  (speed × yaw rate) from the executed states at 0.3 s; a run is comfortable when every value is
+  within nuPlan's limits (nuplan-devkit `ego_is_comfortable`: acceleration in [−4.05, 2.40] m/s²,
+  |jerk| ≤ 4.13 m/s³, |lateral acceleration| ≤ 4.89 m/s², |yaw rate| ≤ 0.95 rad/s, |yaw
+  acceleration| ≤ 1.93 rad/s²).
+- **Time to target**: steps until settled, failures counted at the budget; *time to lane*: steps until
+  the ego's centre first lies inside the target lane, failures at the budget.
+- **Progress**: the ego's progress along the road over the logged ego's at the last step the log
+  covers (median over runs).
+- **Heading and overshoot**: the largest |ψ| relative to the road over a run (median over runs, and
+  the largest); how far the ego's centre went beyond the target lane's centre in the direction of the
+  lane change (the largest, and the runs beyond the settling tolerance {settle:g} m).
+- **Score** (nuPlan-style, per run in [0, 1]): 0 with an at-fault collision or an off-road step,
+  else (5·success + 5·min(1, progress ratio) + 5·[min TTC > 0.95 s] + 4·(1 − slow steps / steps)
+  + 2·comfortable) / 21.
+- **Density strata**: the free gap in the target lane around the ego at the start (bumper to bumper
+  between the nearest target-lane vehicles ahead of and behind the ego's position; a missing one at
+  60 m), cut into terciles over the evaluated (scene, seed) pairs: dense ≤ {t1:.1f} m < medium ≤
+  {t2:.1f} m < sparse.
+- **Intervals**: 95 % percentile intervals from {boot} bootstrap resamples of the scenes (runs of one
+  scene are resampled together). **Paired differences** use the (scene, seed) pairs both arms ran:
+  McNemar's exact test on success (binomial on the discordant pairs), a paired bootstrap over scenes
+  on the time to target.
+
+Worlds: `teacher` (the shipped teacher predicts the others given the ego's plan), `idm` (every other
+vehicle keeps its lane and lateral position and follows IDM with a driver drawn per vehicle from the
+population fitted to real NGSIM car-following, `assets/worlds/idm.json`; the ego counts as being in
+the lane of its centre at the start and enters another lane by the fitted intrusion rule: a follower
+counts it once its nearest edge is 0.7 m inside the follower's lane with probability 0.7, otherwise
+only once it is wholly inside, and keeps counting it while any part of it is in the lane; see
+`nudge_planner::sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged future; constant
+velocity once the log ends; the others never react).
+"""
+
+
+def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> str:
+    """The markdown report."""
+    sim_cfg = meta["config"]
+    budget = int(sim_cfg.max_steps)
+    brake = float(sim_cfg.fault_brake_limit)
+    many = len(meta["settings_labels"]) > 1
+    # Density strata over the evaluated (scene, seed) pairs (the free gap depends on both).
+    gaps: dict[tuple[str, int], float] = {}
+    for c in chunks:
+        for s, d, g, e in zip(c.runs["scenario"], c.runs["seed"], c.runs["free_gap"], c.runs["error"], strict=True):
+            if e is None:
+                gaps[(s, int(d))] = float(g)
+    cuts = terciles(np.array(list(gaps.values()))) if gaps else (math.nan, math.nan)
+    overhang: dict[str, float] = {}
+    for c in chunks:
+        for s, o, e in zip(c.runs["scenario"], c.runs["start_overhang"], c.runs["error"], strict=True):
+            if e is None:
+                overhang[s] = float(o)
+    over = np.array([o for o in overhang.values() if o > 0])
+    n_sc = len(meta["scenes"])
     lines = [
-        f"Closed loop on {len(chosen)} held-out real scenes (`{paths.repo_relative(scenes)}`, "
-        f"drawn with seed {seed}; one run each, seeded target lane), the shipped teacher moving the other "
-        f"vehicles, at most 30 steps of {nudge.DT} s. Times: one planner call on one thread "
-        f"({threads} runs side by side on the {threads}-core machine).",
+        "# Closed-loop evaluation: planners × worlds × seeds",
         "",
-        "| planning predictor | runs (errors) | agents / scene | success | time to target (s) | collisions | steps with min b < 0 "
-        "| planning ms / step, median | p90 | Z-update ms, median | mean cost / step | cost vs teacher (paired) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        f"Generated by `{command}`. Split: `{paths.repo_relative(cfg.scenes)}`, {n_sc} scenes × {cfg.seeds} seeds "
+        f"(scene seeds drawn with seed {cfg.seed}); the teacher planner on a seeded subset of "
+        f"{len(meta['subset'])} of them. Planners: {', '.join(cfg.planners)}; worlds: {', '.join(cfg.worlds)}; "
+        f"planner settings: {', '.join(meta['settings_labels'])}. Closed-loop config: "
+        f"`{json.dumps(json.loads(sim_cfg.to_json()), sort_keys=True)}` (world set per arm).",
+        "",
+        f"Wall time: {sum(c.wall_s for c in chunks) / 60:.1f} min of simulation (the sum over the cached chunk "
+        f"parts, each measured when it ran, {cfg.threads} runs side by side on a 2-core machine shared with other "
+        f"jobs); this invocation {meta['wall_s'] / 60:.1f} min "
+        f"({sum(c.computed_s for c in chunks) / 60:.1f} min computed, the rest read from the cache).",
+        "",
+        f"Egos that start with a corner over the road's edge: {len(over)} of {len(overhang)} scenes"
+        + (f" ({int((over >= 0.1).sum())} by 0.1 m or more; overhang {over.min():.3f}–{over.max():.2f} m, median "
+           f"{np.median(over):.2f} m); the off-road test allows each ego its own start overhang + 0.1 m."
+           if len(over) else "."),
+        "",
+        "In the `teacher` and `log_replay` worlds a run depends on its seed only through the target lane (both "
+        "worlds are deterministic), so seeds of one scene that draw the same lane repeat a run exactly; in the "
+        "`idm` world the seed also draws the drivers. The intervals resample scenes, which accounts for runs of "
+        "one scene being alike.",
+        "",
+        "@SUMMARY@",
+        RULES.format(budget=budget, budget_s=budget * nudge.DT, brake=brake, t1=cuts[0], t2=cuts[1],
+                     boot=cfg.bootstrap, settle=float(sim_cfg.settle_y)),
+        "## Results per world and planner",
+        "",
+        "| world | planner | runs (scenes) | success % [95 % CI] | collisions at fault: events (runs) | "
+        "not at fault | off-road steps (runs) | straddle s / run | slow steps executed (runs) | planned (runs) | "
+        "min TTC median s (runs ≤ 0.95 s) | comfortable % | max jerk / lat acc / yaw rate, median (max) | "
+        "max abs heading rad, median (max) | overshoot m, max (runs > tol) | "
+        "time to target s | time to lane s | progress vs log | score [95 % CI] | planning ms median (p90) |",
+        "|" + "---|" * 20,
     ]
-    for pred, s in summaries.items():
-        both = s["ok"] & (base["ok"] if base else s["ok"])
-        mine = s["mean_cost_per_run"][both]
-        paired = "-"
-        if base is not None and pred != "teacher":
-            ref = base["mean_cost_per_run"][both]
-            good = np.isfinite(mine) & np.isfinite(ref)
-            ratio = mine[good].sum() / ref[good].sum()
-            paired = f"{100 * (ratio - 1):+.1f} % (sum over {int(good.sum())} runs)"
-        tt = s["time_to_target_s"]
+    summaries = {}
+    for c in chunks:
+        s = summarise(c, budget, cfg.bootstrap, float(sim_cfg.settle_y))
+        summaries[c.arm] = s
+        err = f" +{s['errors']} failed" if s["errors"] else ""
         lines.append(
-            f"| {pred} | {s['runs']} ({s['errors']}) | {s['agents_mean']:.1f} | {100 * s['success']:.1f} % | {tt[0]:.2f} ± {tt[1]:.2f} | "
-            f"{s['collisions']} | {s['min_b_negative_steps']} | {s['mpc_ms_median']:.2f} | {s['mpc_ms_p90']:.2f} | "
-            f"{s['z_ms_median']:.3f} | {np.nanmean(s['mean_cost_per_run']):.1f} | {paired} |"
-        )
+            f"| {c.arm.world} | {c.arm.label(many)} | {s['runs']}{err} ({s['scenes']}) | {_ci(s['success'])} | "
+            f"{s['at_fault'][0]} ({s['at_fault'][1]}) | {s['not_at_fault'][0]} ({s['not_at_fault'][1]}) | "
+            f"{s['off_road'][0]} ({s['off_road'][1]}) | {_f(s['straddle_s'])} | {s['slow'][0]} ({s['slow'][1]}) | "
+            f"{s['slow_planned'][0]} ({s['slow_planned'][1]}) | {_f(s['min_ttc_median'])} ({s['ttc_below']}) | "
+            f"{_f(100 * s['comfortable'], 1)} | {_f(s['jerk_median'], 1)} / {_f(s['lat_median'])} / "
+            f"{_f(s['yaw_median'], 3)} ({_f(s['jerk_max'], 1)} / {_f(s['lat_max'])} / {_f(s['yaw_max'], 3)}) | "
+            f"{_f(s['heading'][0], 3)} ({_f(s['heading'][1], 3)}) | {_f(s['overshoot'][0])} ({s['overshoot'][1]}) | "
+            f"{_f(s['time_to_target'])} | {_f(s['time_to_lane'])} | {_f(s['progress_ratio'], 3)} | "
+            f"{_ci(s['score'], 1.0, 3)} | {_f(s['mpc_ms'][0])} ({_f(s['mpc_ms'][1])}) |")
+    key = []
+    for c in chunks:
+        s = summaries[c.arm]
+        key.append(f"- **{c.arm.world} world, {c.arm.label(many)}**: success {_ci(s['success'])} %, "
+                   f"{s['at_fault'][0]} at-fault and {s['not_at_fault'][0]} not-at-fault collisions, "
+                   f"off the road in {s['off_road'][1]} of {s['runs']} runs, slow in a live lane in {s['slow'][1]} "
+                   f"runs (planned in {s['slow_planned'][1]}), score {s['score'][0]:.3f}.")
+    lines[lines.index("@SUMMARY@")] = "## Summary\n\n" + "\n".join(key) + "\n"
     lines += ["", "Planner status per step: " + "; ".join(
-        f"{pred}: " + ", ".join(f"{k} {v}" for k, v in s["status_counts"].items()) for pred, s in summaries.items())]
-    text = "\n".join(lines)
+        f"{c.arm.world}/{c.arm.label(many)}: " + ", ".join(f"{k} {v}" for k, v in summaries[c.arm]["status"].items())
+        for c in chunks), ""]
+    # Density strata.
+    lines += ["## Per density stratum", "",
+              f"Free gap in the target lane at the start: dense ≤ {cuts[0]:.1f} m < medium ≤ {cuts[1]:.1f} m < sparse "
+              f"(terciles over {len(gaps)} (scene, seed) pairs).", "",
+              "| world | planner | stratum | runs | success % [95 % CI] | at-fault collisions (runs) | "
+              "not at fault | off-road steps | slow steps | score |", "|" + "---|" * 10]
+    for c in chunks:
+        ok = np.array([e is None for e in c.runs["error"]])
+        strata = stratum(_arr(c, "free_gap"), cuts, STRATA)
+        scen = np.asarray(c.runs["scenario"])
+        for name in STRATA:
+            m = ok & (strata == name)
+            if not m.any():
+                continue
+            succ = cluster_bootstrap(_arr(c, "success")[m], scen[m], n_boot=cfg.bootstrap)
+            af = _arr(c, "collisions_at_fault")[m]
+            lines.append(
+                f"| {c.arm.world} | {c.arm.label(many)} | {name} | {int(m.sum())} | {_ci(succ)} | "
+                f"{int(af.sum())} ({int((af > 0).sum())}) | {int(_arr(c, 'collisions_not_at_fault')[m].sum())} | "
+                f"{int(_arr(c, 'off_road_steps')[m].sum())} | {int(_arr(c, 'slow_steps')[m].sum())} | "
+                f"{_arr(c, 'score')[m].mean():.3f} |")
+    # Paired differences.
+    lines += ["", "## Paired differences", ""]
+    comparisons = []
+    if many:
+        la, lb = meta["settings_labels"]
+        for c in chunks:
+            if c.arm.settings == lb:
+                ref = next(r for r in chunks if r.arm == Arm(c.arm.planner, c.arm.world, la))
+                comparisons.append((ref, c))
+        lines.append(f"Reference: settings {la}; B − A on the (scene, seed) pairs both ran.")
+    else:
+        ref_planner = cfg.reference or cfg.planners[0]
+        for c in chunks:
+            if c.arm.planner != ref_planner:
+                ref = next(r for r in chunks if r.arm == Arm(ref_planner, c.arm.world, c.arm.settings))
+                comparisons.append((ref, c))
+        lines.append(f"Reference: the {ref_planner} planner in the same world; B − A on the (scene, seed) pairs "
+                     "both ran.")
+    lines += ["", "| world | A | B | pairs | both succeed | only A | only B | neither | McNemar p (exact) | "
+              "time to target B − A s [95 % CI] |", "|" + "---|" * 10]
+    for a, b in comparisons:
+        p = paired(a, b, budget, cfg.bootstrap)
+        lines.append(f"| {b.arm.world} | {a.arm.label(many)} | {b.arm.label(many)} | {p['pairs']} | {p['both']} | "
+                     f"{p['only_a']} | {p['only_b']} | {p['neither']} | {p['p']:.3g} | "
+                     f"{_ci(p['ttt'], 1.0, 2)} |")
+    if not comparisons:
+        lines.append("| - | - | - | - | - | - | - | - | - | - |")
+    # Every collision, explained.
+    lines += ["", "## Every collision", "",
+              "dx, dy: the other vehicle's centre minus the ego's (m); ψ: headings (rad); v: speeds (m/s); "
+              "a: the ego's applied acceleration (m/s²).", "",
+              "| world | planner | scene | seed | step | other (id) | at fault | dx | dy | ψ ego / other | "
+              "v ego / other | a | why |", "|" + "---|" * 13]
+    any_collision = False
+    for c in chunks:
+        cols = c.collisions
+        for i in range(len(cols.get("run", []))):
+            row = {k: v[i] for k, v in cols.items()}
+            r = row["run"]
+            any_collision = True
+            lines.append(
+                f"| {c.arm.world} | {c.arm.label(many)} | {c.runs['scenario'][r]} | {c.runs['seed'][r]} | "
+                f"{row['step']} | {row['other']} ({row['other_id']}) | {'yes' if row['at_fault'] else 'no'} | "
+                f"{row['dx']:+.2f} | {row['dy']:+.2f} | {row['ego_heading']:+.3f} / {row['other_heading']:+.3f} | "
+                f"{row['ego_v']:.1f} / {row['other_v']:.1f} | {row['ego_accel']:+.2f} | {explain(row, brake)} |")
+    if not any_collision:
+        lines.append("| - | - | - | - | - | - | - | - | - | - | - | - | no collision |")
+    return "\n".join(lines) + "\n"
+
+
+def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str) -> int:
+    """``nudge-train closed-loop``: collect, print and write the report. Returns the exit status
+    (2 when the scene folder holds no scenario or an argument is invalid)."""
+    try:
+        chunks, meta = collect(cfg, log=lambda s: print(s, flush=True))
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    text = report(chunks, meta, cfg, command)
     print(text)
-    if markdown:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
-        markdown.write_text(text + "\n")
-    if json_path:
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text)
+        print(f"wrote {paths.repo_relative(out)}")
+    if json_path is not None:
+        budget = int(meta["config"].max_steps)
+        data = {f"{c.arm.world}/{c.arm.planner}/{c.arm.settings}": summarise(c, budget, cfg.bootstrap)
+                for c in chunks}
         json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps({p: {k: v for k, v in s.items() if k not in ("mean_cost_per_run", "ok")}
-                                         for p, s in summaries.items()}, indent=1))
+        json_path.write_text(json.dumps(data, indent=1))
     return 0
 
+
+def command_line(argv: Sequence[str]) -> str:
+    """The command as the report names it (no machine paths)."""
+    return "nudge-train closed-loop " + " ".join(argv)

@@ -1,0 +1,1013 @@
+//! The `idm` world: reactive traffic with a known model, fitted to real car-following.
+//!
+//! Every other vehicle keeps its lane and its lateral position (its last observed y; no lane
+//! changes) and moves along the road by the Intelligent Driver Model (Treiber, Hennecke &
+//! Helbing 2000) with δ from the file (4):
+//!
+//! ```text
+//! a = a_max · (1 − (v / v0)^δ − (s* / s)²),   s* = max(0, s0 + v·T + v·(v − v_lead) / (2·√(a_max·b)))
+//! ```
+//!
+//! s is the bumper-to-bumper gap to its leader (m, floored at the file's `gap_floor_m` in the
+//! interaction term), free road drops the interaction term, and the acceleration is floored at
+//! −`max_decel_mps2` (9 m/s²). Integration: three ballistic sub-steps of 0.1 s per 0.3 s
+//! closed-loop step, v' = max(v + a·dt, 0), x' = x + (v + v')/2·dt, every vehicle's
+//! acceleration computed from the states at the start of the sub-step. This is the model the
+//! parameters were fitted with (`python/train/nudge_train/idm/model.py`).
+//!
+//! **Drivers** ([`IdmPopulation`], `assets/worlds/idm.json`, schema "nudge.idm/1"): each
+//! vehicle draws one row (T, s0, a_max, b, v0_ratio) of the fitted population, with
+//! replacement, seeded by the run's seed and the vehicle's index; only rows of the scene's
+//! source are drawn (the US-101 rows for a scene whose `source`/`scene` metadata names US-101,
+//! the I-80 rows for I-80, every row otherwise), as the file's `sampling` text says. Desired
+//! speed v0 = v0_ratio · v_ref, v_ref = the vehicle's highest logged speed (the last observed
+//! speed, and every displacement of its history and of its logged future over 0.3 s), taken
+//! as at least [`V_REF_MIN`] (a vehicle the log shows standing still wants to move off at
+//! walking pace rather than divide by zero).
+//!
+//! **Leaders.** A follower's leader is the nearest vehicle ahead (centre ahead of its centre)
+//! among the others in its lane (lane of the centre, fixed for the run; or whose box overlaps
+//! its own across the road) and the ego when the ego counts as being in its lane. At the start
+//! the ego counts in the lane of its centre, like every other vehicle. Afterwards it enters a
+//! follower's lane by the file's **intrusion rule** ([`IntrusionRule`], fitted to real US-101
+//! cut-ins): each follower draws once per run whether it yields (probability `p_yield`, seeded
+//! by the run's seed and its index); a yielding follower counts the ego once the ego's nearest
+//! edge is more than `threshold_m` inside the follower's lane (lateral overlap of the ego's box
+//! with the lane > threshold), a non-yielding one only once the ego is entirely inside the
+//! lane. The ego keeps counting while any part of it is in the lane (a follower does not
+//! ignore a car that is leaving its lane) and stops once it is wholly out. The gap to the ego
+//! is measured to the rear of the ego's rotated box, its speed along the road is v·cos ψ, and
+//! within a 0.3 s step the ego moves linearly from its state before the step to its state
+//! after it.
+//!
+//! Deterministic: the same scene, population and seed give the same traffic, bit for bit.
+
+use std::path::{Path, PathBuf};
+
+use nudge_predictor::{DT, T_OBS};
+use serde_json::Value;
+
+use crate::error::WorldFileError;
+use crate::model::State;
+use crate::scenario::Scenario;
+
+/// The schema string of the world file.
+pub const IDM_SCHEMA: &str = "nudge.idm/1";
+/// Ballistic sub-steps per closed-loop step of [`DT`] = 0.3 s.
+pub const SUBSTEPS: usize = 3;
+/// The sub-step (s): the fit's 0.1 s ([`SUBSTEPS`] · `SUB_DT` = [`DT`]).
+pub const SUB_DT: f64 = 0.1;
+/// Smallest reference speed v_ref (m/s) of a driver's desired speed.
+pub const V_REF_MIN: f64 = 1.0;
+/// The fitted parameters in the order of every driver row.
+pub const PARAMETER_NAMES: [&str; 5] = ["T", "s0", "a_max", "b", "v0_ratio"];
+/// The units the file must state for each parameter and for the intrusion threshold.
+const UNITS: [(&str, &str); 6] = [
+    ("T", "s"),
+    ("s0", "m"),
+    ("a_max", "m/s^2"),
+    ("b", "m/s^2"),
+    ("v0_ratio", "1"),
+    ("threshold_m", "m"),
+];
+
+/// The world file of the `idm` world under the assets directory `assets`:
+/// `<assets>/worlds/idm.json` (the assets directory as for the models,
+/// [`nudge_predictor::default_assets_dir`]). The only place that knows this layout.
+#[must_use]
+pub fn idm_path(assets: &Path) -> PathBuf {
+    assets.join("worlds").join("idm.json")
+}
+
+/// One driver: IDM parameters. Units: T s, s0 m, a_max m/s², b m/s², v0_ratio 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IdmDriver {
+    /// Time headway T (s).
+    pub t: f64,
+    /// Jam gap s0 (m).
+    pub s0: f64,
+    /// Maximum acceleration a_max (m/s²).
+    pub a_max: f64,
+    /// Comfortable deceleration b (m/s²).
+    pub b: f64,
+    /// Desired speed over the vehicle's highest logged speed (1).
+    pub v0_ratio: f64,
+}
+
+/// Where a driver's record came from (the file's `driver_sources`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DriverSource {
+    /// The I-80 car-following pairs.
+    I80,
+    /// The US-101 tracks.
+    Us101,
+}
+
+impl DriverSource {
+    /// `"i80"` or `"us101"`, as in the file.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::I80 => "i80",
+            Self::Us101 => "us101",
+        }
+    }
+
+    /// The source a scene's metadata names (`source`, else `scene`): US-101 or I-80 in any
+    /// spelling (`USA_US101-12_1_T-1.xml.gz`, `i-80`); `None` for anything else.
+    #[must_use]
+    pub fn of_scene(sc: &Scenario) -> Option<Self> {
+        let text = sc
+            .metadata
+            .get("source")
+            .or_else(|| sc.metadata.get("scene"))?;
+        let squashed: String = text
+            .chars()
+            .filter(char::is_ascii_alphanumeric)
+            .collect::<String>()
+            .to_ascii_lowercase();
+        if squashed.contains("us101") {
+            Some(Self::Us101)
+        } else if squashed.contains("i80") {
+            Some(Self::I80)
+        } else {
+            None
+        }
+    }
+}
+
+/// The IDM's fixed parts (the file's `model`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IdmModel {
+    /// Free-road exponent δ (1).
+    pub delta: f64,
+    /// Braking floor (m/s², > 0): accelerations below −this are floored.
+    pub max_decel: f64,
+    /// Gap (m, > 0) used in the interaction term when the gap is at most this.
+    pub gap_floor: f64,
+}
+
+impl IdmModel {
+    /// The IDM acceleration (m/s²) of `driver` at speed `v` (m/s) with desired speed `v0`
+    /// (m/s), behind `leader` = (bumper-to-bumper gap s (m), leader speed (m/s)) or on a free
+    /// road (`None`); floored at −`max_decel`.
+    #[must_use]
+    pub fn accel(&self, driver: &IdmDriver, v: f64, v0: f64, leader: Option<(f64, f64)>) -> f64 {
+        let free = 1.0 - (v.max(0.0) / v0).powf(self.delta);
+        let interaction = leader.map_or(0.0, |(s, v_lead)| {
+            let s_star = driver.s0
+                + v * driver.t
+                + v * (v - v_lead) / (2.0 * (driver.a_max * driver.b).sqrt());
+            (s_star.max(0.0) / s.max(self.gap_floor)).powi(2)
+        });
+        (driver.a_max * (free - interaction)).max(-self.max_decel)
+    }
+
+    /// The steady-state gap s_e(v) = (s0 + v·T) / √(1 − (v/v0)^δ) (m) of `driver` following a
+    /// leader at the same speed `v` < `v0` (m/s).
+    #[must_use]
+    pub fn equilibrium_gap(&self, driver: &IdmDriver, v: f64, v0: f64) -> f64 {
+        (driver.s0 + v * driver.t) / (1.0 - (v / v0).powf(self.delta)).sqrt()
+    }
+}
+
+/// When a follower treats an intruding ego as its leader (the file's `intrusion`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IntrusionRule {
+    /// A yielding follower reacts once the intruder's nearest edge is more than this inside
+    /// its lane (m; negative: before the intruder reaches the line).
+    pub threshold_m: f64,
+    /// Probability that a follower yields early (by the threshold); the others react only at
+    /// full entry.
+    pub p_yield: f64,
+}
+
+impl IntrusionRule {
+    /// Whether a follower in the lane `[lane.0, lane.1]` (y, m) counts an intruder with
+    /// lateral extent `[extent.0, extent.1]` (y, m) as being in its lane: `yields` (its draw)
+    /// and the overlap beyond the threshold, or the intruder entirely inside the lane, or
+    /// (`latched`: it counted a sub-step ago) any overlap at all.
+    #[must_use]
+    pub fn reacts(
+        &self,
+        lane: (f64, f64),
+        extent: (f64, f64),
+        yields: bool,
+        latched: bool,
+    ) -> bool {
+        let overlap = extent.1.min(lane.1) - extent.0.max(lane.0);
+        let inside = extent.0 >= lane.0 && extent.1 <= lane.1;
+        inside || (yields && overlap > self.threshold_m) || (latched && overlap > 0.0)
+    }
+}
+
+/// The fitted driver population and model of the `idm` world, parsed once per batch from a
+/// "nudge.idm/1" file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IdmPopulation {
+    /// The file it came from.
+    pub path: PathBuf,
+    /// The drivers, one row each.
+    pub drivers: Vec<IdmDriver>,
+    /// The source of each driver `[drivers.len()]`.
+    pub sources: Vec<DriverSource>,
+    /// The model's fixed parts.
+    pub model: IdmModel,
+    /// The intrusion rule.
+    pub intrusion: IntrusionRule,
+}
+
+/// Field access with errors that name the file and the field.
+struct Fields<'a> {
+    path: &'a Path,
+}
+
+impl Fields<'_> {
+    fn err(&self, field: impl Into<String>, reason: impl Into<String>) -> WorldFileError {
+        WorldFileError::Field {
+            path: self.path.to_path_buf(),
+            field: field.into(),
+            reason: reason.into(),
+        }
+    }
+
+    fn get<'v>(&self, v: &'v Value, parent: &str, key: &str) -> Result<&'v Value, WorldFileError> {
+        let name = if parent.is_empty() {
+            key.to_string()
+        } else {
+            format!("{parent}.{key}")
+        };
+        v.get(key).ok_or_else(|| self.err(name, "missing"))
+    }
+
+    fn text<'v>(&self, v: &'v Value, field: &str) -> Result<&'v str, WorldFileError> {
+        v.as_str()
+            .ok_or_else(|| self.err(field, format!("expected text, got {v}")))
+    }
+
+    fn number(&self, v: &Value, field: &str) -> Result<f64, WorldFileError> {
+        v.as_f64()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| self.err(field, format!("expected a finite number, got {v}")))
+    }
+
+    fn array<'v>(&self, v: &'v Value, field: &str) -> Result<&'v [Value], WorldFileError> {
+        v.as_array()
+            .map(Vec::as_slice)
+            .ok_or_else(|| self.err(field, format!("expected an array, got {v}")))
+    }
+
+    fn positive(&self, v: &Value, field: &str) -> Result<f64, WorldFileError> {
+        let x = self.number(v, field)?;
+        if x > 0.0 {
+            Ok(x)
+        } else {
+            Err(self.err(field, format!("must be > 0, got {x}")))
+        }
+    }
+}
+
+impl IdmPopulation {
+    /// Reads and checks a "nudge.idm/1" file.
+    ///
+    /// # Errors
+    /// [`WorldFileError::Io`] when the file cannot be read, otherwise as
+    /// [`IdmPopulation::from_json`].
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, WorldFileError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|source| WorldFileError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_json(&text, path)
+    }
+
+    /// Parses and checks the text of a "nudge.idm/1" file; `path` names it in errors.
+    ///
+    /// Checked: `schema`; `units` of every parameter and of `threshold_m`;
+    /// `parameter_names` = T, s0, a_max, b, v0_ratio; `bounds` (finite, 0 < lo < hi);
+    /// `model.delta` > 0, `model.max_decel_mps2` > 0, `model.gap_floor_m` > 0 and
+    /// `model.integration` naming the ballistic 0.1 s update; every `drivers` row (5 finite
+    /// values within `bounds`); one `driver_sources` entry (`"i80"` or `"us101"`) per row;
+    /// `intrusion.threshold_m` finite and `intrusion.p_yield` in [0, 1].
+    ///
+    /// # Errors
+    /// [`WorldFileError::NotJson`] for text that is not JSON, [`WorldFileError::Field`]
+    /// naming the first field that is missing or wrong.
+    pub fn from_json(text: &str, path: &Path) -> Result<Self, WorldFileError> {
+        let f = Fields { path };
+        let root: Value = serde_json::from_str(text).map_err(|e| WorldFileError::NotJson {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        let schema = f.text(f.get(&root, "", "schema")?, "schema")?;
+        if schema != IDM_SCHEMA {
+            return Err(f.err("schema", format!("{schema:?}, expected {IDM_SCHEMA:?}")));
+        }
+        let units = f.get(&root, "", "units")?;
+        for (name, unit) in UNITS {
+            let field = format!("units.{name}");
+            let got = f.text(f.get(units, "units", name)?, &field)?;
+            if got != unit {
+                return Err(f.err(field, format!("{got:?}, expected {unit:?}")));
+            }
+        }
+        let names = f.array(f.get(&root, "", "parameter_names")?, "parameter_names")?;
+        let names: Vec<&str> = names.iter().filter_map(Value::as_str).collect();
+        if names != PARAMETER_NAMES {
+            return Err(f.err(
+                "parameter_names",
+                format!("{names:?}, expected {PARAMETER_NAMES:?}"),
+            ));
+        }
+        let bounds_v = f.get(&root, "", "bounds")?;
+        let mut bounds = [(0.0, 0.0); 5];
+        for (k, name) in PARAMETER_NAMES.iter().enumerate() {
+            let field = format!("bounds.{name}");
+            let pair = f.array(f.get(bounds_v, "bounds", name)?, &field)?;
+            if pair.len() != 2 {
+                return Err(f.err(field, format!("{} values, expected [lo, hi]", pair.len())));
+            }
+            let lo = f.number(&pair[0], &format!("{field}[0]"))?;
+            let hi = f.number(&pair[1], &format!("{field}[1]"))?;
+            if !(0.0 < lo && lo < hi) {
+                return Err(f.err(field, format!("[{lo}, {hi}] is not 0 < lo < hi")));
+            }
+            bounds[k] = (lo, hi);
+        }
+        let model_v = f.get(&root, "", "model")?;
+        let model = IdmModel {
+            delta: f.positive(f.get(model_v, "model", "delta")?, "model.delta")?,
+            max_decel: f.positive(
+                f.get(model_v, "model", "max_decel_mps2")?,
+                "model.max_decel_mps2",
+            )?,
+            gap_floor: f.positive(f.get(model_v, "model", "gap_floor_m")?, "model.gap_floor_m")?,
+        };
+        let integration = f.text(f.get(model_v, "model", "integration")?, "model.integration")?;
+        if !(integration.contains("ballistic") && integration.contains("dt = 0.1 s")) {
+            return Err(f.err(
+                "model.integration",
+                format!(
+                    "{integration:?}: the world integrates ballistic sub-steps of 0.1 s \
+                     (\"ballistic, dt = 0.1 s\")"
+                ),
+            ));
+        }
+        let rows = f.array(f.get(&root, "", "drivers")?, "drivers")?;
+        if rows.is_empty() {
+            return Err(f.err("drivers", "no driver"));
+        }
+        let mut drivers = Vec::with_capacity(rows.len());
+        for (i, row) in rows.iter().enumerate() {
+            let field = format!("drivers[{i}]");
+            let vals = f.array(row, &field)?;
+            if vals.len() != PARAMETER_NAMES.len() {
+                return Err(f.err(field, format!("{} values, expected 5", vals.len())));
+            }
+            let mut p = [0.0; 5];
+            for (k, v) in vals.iter().enumerate() {
+                let field = format!("drivers[{i}][{k}]");
+                let x = f.number(v, &field)?;
+                let (lo, hi) = bounds[k];
+                if !(lo..=hi).contains(&x) {
+                    return Err(f.err(
+                        field,
+                        format!(
+                            "{} = {x} outside its bounds [{lo}, {hi}]",
+                            PARAMETER_NAMES[k]
+                        ),
+                    ));
+                }
+                p[k] = x;
+            }
+            drivers.push(IdmDriver {
+                t: p[0],
+                s0: p[1],
+                a_max: p[2],
+                b: p[3],
+                v0_ratio: p[4],
+            });
+        }
+        let src = f.array(f.get(&root, "", "driver_sources")?, "driver_sources")?;
+        if src.len() != drivers.len() {
+            return Err(f.err(
+                "driver_sources",
+                format!("{} entries for {} drivers", src.len(), drivers.len()),
+            ));
+        }
+        let mut sources = Vec::with_capacity(src.len());
+        for (i, s) in src.iter().enumerate() {
+            let field = format!("driver_sources[{i}]");
+            sources.push(match f.text(s, &field)? {
+                "i80" => DriverSource::I80,
+                "us101" => DriverSource::Us101,
+                other => {
+                    return Err(f.err(field, format!("{other:?}, expected \"i80\" or \"us101\"")));
+                }
+            });
+        }
+        let rule = f.get(&root, "", "intrusion")?;
+        let threshold_m = f.number(
+            f.get(rule, "intrusion", "threshold_m")?,
+            "intrusion.threshold_m",
+        )?;
+        let p_yield = f.number(f.get(rule, "intrusion", "p_yield")?, "intrusion.p_yield")?;
+        if !(0.0..=1.0).contains(&p_yield) {
+            return Err(f.err(
+                "intrusion.p_yield",
+                format!("{p_yield} is not a probability in [0, 1]"),
+            ));
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            drivers,
+            sources,
+            model,
+            intrusion: IntrusionRule {
+                threshold_m,
+                p_yield,
+            },
+        })
+    }
+
+    /// Indices of the drivers a scene of `source` draws from: the rows of that source, or
+    /// every row when the source is unknown or has no row.
+    #[must_use]
+    pub fn rows_for(&self, source: Option<DriverSource>) -> Vec<usize> {
+        let all = || (0..self.drivers.len()).collect::<Vec<_>>();
+        match source {
+            None => all(),
+            Some(s) => {
+                let rows: Vec<usize> = (0..self.drivers.len())
+                    .filter(|&i| self.sources[i] == s)
+                    .collect();
+                if rows.is_empty() { all() } else { rows }
+            }
+        }
+    }
+}
+
+/// SplitMix64 finaliser.
+fn mix(z: u64) -> u64 {
+    let mut z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A deterministic 64-bit draw of (run seed, vehicle index, purpose).
+fn draw(seed: u64, vehicle: usize, purpose: u64) -> u64 {
+    mix(mix(mix(seed) ^ vehicle as u64) ^ purpose)
+}
+
+/// A uniform draw in [0, 1) of (run seed, vehicle index, purpose).
+fn uniform(seed: u64, vehicle: usize, purpose: u64) -> f64 {
+    (draw(seed, vehicle, purpose) >> 11) as f64 / (1_u64 << 53) as f64
+}
+
+/// One IDM vehicle of a run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IdmVehicle {
+    /// Centre x (m).
+    pub x: f64,
+    /// Centre y (m), fixed.
+    pub y: f64,
+    /// Speed along the road (m/s, ≥ 0).
+    pub v: f64,
+    /// Length (m).
+    pub length: f64,
+    /// Width (m).
+    pub width: f64,
+    /// Lane index (of its centre), fixed.
+    pub lane: usize,
+    /// Its driver.
+    pub driver: IdmDriver,
+    /// Desired speed v0 = v0_ratio · max(v_ref, [`V_REF_MIN`]) (m/s).
+    pub v0: f64,
+    /// Whether it yields early to an intruder ([`IntrusionRule`]).
+    pub yields: bool,
+    /// Whether the ego counts as being in its lane ([`IntrusionRule::reacts`]).
+    pub ego_in_lane: bool,
+}
+
+/// The ego as the other vehicles see it at one sub-step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EgoView {
+    /// Centre x (m).
+    pub x: f64,
+    /// Lateral extent (lowest y, highest y) of its box (m).
+    pub extent: (f64, f64),
+    /// Rear-most x of its box (m).
+    pub rear: f64,
+    /// Speed along the road (m/s).
+    pub vx: f64,
+}
+
+impl EgoView {
+    /// The view of an ego of `size` (length, width) (m) in `state` (x, y, ψ, v).
+    #[must_use]
+    pub fn new(state: [f64; 4], size: [f64; 2]) -> Self {
+        let (s, c) = state[2].sin_cos();
+        let half_x = 0.5 * (size[0] * c.abs() + size[1] * s.abs());
+        let half_y = 0.5 * (size[0] * s.abs() + size[1] * c.abs());
+        Self {
+            x: state[0],
+            extent: (state[1] - half_y, state[1] + half_y),
+            rear: state[0] - half_x,
+            vx: state[3] * c,
+        }
+    }
+}
+
+/// The leader a follower reacts to at one sub-step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Leader {
+    /// Another IDM vehicle (index into the traffic's vehicles).
+    Vehicle(usize),
+    /// The ego.
+    Ego,
+}
+
+/// The IDM traffic of one run: every vehicle but the ego (agent i ↔ vehicle i − 1).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IdmTraffic {
+    /// The vehicles, agent order.
+    pub vehicles: Vec<IdmVehicle>,
+    /// Lane-boundary y, ascending `[L + 1]` (m).
+    pub lane_bounds: Vec<f64>,
+    /// The model.
+    pub model: IdmModel,
+    /// The intrusion rule.
+    pub rule: IntrusionRule,
+    /// The ego's (length, width) (m).
+    pub ego_size: [f64; 2],
+}
+
+/// The index of the lane holding `y` (m) among `bounds` `[L + 1]`; the nearest lane outside
+/// the road.
+#[must_use]
+pub fn lane_index(bounds: &[f64], y: f64) -> usize {
+    let lanes = bounds.len() - 1;
+    (1..lanes).take_while(|&k| y >= bounds[k]).count()
+}
+
+/// The highest logged speed (m/s) of `agent`: its last observed speed and every displacement
+/// over one step of its history, and of its logged future while the log is valid.
+#[must_use]
+pub fn highest_logged_speed(sc: &Scenario, agent: usize) -> f64 {
+    let mut best = sc.speed[agent];
+    let mut prev = sc.position(agent, 0);
+    let speed = |a: [f64; 2], b: [f64; 2]| (b[0] - a[0]).hypot(b[1] - a[1]) / DT;
+    for t in 1..T_OBS {
+        let p = sc.position(agent, t);
+        best = best.max(speed(prev, p));
+        prev = p;
+    }
+    for k in 1..=sc.n_future {
+        let Some(p) = sc.future_at(agent, k) else {
+            break;
+        };
+        best = best.max(speed(prev, p));
+        prev = p;
+    }
+    best
+}
+
+impl IdmTraffic {
+    /// The traffic of scene `sc` for the run with `seed`: every other vehicle at its last
+    /// observed position and speed, in the lane of its centre, with a driver drawn from the
+    /// rows of the scene's source ([`IdmPopulation::rows_for`]) and a yield draw; the ego
+    /// counts as being in the lane of its centre.
+    #[must_use]
+    pub fn new(sc: &Scenario, population: &IdmPopulation, seed: u64) -> Self {
+        let rows = population.rows_for(DriverSource::of_scene(sc));
+        let ego_lane = lane_index(&sc.lane_bounds, sc.position(0, T_OBS - 1)[1]);
+        let vehicles = (1..sc.n_agents)
+            .map(|i| {
+                let p = sc.position(i, T_OBS - 1);
+                let row = rows[(draw(seed, i, 1) % rows.len() as u64) as usize];
+                let driver = population.drivers[row];
+                let lane = lane_index(&sc.lane_bounds, p[1]);
+                IdmVehicle {
+                    x: p[0],
+                    y: p[1],
+                    v: sc.speed[i],
+                    length: sc.size[i][0],
+                    width: sc.size[i][1],
+                    lane,
+                    driver,
+                    v0: driver.v0_ratio * highest_logged_speed(sc, i).max(V_REF_MIN),
+                    yields: uniform(seed, i, 2) < population.intrusion.p_yield,
+                    ego_in_lane: lane == ego_lane,
+                }
+            })
+            .collect();
+        Self {
+            vehicles,
+            lane_bounds: sc.lane_bounds.clone(),
+            model: population.model,
+            rule: population.intrusion,
+            ego_size: sc.size[0],
+        }
+    }
+
+    /// Updates whether each vehicle counts the ego, seen as `ego`, as being in its lane
+    /// ([`IntrusionRule::reacts`]).
+    pub fn observe_ego(&mut self, ego: &EgoView) {
+        for v in &mut self.vehicles {
+            let lane = (self.lane_bounds[v.lane], self.lane_bounds[v.lane + 1]);
+            v.ego_in_lane = self.rule.reacts(lane, ego.extent, v.yields, v.ego_in_lane);
+        }
+    }
+
+    /// The leader of vehicle `f` with the ego seen as `ego` (counted as in its lane as last
+    /// observed, [`IdmTraffic::observe_ego`]), and the gap (m) and speed (m/s) it is followed
+    /// at; `None` on a free road.
+    #[must_use]
+    pub fn leader(&self, f: usize, ego: &EgoView) -> Option<(Leader, f64, f64)> {
+        let me = &self.vehicles[f];
+        let front = me.x + 0.5 * me.length;
+        let mut best: Option<(Leader, f64, f64)> = None;
+        let mut consider = |who: Leader, gap: f64, v: f64| {
+            if best.is_none_or(|(_, g, _)| gap < g) {
+                best = Some((who, gap, v));
+            }
+        };
+        for (j, o) in self.vehicles.iter().enumerate() {
+            let side_by_side = (o.y - me.y).abs() < 0.5 * (o.width + me.width);
+            if j != f && (o.lane == me.lane || side_by_side) && o.x > me.x {
+                consider(Leader::Vehicle(j), o.x - 0.5 * o.length - front, o.v);
+            }
+        }
+        if ego.x > me.x && me.ego_in_lane {
+            consider(Leader::Ego, ego.rear - front, ego.vx);
+        }
+        best
+    }
+
+    /// One sub-step of `dt` seconds with the ego seen as `ego`: whether each vehicle counts
+    /// the ego in its lane, every vehicle's acceleration from the current states, then the
+    /// ballistic update of all.
+    pub fn substep(&mut self, ego: &EgoView, dt: f64) {
+        self.observe_ego(ego);
+        let leaders: Vec<Option<(Leader, f64, f64)>> = (0..self.vehicles.len())
+            .map(|f| self.leader(f, ego))
+            .collect();
+        for (veh, lead) in self.vehicles.iter_mut().zip(leaders) {
+            let a = self
+                .model
+                .accel(&veh.driver, veh.v, veh.v0, lead.map(|(_, s, v)| (s, v)));
+            let v_next = (veh.v + a * dt).max(0.0);
+            veh.x += 0.5 * (veh.v + v_next) * dt;
+            veh.v = v_next;
+        }
+    }
+
+    /// One closed-loop step (0.3 s in [`SUBSTEPS`] sub-steps of [`SUB_DT`]) while the ego
+    /// moves linearly from `ego_from` to `ego_to` (x, y, ψ, v); returns every vehicle's new
+    /// centre `[n − 1]`.
+    pub fn step(&mut self, ego_from: &State, ego_to: &State) -> Vec<[f64; 2]> {
+        for j in 0..SUBSTEPS {
+            let w = j as f64 / SUBSTEPS as f64;
+            let at = |k: usize| ego_from[k] + (ego_to[k] - ego_from[k]) * w;
+            let view = EgoView::new([at(0), at(1), at(2), at(3)], self.ego_size);
+            self.substep(&view, SUB_DT);
+        }
+        self.vehicles.iter().map(|v| [v.x, v.y]).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ASSETS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets");
+
+    fn model() -> IdmModel {
+        IdmModel {
+            delta: 4.0,
+            max_decel: 9.0,
+            gap_floor: 0.01,
+        }
+    }
+
+    fn driver() -> IdmDriver {
+        IdmDriver {
+            t: 1.2,
+            s0: 2.0,
+            a_max: 1.5,
+            b: 2.0,
+            v0_ratio: 1.0,
+        }
+    }
+
+    fn vehicle(x: f64, y: f64, v: f64, lane: usize, v0: f64, yields: bool) -> IdmVehicle {
+        IdmVehicle {
+            x,
+            y,
+            v,
+            length: 4.0,
+            width: 1.8,
+            lane,
+            driver: driver(),
+            v0,
+            yields,
+            ego_in_lane: false,
+        }
+    }
+
+    fn traffic(vehicles: Vec<IdmVehicle>) -> IdmTraffic {
+        IdmTraffic {
+            vehicles,
+            lane_bounds: vec![-1.75, 1.75, 5.25],
+            model: model(),
+            rule: IntrusionRule {
+                threshold_m: 0.7,
+                p_yield: 0.7,
+            },
+            ego_size: [4.0, 1.8],
+        }
+    }
+
+    /// An ego far behind everyone in lane 1 (never a leader of anyone in lane 0).
+    fn far_ego() -> State {
+        State::new(-1000.0, 3.5, 0.0, 0.0)
+    }
+
+    /// The same ego as the others see it.
+    fn far_view() -> EgoView {
+        EgoView::new([-1000.0, 3.5, 0.0, 0.0], [4.0, 1.8])
+    }
+
+    #[test]
+    fn follower_settles_at_the_analytic_equilibrium_gap() {
+        // A leader at constant speed (v0 = its speed: zero free-road acceleration) and a
+        // follower that starts too close and too slow: it converges to s_e(v_lead).
+        let v = 12.0;
+        let mut t = traffic(vec![
+            vehicle(100.0, 0.0, v, 0, v, true),
+            vehicle(80.0, 0.0, 8.0, 0, 30.0, true),
+        ]);
+        let v0 = 30.0;
+        let ego = far_ego();
+        for _ in 0..2000 {
+            t.step(&ego, &ego);
+        }
+        let lead = t.vehicles[0];
+        let fol = t.vehicles[1];
+        assert!((lead.v - v).abs() < 1e-12, "the leader keeps its speed");
+        let gap = lead.x - 0.5 * lead.length - (fol.x + 0.5 * fol.length);
+        let expected = model().equilibrium_gap(&driver(), v, v0);
+        assert!((fol.v - v).abs() < 1e-6, "follower speed {}", fol.v);
+        assert!(
+            (gap - expected).abs() < 1e-4,
+            "gap {gap} vs equilibrium {expected}"
+        );
+        // Free road: the IDM acceleration of the analytic formula.
+        let a = model().accel(&driver(), 10.0, 20.0, None);
+        assert!((a - 1.5 * (1.0 - 0.5_f64.powi(4))).abs() < 1e-15);
+        // Closing in fast on a stopped leader: floored at the braking limit.
+        assert_eq!(model().accel(&driver(), 30.0, 30.0, Some((1.0, 0.0))), -9.0);
+    }
+
+    /// The shared case with the Python model the drivers were fitted with
+    /// (`python -m nudge_train.idm.golden`): a platoon of three on one lane, the leader slowing
+    /// down on a free road; every position and speed after each 0.3 s step agrees to 1e-9.
+    #[test]
+    fn platoon_matches_the_python_model() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden/idm_platoon.json");
+        let g: Value =
+            serde_json::from_str(&std::fs::read_to_string(path).expect("golden")).expect("json");
+        let num = |v: &Value| v.as_f64().expect("number");
+        let model = IdmModel {
+            delta: num(&g["delta"]),
+            max_decel: num(&g["max_decel"]),
+            gap_floor: num(&g["gap_floor"]),
+        };
+        assert_eq!(num(&g["dt"]), SUB_DT);
+        assert!((SUB_DT * SUBSTEPS as f64 - DT).abs() < 1e-12);
+        let cars = g["vehicles"].as_array().expect("vehicles");
+        let mut t = traffic(
+            cars.iter()
+                .map(|c| {
+                    let length = num(&c["length"]);
+                    IdmVehicle {
+                        x: num(&c["front"]) - 0.5 * length,
+                        y: 0.0,
+                        v: num(&c["v"]),
+                        length,
+                        width: 1.8,
+                        lane: 0,
+                        driver: IdmDriver {
+                            t: num(&c["T"]),
+                            s0: num(&c["s0"]),
+                            a_max: num(&c["a_max"]),
+                            b: num(&c["b"]),
+                            v0_ratio: 1.0,
+                        },
+                        v0: num(&c["v0"]),
+                        yields: true,
+                        ego_in_lane: false,
+                    }
+                })
+                .collect(),
+        );
+        t.model = model;
+        let ego = far_ego();
+        let mut worst: f64 = 0.0;
+        for k in 1..=30 {
+            let moved = t.step(&ego, &ego);
+            for (i, c) in cars.iter().enumerate() {
+                let x = num(&c["x_front"][SUBSTEPS * k]);
+                let v = num(&c["speed"][SUBSTEPS * k]);
+                let front = moved[i][0] + 0.5 * t.vehicles[i].length;
+                worst = worst
+                    .max((front - x).abs())
+                    .max((t.vehicles[i].v - v).abs());
+            }
+        }
+        assert!(worst < 1e-9, "largest difference {worst}");
+        // The case is not trivial: the leader slowed down by several m/s.
+        assert!(t.vehicles[0].v < 11.0);
+    }
+
+    #[test]
+    fn intrusion_rule_switches_leader_by_threshold_or_full_entry() {
+        // Follower in lane 0 ([-1.75, 1.75]) at x = 0 behind a vehicle 40 m ahead; the ego
+        // 15 m ahead moves from lane 1 into lane 0 and back out.
+        for yields in [true, false] {
+            let mut t = traffic(vec![
+                vehicle(40.0, 0.0, 10.0, 0, 12.0, true),
+                vehicle(0.0, 0.0, 10.0, 0, 12.0, yields),
+            ]);
+            let mut leader_at = |y: f64| {
+                let ego = EgoView::new([15.0, y, 0.0, 10.0], [4.0, 1.8]);
+                t.observe_ego(&ego);
+                t.leader(1, &ego).map(|(l, _, _)| l)
+            };
+            // The ego's nearest edge (y − 0.9) 0.5 m inside the line at 1.75: below the
+            // threshold; 1.0 m inside: beyond it; y = 0.8: wholly inside; 2.66: wholly out.
+            let (short, beyond, inside, out) = (1.75 - 0.5 + 0.9, 1.75 - 1.0 + 0.9, 0.8, 2.66);
+            let ego_if_yields = if yields {
+                Leader::Ego
+            } else {
+                Leader::Vehicle(0)
+            };
+            assert_eq!(leader_at(short), Some(Leader::Vehicle(0)));
+            assert_eq!(leader_at(beyond), Some(ego_if_yields), "yields {yields}");
+            assert_eq!(leader_at(inside), Some(Leader::Ego));
+            // Counted once, the ego stays a leader while it overlaps the lane at all ...
+            assert_eq!(leader_at(short), Some(Leader::Ego));
+            // ... until it is wholly out; coming back, the rule applies again.
+            assert_eq!(leader_at(out), Some(Leader::Vehicle(0)));
+            assert_eq!(leader_at(short), Some(Leader::Vehicle(0)));
+            // An ego behind the follower is never its leader.
+            let behind = EgoView::new([-15.0, 0.0, 0.0, 10.0], [4.0, 1.8]);
+            t.observe_ego(&behind);
+            assert_eq!(t.leader(1, &behind).map(|l| l.0), Some(Leader::Vehicle(0)));
+        }
+    }
+
+    #[test]
+    fn an_ego_starting_in_a_lane_leads_its_followers_even_across_a_line() {
+        // A non-yielding follower whose lane holds the ego's centre at the start follows the
+        // ego although the ego's box already crosses the lane line (a wide vehicle).
+        let mut t = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, false)]);
+        t.vehicles[0].ego_in_lane = true;
+        let ego = EgoView::new([15.0, 0.6, 0.0, 10.0], [5.0, 2.6]);
+        assert!(ego.extent.1 > 1.75, "the ego crosses the line");
+        t.substep(&ego, 0.1);
+        assert_eq!(t.leader(0, &ego).map(|l| l.0), Some(Leader::Ego));
+        // Without that start, the same follower ignores it until it is wholly inside.
+        let mut fresh = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, false)]);
+        fresh.substep(&ego, 0.1);
+        assert_eq!(fresh.leader(0, &ego), None);
+        // Another vehicle whose box overlaps the follower's across the road leads it although
+        // its centre is in the next lane.
+        let t = traffic(vec![
+            vehicle(0.0, 1.0, 10.0, 0, 12.0, true),
+            vehicle(20.0, 2.5, 10.0, 1, 12.0, true),
+        ]);
+        assert_eq!(
+            t.leader(0, &far_view()).map(|l| l.0),
+            Some(Leader::Vehicle(1))
+        );
+    }
+
+    #[test]
+    fn the_gap_to_the_ego_is_to_its_rotated_rear() {
+        let mut t = traffic(vec![vehicle(0.0, 0.0, 10.0, 0, 12.0, true)]);
+        let psi: f64 = 0.2;
+        let ego = EgoView::new([20.0, 0.0, psi, 10.0], [4.0, 1.8]);
+        t.observe_ego(&ego);
+        let (who, gap, v) = t.leader(0, &ego).expect("the ego leads");
+        assert_eq!(who, Leader::Ego);
+        let half = 0.5 * (4.0 * psi.cos() + 1.8 * psi.sin());
+        assert!((gap - (20.0 - half - 2.0)).abs() < 1e-12);
+        assert!((v - 10.0 * psi.cos()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn lanes_of_positions() {
+        let b = [-1.75, 1.75, 5.25, 8.75];
+        assert_eq!(lane_index(&b, 0.0), 0);
+        assert_eq!(lane_index(&b, -5.0), 0);
+        assert_eq!(lane_index(&b, 1.75), 1);
+        assert_eq!(lane_index(&b, 6.0), 2);
+        assert_eq!(lane_index(&b, 20.0), 2);
+    }
+
+    #[test]
+    fn shipped_population_parses_and_draws_are_seeded() {
+        let pop = IdmPopulation::from_file(idm_path(Path::new(ASSETS))).expect("shipped file");
+        assert_eq!(pop.drivers.len(), pop.sources.len());
+        assert!((pop.intrusion.threshold_m - 0.7).abs() < 1e-12);
+        assert!((pop.model.delta - 4.0).abs() < 1e-12);
+        let us = pop.rows_for(Some(DriverSource::Us101));
+        assert!(!us.is_empty() && us.len() < pop.drivers.len());
+        assert!(us.iter().all(|&i| pop.sources[i] == DriverSource::Us101));
+        let sc = Scenario::from_file(
+            Path::new(ASSETS).join("scenes/us101-11_1-t02.1-ego144.safetensors"),
+        )
+        .expect("shipped scene");
+        assert_eq!(DriverSource::of_scene(&sc), Some(DriverSource::Us101));
+        let a = IdmTraffic::new(&sc, &pop, 7);
+        assert_eq!(a, IdmTraffic::new(&sc, &pop, 7));
+        let b = IdmTraffic::new(&sc, &pop, 8);
+        assert_ne!(a.vehicles, b.vehicles, "another seed draws other drivers");
+        let ego_lane = lane_index(&sc.lane_bounds, sc.position(0, T_OBS - 1)[1]);
+        for (i, v) in a.vehicles.iter().enumerate() {
+            assert_eq!(v.ego_in_lane, v.lane == ego_lane);
+            let row = pop
+                .drivers
+                .iter()
+                .position(|d| *d == v.driver)
+                .expect("a row");
+            assert_eq!(pop.sources[row], DriverSource::Us101);
+            let v_ref = highest_logged_speed(&sc, i + 1).max(V_REF_MIN);
+            assert!(v_ref >= sc.speed[i + 1]);
+            assert!((v.v0 - v.driver.v0_ratio * v_ref).abs() < 1e-12);
+        }
+        let yielding = (0..2000)
+            .filter(|&k| uniform(11, k, 2) < pop.intrusion.p_yield)
+            .count();
+        assert!(
+            (1250..1550).contains(&yielding),
+            "p_yield 0.7: {yielding} of 2000"
+        );
+    }
+
+    #[test]
+    fn bad_files_name_the_field() {
+        let text = std::fs::read_to_string(idm_path(Path::new(ASSETS))).expect("read");
+        let good: Value = serde_json::from_str(&text).expect("json");
+        type Edit = Box<dyn Fn(&mut Value)>;
+        let cases: [(&str, Edit); 8] = [
+            ("schema", Box::new(|v| v["schema"] = "nudge.idm/2".into())),
+            ("units.s0", Box::new(|v| v["units"]["s0"] = "ft".into())),
+            (
+                "drivers[3][1]",
+                Box::new(|v| v["drivers"][3][1] = 99.0.into()),
+            ),
+            (
+                "drivers[0][4]",
+                Box::new(|v| v["drivers"][0][4] = "fast".into()),
+            ),
+            (
+                "driver_sources[2]",
+                Box::new(|v| v["driver_sources"][2] = "a1".into()),
+            ),
+            (
+                "intrusion.p_yield",
+                Box::new(|v| v["intrusion"]["p_yield"] = 1.5.into()),
+            ),
+            (
+                "model.delta",
+                Box::new(|v| v["model"]["delta"] = (-4.0).into()),
+            ),
+            (
+                "bounds.T",
+                Box::new(|v| v["bounds"]["T"] = serde_json::json!([3.0, 0.3])),
+            ),
+        ];
+        for (field, edit) in cases {
+            let mut v = good.clone();
+            edit(&mut v);
+            match IdmPopulation::from_json(&v.to_string(), Path::new("w.json")) {
+                Err(WorldFileError::Field { field: f, path, .. }) => {
+                    assert_eq!((f.as_str(), path.as_path()), (field, Path::new("w.json")));
+                }
+                other => panic!("{field}: expected a field error, got {other:?}"),
+            }
+        }
+        assert!(matches!(
+            IdmPopulation::from_json("{", Path::new("w.json")),
+            Err(WorldFileError::NotJson { .. })
+        ));
+        assert!(matches!(
+            IdmPopulation::from_file("/nonexistent/idm.json"),
+            Err(WorldFileError::Io { .. })
+        ));
+    }
+}

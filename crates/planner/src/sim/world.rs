@@ -1,0 +1,172 @@
+//! What moves the other vehicles of a run: the world model handed to [`crate::simulate`]
+//! ([`WorldModel`]) and the per-run mover built from it.
+
+use nudge_predictor::{History, Predictor, T_OBS};
+
+use crate::error::SimError;
+use crate::model::State;
+use crate::scenario::Scenario;
+
+use super::config::{SimConfig, World};
+use super::idm::{IdmPopulation, IdmTraffic};
+
+/// The model that moves the other vehicles of one run; it must match
+/// [`SimConfig::world`].
+pub enum WorldModel<'a> {
+    /// A [`World::LogReplay`] world needs none: the log moves them.
+    LogReplay,
+    /// A [`World::Teacher`] world: the teacher that predicts them.
+    Teacher(&'a mut dyn Predictor),
+    /// A [`World::Idm`] world: the driver population they draw from.
+    Idm(&'a IdmPopulation),
+}
+
+impl WorldModel<'_> {
+    /// The world this model moves.
+    #[must_use]
+    pub fn world(&self) -> World {
+        match self {
+            Self::LogReplay => World::LogReplay,
+            Self::Teacher(_) => World::Teacher,
+            Self::Idm(_) => World::Idm,
+        }
+    }
+
+    /// What the model is, for messages.
+    fn describe(&self) -> String {
+        match self {
+            Self::LogReplay => "none".into(),
+            Self::Teacher(p) => format!("a {} predictor", p.name()),
+            Self::Idm(p) => format!("the IDM population {}", p.path.display()),
+        }
+    }
+}
+
+impl std::fmt::Debug for WorldModel<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.describe())
+    }
+}
+
+/// What moves the other vehicles during one run.
+pub(crate) enum Mover<'p> {
+    /// The teacher's interactive prediction, with its buffers.
+    Teacher {
+        predictor: &'p mut dyn Predictor,
+        candidate: Vec<f64>,
+        prediction: Vec<f64>,
+    },
+    /// The logged future.
+    LogReplay,
+    /// IDM traffic.
+    Idm(IdmTraffic),
+}
+
+impl<'p> Mover<'p> {
+    /// The mover of `cfg.world` for the run of scene `sc` with `seed`, checked against the
+    /// model given.
+    pub(crate) fn new(
+        cfg: &SimConfig,
+        model: WorldModel<'p>,
+        sc: &Scenario,
+        seed: u64,
+        horizon: usize,
+    ) -> Result<Self, SimError> {
+        let mismatch = |model: &WorldModel<'_>| SimError::WorldModel {
+            world: cfg.world.as_str(),
+            reason: match cfg.world {
+                World::Teacher => format!(
+                    "needs a teacher to move the others, got {}",
+                    model.describe()
+                ),
+                World::Idm => format!("needs an IDM driver population, got {}", model.describe()),
+                World::LogReplay => format!(
+                    "the logged future moves the others; {} would be ignored",
+                    model.describe()
+                ),
+            },
+        };
+        if model.world() != cfg.world {
+            return Err(mismatch(&model));
+        }
+        match model {
+            WorldModel::Teacher(predictor) => {
+                if predictor.name() != "teacher" {
+                    return Err(SimError::WorldModel {
+                        world: World::Teacher.as_str(),
+                        reason: format!(
+                            "the world model must be a teacher, got a {}",
+                            predictor.name()
+                        ),
+                    });
+                }
+                Ok(Self::Teacher {
+                    predictor,
+                    candidate: vec![0.0; horizon * 2],
+                    prediction: vec![0.0; (sc.n_agents.max(2) - 1) * horizon * 2],
+                })
+            }
+            WorldModel::LogReplay => Ok(Self::LogReplay),
+            WorldModel::Idm(population) => Ok(Self::Idm(IdmTraffic::new(sc, population, seed))),
+        }
+    }
+
+    /// The others' positions after `step` (index = agent, agent 0 = the ego at `ego_to`): the
+    /// teacher predicts them given the ego's executed position and the rest of its `plan`;
+    /// log replay reads the log (constant velocity from the last two observations once it
+    /// ends); IDM traffic follows its leaders while the ego moves from `ego_from` to `ego_to`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn advance(
+        &mut self,
+        sc: &Scenario,
+        history: &History,
+        observed: &[Vec<[f64; 2]>],
+        step: usize,
+        ego_from: &State,
+        ego_to: &State,
+        plan: &[[f64; 4]],
+    ) -> Result<Vec<[f64; 2]>, SimError> {
+        let n = sc.n_agents;
+        let mut moved: Vec<[f64; 2]> = Vec::with_capacity(n);
+        moved.push([ego_to[0], ego_to[1]]);
+        match self {
+            Self::Teacher { .. } if n < 2 => {}
+            Self::Teacher {
+                predictor,
+                candidate,
+                prediction,
+            } => {
+                let horizon = candidate.len() / 2;
+                candidate[0] = ego_to[0];
+                candidate[1] = ego_to[1];
+                for k in 1..horizon {
+                    candidate[2 * k] = plan[k][0];
+                    candidate[2 * k + 1] = plan[k][1];
+                }
+                predictor
+                    .set_scene(history)
+                    .and_then(|()| predictor.predict(candidate, prediction))
+                    .map_err(|source| SimError::Predictor {
+                        scene: sc.name.clone(),
+                        source,
+                    })?;
+                for i in 1..n {
+                    let b = (i - 1) * horizon * 2;
+                    moved.push([prediction[b], prediction[b + 1]]);
+                }
+            }
+            Self::LogReplay => {
+                for (i, h) in observed.iter().enumerate().skip(1) {
+                    let p = sc.future_at(i, step + 1).unwrap_or_else(|| {
+                        let a = h[T_OBS - 2];
+                        let b = h[T_OBS - 1];
+                        [2.0 * b[0] - a[0], 2.0 * b[1] - a[1]]
+                    });
+                    moved.push(p);
+                }
+            }
+            Self::Idm(traffic) => moved.extend(traffic.step(ego_from, ego_to)),
+        }
+        Ok(moved)
+    }
+}
