@@ -55,6 +55,12 @@ pub(crate) struct LinearisedProblem {
     pub lower: Vec<State>,
     /// Upper state bounds per step `[T]`.
     pub upper: Vec<State>,
+    /// The road the ego's box must stay on (every corner): (right, left) edges relative to the
+    /// origin (m), each widened by the ego's overhang at the start plus [`START_OVERHANG_SLACK`]
+    /// when it starts over that edge (real data puts a few egos up to 0.33 m over it).
+    pub edges: [f64; 2],
+    /// The ego's (length, width) (m).
+    pub ego_size: [f64; 2],
     /// Box and rate bounds of the steering.
     pub delta_box: RateBox,
     /// Box and rate bounds of the acceleration.
@@ -123,6 +129,8 @@ impl LinearisedProblem {
             reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
             lower,
             upper,
+            edges: road_edges(p, origin[1]),
+            ego_size: p.sizes[0],
             delta_box,
             accel_box,
         }
@@ -240,6 +248,37 @@ fn state_bounds(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (Vec<S
         ));
     }
     (lower, upper)
+}
+
+/// Extra room (m) beyond its start overhang an ego that starts over a road edge is given.
+pub(crate) const START_OVERHANG_SLACK: f64 = 0.05;
+
+/// The road edges relative to `y0` (m), each widened by the ego's overhang at the start
+/// (its box at its measured heading) plus [`START_OVERHANG_SLACK`] when it starts over it.
+fn road_edges(p: &PlanningProblem<'_>, y0: f64) -> [f64; 2] {
+    let e = half_extent_at(p.sizes[0], p.ego.psi);
+    let (right, left) = (p.road[0] - y0, p.road[1] - y0);
+    let over_right = right - (-e);
+    let over_left = e - left;
+    [
+        if over_right > 0.0 {
+            right - over_right - START_OVERHANG_SLACK
+        } else {
+            right
+        },
+        if over_left > 0.0 {
+            left + over_left + START_OVERHANG_SLACK
+        } else {
+            left
+        },
+    ]
+}
+
+/// Half extent across the road (m) of a box of `size` = (length, width) (m) at heading `psi`
+/// (rad): ½(L·|sin ψ| + W·|cos ψ|).
+pub(crate) fn half_extent_at(size: [f64; 2], psi: f64) -> f64 {
+    let (s, c) = psi.sin_cos();
+    0.5 * (size[0] * s.abs() + size[1] * c.abs())
 }
 
 /// Largest half extent across the road (m) of a box of `length` × `width` (m) whose heading

@@ -35,7 +35,7 @@ use super::constraint::SafetyRow;
 /// Cost per unit of violation of an elastic row (units of J per m, rad or unit of b): large
 /// against the cost changes a step makes, so a step removes violations first.
 const SLACK_PENALTY: f64 = 1e4;
-use super::linearised::{LinearisedProblem, input_hessian};
+use super::linearised::{LinearisedProblem, half_extent_at, input_hessian};
 
 /// The nonlinear roll-out (speed clamped at 0) of `delta`, `accel` (`[T]` each) from `start`
 /// and its sensitivities: `sens[k][j]` = ∂z_{k+1}/∂u_j for u = (δ_0..δ_{T−1}, a_0..a_{T−1}),
@@ -165,6 +165,18 @@ pub(crate) fn step(
                 }
             }
         }
+    }
+    // The box's corners on the road: y ∓ e(ψ) against the edges, e(ψ) = ½(L|sin ψ| + W|cos ψ|).
+    let [length, width] = lp.ego_size;
+    for (zk, sk) in rollout.iter().zip(&sens) {
+        let e = half_extent_at(lp.ego_size, zk[2]);
+        let (sn, cs) = zk[2].sin_cos();
+        let de = 0.5 * (length * cs * sn.signum() - width * sn * cs.signum());
+        // Right edge: edges[0] − (y − e) ≤ 0; left edge: (y + e) − edges[1] ≤ 0.
+        let right: Vec<f64> = sk.iter().map(|si| -(si[1] - de * si[2])).collect();
+        elastic.push((right, (zk[1] - e) - lp.edges[0]));
+        let left: Vec<f64> = sk.iter().map(|si| si[1] + de * si[2]).collect();
+        elastic.push((left, lp.edges[1] - (zk[1] + e)));
     }
     let target = s.safety_min + s.refine_margin;
     for r in rows {
