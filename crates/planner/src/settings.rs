@@ -80,6 +80,12 @@ pub struct PlannerSettings {
     pub margin_x: f64,
     /// Lateral ellipse margin m_y added to the half widths (m).
     pub margin_y: f64,
+    /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
+    /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
+    /// when the rear one of the ego and the other vehicle is faster, so a plan never ends in a
+    /// gap that it, or a faster vehicle behind it, could only keep by braking harder than this.
+    /// 0 disables it.
+    pub brake_decel: f64,
     /// Only vehicles whose current centre is within this distance of the ego's are checked (m).
     pub check_range: f64,
     /// A point is safe when every checked b_i ≥ this value (≥ 0; 0 means b_i > 0 strictly
@@ -170,6 +176,7 @@ impl Default for PlannerSettings {
             ellipse_scale: std::f64::consts::SQRT_2,
             margin_x: 1.5,
             margin_y: 0.3,
+            brake_decel: 4.0,
             check_range: 60.0,
             safety_min: 0.0,
             plan_buffer: 0.0,
@@ -326,6 +333,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("ellipse_scale", 1.0, 4.0, ""),
     closed("margin_x", 0.0, 20.0, "m"),
     closed("margin_y", 0.0, 5.0, "m"),
+    closed("brake_decel", 0.0, 15.0, "m/s²"),
     closed(
         "check_range",
         0.0,
@@ -390,6 +398,7 @@ impl PlannerSettings {
             "ellipse_scale" => self.ellipse_scale,
             "margin_x" => self.margin_x,
             "margin_y" => self.margin_y,
+            "brake_decel" => self.brake_decel,
             "check_range" => self.check_range,
             "safety_min" => self.safety_min,
             "plan_buffer" => self.plan_buffer,

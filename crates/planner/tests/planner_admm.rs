@@ -124,8 +124,9 @@ fn admm_matches_joint_qp_without_vehicles() {
 }
 
 /// The minimum b of `states` under the predictor's prediction, each ellipse sized by the ego's
-/// planned heading and the other's predicted heading of motion, and whether any predicted
-/// bounding box overlaps the ego's.
+/// planned heading and the other's predicted heading of motion, at the last step lengthened by
+/// the rear vehicle's extra braking distance to the front one's speed at `brake_decel`, and
+/// whether any predicted bounding box overlaps the ego's.
 fn min_b_under(
     pred: &mut dyn Predictor,
     h: &History,
@@ -147,8 +148,9 @@ fn min_b_under(
             let b = (i - 1) * 12 + 2 * k;
             let other = [out[b], out[b + 1]];
             let heading = motion_heading(prev, other, 0.0);
+            let other_speed = (other[0] - prev[0]) / s.dt;
             prev = other;
-            let e = Ellipse::with_headings(
+            let mut e = Ellipse::with_headings(
                 sizes[0],
                 st[2],
                 sizes[i],
@@ -157,6 +159,14 @@ fn min_b_under(
                 s.margin_x,
                 s.margin_y,
             );
+            if k == 5 {
+                let (rear, front) = if st[0] <= other[0] {
+                    (st[3], other_speed.max(0.0))
+                } else {
+                    (other_speed, st[3].max(0.0))
+                };
+                e.a_x += ((rear * rear - front * front) / (2.0 * s.brake_decel)).max(0.0);
+            }
             m = m.min(e.value([st[0], st[1]], other));
             let ego_box = OrientedBox {
                 x: st[0],

@@ -39,6 +39,10 @@ pub struct SafetyConstraint {
     ego_size: [f64; 2],
     scale: f64,
     margins: [f64; 2],
+    /// Step length (s), for the other vehicles' speeds from their predicted positions.
+    dt: f64,
+    /// Deceleration (m/s²) the closing-speed margin grants the rear vehicle; 0 disables it.
+    brake_decel: f64,
 }
 
 impl SafetyConstraint {
@@ -65,6 +69,8 @@ impl SafetyConstraint {
             ego_size: problem.sizes[0],
             scale: settings.ellipse_scale,
             margins: [settings.margin_x, settings.margin_y],
+            dt: settings.dt,
+            brake_decel: settings.brake_decel,
         }
     }
 
@@ -95,25 +101,75 @@ impl SafetyConstraint {
         )
     }
 
-    /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the
-    /// ego at `ego` = (x, y, ψ) (m, m, rad) and every agent at `positions[agent]` (m, agent 0
-    /// unused), each having moved from its last observed position. This is the value the
-    /// constraint gives step 1 of a candidate equal to that motion. `None` when no vehicle is
-    /// checked; −∞ when b is NaN.
+    /// The closing-speed margin (m) added to the ellipse's longitudinal semi-axis: the extra
+    /// distance the rear one of the ego (at `ego`, m, speed `ego_speed`, m/s) and the other
+    /// vehicle (at `other`, having moved from `previous` in one step) needs to brake to the
+    /// front one's speed at `brake_decel`, (v_rear² − v_front²) / (2·brake_decel) when the rear
+    /// one is faster, else 0 (speeds along the road). The ellipse alone only keeps the boxes
+    /// apart over the horizon; this keeps a gap from which the rear vehicle can still match
+    /// the front one's speed after it.
     #[must_use]
-    pub fn executed_min_b(&self, ego: [f64; 3], positions: &[[f64; 2]]) -> Option<f64> {
+    pub fn closing_margin(
+        &self,
+        ego: [f64; 2],
+        ego_speed: f64,
+        previous: [f64; 2],
+        other: [f64; 2],
+    ) -> f64 {
+        if self.brake_decel <= 0.0 {
+            return 0.0;
+        }
+        let other_speed = (other[0] - previous[0]) / self.dt;
+        let (rear, front) = if ego[0] <= other[0] {
+            (ego_speed, other_speed)
+        } else {
+            (other_speed, ego_speed)
+        };
+        let front = front.max(0.0);
+        if rear > front {
+            (rear * rear - front * front) / (2.0 * self.brake_decel)
+        } else {
+            0.0
+        }
+    }
+
+    /// b of the ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) against `vehicle` at `other`
+    /// (m), which was at `previous` one step earlier: the [`SafetyConstraint::ellipse`], with
+    /// the [`SafetyConstraint::closing_margin`] added to its longitudinal semi-axis at the
+    /// `terminal` step of the horizon (a terminal condition: the plan must end where the rear
+    /// vehicle can still match the front one's speed; within the horizon the predictions
+    /// themselves show the gap closing, and a margin there would forbid the very braking that
+    /// recovers from a short gap). The ellipse used is returned with it.
+    #[must_use]
+    pub fn b(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+        terminal: bool,
+    ) -> (f64, Ellipse) {
+        let mut ellipse = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
+        if terminal {
+            ellipse.a_x += self.closing_margin([ego[0], ego[1]], ego[3], previous, other);
+        }
+        (ellipse.value([ego[0], ego[1]], other), ellipse)
+    }
+
+    /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the
+    /// ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) and every agent at `positions[agent]` (m,
+    /// agent 0 unused), each having moved from its last observed position. This is the value
+    /// the constraint gives step 1 of a candidate equal to that motion. `None` when no vehicle
+    /// is checked; −∞ when b is NaN.
+    #[must_use]
+    pub fn executed_min_b(&self, ego: [f64; 4], positions: &[[f64; 2]]) -> Option<f64> {
         if self.vehicles.is_empty() {
             return None;
         }
-        let ego_direction = heading_direction(ego[2]);
         let min_b = self
             .vehicles
             .iter()
-            .map(|v| {
-                let other = positions[v.index];
-                self.ellipse(v, ego_direction, v.last, other)
-                    .value([ego[0], ego[1]], other)
-            })
+            .map(|v| self.b(v, ego, v.last, positions[v.index], false).0)
             .fold(f64::INFINITY, f64::min);
         Some(never_nan(min_b))
     }
@@ -162,8 +218,10 @@ pub(crate) struct SafetyEval<'c> {
     candidate: Vec<f64>,
     /// Prediction `[n − 1, T, 2]` (m).
     prediction: Vec<f64>,
-    /// (|cos ψ_k|, |sin ψ_k|) of the candidate, per step.
-    ego_direction: Vec<[f64; 2]>,
+    /// Heading ψ_k (rad) of the candidate, per step.
+    ego_heading: Vec<f64>,
+    /// Speed v_k (m/s) of the candidate, per step.
+    ego_speed: Vec<f64>,
     /// ∂(total violation)/∂(x_k, y_k) at the last evaluated point, prediction and ellipse
     /// sizes frozen.
     pub violation_gradient: Vec<[f64; 2]>,
@@ -272,7 +330,8 @@ impl<'c> SafetyEval<'c> {
             threshold,
             candidate: vec![0.0; horizon * 2],
             prediction: vec![0.0; n_agents.saturating_sub(1) * horizon * 2],
-            ego_direction: vec![[1.0, 0.0]; horizon],
+            ego_heading: vec![0.0; horizon],
+            ego_speed: vec![0.0; horizon],
             violation_gradient: vec![[0.0; 2]; horizon],
             calls: 0,
             rows: Vec::new(),
@@ -304,7 +363,8 @@ impl<'c> SafetyEval<'c> {
             self.candidate[2 * k] = zk[0] + self.origin[0];
             self.candidate[2 * k + 1] = zk[1] + self.origin[1];
             self.violation_gradient[k] = [0.0; 2];
-            self.ego_direction[k] = heading_direction(zk[2]);
+            self.ego_heading[k] = zk[2];
+            self.ego_speed[k] = zk[3];
         }
         if self.budget.spent(self.calls) {
             self.budget.exhausted = true;
@@ -330,11 +390,14 @@ impl<'c> SafetyEval<'c> {
                     self.prediction[base + 2 * k],
                     self.prediction[base + 2 * k + 1],
                 ];
-                let ellipse = self
-                    .constraint
-                    .ellipse(v, self.ego_direction[k], previous, other);
+                let (b, ellipse) = self.constraint.b(
+                    v,
+                    [ego[0], ego[1], self.ego_heading[k], self.ego_speed[k]],
+                    previous,
+                    other,
+                    k + 1 == t,
+                );
                 previous = other;
-                let b = ellipse.value(ego, other);
                 min_b = min_b.min(b);
                 if b < ROW_B {
                     self.rows.push(SafetyRow {

@@ -57,7 +57,9 @@ pub(crate) struct LinearisedProblem {
     pub upper: Vec<State>,
     /// The road the ego's box must stay on (every corner): (right, left) edges relative to the
     /// origin (m), each widened by the ego's overhang at the start plus [`START_OVERHANG_SLACK`]
-    /// when it starts over that edge (real data puts a few egos up to 0.33 m over it).
+    /// when it starts over that edge (real data puts a few egos up to 0.33 m over it);
+    /// unbounded, like the heading, when `heading_max` ≥ π/2 (then only the centre band of
+    /// [`state_bounds`] keeps the ego on the road).
     pub edges: [f64; 2],
     /// The ego's (length, width) (m).
     pub ego_size: [f64; 2],
@@ -129,7 +131,11 @@ impl LinearisedProblem {
             reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
             lower,
             upper,
-            edges: road_edges(p, origin[1]),
+            edges: if s.heading_max < std::f64::consts::FRAC_PI_2 {
+                road_edges(p, origin[1])
+            } else {
+                [f64::NEG_INFINITY, f64::INFINITY]
+            },
             ego_size: p.sizes[0],
             delta_box,
             accel_box,
@@ -172,17 +178,22 @@ impl LinearisedProblem {
         z.sup(&self.lower[k]).inf(&self.upper[k])
     }
 
-    /// How far the states `z` (`[T]`) lie outside their bounds: Σ over steps and components
-    /// of the excess (m for y, rad for ψ, m/s for v); 0 when every state is within them.
+    /// How far the states `z` (`[T]`) lie outside their bounds: Σ over steps of the excess of
+    /// y, ψ and v over their bounds (m, rad, m/s) and of the box's corners over the road's
+    /// [`LinearisedProblem::edges`] (m); 0 when every state is within them.
     pub(crate) fn bound_excess(&self, z: &[State]) -> f64 {
         z.iter()
             .enumerate()
             .map(|(k, zk)| {
-                (1..4)
+                let bounds: f64 = (1..4)
                     .map(|j| {
                         (self.lower[k][j] - zk[j]).max(0.0) + (zk[j] - self.upper[k][j]).max(0.0)
                     })
-                    .sum::<f64>()
+                    .sum();
+                let e = half_extent_at(self.ego_size, zk[2]);
+                bounds
+                    + (self.edges[0] - (zk[1] - e)).max(0.0)
+                    + ((zk[1] + e) - self.edges[1]).max(0.0)
             })
             .sum()
     }

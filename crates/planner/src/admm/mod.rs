@@ -350,13 +350,6 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
         Stop::Budget => PlanStatus::BudgetExhausted,
     };
     let rollout = r.check(delta, accel)?;
-    if std::env::var("NUDGE_DEBUG").is_ok() && !rollout.rank.safe {
-        let excess = r.lp.bound_excess(&rollout.rollout);
-        eprintln!(
-            "DBG inadmissible status {:?} min_b {:?} excess {excess:.2e}",
-            status, rollout.min_b
-        );
-    }
     if rollout.rank.safe {
         return Ok(Finished::adopt(rollout, duals, admm_z, status, counts));
     }

@@ -134,6 +134,7 @@ fn repairs_only() -> PlannerSettings {
         refine_iters: 0,
         heading_max: 3.0,
         overshoot_max: 100.0,
+        brake_decel: 0.0,
         ..PlannerSettings::default()
     }
 }
@@ -572,7 +573,7 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     let checked: Vec<usize> = constraint.vehicles().iter().map(|v| v.index).collect();
     assert_eq!(checked, [1, 2]);
     let moved = vec![[13.4, 3.2], [-3.0, -3.6], [93.6, 0.0]];
-    let ego_next = [3.6, 0.05, 0.03];
+    let ego_next = [3.6, 0.05, 0.03, 12.0];
     let mut positions = vec![[ego_next[0], ego_next[1]]];
     positions.extend_from_slice(&moved);
     let executed = constraint.executed_min_b(ego_next, &positions).unwrap();
@@ -580,13 +581,14 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
     let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety_min);
     let mut z = vec![State::new(-1000.0, 0.0, 0.0, 12.0); 6];
-    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], 12.0);
-    let planned = safety.eval(&mut StepOne(moved), &z).unwrap().min_b.unwrap();
+    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], ego_next[3]);
+    let planned = safety.eval(&mut StepOne(moved.clone()), &z).unwrap().min_b.unwrap();
     assert_eq!(executed.to_bits(), planned.to_bits());
     // Independent geometry: ellipses at the headings in radians (the moving car's from its
-    // displacement, the stopped car's 0), equal up to the trigonometry's rounding.
-    let b = |other: [f64; 2], heading: f64| {
-        crate::Ellipse::with_headings(
+    // displacement, the stopped car's 0), equal up to the trigonometry's rounding; no
+    // closing-speed margin at step 1 (it is the horizon's terminal condition).
+    let b = |other: [f64; 2], heading: f64, margin: f64| {
+        let mut e = crate::Ellipse::with_headings(
             sizes[0],
             ego_next[2],
             [4.5, 1.9],
@@ -594,10 +596,22 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
             s.ellipse_scale,
             s.margin_x,
             s.margin_y,
-        )
-        .value([ego_next[0], ego_next[1]], other)
+        );
+        e.a_x += margin;
+        e.value([ego_next[0], ego_next[1]], other)
     };
-    let want = b(positions[1], (-0.3f64).atan2(3.4)).min(b(positions[2], 0.0));
+    let want = b(positions[1], (-0.3f64).atan2(3.4), 0.0).min(b(positions[2], 0.0, 0.0));
+    // The terminal margin of the car ahead: it drives 3.4 m in 0.3 s, slower than the ego's
+    // 12 m/s, so the ego needs its extra braking distance at brake_decel; none for the
+    // stopped car behind the ego.
+    let v = constraint.vehicles()[0];
+    let ahead_speed: f64 = 3.4 / 0.3;
+    let margin = (12.0f64.powi(2) - ahead_speed.powi(2)) / (2.0 * s.brake_decel);
+    let terminal = constraint.b(&v, ego_next, [10.0, 3.5], moved[0], true).0;
+    assert!((terminal - b(positions[1], (-0.3f64).atan2(3.4), margin)).abs() < 1e-12);
+    let behind = constraint.vehicles()[1];
+    assert_eq!(constraint.closing_margin([3.6, 0.05], 12.0, [-3.0, -3.6], moved[1]), 0.0);
+    assert!(constraint.b(&behind, ego_next, [-3.0, -3.6], moved[1], true).0 > 0.0);
     assert!((executed - want).abs() < 1e-12, "{executed} vs {want}");
     assert_eq!(
         SafetyConstraint::new(
@@ -658,9 +672,11 @@ impl Predictor for Obstacle {
 /// backtracking towards the (zero) nominal gives.
 #[test]
 fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
-    // A loose heading bound: the reference ADMM roll-out is admissible as it is.
+    // A loose heading bound: the reference ADMM roll-out is admissible as it is; no
+    // closing-speed margin (the obstacle stands still: the ellipse alone is tested here).
     let s = PlannerSettings {
         heading_max: 0.5,
+        brake_decel: 0.0,
         ..PlannerSettings::default()
     };
     let (h, sizes) = car_behind_in_target_lane();

@@ -153,7 +153,7 @@ impl ClosedLoop<'_> {
             predictor_calls: plan.predictor_calls,
             cost: plan.cost,
             primal_residual: plan.primal_residual,
-            min_b: constraint.executed_min_b([next[0], next[1], next[2]], &moved),
+            min_b: constraint.executed_min_b([next[0], next[1], next[2], next[3]], &moved),
             collision: !touching.is_empty(),
             status,
             delta: plan.delta[0],
