@@ -37,6 +37,7 @@
 //! verifies; files are read only when regular and of bounded size ([`mod@file`]). Nothing in this
 //! crate panics on any input (property-tested in `tests/reliability.rs`).
 
+mod checked;
 mod constant_velocity;
 pub mod cost;
 mod error;
@@ -69,6 +70,7 @@ pub mod weights {
     };
 }
 
+pub use checked::Checked;
 pub use constant_velocity::ConstantVelocity;
 pub use cost::{MacCount, multiply_adds};
 pub use error::{PredictorError, Quantity, Result};

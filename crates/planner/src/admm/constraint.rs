@@ -112,7 +112,7 @@ impl SafetyConstraint {
                 self.ellipse(v, ego_direction, v.last, other)
                     .value([ego[0], ego[1]], other)
             })
-            .fold(f64::INFINITY, f64::min);
+            .fold(f64::INFINITY, min_or_nan);
         Some(never_nan(min_b))
     }
 }
@@ -121,6 +121,15 @@ impl SafetyConstraint {
 fn heading_direction(psi: f64) -> [f64; 2] {
     let (sn, cs) = psi.sin_cos();
     [cs.abs(), sn.abs()]
+}
+
+/// The minimum of `a` and `b`, NaN when either is (`f64::min` would drop a NaN `b`).
+fn min_or_nan(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.min(b)
+    }
 }
 
 /// A NaN minimum is never safe: −∞.
@@ -235,7 +244,7 @@ impl<'c> SafetyEval<'c> {
                     .ellipse(v, self.ego_direction[k], previous, other);
                 previous = other;
                 let b = ellipse.value(ego, other);
-                min_b = min_b.min(b);
+                min_b = min_or_nan(min_b, b);
                 if b <= self.threshold {
                     violation += self.threshold - b;
                     let g = ellipse.gradient(ego, other);
