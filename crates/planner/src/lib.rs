@@ -13,6 +13,7 @@
 
 mod admm;
 mod error;
+pub mod fit;
 mod model;
 mod qp;
 mod safety;
@@ -34,6 +35,6 @@ pub use safety::{
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary, World, run_specs,
-    simulate, simulate_many, target_lane,
+    Batch, BatchRequest, Cancel, Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord,
+    Summary, World, run_specs, simulate, simulate_cancellable, simulate_many, target_lane,
 };

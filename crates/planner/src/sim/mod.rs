@@ -8,7 +8,9 @@
 //! * [`batch`]: the run-spec rule ([`run_specs`]), the predictors of a batch loaded once
 //!   ([`Predictors`]) and [`simulate_many`];
 //! * [`columns`]: records → named columns ([`run_table`], [`step_table`]), the [`Summary`] and
-//!   the per-step listing.
+//!   the per-step listing;
+//! * [`request`]: the one validation of a batch both front ends call ([`BatchRequest`]),
+//!   before any run starts; a [`Cancel`] flag stops a running batch.
 
 // SimError carries the planner's and predictor's errors by value; they are rare, cold paths.
 #![allow(clippy::result_large_err)]
@@ -17,15 +19,17 @@ pub mod batch;
 pub mod columns;
 pub mod config;
 pub mod records;
+pub mod request;
 pub mod run;
 
 pub use batch::{
-    MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, defaults, run_specs, simulate_many,
-    thread_pool,
+    Cancel, MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, defaults, run_specs,
+    simulate_many, thread_pool,
 };
 pub use columns::{
     Column, RUN_COLUMNS, STEP_COLUMNS, Summary, Table, run_table, step_listing, step_table,
 };
 pub use config::{SimConfig, World};
 pub use records::{RunRecord, StepRecord, StepStatus};
-pub use run::{simulate, target_lane};
+pub use request::{Batch, BatchRequest};
+pub use run::{simulate, simulate_cancellable, target_lane};

@@ -14,6 +14,7 @@ use crate::safety::{OrientedBox, motion_heading};
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
+use super::batch::Cancel;
 use super::config::{SimConfig, World};
 use super::records::{RunRecord, StepRecord, StepStatus};
 
@@ -361,7 +362,8 @@ impl ClosedLoop<'_> {
 /// vehicles in a [`World::Teacher`] world (and must be `None` for [`World::LogReplay`]).
 ///
 /// # Errors
-/// [`SimError::Settings`] / [`SimError::Config`] for invalid settings,
+/// [`SimError::Settings`] / [`SimError::Config`] for invalid settings or settings that do not
+/// fit the predictors and scenes ([`crate::fit::check_closed_loop`]),
 /// [`SimError::WorldModel`] when `world` does not match `cfg.world`,
 /// [`SimError::NoAdjacentLane`], [`SimError::Predictor`] (the scene does not fit a predictor),
 /// [`SimError::Planner`] when planning fails (a bad problem or a predictor error; a QP failure
@@ -394,6 +396,23 @@ pub fn simulate(
     planner_pred: &mut dyn Predictor,
     world: Option<&mut dyn Predictor>,
 ) -> Result<RunRecord, SimError> {
+    let never = Cancel::new();
+    simulate_cancellable(sc, settings, cfg, seed, planner_pred, world, &never)
+}
+
+/// [`simulate`], checking `cancel` before every closed-loop step.
+///
+/// # Errors
+/// As [`simulate`]; [`SimError::Cancelled`] once `cancel` is set.
+pub fn simulate_cancellable(
+    sc: &Scenario,
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+    seed: u64,
+    planner_pred: &mut dyn Predictor,
+    world: Option<&mut dyn Predictor>,
+    cancel: &Cancel,
+) -> Result<RunRecord, SimError> {
     cfg.validate()?;
     let planner = Planner::new(settings.clone()).map_err(|e| match e {
         PlannerError::Settings(s) => SimError::Settings(s),
@@ -403,6 +422,9 @@ pub fn simulate(
             source: other,
         },
     })?;
+    let mut fit = vec![(planner_pred.name(), planner_pred.horizon())];
+    fit.extend(world.as_ref().map(|w| (w.name(), w.horizon())));
+    crate::fit::check_closed_loop(settings, &fit)?;
     let mut mover = Mover::new(cfg, world, sc.n_agents, settings.horizon)?;
     let lane = target_lane(sc, seed)?;
     let y_target = sc.lane_centres[lane];
@@ -435,6 +457,12 @@ pub fn simulate(
     };
     let mut settled = 0;
     for step in 0..cfg.max_steps {
+        if cancel.is_cancelled() {
+            return Err(SimError::Cancelled {
+                scene: sc.name.clone(),
+                step,
+            });
+        }
         // An ego turned across the road (only seen with erratic predictors) ends the run as a
         // failure instead of handing the planner a problem it rejects.
         if run.ego[2].abs() >= std::f64::consts::FRAC_PI_2 {
