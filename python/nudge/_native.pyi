@@ -2,6 +2,7 @@
 that every public name of the module appears here with the module's parameters and defaults
 (``...`` where the default is a Rust constant: see ``DEFAULTS`` and ``SimConfig.default()``)."""
 
+from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
 from typing import Any, Literal, TypedDict
@@ -46,6 +47,9 @@ _F32 = npt.NDArray[np.float32]
 _I64 = npt.NDArray[np.int64]
 _Bool = npt.NDArray[np.bool_]
 _Path = str | PathLike[str]
+# Coordinates: a float64/float32 array (other dtypes are refused, not converted) or a nested
+# list/tuple of real numbers.
+_Coords = _F64 | _F32 | Sequence[Any]
 
 class Predictor:
     """Teacher, student (from a .safetensors file) or constant-velocity baseline."""
@@ -58,8 +62,9 @@ class Predictor:
     def name(self) -> Literal["teacher", "student", "constant_velocity"]: ...
     @property
     def horizon(self) -> int: ...
-    def predict(self, history: npt.ArrayLike, candidates: npt.ArrayLike) -> _F64:
-        """history [agents, 8, 2], candidates [batch, horizon, 2] (float64/float32, m)
+    def predict(self, history: _Coords, candidates: _Coords) -> _F64:
+        """history [agents, 8, 2], candidates [batch, horizon, 2] (m; float64/float32 arrays
+        or nested lists of numbers; masked arrays are refused; at most 16384 candidates)
         -> [batch, agents - 1, horizon, 2] float64."""
 
 class PlannerSettings:
@@ -177,9 +182,9 @@ class Planner:
     def reset(self) -> None: ...
     def plan(
         self,
-        history: npt.ArrayLike,
-        sizes: npt.ArrayLike,
-        ego: npt.ArrayLike,
+        history: _Coords,
+        sizes: _Coords,
+        ego: _Coords,
         y_target: float,
         v_ref: float,
         road: tuple[float, float],

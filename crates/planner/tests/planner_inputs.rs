@@ -176,6 +176,9 @@ fn executed_safety_with_one_nan_position_is_unsafe() {
     }
 }
 
+/// An edit of a problem.
+type Edit = fn(&mut PlanningProblem<'_>);
+
 /// Targets off the road and reference speeds outside the documented range are refused by
 /// `PlanningProblem::check` naming the field (they used to plan to `Converged` with cost ∞).
 #[test]
@@ -183,7 +186,7 @@ fn absurd_targets_and_reference_speeds_are_refused() {
     let (h, sizes) = scene();
     let mut planner = Planner::new(PlannerSettings::default()).unwrap();
     let mut cv = ConstantVelocity::new(6).unwrap();
-    let cases: [(&str, fn(&mut PlanningProblem<'_>)); 9] = [
+    let cases: [(&str, Edit); 9] = [
         ("y_target", |p| p.y_target = 1e300),
         ("y_target", |p| p.y_target = -1e300),
         ("y_target", |p| p.y_target = 5.56),
@@ -210,7 +213,7 @@ fn absurd_targets_and_reference_speeds_are_refused() {
     }
     // The edges themselves, and v_ref 0 and 60 m/s, are accepted.
     for edit in [
-        (|p: &mut PlanningProblem<'_>| p.y_target = 5.55) as fn(&mut PlanningProblem<'_>),
+        (|p: &mut PlanningProblem<'_>| p.y_target = 5.55) as Edit,
         |p| p.y_target = -1.85,
         |p| p.v_ref = 0.0,
         |p| p.v_ref = 60.0,

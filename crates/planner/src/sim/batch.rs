@@ -254,6 +254,17 @@ pub fn simulate_many(
         .par_iter()
         .map(|&spec| {
             let sc = &scenes[spec.scene];
+            if cancel.is_cancelled() {
+                // Not started: no predictor is built for it.
+                return RunOutput {
+                    spec,
+                    result: Err(SimError::Cancelled {
+                        scene: sc.name.clone(),
+                        step: 0,
+                    }),
+                    examples: None,
+                };
+            }
             let simulate = |p: &mut dyn Predictor, w: Option<&mut dyn Predictor>| {
                 simulate_cancellable(sc, settings, cfg, spec.seed, p, w, cancel)
             };
