@@ -41,34 +41,26 @@ impl<'a, 'py> FromPyObject<'a, 'py> for Int {
 }
 
 impl Int {
-    /// The value, or `InputError` naming the argument `name`: negative, or above `max`.
-    pub fn at_most(self, name: &str, max: u64) -> PyResult<u64> {
-        let bad = |shown: &str| {
-            let negative = shown.trim_start().starts_with('-');
-            InputError::new_err(if negative {
+    /// The value, or `InputError` naming the argument `name` when it is negative or beyond
+    /// `u64` (the message states `bound`, the argument's documented bound; values within `u64`
+    /// are left to the library's own check of that bound, so both front ends word it alike).
+    pub fn u64(self, name: &str, bound: u64) -> PyResult<u64> {
+        self.0.map_err(|shown| {
+            InputError::new_err(if shown.trim_start().starts_with('-') {
                 format!("invalid argument `{name}`: must be a non-negative integer, got {shown}")
             } else {
-                format!("invalid argument `{name}`: {shown} is too large (at most {max})")
+                format!("invalid argument `{name}`: {shown} is too large (at most {bound})")
             })
-        };
-        match self.0 {
-            Ok(v) if v <= max => Ok(v),
-            Ok(v) => Err(bad(&v.to_string())),
-            Err(shown) => Err(bad(&shown)),
-        }
+        })
     }
 
-    /// A `u64` argument (a seed).
-    pub fn u64(self, name: &str) -> PyResult<u64> {
-        self.at_most(name, u64::MAX)
-    }
-
-    /// A `usize` argument (a count or an index).
-    pub fn usize(self, name: &str) -> PyResult<usize> {
-        let max = u64::try_from(usize::MAX).unwrap_or(u64::MAX);
-        let v = self.at_most(name, max)?;
+    /// A `usize` argument (a count or an index), as [`Int::u64`].
+    pub fn usize(self, name: &str, bound: usize) -> PyResult<usize> {
+        let v = self.u64(name, bound as u64)?;
         usize::try_from(v).map_err(|_| {
-            InputError::new_err(format!("invalid argument `{name}`: {v} is too large"))
+            InputError::new_err(format!(
+                "invalid argument `{name}`: {v} is too large (at most {bound})"
+            ))
         })
     }
 }

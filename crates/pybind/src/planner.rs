@@ -234,8 +234,10 @@ impl PyPlanner {
         seed: Int,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
-            let seed = seed.u64("seed")?;
-            let target_lane = target_lane.map(|l| l.usize("target_lane")).transpose()?;
+            let seed = seed.u64("seed", u64::MAX)?;
+            let target_lane = target_lane
+                .map(|l| l.usize("target_lane", usize::MAX))
+                .transpose()?;
             let sc = &scenario.inner;
             let lane = match target_lane {
                 Some(l) if l < sc.lane_centres.len() => l,

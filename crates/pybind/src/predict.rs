@@ -58,7 +58,7 @@ impl PyPredictor {
     #[pyo3(signature = (horizon = Int::from(6)), text_signature = "(horizon=6)")]
     fn constant_velocity(horizon: Int) -> PyResult<Self> {
         guard(|| {
-            let horizon = horizon.usize("horizon")?;
+            let horizon = horizon.usize("horizon", nudge_predictor::MAX_HORIZON)?;
             let cv = ConstantVelocity::new(horizon).map_err(predictor_err)?;
             Ok(Self::wrap(Box::new(cv)))
         })

@@ -154,7 +154,7 @@ impl PyScenario {
     /// The target lane the simulator draws for `seed` (an adjacent lane of the ego's).
     fn target_lane(&self, seed: Int) -> PyResult<usize> {
         guard(|| {
-            let seed = seed.u64("seed")?;
+            let seed = seed.u64("seed", u64::MAX)?;
             nudge_planner::target_lane(&self.inner, seed).map_err(crate::errors::sim_err)
         })
     }
@@ -162,7 +162,7 @@ impl PyScenario {
     /// The ego and its `keep` nearest neighbours (nearest first).
     fn nearest(&self, keep: Int) -> PyResult<Self> {
         guard(|| {
-            let keep = keep.usize("keep")?;
+            let keep = keep.usize("keep", usize::MAX)?;
             Ok(Self {
                 inner: Arc::new(self.inner.nearest(keep)),
                 path: self.path.clone(),

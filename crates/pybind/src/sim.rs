@@ -142,11 +142,17 @@ pub fn simulate<'py>(
     config_overrides: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guard(|| {
-        let seed = seed.u64("seed")?;
-        let runs = runs.usize("runs")?;
-        let threads = threads.map(|t| t.usize("threads")).transpose()?;
+        let seed = seed.u64("seed", u64::MAX)?;
+        let runs = runs.usize("runs", nudge_planner::sim::MAX_RUNS)?;
+        let threads = threads
+            .map(|t| t.usize("threads", nudge_planner::sim::MAX_THREADS))
+            .transpose()?;
         let scene_seeds: Option<Vec<u64>> = scene_seeds
-            .map(|v| v.into_iter().map(|s| s.u64("scene_seeds")).collect())
+            .map(|v| {
+                v.into_iter()
+                    .map(|s| s.u64("scene_seeds", u64::MAX))
+                    .collect()
+            })
             .transpose()?;
         let settings = settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
         let base = config.map_or_else(SimConfig::default, |c| c.get().inner);

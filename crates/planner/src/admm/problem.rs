@@ -96,6 +96,7 @@ impl PlanningProblem<'_> {
     /// # Errors
     /// [`PlannerError::BadProblem`] naming the first offending field.
     pub fn check(&self) -> Result<(), PlannerError> {
+        use crate::settings::show;
         use nudge_predictor::limits::MAX_ABS_POSITION;
         let bad =
             |field: &'static str, reason: String| Err(PlannerError::BadProblem { field, reason });
@@ -120,7 +121,11 @@ impl PlanningProblem<'_> {
             if v.abs() > MAX_ABS_POSITION {
                 return bad(
                     field,
-                    format!("{v:e} m is outside the accepted ±{MAX_ABS_POSITION:e} m"),
+                    format!(
+                        "{} m is outside the accepted ±{} m",
+                        show(v),
+                        show(MAX_ABS_POSITION)
+                    ),
                 );
             }
         }
@@ -129,7 +134,7 @@ impl PlanningProblem<'_> {
                 "ego.v",
                 format!(
                     "speed {} m/s is outside 0..={} m/s",
-                    e.v,
+                    show(e.v),
                     Self::MAX_EGO_SPEED
                 ),
             );
@@ -145,7 +150,7 @@ impl PlanningProblem<'_> {
                 "last_delta",
                 format!(
                     "{} rad is outside ±{} rad",
-                    self.last_delta,
+                    show(self.last_delta),
                     Self::MAX_LAST_DELTA
                 ),
             );
@@ -155,7 +160,7 @@ impl PlanningProblem<'_> {
                 "last_accel",
                 format!(
                     "{} m/s² is outside ±{} m/s²",
-                    self.last_accel,
+                    show(self.last_accel),
                     Self::MAX_LAST_ACCEL
                 ),
             );
@@ -171,8 +176,10 @@ impl PlanningProblem<'_> {
             return bad(
                 "road",
                 format!(
-                    "edges [{right:e}, {left:e}] m: the road must lie within ±{MAX_ABS_POSITION:e} m \
-                     and be at most {} m wide",
+                    "edges [{}, {}] m: the road must lie within ±{} m and be at most {} m wide",
+                    show(right),
+                    show(left),
+                    show(MAX_ABS_POSITION),
                     Self::MAX_ROAD_WIDTH
                 ),
             );
