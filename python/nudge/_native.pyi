@@ -174,7 +174,9 @@ class PlanResult(TypedDict, total=False):
 class Planner:
     """The ADMM MPC planner bound to one predictor (keeps a warm start; see reset)."""
 
-    def __init__(self, settings: PlannerSettings | None, predictor: Predictor) -> None: ...
+    def __init__(self, settings: PlannerSettings | None, predictor: Predictor) -> None:
+        """Raises SettingsError when the settings do not fit the predictor (horizon; dt = 0.3 s
+        for a teacher or student)."""
     @property
     def settings(self) -> PlannerSettings: ...
     @property
@@ -215,6 +217,12 @@ def simulate(
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
     run ``r`` of scene ``i`` draws its target lane from seed ``scene_seeds[i] + r`` when given,
     else ``seed + i * runs + r``.
+
+    Every argument is checked before any run starts, by the validation the CLI uses
+    (``nudge_planner::BatchRequest::prepare``): at least one scene, at most 1,000,000 runs,
+    1..=256 threads, settings that fit the predictors (same horizon, ``dt`` = 0.3 s), loadable
+    models and scenes. Ctrl-C stops the batch and raises ``KeyboardInterrupt`` within about a
+    second.
 
     ``predictor`` (default ``DEFAULTS["predictor"]``) and ``world_predictor`` (the world model
     of a ``"teacher"`` world, default the shipped teacher; must be a teacher): ``"teacher"``,
