@@ -15,13 +15,13 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt fuzz bench bench-planner bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
 	@echo "make test     set up and run every test (Rust + Python + golden drift check)"
 	@echo "make lint     rustfmt, clippy -D warnings, rustdoc -D warnings"
-	@echo "make fuzz     mutation-fuzz weights, scenario and settings files (FUZZ_SECONDS per target)"
+	@echo "make fuzz     mutation-fuzz weights, scenarios, settings, planning problems (FUZZ_SECONDS per target), then the Python entry points (FUZZ_EXAMPLES)"
 	@echo "make bench    criterion benches (one thread) + the PyTorch-vs-Rust table"
 	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
 	@echo "make teacher  train the paper's teacher configurations, write docs/results/teacher.md"
@@ -73,14 +73,22 @@ test-python: develop build
 	NUDGE_CLI=target/release/nudge $(PY) -m pytest -q
 
 # ---- fuzzing --------------------------------------------------------------------------------
-# Structure-aware mutation of weights, scenario and settings files (examples/fuzz); every try
-# must end in a typed error or a valid result. FUZZ_SECONDS is the budget per target; add e.g.
-# FUZZ_ARGS="--seed 7 --tries 100000 --target weights". The short mode runs in `make test`
-# (tests/fuzz.rs).
+# Structure-aware mutation of weights, scenario and settings files and of planning problems
+# (examples/fuzz), then hypothesis property tests of the Python entry points
+# (tests/python/test_fuzz_py.py); every try must end in a typed error or a valid result.
+# FUZZ_SECONDS is the budget per Rust target; add e.g. FUZZ_ARGS="--seed 7 --tries 100000
+# --target plan". FUZZ_EXAMPLES is the number of examples per Python property. The short modes
+# run in `make test` (tests/fuzz.rs, test_fuzz_py.py with its default examples).
 FUZZ_SECONDS ?= 300
 FUZZ_ARGS ?=
-fuzz:
+FUZZ_EXAMPLES ?= 5000
+fuzz: fuzz-rust fuzz-python
+
+fuzz-rust:
 	$(CARGO) run --release --example fuzz -- --seconds $(FUZZ_SECONDS) $(FUZZ_ARGS)
+
+fuzz-python: develop
+	NUDGE_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest -q -s tests/python/test_fuzz_py.py
 
 # ---- quality --------------------------------------------------------------------------------
 fmt:

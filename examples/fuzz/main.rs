@@ -1,9 +1,10 @@
-//! The fuzzing suite of nudge's input files (weights, scenarios, settings): structure-aware
-//! mutations, seeded and deterministic, judged by per-target oracles (see `harness.rs`).
+//! The fuzzing suite of nudge's input files (weights, scenarios, settings) and planning
+//! problems: structure-aware mutations, seeded and deterministic, judged by per-target oracles
+//! (see `harness.rs`).
 //!
 //! ```text
 //! cargo run --release --example fuzz -- [--seconds S] [--tries N] [--seed K]
-//!     [--target weights|scenarios|settings]... [--replay TARGET:TRY] [--strict-rollout]
+//!     [--target weights|scenarios|settings|plan]... [--replay TARGET:TRY] [--strict-rollout]
 //! ```
 //!
 //! `--strict-rollout` also counts plans whose states are not the nonlinear roll-out of their
@@ -41,7 +42,7 @@ fn main() {
             .find(|t| t.name() == s)
             .unwrap_or_else(|| {
                 fail(format!(
-                    "unknown target {s:?} (weights, scenarios, settings)"
+                    "unknown target {s:?} (weights, scenarios, settings, plan)"
                 ))
             })
     };

@@ -117,7 +117,13 @@ def simulate(
     (``"teacher"``, ``"student"``) and the ``idm`` world's driver population
     (``worlds/idm.json``) resolved under :func:`assets_dir`. Defaults come from Rust
     (:data:`DEFAULTS`, :meth:`SimConfig.default`); ``config_overrides`` are ``SimConfig``
-    fields (``world="idm"``, ``max_steps=4``, ...)."""
+    fields (``world="idm"``, ``max_steps=4``, ...). ``scene_paths`` is a sequence of
+    paths; a single path raises ``TypeError`` (pass ``[path]``)."""
+    if isinstance(scene_paths, (str, bytes, os.PathLike)):
+        raise TypeError(
+            f"scene_paths: expected a sequence of scenario paths, got the single path {scene_paths!r} "
+            "(pass [path])"
+        )
     return _simulate(
         [os.fspath(p) for p in scene_paths],
         os.fspath(predictor),

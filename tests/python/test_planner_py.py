@@ -132,9 +132,9 @@ def test_planner_is_deterministic_and_reset_restores_cold_start(student: nudge.P
 
 
 def test_horizon_mismatch_and_bad_lane(scenario: nudge.Scenario) -> None:
-    pl = nudge.Planner(nudge.PlannerSettings(horizon=5), nudge.Predictor.constant_velocity(6))
-    with pytest.raises(nudge.InputError, match="horizon"):
-        pl.plan_scenario(scenario)
+    # Refused when the planner is built, before any plan (nudge_planner::fit).
+    with pytest.raises(nudge.SettingsError, match="`horizon` = 5 does not fit: the constant_velocity predicts 6"):
+        nudge.Planner(nudge.PlannerSettings(horizon=5), nudge.Predictor.constant_velocity(6))
     pl6 = nudge.Planner(None, nudge.Predictor.constant_velocity())
     with pytest.raises(nudge.InputError, match="target_lane 99"):
         pl6.plan_scenario(scenario, target_lane=99)

@@ -611,6 +611,28 @@ impl Scenario {
         }
     }
 
+    /// The paths of every `.safetensors` file in `dir`, sorted by name (the order the CLI runs
+    /// them in).
+    ///
+    /// # Errors
+    /// [`ScenarioError::Io`] when the directory or one of its entries cannot be read.
+    pub fn paths_in(dir: impl AsRef<Path>) -> Result<Vec<PathBuf>, ScenarioError> {
+        let dir = dir.as_ref();
+        let io = |source| ScenarioError::Io {
+            path: dir.to_path_buf(),
+            source,
+        };
+        let mut paths = Vec::new();
+        for entry in std::fs::read_dir(dir).map_err(io)? {
+            let p = entry.map_err(io)?.path();
+            if p.extension().is_some_and(|x| x == "safetensors") {
+                paths.push(p);
+            }
+        }
+        paths.sort();
+        Ok(paths)
+    }
+
     /// Every `.safetensors` file in `dir`, sorted by name, read and validated; files that fail
     /// are returned with their error.
     ///
@@ -620,19 +642,9 @@ impl Scenario {
     pub fn load_dir(
         dir: impl AsRef<Path>,
     ) -> Result<(Vec<Self>, Vec<(PathBuf, ScenarioError)>), ScenarioError> {
-        let dir = dir.as_ref();
-        let rd = std::fs::read_dir(dir).map_err(|source| ScenarioError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-        let mut paths: Vec<PathBuf> = rd
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "safetensors"))
-            .collect();
-        paths.sort();
         let mut ok = Vec::new();
         let mut bad = Vec::new();
-        for p in paths {
+        for p in Self::paths_in(dir)? {
             match Self::from_file(&p) {
                 Ok(s) => ok.push(s),
                 Err(e) => bad.push((p, e)),

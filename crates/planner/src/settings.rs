@@ -461,7 +461,8 @@ impl PlannerSettings {
             value: e.to_string(),
             reason: "not valid planner settings JSON",
         };
-        let value: serde_json::Value = serde_json::from_str(text).map_err(not_json)?;
+        // A repeated key is an error naming it (serde_json would keep the last one).
+        let value = nudge_predictor::json::parse(text).map_err(not_json)?;
         if !value.is_object() {
             return Err(SettingsError::Invalid {
                 field: "<json>",

@@ -507,7 +507,7 @@ impl ModelWeights {
             .get("config")
             .ok_or_else(|| bad("no \"config\" metadata entry".to_owned()))?;
         let value: serde_json::Value =
-            serde_json::from_str(raw).map_err(|e| bad(format!("config is not JSON: {e}")))?;
+            crate::json::parse(raw).map_err(|e| bad(format!("config is not valid JSON: {e}")))?;
         match value.get("kind") {
             None => return Err(bad("config has no \"kind\" field".to_owned())),
             Some(serde_json::Value::String(k)) if k == "teacher" || k == "student" => {}

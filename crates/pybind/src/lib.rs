@@ -3,6 +3,7 @@
 //! The only crate of the workspace that uses pyo3. Every call that runs a network, a plan or a
 //! simulation releases the GIL; every Rust error becomes a subclass of `nudge.NudgeError`.
 
+mod args;
 mod arrays;
 mod errors;
 mod planner;
@@ -20,22 +21,27 @@ use pyo3::prelude::*;
 /// `assets`: the path the Rust resolver loads for that name.
 #[pyfunction]
 fn model_path(assets: PathBuf, name: &str) -> PyResult<PathBuf> {
-    match name
-        .parse::<PredictorKind>()
-        .ok()
-        .and_then(PredictorKind::model)
-    {
-        Some(kind) => Ok(nudge_predictor::model_path(&assets, kind)),
-        None => Err(errors::InputError::new_err(format!(
-            "model_path: expected \"teacher\" or \"student\", got {name:?}"
-        ))),
-    }
+    args::guard(|| {
+        match name
+            .parse::<PredictorKind>()
+            .ok()
+            .and_then(PredictorKind::model)
+        {
+            Some(kind) => Ok(nudge_predictor::model_path(&assets, kind)),
+            None => Err(errors::InputError::new_err(format!(
+                "model_path: expected \"teacher\" or \"student\", got {name:?}"
+            ))),
+        }
+    })
 }
 
 /// The extension module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
+    // Load numpy's C API now: loaded lazily on the first array instead, an import interrupted
+    // by a pending Ctrl-C would make rust-numpy panic.
+    numpy::PyArray1::<f64>::zeros(py, [0], false);
     m.add("NudgeError", py.get_type::<errors::NudgeError>())?;
     m.add("WeightsError", py.get_type::<errors::WeightsError>())?;
     m.add("InputError", py.get_type::<errors::InputError>())?;

@@ -170,7 +170,7 @@ impl SafetyConstraint {
             .vehicles
             .iter()
             .map(|v| self.b(v, ego, v.last, positions[v.index], false).0)
-            .fold(f64::INFINITY, f64::min);
+            .fold(f64::INFINITY, min_or_nan);
         Some(never_nan(min_b))
     }
 }
@@ -179,6 +179,15 @@ impl SafetyConstraint {
 fn heading_direction(psi: f64) -> [f64; 2] {
     let (sn, cs) = psi.sin_cos();
     [cs.abs(), sn.abs()]
+}
+
+/// The minimum of `a` and `b`, NaN when either is (`f64::min` would drop a NaN `b`).
+fn min_or_nan(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.min(b)
+    }
 }
 
 /// A NaN minimum is never safe: −∞.
@@ -398,7 +407,7 @@ impl<'c> SafetyEval<'c> {
                     k + 1 == t,
                 );
                 previous = other;
-                min_b = min_b.min(b);
+                min_b = min_or_nan(min_b, b);
                 if b < ROW_B {
                     self.rows.push(SafetyRow {
                         step: k,

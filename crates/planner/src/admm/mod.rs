@@ -31,7 +31,7 @@ mod tests;
 
 use std::time::Instant;
 
-use nudge_predictor::Predictor;
+use nudge_predictor::{Checked, Predictor};
 
 use crate::error::PlannerError;
 use crate::model::{Bicycle, State};
@@ -159,7 +159,8 @@ impl Planner {
     /// # Errors
     /// [`PlannerError::BadProblem`] for a malformed problem, [`PlannerError::HorizonMismatch`]
     /// when the predictor's horizon differs, [`PlannerError::Predictor`] when the predictor
-    /// rejects the scene or a candidate.
+    /// rejects the scene or a candidate, or when a prediction is non-finite or implausible
+    /// (every predictor's output is checked, see [`nudge_predictor::Checked`]).
     ///
     /// # Examples
     ///
@@ -203,6 +204,9 @@ impl Planner {
     ) -> Result<Plan, PlannerError> {
         let start = Instant::now();
         self.check(problem, predictor)?;
+        // Every prediction is checked finite and plausible, whoever implemented the predictor.
+        let mut checked = Checked::new(predictor);
+        let predictor: &mut dyn Predictor = &mut checked;
         let s = &self.settings;
         // Set-up: the linearised problem, the checked vehicles, the workspace.
         let lp = LinearisedProblem::new(s, &self.model, self.warm.as_ref(), problem);

@@ -70,12 +70,34 @@ impl<'a> PlanningProblem<'a> {
 }
 
 impl PlanningProblem<'_> {
-    /// Checks that the problem can be planned: finite numbers, a non-negative speed, a heading
-    /// within ±π/2 of the road, an ordered road, one positive size per agent.
+    /// Widest road accepted (m): [`crate::scenario::MAX_LANES`] lanes of the widest plausible
+    /// lane ([`crate::scenario::LANE_WIDTH`]).
+    pub const MAX_ROAD_WIDTH: f64 =
+        crate::scenario::MAX_LANES as f64 * crate::scenario::LANE_WIDTH[1];
+    /// Largest reference speed accepted (m/s): the largest plausible speed of a scenario
+    /// ([`crate::scenario::MAX_SPEED`]), also the largest admissible `v_max`.
+    pub const MAX_V_REF: f64 = crate::scenario::MAX_SPEED;
+    /// Largest measured ego speed accepted (m/s): the predictors' bound on observed motion,
+    /// [`nudge_predictor::limits::MAX_STEP`] per 0.3 s step.
+    pub const MAX_EGO_SPEED: f64 = nudge_predictor::limits::MAX_STEP / nudge_predictor::DT;
+    /// Largest |previous steering| accepted (rad): the widest admissible `delta_max`.
+    pub const MAX_LAST_DELTA: f64 = 1.5;
+    /// Largest |previous acceleration| accepted (m/s²): the widest admissible `a_min`/`a_max`.
+    pub const MAX_LAST_ACCEL: f64 = 15.0;
+
+    /// Checks that the problem can be planned: finite numbers; the ego within
+    /// ±[`nudge_predictor::limits::MAX_ABS_POSITION`] m, its speed in
+    /// 0..=[`Self::MAX_EGO_SPEED`] m/s, its heading within ±π/2 of the road; previous inputs
+    /// within ±[`Self::MAX_LAST_DELTA`] rad and ±[`Self::MAX_LAST_ACCEL`] m/s²; an ordered road
+    /// at most [`Self::MAX_ROAD_WIDTH`] m wide whose edges lie within the same coordinate
+    /// range; `y_target` on the road (edges included); `v_ref` in 0..=[`Self::MAX_V_REF`]
+    /// m/s; one positive size per agent.
     ///
     /// # Errors
     /// [`PlannerError::BadProblem`] naming the first offending field.
     pub fn check(&self) -> Result<(), PlannerError> {
+        use crate::settings::show;
+        use nudge_predictor::limits::MAX_ABS_POSITION;
         let bad =
             |field: &'static str, reason: String| Err(PlannerError::BadProblem { field, reason });
         let e = self.ego;
@@ -95,8 +117,27 @@ impl PlanningProblem<'_> {
                 return bad(field, format!("non-finite value {v}"));
             }
         }
-        if e.v < 0.0 {
-            return bad("ego.v", format!("negative speed {}", e.v));
+        for (field, v) in [("ego.x", e.x), ("ego.y", e.y)] {
+            if v.abs() > MAX_ABS_POSITION {
+                return bad(
+                    field,
+                    format!(
+                        "{} m is outside the accepted ±{} m",
+                        show(v),
+                        show(MAX_ABS_POSITION)
+                    ),
+                );
+            }
+        }
+        if !(0.0..=Self::MAX_EGO_SPEED).contains(&e.v) {
+            return bad(
+                "ego.v",
+                format!(
+                    "speed {} m/s is outside 0..={} m/s",
+                    show(e.v),
+                    Self::MAX_EGO_SPEED
+                ),
+            );
         }
         if e.psi.abs() > std::f64::consts::FRAC_PI_2 {
             return bad(
@@ -104,13 +145,55 @@ impl PlanningProblem<'_> {
                 format!("heading {} rad points off the road", e.psi),
             );
         }
-        if self.road[0] >= self.road[1] {
+        if self.last_delta.abs() > Self::MAX_LAST_DELTA {
+            return bad(
+                "last_delta",
+                format!(
+                    "{} rad is outside ±{} rad",
+                    show(self.last_delta),
+                    Self::MAX_LAST_DELTA
+                ),
+            );
+        }
+        if self.last_accel.abs() > Self::MAX_LAST_ACCEL {
+            return bad(
+                "last_accel",
+                format!(
+                    "{} m/s² is outside ±{} m/s²",
+                    show(self.last_accel),
+                    Self::MAX_LAST_ACCEL
+                ),
+            );
+        }
+        let [right, left] = self.road;
+        if right >= left {
+            return bad(
+                "road",
+                format!("right edge {right} is not below left edge {left}"),
+            );
+        }
+        if right.abs().max(left.abs()) > MAX_ABS_POSITION || left - right > Self::MAX_ROAD_WIDTH {
             return bad(
                 "road",
                 format!(
-                    "right edge {} is not below left edge {}",
-                    self.road[0], self.road[1]
+                    "edges [{}, {}] m: the road must lie within ±{} m and be at most {} m wide",
+                    show(right),
+                    show(left),
+                    show(MAX_ABS_POSITION),
+                    Self::MAX_ROAD_WIDTH
                 ),
+            );
+        }
+        if !(right..=left).contains(&self.y_target) {
+            return bad(
+                "y_target",
+                format!("{:e} m is off the road [{right}, {left}] m", self.y_target),
+            );
+        }
+        if !(0.0..=Self::MAX_V_REF).contains(&self.v_ref) {
+            return bad(
+                "v_ref",
+                format!("{} m/s is outside 0..={} m/s", self.v_ref, Self::MAX_V_REF),
             );
         }
         let n = self.history.n_agents();

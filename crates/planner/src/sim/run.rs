@@ -15,6 +15,7 @@ use crate::model::State;
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
+use super::batch::Cancel;
 use super::config::SimConfig;
 use super::metrics::{RunObserver, others_from_history};
 use super::records::{RunRecord, StepRecord, StepStatus};
@@ -177,7 +178,8 @@ impl ClosedLoop<'_> {
 /// success.
 ///
 /// # Errors
-/// [`SimError::Settings`] / [`SimError::Config`] for invalid settings,
+/// [`SimError::Settings`] / [`SimError::Config`] for invalid settings or settings that do not
+/// fit the predictors and scenes ([`crate::fit::check_closed_loop`]),
 /// [`SimError::WorldModel`] when `world` does not match `cfg.world`,
 /// [`SimError::NoAdjacentLane`], [`SimError::Predictor`] (the scene does not fit a predictor),
 /// [`SimError::Planner`] when planning fails (a bad problem or a predictor error; a QP failure
@@ -211,6 +213,23 @@ pub fn simulate(
     planner_pred: &mut dyn Predictor,
     world: WorldModel<'_>,
 ) -> Result<RunRecord, SimError> {
+    let never = Cancel::new();
+    simulate_cancellable(sc, settings, cfg, seed, planner_pred, world, &never)
+}
+
+/// [`simulate`], checking `cancel` before every closed-loop step.
+///
+/// # Errors
+/// As [`simulate`]; [`SimError::Cancelled`] once `cancel` is set.
+pub fn simulate_cancellable(
+    sc: &Scenario,
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+    seed: u64,
+    planner_pred: &mut dyn Predictor,
+    world: WorldModel<'_>,
+    cancel: &Cancel,
+) -> Result<RunRecord, SimError> {
     cfg.validate()?;
     let planner = Planner::new(settings.clone()).map_err(|e| match e {
         PlannerError::Settings(s) => SimError::Settings(s),
@@ -220,6 +239,11 @@ pub fn simulate(
             source: other,
         },
     })?;
+    let mut fit = vec![(planner_pred.name(), planner_pred.horizon())];
+    if let WorldModel::Teacher(w) = &world {
+        fit.push((w.name(), w.horizon()));
+    }
+    crate::fit::check_closed_loop(settings, &fit)?;
     let lane = target_lane(sc, seed)?;
     let mut mover = Mover::new(cfg, world, sc, seed, settings.horizon)?;
     let y_target = sc.lane_centres[lane];
@@ -262,6 +286,12 @@ pub fn simulate(
     };
     let mut settled = 0;
     for step in 0..cfg.max_steps {
+        if cancel.is_cancelled() {
+            return Err(SimError::Cancelled {
+                scene: sc.name.clone(),
+                step,
+            });
+        }
         // An ego turned across the road (only seen with erratic predictors) ends the run as a
         // failure instead of handing the planner a problem it rejects.
         if run.ego[2].abs() >= std::f64::consts::FRAC_PI_2 {
