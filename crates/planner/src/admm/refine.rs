@@ -53,8 +53,9 @@ pub(crate) fn rollout_sensitivities(
     for k in 0..t {
         let (jz, jd, ja) = model.jacobians(&z, delta[k]);
         if k > 0 {
-            for j in 0..2 * t {
-                sens[k][j] = jz * sens[k - 1][j];
+            let (done, rest) = sens.split_at_mut(k);
+            for (s, &before) in rest[0].iter_mut().zip(&done[k - 1]) {
+                *s = jz * before;
             }
         }
         sens[k][k] += jd;

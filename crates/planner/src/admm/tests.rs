@@ -652,14 +652,28 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     );
 }
 
-/// Predicts agent 1 at a fixed road position for every step from call `from` on; before that
-/// (and every other agent always) 200 m ahead of the candidate (always safe). A smooth obstacle
+/// From call `from` on, predicts agent 1 moving to a fixed road position `at` at 29 m per step
+/// (a plausible prediction: the planner refuses motions beyond 30 m per step) and staying
+/// there; before that, and every other agent always, at constant velocity from its last
+/// observed motion (always safe for the car 40 m behind at the ego's speed). A smooth obstacle
 /// that appears only for the execution check.
 struct Obstacle {
     from: usize,
     at: [f64; 2],
-    n_agents: usize,
+    /// Last two observed positions of every agent.
+    last: Vec<[[f64; 2]; 2]>,
     calls: usize,
+}
+
+impl Obstacle {
+    fn new(from: usize, at: [f64; 2]) -> Self {
+        Self {
+            from,
+            at,
+            last: Vec::new(),
+            calls: 0,
+        }
+    }
 }
 
 impl Predictor for Obstacle {
@@ -670,20 +684,29 @@ impl Predictor for Obstacle {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.n_agents = history.n_agents();
+        self.last = (0..history.n_agents())
+            .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
+            .collect();
         Ok(())
     }
-    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+    fn predict(&mut self, _candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
         let present = self.calls >= self.from;
         self.calls += 1;
-        for agent in 0..self.n_agents - 1 {
+        for (i, [prev, now]) in self.last.iter().enumerate().skip(1) {
+            let mut p = *now;
             for k in 0..6 {
-                let o = (agent * 6 + k) * 2;
-                let p = if present && agent == 0 {
-                    self.at
+                let o = ((i - 1) * 6 + k) * 2;
+                if present && i == 1 {
+                    let (dx, dy) = (self.at[0] - p[0], self.at[1] - p[1]);
+                    let d = dx.hypot(dy);
+                    p = if d <= 29.0 {
+                        self.at
+                    } else {
+                        [p[0] + 29.0 * dx / d, p[1] + 29.0 * dy / d]
+                    };
                 } else {
-                    [candidates[10] + 200.0, candidates[2 * k + 1]]
-                };
+                    p = [p[0] + now[0] - prev[0], p[1] + now[1] - prev[1]];
+                }
                 out[o] = p[0];
                 out[o + 1] = p[1];
             }
@@ -714,12 +737,7 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
     // to the left of the roll-out's last position (b ≈ −0.06 there).
     let a_y = s.ellipse_scale * 1.9 + s.margin_y;
     let at = [end[0], end[1] + 0.97 * a_y];
-    let mut obstacle = Obstacle {
-        from: admm_calls,
-        at,
-        n_agents: 0,
-        calls: 0,
-    };
+    let mut obstacle = Obstacle::new(admm_calls, at);
     let mut planner = Planner::new(s.clone()).unwrap();
     let plan = planner.plan(&p, &mut obstacle).unwrap();
     assert_eq!(plan.status, PlanStatus::Refined, "{:?}", plan.status);
@@ -748,12 +766,7 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
     // Away from the obstacle, and no more than needed: cheaper than the backtracked plan.
     assert!(plan.states[5][1] < end[1]);
     let backtracked = {
-        let mut o = Obstacle {
-            from: admm_calls,
-            at,
-            n_agents: 0,
-            calls: 0,
-        };
+        let mut o = Obstacle::new(admm_calls, at);
         let mut planner = Planner::new(PlannerSettings {
             refine_iters: 0,
             ..s.clone()
