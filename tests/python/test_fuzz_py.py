@@ -35,7 +35,7 @@ EXAMPLES = int(os.environ.get("NUDGE_FUZZ_EXAMPLES", "100"))
 SEED = int(os.environ.get("NUDGE_FUZZ_SEED", "20261130"))
 SLOW_S = 60.0
 MAX_STEP = 30.0  # m per 0.3 s step (nudge_predictor::limits::MAX_STEP)
-STATUSES = {"Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"}
+STATUSES = {"Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"}
 
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=False, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
