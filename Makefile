@@ -15,11 +15,12 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
-	@echo "make test     set up and run every test (Rust + Python + golden drift check)"
+	@echo "make test     set up and run every test (Rust + Python + golden drift check + wheel smoke test)"
+	@echo "make wheel    build the nudge wheel (models and scenes inside) into $(WHEEL_DIR)"
 	@echo "make lint     rustfmt, clippy -D warnings, rustdoc -D warnings"
 	@echo "make fuzz     mutation-fuzz weights, scenarios, settings, planning problems (FUZZ_SECONDS per target), then the Python entry points (FUZZ_EXAMPLES)"
 	@echo "make bench    criterion benches (one thread) + the PyTorch-vs-Rust table"
@@ -57,8 +58,31 @@ develop: $(STAMP)
 build:
 	$(CARGO) build --release --workspace
 
+# The wheel users install (`pip install target/wheels/nudge-*.whl`, or `pip install .`): the
+# extension, the shipped models and scenes as package data, and the `nudge` command.
+WHEEL_DIR ?= target/wheels
+wheel: $(STAMP)
+	rm -f $(WHEEL_DIR)/nudge-*.whl
+	$(VENV)/bin/maturin build --release -q -i $(PY) -o $(WHEEL_DIR)
+	@ls -l $(WHEEL_DIR)/nudge-*.whl
+
+# Installs the wheel into a fresh venv outside the checkout (numpy its only dependency, no
+# torch) and runs tests/wheel/smoke.py there, from outside the checkout: predict, plan,
+# simulate and the `nudge` command on the package's own assets.
+wheel-smoke: wheel
+	@set -e; tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
+	whl=$$(ls $(abspath $(WHEEL_DIR))/nudge-*.whl); \
+	scenes=$$(ls assets/scenes/*.safetensors | wc -l); \
+	cp tests/wheel/smoke.py "$$tmp/"; \
+	$(PYTHON) -m venv "$$tmp/venv"; \
+	echo "wheel $$(basename $$whl): $$(du -k $$whl | cut -f1) KiB"; \
+	t0=$$($(PYTHON) -c 'import time; print(time.time())'); \
+	TIMEFORMAT="pip install into a fresh venv: %R s"; \
+	time "$$tmp/venv/bin/pip" install --disable-pip-version-check -q "$$whl"; \
+	cd "$$tmp" && env -u NUDGE_ASSETS -u NUDGE_REPO NUDGE_SMOKE_T0=$$t0 "$$tmp/venv/bin/python" smoke.py --scenes $$scenes
+
 # ---- tests ----------------------------------------------------------------------------------
-test: venv test-rust test-examples test-python
+test: venv test-rust test-examples test-python wheel-smoke
 
 test-rust:
 	$(CARGO) test --workspace --release

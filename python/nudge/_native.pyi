@@ -202,6 +202,16 @@ class Planner:
 def model_path(assets: _Path, name: Literal["teacher", "student"]) -> Path:
     """The shipped weights of ``name`` under ``assets`` (the Rust resolver's path)."""
 
+def assets_dir(shipped: _Path) -> Path:
+    """``$NUDGE_ASSETS`` when set and not empty, else ``shipped`` (the one assets rule)."""
+
+def scenes_dir(assets: _Path) -> Path:
+    """The shipped scenes under ``assets``: ``<assets>/scenes``."""
+
+def cli_main(argv: list[str], assets: _Path) -> int:
+    """Runs the Rust ``nudge`` command line on ``argv`` (program name first) with the shipped
+    assets at ``assets``; returns its exit status (0, 1, 2 or 3)."""
+
 def simulate(
     scene_paths: list[_Path],
     predictor: _Path = ...,

@@ -8,7 +8,7 @@ use clap::Args;
 use nudge_planner::sim::defaults;
 use nudge_planner::sim::{Summary, collision_table, run_table, step_listing, step_table};
 use nudge_planner::{BatchRequest, Cancel, PlannerSettings, RunRecord, Scenario, SimConfig, World};
-use nudge_predictor::default_assets_dir;
+use nudge_predictor::{assets_dir, scenes_dir};
 
 /// The closed-loop defaults the flags' help shows.
 const DEFAULT: SimConfig = SimConfig::DEFAULT;
@@ -22,9 +22,10 @@ fn noted(text: &str, value: impl std::fmt::Display) -> String {
 /// JSON file; its defaults otherwise), each overridable by its own flag.
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Directory of "nudge.scenario/1" `.safetensors` files (run in sorted file-name order).
-    #[arg(long, default_value = "assets/scenes")]
-    pub scenes: PathBuf,
+    /// Directory of "nudge.scenario/1" `.safetensors` files (run in sorted file-name order)
+    /// [default: <assets>/scenes, the shipped real scenes].
+    #[arg(long)]
+    pub scenes: Option<PathBuf>,
     /// Planning predictor: teacher, student, constant_velocity, or a weights file.
     #[arg(long, default_value = defaults::PREDICTOR.as_str())]
     pub predictor: PathBuf,
@@ -34,8 +35,10 @@ pub struct SimulateArgs {
     /// [default: <assets>/worlds/idm.json].
     #[arg(long)]
     pub idm: Option<PathBuf>,
-    /// Directory of the named models (<assets>/models/<name>.safetensors) and worlds
-    /// (<assets>/worlds/idm.json) [default: $NUDGE_ASSETS, else assets].
+    /// Directory of the named models (<assets>/models/<name>.safetensors), worlds
+    /// (<assets>/worlds/idm.json) and the shipped scenes [default: $NUDGE_ASSETS, else the
+    /// assets shipped with this nudge: ./assets for the binary of a checkout, the package's
+    /// own for the pip-installed command].
     #[arg(long)]
     pub assets: Option<PathBuf>,
     /// Planner settings JSON (missing fields default).
@@ -156,7 +159,8 @@ fn write_outputs(
     std::fs::write(&p, json).map_err(|e| io(&p, &e))
 }
 
-/// Runs `nudge simulate`: every argument is checked by the library's
+/// Runs `nudge simulate` (the named models and the default scenes under `--assets`, else
+/// under [`assets_dir`] of `shipped_assets`): every argument is checked by the library's
 /// [`BatchRequest::prepare`] (the one validation `nudge.simulate` uses too) before any run
 /// starts. Returns the number of runs that could not run (they are reported on stderr).
 ///
@@ -164,11 +168,15 @@ fn write_outputs(
 /// A message naming the problem, before any run: unreadable scenes or settings, invalid or
 /// incompatible settings, missing weights, a bad count, an output path that cannot be a
 /// directory; after the runs, an output that cannot be written.
-pub fn run(a: &SimulateArgs) -> Result<usize, String> {
+pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     let settings = a.planner_settings()?;
     let config = a.sim_config()?;
-    let scene_paths = Scenario::paths_in(&a.scenes).map_err(|e| e.to_string())?;
-    let assets = a.assets.clone().unwrap_or_else(default_assets_dir);
+    let assets = a
+        .assets
+        .clone()
+        .unwrap_or_else(|| assets_dir(shipped_assets));
+    let scenes = a.scenes.clone().unwrap_or_else(|| scenes_dir(&assets));
+    let scene_paths = Scenario::paths_in(&scenes).map_err(|e| e.to_string())?;
     let batch = BatchRequest {
         scene_paths: &scene_paths,
         predictor: &a.predictor,

@@ -78,6 +78,16 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: _native.model_path(c["assets"], "constant_velocity"),
         lambda c: _native.model_path("", "teacher"),
     ],
+    "assets_dir": [lambda c: _native.assets_dir(""), lambda c: _native.assets_dir("/dev/null")],
+    "scenes_dir": [lambda c: _native.scenes_dir(""), lambda c: _native.scenes_dir("/dev/null")],
+    # The command line: no program name, nothing to run, a refusal, a usage error.
+    "cli_main": [
+        lambda c: _native.cli_main([], ""),
+        lambda c: _native.cli_main(["nudge"], c["assets"]),
+        lambda c: _native.cli_main(["nudge", "simulate", "--runs", "0"], c["assets"]),
+        lambda c: _native.cli_main(["nudge", "simulate", "--scenes", ""], ""),
+        lambda c: _native.cli_main(["nudge", "simulate", "--runs", "-1"], ""),
+    ],
     "simulate": [
         lambda c: _native.simulate([]),
         lambda c: _native.simulate([c["scene"]], runs=0),

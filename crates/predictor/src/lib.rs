@@ -79,7 +79,8 @@ pub use history::History;
 pub use recording::{Recording, Records};
 pub use simd::{SimdPath, best_simd_path, simd_path, supported_simd_paths};
 pub use spec::{
-    ASSETS_ENV, PredictorKind, PredictorSpec, UnknownPredictor, default_assets_dir, model_path,
+    ASSETS_ENV, CHECKOUT_ASSETS, PredictorKind, PredictorSpec, UnknownPredictor, assets_dir,
+    default_assets_dir, model_path, scenes_dir,
 };
 pub use student::Student;
 pub use teacher::Teacher;

@@ -5,6 +5,7 @@
 
 mod args;
 mod arrays;
+mod cli;
 mod errors;
 mod planner;
 mod predict;
@@ -35,6 +36,20 @@ fn model_path(assets: PathBuf, name: &str) -> PyResult<PathBuf> {
     })
 }
 
+/// The assets directory of the package whose shipped assets are at `shipped`:
+/// `$NUDGE_ASSETS` when set and not empty, else `shipped` (`nudge_predictor::assets_dir`, the
+/// rule of every front end).
+#[pyfunction]
+fn assets_dir(shipped: PathBuf) -> PathBuf {
+    nudge_predictor::assets_dir(shipped)
+}
+
+/// The shipped scenes under the assets directory `assets`: `<assets>/scenes`.
+#[pyfunction]
+fn scenes_dir(assets: PathBuf) -> PathBuf {
+    nudge_predictor::scenes_dir(&assets)
+}
+
 /// The extension module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -56,6 +71,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<planner::PyPlanner>()?;
     m.add_function(wrap_pyfunction!(sim::simulate, m)?)?;
     m.add_function(wrap_pyfunction!(model_path, m)?)?;
+    m.add_function(wrap_pyfunction!(assets_dir, m)?)?;
+    m.add_function(wrap_pyfunction!(scenes_dir, m)?)?;
+    m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
     m.add("DEFAULTS", sim::defaults_dict(py)?)?;
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;
