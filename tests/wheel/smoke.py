@@ -29,7 +29,7 @@ import numpy as np
 
 import nudge
 
-SAFE = ("Converged", "MaxIterations", "Backtracked")
+SAFE = ("Converged", "MaxIterations", "Refined", "Backtracked")
 
 
 def check(ok: bool, what: str) -> None:
