@@ -54,8 +54,8 @@ pub(crate) fn rollout_sensitivities(
         let (jz, jd, ja) = model.jacobians(&z, delta[k]);
         if k > 0 {
             let (done, rest) = sens.split_at_mut(k);
-            for (s, &before) in rest[0].iter_mut().zip(&done[k - 1]) {
-                *s = jz * before;
+            for (now, before) in rest[0].iter_mut().zip(&done[k - 1]) {
+                *now = jz * *before;
             }
         }
         sens[k][k] += jd;
@@ -87,6 +87,13 @@ fn input_gradient(u: &[f64], prev: f64, w: f64, wd: f64) -> Vec<f64> {
         .collect()
 }
 
+/// Sparse constraint rows as (row, column, value) triplets.
+type Triplets = Vec<(usize, usize, f64)>;
+
+/// One elastic row g·du ≤ h over the 2T input changes: (`g` `[2T]`, `h`), in the units of the
+/// constrained quantity (m, rad or units of b).
+type ElasticRow = (Vec<f64>, f64);
+
 /// One refinement step from (`delta`, `accel`) with the safety `rows` of its roll-out; the
 /// new inputs (within their box and rate bounds), or `None` when the QP has no usable
 /// solution (e.g. the linearised constraints are infeasible within the trust region).
@@ -99,9 +106,34 @@ pub(crate) fn step(
     rows: &[SafetyRow],
 ) -> Option<(Vec<f64>, Vec<f64>)> {
     let t = delta.len();
-    let nv = 2 * t;
     let (rollout, sens) = rollout_sensitivities(model, &lp.start, delta, accel);
-    // Objective: Gauss-Newton model of J around u.
+    let (p, q) = gauss_newton_objective(s, lp, delta, accel, &rollout, &sens);
+    let (a, b) = hard_rows(s, lp, delta, accel);
+    let mut elastic = state_bound_rows(lp, &rollout, &sens);
+    elastic.extend(road_edge_rows(lp, &rollout, &sens));
+    elastic.extend(safety_rows(s, &sens, rows));
+    let qp = StepQp::with_slacks(p, q, a, b, &elastic);
+    let x = qp.solve()?;
+    let mut nd: Vec<f64> = delta.iter().zip(&x).map(|(u, d)| u + d).collect();
+    let mut na: Vec<f64> = accel.iter().zip(&x[t..]).map(|(u, d)| u + d).collect();
+    repair_box_rate(&mut nd, lp.delta_box);
+    repair_box_rate(&mut na, lp.accel_box);
+    Some((nd, na))
+}
+
+/// The Gauss-Newton model of J around u = (`delta`, `accel`) in du: (P `[2T, 2T]` dense
+/// row-major, q `[2T]`) with J(u + du) ≈ J(u) + q·du + ½ duᵀ P du; the input terms exact,
+/// the state terms through the roll-out's sensitivities `sens`.
+fn gauss_newton_objective(
+    s: &PlannerSettings,
+    lp: &LinearisedProblem,
+    delta: &[f64],
+    accel: &[f64],
+    rollout: &[State],
+    sens: &[Vec<State>],
+) -> (Vec<f64>, Vec<f64>) {
+    let t = delta.len();
+    let nv = 2 * t;
     let mut p = vec![0.0; nv * nv];
     let mut q = vec![0.0; nv];
     let zeros = vec![0.0; t];
@@ -117,7 +149,7 @@ pub(crate) fn step(
             p[(t + i) * nv + t + j] += ha[i * t + j];
         }
     }
-    for (zk, sk) in rollout.iter().zip(&sens) {
+    for (zk, sk) in rollout.iter().zip(sens) {
         for c in 1..4 {
             let w = lp.weights[c];
             if w == 0.0 {
@@ -132,17 +164,28 @@ pub(crate) fn step(
             }
         }
     }
+    (p, q)
+}
+
+/// The hard rows A du ≤ b on du `[2T]`: the input box and rate bounds on u + du (the rows of
+/// u, shifted by A·u), then the trust region |du_i| ≤ `refine_trust_delta` (rad) or
+/// `refine_trust_accel` (m/s²).
+fn hard_rows(
+    s: &PlannerSettings,
+    lp: &LinearisedProblem,
+    delta: &[f64],
+    accel: &[f64],
+) -> (Triplets, Vec<f64>) {
+    let t = delta.len();
     let mut a = Vec::new();
     let mut b = Vec::new();
-    // Input box and rate bounds on u + du: the rows of u, shifted by A·u.
     box_rate_rows(&mut a, &mut b, 0, t, lp.delta_box);
     box_rate_rows(&mut a, &mut b, t, t, lp.accel_box);
     let u: Vec<f64> = delta.iter().chain(accel).copied().collect();
     for &(r, c, v) in &a {
         b[r] -= v * u[c];
     }
-    // Trust region.
-    for i in 0..nv {
+    for i in 0..2 * t {
         let r = if i < t {
             s.refine_trust_delta
         } else {
@@ -154,10 +197,18 @@ pub(crate) fn step(
         a.push((row + 1, i, -1.0));
         b.push(r);
     }
-    // Elastic rows g·du ≤ h (state bounds on y and ψ, linearised safety), each with its own
-    // slack: g·du − s ≤ h, s ≥ 0.
-    let mut elastic: Vec<(Vec<f64>, f64)> = Vec::new();
-    for (k, (zk, sk)) in rollout.iter().zip(&sens).enumerate() {
+    (a, b)
+}
+
+/// Elastic rows of the finite state bounds on y (m) and ψ (rad), linearised at the roll-out:
+/// per step, upper then lower bound of y, then of ψ.
+fn state_bound_rows(
+    lp: &LinearisedProblem,
+    rollout: &[State],
+    sens: &[Vec<State>],
+) -> Vec<ElasticRow> {
+    let mut elastic = Vec::new();
+    for (k, (zk, sk)) in rollout.iter().zip(sens).enumerate() {
         for c in [1usize, 2] {
             for (sign, bound) in [(1.0, lp.upper[k][c]), (-1.0, lp.lower[k][c])] {
                 if bound.is_finite() {
@@ -167,9 +218,19 @@ pub(crate) fn step(
             }
         }
     }
-    // The box's corners on the road: y ∓ e(ψ) against the edges, e(ψ) = ½(L|sin ψ| + W|cos ψ|).
+    elastic
+}
+
+/// Elastic rows (m) keeping the box's corners on the road, linearised at the roll-out: per
+/// step, y ∓ e(ψ) against the right and left edges, e(ψ) = ½(L|sin ψ| + W|cos ψ|).
+fn road_edge_rows(
+    lp: &LinearisedProblem,
+    rollout: &[State],
+    sens: &[Vec<State>],
+) -> Vec<ElasticRow> {
     let [length, width] = lp.ego_size;
-    for (zk, sk) in rollout.iter().zip(&sens) {
+    let mut elastic = Vec::with_capacity(2 * rollout.len());
+    for (zk, sk) in rollout.iter().zip(sens) {
         let e = half_extent_at(lp.ego_size, zk[2]);
         let (sn, cs) = zk[2].sin_cos();
         let de = 0.5 * (length * cs * sn.signum() - width * sn * cs.signum());
@@ -179,56 +240,105 @@ pub(crate) fn step(
         let left: Vec<f64> = sk.iter().map(|si| si[1] + de * si[2]).collect();
         elastic.push((left, lp.edges[1] - (zk[1] + e)));
     }
+    elastic
+}
+
+/// Elastic rows (units of b) of the linearised safety b_ik + ∇b_ik · S_k^{xy} du ≥
+/// `safety_min` + `refine_margin`, one per safety row, prediction and ellipse held.
+fn safety_rows(s: &PlannerSettings, sens: &[Vec<State>], rows: &[SafetyRow]) -> Vec<ElasticRow> {
     let target = s.safety_min + s.refine_margin;
-    for r in rows {
-        let g = sens[r.step]
-            .iter()
-            .map(|si| -(r.gradient[0] * si[0] + r.gradient[1] * si[1]))
-            .collect();
-        elastic.push((g, r.b - target));
-    }
-    let n_all = nv + elastic.len();
-    for (j, (g, h)) in elastic.iter().enumerate() {
-        let row = b.len();
-        for (i, gi) in g.iter().enumerate() {
-            if *gi != 0.0 {
-                a.push((row, i, *gi));
+    rows.iter()
+        .map(|r| {
+            let g = sens[r.step]
+                .iter()
+                .map(|si| -(r.gradient[0] * si[0] + r.gradient[1] * si[1]))
+                .collect();
+            (g, r.b - target)
+        })
+        .collect()
+}
+
+/// The step's QP in x = (du `[2T]`, one slack per elastic row `[E]`): min ½ xᵀ P x + q·x
+/// s.t. A x ≤ b.
+struct StepQp {
+    /// Dense P `[n, n]`, row-major.
+    p: Vec<f64>,
+    /// Linear cost `[n]`.
+    q: Vec<f64>,
+    /// The rows of A as triplets.
+    a: Triplets,
+    /// Right-hand sides `[m]`.
+    b: Vec<f64>,
+    /// Variables n = 2T + E.
+    n: usize,
+}
+
+impl StepQp {
+    /// Appends the `elastic` rows to the hard rows (`a`, `b`) of the objective (`p`
+    /// `[2T, 2T]`, `q` `[2T]`), each as g·du − s ≤ h and −s ≤ 0 with its slack s costing
+    /// [`SLACK_PENALTY`] per unit.
+    fn with_slacks(
+        p: Vec<f64>,
+        mut q: Vec<f64>,
+        mut a: Triplets,
+        mut b: Vec<f64>,
+        elastic: &[ElasticRow],
+    ) -> Self {
+        let nv = q.len();
+        let n_all = nv + elastic.len();
+        for (j, (g, h)) in elastic.iter().enumerate() {
+            let row = b.len();
+            for (i, gi) in g.iter().enumerate() {
+                if *gi != 0.0 {
+                    a.push((row, i, *gi));
+                }
+            }
+            a.push((row, nv + j, -1.0));
+            b.push(*h);
+            a.push((row + 1, nv + j, -1.0));
+            b.push(0.0);
+        }
+        let mut p_all = vec![0.0; n_all * n_all];
+        for i in 0..nv {
+            for j in 0..nv {
+                p_all[i * n_all + j] = p[i * nv + j];
             }
         }
-        a.push((row, nv + j, -1.0));
-        b.push(*h);
-        a.push((row + 1, nv + j, -1.0));
-        b.push(0.0);
-    }
-    let mut p_all = vec![0.0; n_all * n_all];
-    for i in 0..nv {
-        for j in 0..nv {
-            p_all[i * n_all + j] = p[i * nv + j];
+        q.resize(n_all, SLACK_PENALTY);
+        Self {
+            p: p_all,
+            q,
+            a,
+            b,
+            n: n_all,
         }
     }
-    q.resize(n_all, SLACK_PENALTY);
-    let (p, nv_all) = (p_all, n_all);
-    let m = b.len();
-    let pm = upper_csc(&p, nv_all);
-    let am = triplets_csc(m, nv_all, a);
-    let cones = [NonnegativeConeT(m)];
-    for equilibrate in [true, false] {
-        let Ok(mut solver) =
-            DefaultSolver::new(&pm, &q, &am, &b, &cones, clarabel_settings(equilibrate))
-        else {
-            continue;
-        };
-        solver.solve();
-        if usable(solver.solution.status) {
-            let x = &solver.solution.x;
-            let mut nd: Vec<f64> = delta.iter().zip(x).map(|(u, d)| u + d).collect();
-            let mut na: Vec<f64> = accel.iter().zip(&x[t..]).map(|(u, d)| u + d).collect();
-            repair_box_rate(&mut nd, lp.delta_box);
-            repair_box_rate(&mut na, lp.accel_box);
-            return Some((nd, na));
+
+    /// Solves with Clarabel (equilibrated first, then without); x `[n]`, or `None` when
+    /// neither solve is usable.
+    fn solve(self) -> Option<Vec<f64>> {
+        let m = self.b.len();
+        let pm = upper_csc(&self.p, self.n);
+        let am = triplets_csc(m, self.n, self.a);
+        let cones = [NonnegativeConeT(m)];
+        for equilibrate in [true, false] {
+            let Ok(mut solver) = DefaultSolver::new(
+                &pm,
+                &self.q,
+                &am,
+                &self.b,
+                &cones,
+                clarabel_settings(equilibrate),
+            ) else {
+                continue;
+            };
+            solver.solve();
+            if usable(solver.solution.status) {
+                return Some(std::mem::take(&mut solver.solution.x));
+            }
         }
+        None
     }
-    None
 }
 
 #[cfg(test)]

@@ -184,7 +184,20 @@ mod tests {
         }
     }
 
-    /// Every check refuses before anything runs, naming the argument or setting.
+    /// Each request is refused by `prepare` (before anything runs) with an error whose
+    /// message contains its expected text.
+    fn assert_refused(cases: Vec<(BatchRequest<'_>, &str)>) {
+        for (req, want) in cases {
+            let msg = req.prepare().err().map(|e| e.to_string());
+            assert!(
+                msg.as_deref().is_some_and(|m| m.contains(want)),
+                "expected {want:?} in {msg:?}"
+            );
+        }
+    }
+
+    /// Every check of the batch's own arguments refuses before anything runs, naming the
+    /// argument or file.
     #[test]
     fn every_bad_argument_is_refused_before_any_run() {
         let paths = scene_paths();
@@ -194,22 +207,9 @@ mod tests {
             world: World::LogReplay,
             ..SimConfig::default()
         };
-        let teacher = SimConfig::default();
-        let h7 = PlannerSettings {
-            horizon: 7,
-            ..PlannerSettings::default()
-        };
-        let slow = PlannerSettings {
-            dt: 0.5,
-            ..PlannerSettings::default()
-        };
-        let bad_cfg = SimConfig {
-            max_steps: 0,
-            ..SimConfig::default()
-        };
         let missing = [repo().join("nope.safetensors")];
         let base = request(&paths, &ok, &log, &assets);
-        let cases: Vec<(BatchRequest<'_>, &str)> = vec![
+        assert_refused(vec![
             (
                 BatchRequest {
                     scene_paths: &[],
@@ -247,6 +247,42 @@ mod tests {
             ),
             (
                 BatchRequest {
+                    scene_paths: &missing,
+                    ..base
+                },
+                "nope.safetensors",
+            ),
+        ]);
+    }
+
+    /// Settings, closed-loop config and world model are checked against each other and the
+    /// predictors before anything runs, naming the setting.
+    #[test]
+    fn every_bad_setting_is_refused_before_any_run() {
+        let paths = scene_paths();
+        let assets = repo().join("assets");
+        let ok = PlannerSettings::default();
+        let log = SimConfig {
+            world: World::LogReplay,
+            ..SimConfig::default()
+        };
+        let teacher = SimConfig::default();
+        let h7 = PlannerSettings {
+            horizon: 7,
+            ..PlannerSettings::default()
+        };
+        let slow = PlannerSettings {
+            dt: 0.5,
+            ..PlannerSettings::default()
+        };
+        let bad_cfg = SimConfig {
+            max_steps: 0,
+            ..SimConfig::default()
+        };
+        let base = request(&paths, &ok, &log, &assets);
+        assert_refused(vec![
+            (
+                BatchRequest {
                     config: &bad_cfg,
                     ..base
                 },
@@ -282,21 +318,7 @@ mod tests {
                 },
                 "the world model must be a teacher",
             ),
-            (
-                BatchRequest {
-                    scene_paths: &missing,
-                    ..base
-                },
-                "nope.safetensors",
-            ),
-        ];
-        for (req, want) in cases {
-            let msg = req.prepare().err().map(|e| e.to_string());
-            assert!(
-                msg.as_deref().is_some_and(|m| m.contains(want)),
-                "expected {want:?} in {msg:?}"
-            );
-        }
+        ]);
         // Constant velocity predicts any horizon it is asked for.
         assert!(
             BatchRequest {
