@@ -160,18 +160,18 @@ student: distill
 	$(TRAIN) student
 
 # Reaction (docs/results/reaction.md): a distillation set with more scenes in $(REACT_DISTILL), a
-# student distilled with a loss on its reaction to the ego (exported to its run folder, never over
-# the shipped student), and the reaction table of the teacher, the shipped student and that one
-# against real cut-ins and held-out planner candidates.
+# student distilled with a loss on its reaction to the ego in two runs (~30 + 15 min on 1 thread;
+# exported to its run folder, never over the shipped student), and the reaction table of the
+# teacher, the shipped student and that one against real cut-ins and held-out planner candidates.
 REACT_DISTILL ?= runs/distill
-REACT_CONFIG ?= python/train/configs/student_react.toml
-REACT_STUDENT ?= runs/student_react/student.safetensors
+REACT_STUDENT ?= runs/student_react_cont/student.safetensors
 distill-react: develop
 	test -f data/processed/manifest.json || $(MAKE) data
 	$(TRAIN) distill --size train=160,val=32,test=32 --threads 2 --out $(REACT_DISTILL)
 
 student-react: distill-react
-	$(TRAIN) student-react --config $(REACT_CONFIG)
+	$(TRAIN) student-react --config python/train/configs/student_react.toml
+	$(TRAIN) student-react --config python/train/configs/student_react_cont.toml
 
 reaction: distill-react
 	$(TRAIN) reaction --distill $(REACT_DISTILL) $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)

@@ -269,7 +269,8 @@ def test_reaction_configs_parse_and_unknown_keys_are_refused(tmp_path: Path) -> 
     from nudge_train.errors import ConfigError
     from nudge_train.training.reaction import load_reaction_config, pool_temperature
 
-    for name in ("student_react.toml", "student_react_hard.toml", "student_react_l200.toml"):
+    for name in ("student_react.toml", "student_react_cont.toml", "student_react_hard.toml",
+                 "student_react_l200.toml"):
         mcfg, tcfg = load_reaction_config(REPO / "python" / "train" / "configs" / name)
         assert mcfg.kind == "student" and mcfg.pool_every_timestep
     _, soft = load_reaction_config(REPO / "python" / "train" / "configs" / "student_react.toml")

@@ -94,6 +94,19 @@ def planner_table(ctxs: list, models: dict, rng: np.random.Generator, n_boot: in
             ok, ade, fde = ("yes" if row["meets_target"] else "no"), f"{a6:.4f}", f"{f6:.4f}"
         res["models"][name] = row
         lines.append(f"| {name} | {_ci(react)} | {share:.0%} | {err_s} | {ratio} | {ok} | {ade} | {fde} |")
+    ref = res["models"].get("student")
+    if ref is not None:
+        lines.append("")
+        for name, row in res["models"].items():
+            if name in ("teacher", "student"):
+                continue
+            fid = row["ade"] <= ref["ade"] and row["fde"] <= ref["fde"]
+            row["fidelity_not_worse"] = fid
+            row["target_met"] = bool(row["meets_target"] and fid)
+            lines.append(f"Target for `{name}` (reaction within {TARGET_SHARE:.0%} of the teacher's, ADE and FDE not worse "
+                         f"than the shipped student's): **{'met' if row['target_met'] else 'not met'}** (reaction "
+                         f"{'within' if row['meets_target'] else 'not within'} 30 %, fidelity "
+                         f"{'not worse' if fid else 'worse'}).")
     return lines, res
 
 
@@ -124,7 +137,8 @@ def _cutin_section(a: argparse.Namespace, models: dict, rng: np.random.Generator
         "1.8 s minus its constant-speed path from the prediction start (negative = behind); *net* = minus the "
         f"median fall-back of followers without a cut-in in the same source (US-101 {ctrl['us101']:+.3f} m, "
         f"I-80 {ctrl['i80']:+.3f} m). A model's fall-back is its predicted follower x at 1.8 s minus the same "
-        "reference; its reaction is real path minus keep-lane. Events whose intruder or follower is not observed "
+        "reference; its reaction is real path minus keep-lane. For the real follower the reaction column holds the "
+        "net fall-back, the truth the models' reaction estimates. Events whose intruder or follower is not observed "
         "over the 8 history steps (or the intruder over the 1.8 s) are left out. Medians [95 % CI] (n events).",
         "",
     ]
@@ -136,20 +150,17 @@ def _cutin_section(a: argparse.Namespace, models: dict, rng: np.random.Generator
         net = real - np.array([ctrl[c.source] for c in cases])
         when = "at the centre crossing" if lead == 0 else f"{lead:g} s before the centre crossing"
         lines += [f"### Prediction starting {when}", "",
-                  "| source | real fall-back | real net | " + " | ".join(
-                      f"{m} fall-back | {m} reaction" for m in models) + " |",
-                  "|---|---|---|" + "---|---|" * len(models)]
+                  "| source | who | fall-back at 1.8 s (m) | reaction at 1.8 s (m) |", "|---|---|---|---|"]
         out: dict[str, dict] = {}
         for source in ("us101", "i80", "all"):
             sel = np.array([source == "all" or c.source == source for c in cases], dtype=bool)
             row = {"real_fb": median_ci(real[sel], rng, a.bootstrap), "real_net": median_ci(net[sel], rng, a.bootstrap)}
-            cells = [_ci(row["real_fb"]), _ci(row["real_net"])]
+            lines.append(f"| {source} | real follower | {_ci(row['real_fb'])} | {_ci(row['real_net'])} (net) |")
             for m in models:
                 row[f"{m}_fall_back"] = median_ci(r[m]["fall_back"][sel], rng, a.bootstrap)
                 row[f"{m}_reaction"] = median_ci(r[m]["reaction"][sel], rng, a.bootstrap)
-                cells += [_ci(row[f"{m}_fall_back"]), _ci(row[f"{m}_reaction"])]
+                lines.append(f"| {source} | {m} | {_ci(row[f'{m}_fall_back'])} | {_ci(row[f'{m}_reaction'])} |")
             out[source] = row
-            lines.append(f"| {source} | " + " | ".join(cells) + " |")
         res["cutins"]["leads"][str(lead)] = {"events": len(cases), "by_source": out,
                                               "per_event": {"keys": [c.key for c in cases], "real_fb": real.tolist(),
                                                             **{m: {q: v.tolist() for q, v in r[m].items()} for m in models}}}
