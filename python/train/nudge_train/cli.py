@@ -277,6 +277,9 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=paths.results() / "closed_loop.md", help="the report")
     p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
                    help="also write the summaries here")
+    p.add_argument("--before", nargs=2, default=None, metavar=("JSON", "LABEL"),
+                   help="summaries of an earlier run (its --json) on the same arms, and what it was: adds a "
+                        "before-and-after section")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
 
 
@@ -293,7 +296,8 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []))
+    before = (Path(a.before[0]), a.before[1]) if a.before else None
+    return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []), before)
 
 
 # ---- benches, goldens, figures -----------------------------------------------------------------
