@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -639,4 +640,4 @@ def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str,
 
 def command_line(argv: Sequence[str]) -> str:
     """The command as the report names it (no machine paths)."""
-    return "nudge-train closed-loop " + " ".join(argv)
+    return "nudge-train closed-loop " + shlex.join(argv)
