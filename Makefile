@@ -15,13 +15,14 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build test test-rust test-examples test-python lint fmt fuzz bench bench-planner bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
-	@echo "make test     set up and run every test (Rust + Python + golden drift check)"
+	@echo "make test     set up and run every test (Rust + Python + golden drift check + wheel smoke test)"
+	@echo "make wheel    build the nudge wheel (models and scenes inside) into $(WHEEL_DIR)"
 	@echo "make lint     rustfmt, clippy -D warnings, rustdoc -D warnings"
-	@echo "make fuzz     mutation-fuzz weights, scenario and settings files (FUZZ_SECONDS per target)"
+	@echo "make fuzz     mutation-fuzz weights, scenarios, settings, planning problems (FUZZ_SECONDS per target), then the Python entry points (FUZZ_EXAMPLES)"
 	@echo "make bench    criterion benches (one thread) + the PyTorch-vs-Rust table"
 	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
 	@echo "make teacher  train the paper's teacher configurations, write docs/results/teacher.md"
@@ -57,8 +58,31 @@ develop: $(STAMP)
 build:
 	$(CARGO) build --release --workspace
 
+# The wheel users install (`pip install target/wheels/nudge-*.whl`, or `pip install .`): the
+# extension, the shipped models and scenes as package data, and the `nudge` command.
+WHEEL_DIR ?= target/wheels
+wheel: $(STAMP)
+	rm -f $(WHEEL_DIR)/nudge-*.whl
+	$(VENV)/bin/maturin build --release -q -i $(PY) -o $(WHEEL_DIR)
+	@ls -l $(WHEEL_DIR)/nudge-*.whl
+
+# Installs the wheel into a fresh venv outside the checkout (numpy its only dependency, no
+# torch) and runs tests/wheel/smoke.py there, from outside the checkout: predict, plan,
+# simulate and the `nudge` command on the package's own assets.
+wheel-smoke: wheel
+	@set -e; tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
+	whl=$$(ls $(abspath $(WHEEL_DIR))/nudge-*.whl); \
+	scenes=$$(ls assets/scenes/*.safetensors | wc -l); \
+	cp tests/wheel/smoke.py "$$tmp/"; \
+	$(PYTHON) -m venv "$$tmp/venv"; \
+	echo "wheel $$(basename $$whl): $$(du -k $$whl | cut -f1) KiB"; \
+	t0=$$($(PYTHON) -c 'import time; print(time.time())'); \
+	TIMEFORMAT="pip install into a fresh venv: %R s"; \
+	time "$$tmp/venv/bin/pip" install --disable-pip-version-check -q "$$whl"; \
+	cd "$$tmp" && env -u NUDGE_ASSETS -u NUDGE_REPO NUDGE_SMOKE_T0=$$t0 "$$tmp/venv/bin/python" smoke.py --scenes $$scenes
+
 # ---- tests ----------------------------------------------------------------------------------
-test: venv test-rust test-examples test-python
+test: venv test-rust test-examples test-python wheel-smoke
 
 test-rust:
 	$(CARGO) test --workspace --release
@@ -73,14 +97,22 @@ test-python: develop build
 	NUDGE_CLI=target/release/nudge $(PY) -m pytest -q
 
 # ---- fuzzing --------------------------------------------------------------------------------
-# Structure-aware mutation of weights, scenario and settings files (examples/fuzz); every try
-# must end in a typed error or a valid result. FUZZ_SECONDS is the budget per target; add e.g.
-# FUZZ_ARGS="--seed 7 --tries 100000 --target weights". The short mode runs in `make test`
-# (tests/fuzz.rs).
+# Structure-aware mutation of weights, scenario and settings files and of planning problems
+# (examples/fuzz), then hypothesis property tests of the Python entry points
+# (tests/python/test_fuzz_py.py); every try must end in a typed error or a valid result.
+# FUZZ_SECONDS is the budget per Rust target; add e.g. FUZZ_ARGS="--seed 7 --tries 100000
+# --target plan". FUZZ_EXAMPLES is the number of examples per Python property. The short modes
+# run in `make test` (tests/fuzz.rs, test_fuzz_py.py with its default examples).
 FUZZ_SECONDS ?= 300
 FUZZ_ARGS ?=
-fuzz:
+FUZZ_EXAMPLES ?= 5000
+fuzz: fuzz-rust fuzz-python
+
+fuzz-rust:
 	$(CARGO) run --release --example fuzz -- --seconds $(FUZZ_SECONDS) $(FUZZ_ARGS)
+
+fuzz-python: develop
+	NUDGE_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest -q -s tests/python/test_fuzz_py.py
 
 # ---- quality --------------------------------------------------------------------------------
 fmt:
@@ -102,6 +134,12 @@ bench-planner: venv
 
 bench-table: venv
 	$(TRAIN) bench inference --markdown docs/results/inference.md
+
+# The tail of the planning step over closed-loop runs on 120 test scenes, one thread
+# (docs/results/latency.md); needs the extension (make develop) and the processed scenes.
+bench-latency: venv
+	$(TRAIN) bench latency --split test --n 120
+	$(TRAIN) bench latency --split test --n 120 --predictors student teacher --budget-ms 20
 
 # ---- data, models, demo ---------------------------------------------------------------------
 goldens: venv

@@ -1,7 +1,10 @@
 //! # nudge
 //!
 //! The facade of the nudge workspace: re-exports [`predictor`] (`nudge-predictor`) and
-//! [`planner`] (`nudge-planner`), and hosts the `nudge` command-line tool.
+//! [`planner`] (`nudge-planner`), and hosts the `nudge` command-line tool ([`cli`], run by the
+//! `nudge` binary and by the Python package's `nudge` command).
+
+pub mod cli;
 
 pub use nudge_planner as planner;
 pub use nudge_predictor as predictor;

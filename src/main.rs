@@ -1,37 +1,14 @@
-//! The `nudge` command-line tool.
+//! The `nudge` command-line tool (run from a checkout's root, its shipped assets in `assets`).
 //!
 //! `nudge simulate`: closed-loop lane changes of the interaction-aware planner on real
-//! scenario files (see `nudge simulate --help`).
-#![allow(clippy::print_stdout)]
+//! scenario files (see `nudge simulate --help`). Exit codes ([`nudge::cli::ExitStatus`]): 0
+//! every run ran; 1 refused before any run; 2 the command line does not parse; 3 some runs
+//! could not run.
 
-mod cli;
+use std::path::Path;
+use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
-
-/// Interaction-aware motion planning with neural (teacher / distilled student) predictions.
-#[derive(Debug, Parser)]
-#[command(name = "nudge", version, about)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// Closed-loop lane-change simulations of the ADMM MPC planner on scenario files.
-    Simulate(cli::simulate::SimulateArgs),
-}
-
-fn main() -> std::process::ExitCode {
-    let args = Cli::parse();
-    let result = match args.command {
-        Command::Simulate(a) => cli::simulate::run(&a),
-    };
-    match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+fn main() -> ExitCode {
+    let shipped = Path::new(nudge::predictor::CHECKOUT_ASSETS);
+    nudge::cli::run(std::env::args_os(), shipped).into()
 }

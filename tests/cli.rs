@@ -10,7 +10,7 @@ use nudge::planner::sim::{
     COLLISION_COLUMNS, RUN_COLUMNS, STEP_COLUMNS, Table, collision_table, run_table, step_table,
 };
 use nudge::planner::{
-    PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
+    Cancel, PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
 };
 
 const TIMING: [&str; 3] = ["mpc_s", "z_s", "z_median_s"];
@@ -113,7 +113,15 @@ fn cli_writes_the_shared_columns_of_the_library_runs() {
     let specs = run_specs(loaded.len(), 2, 5, None).unwrap();
     let assets = repo().join("assets");
     let predictors = Predictors::resolve("student", cfg.world, None, None, &assets, 6).unwrap();
-    let outputs = simulate_many(&loaded, &specs, &settings, &cfg, &predictors, false);
+    let outputs = simulate_many(
+        &loaded,
+        &specs,
+        &settings,
+        &cfg,
+        &predictors,
+        false,
+        &Cancel::new(),
+    );
     let runs = run_table(&loaded, &outputs);
     let steps = step_table(&outputs);
     let collisions = collision_table(&loaded, &outputs);
@@ -185,5 +193,171 @@ fn cli_refuses_bad_arguments_by_name() {
         assert!(err.contains(message), "{args:?}: {err}");
     }
     assert!(Path::new(&dir).exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Runs `nudge simulate` on the two scenes of `dir` with `args`; (exit code, stdout, stderr).
+fn simulate_in(dir: &Path, args: &[&str]) -> (Option<i32>, String, String) {
+    let scenes = dir.join("scenes");
+    let mut all = vec![
+        "simulate",
+        "--scenes",
+        scenes.to_str().unwrap(),
+        "--threads",
+        "1",
+        "--max-steps",
+        "2",
+    ];
+    all.extend(args);
+    let o = nudge(&all);
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// Settings that do not fit the predictors (a horizon other than the networks' 6 steps, a
+/// time step other than the 0.3 s of the networks and scenes) are refused before any run
+/// starts, with exit code 1 and the setting named; nothing is printed as a summary.
+#[test]
+fn cli_refuses_settings_that_do_not_fit_the_predictors_before_any_run() {
+    let dir = two_scenes("fit");
+    for (json, field, predictor) in [
+        (r#"{"horizon": 7}"#, "horizon", "student"),
+        (r#"{"horizon": 5}"#, "horizon", "teacher"),
+        (r#"{"dt": 0.5}"#, "dt", "student"),
+        (r#"{"dt": 0.2}"#, "dt", "constant_velocity"),
+    ] {
+        let path = dir.join("settings.json");
+        std::fs::write(&path, json).unwrap();
+        let (code, stdout, stderr) = simulate_in(
+            &dir,
+            &[
+                "--settings",
+                path.to_str().unwrap(),
+                "--predictor",
+                predictor,
+            ],
+        );
+        assert_eq!(code, Some(1), "{json}: {stdout}{stderr}");
+        assert!(
+            stderr.contains(&format!("`{field}`")),
+            "{json}: the message does not name {field}: {stderr}"
+        );
+        assert!(
+            !stdout.contains("runs "),
+            "{json}: runs were started: {stdout}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A copy of scene `name` in `dir/scenes` whose agent 1 jumps 50 m forward in its logged
+/// future at step 1: the scene loads (logged futures are only checked for finite, in-range
+/// coordinates), but a log-replay run on it cannot plan its second step (the shifted history
+/// moves 50 m in one step, which the predictors refuse).
+fn jumping_future_scene(dir: &Path, name: &str) {
+    let path = dir.join("scenes").join(format!("{name}.safetensors"));
+    let mut bytes = std::fs::read(&path).unwrap();
+    let n = usize::try_from(u64::from_le_bytes(bytes[..8].try_into().unwrap())).unwrap();
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let future = &header["future"];
+    assert_eq!(future["dtype"], "F64");
+    let start = 8 + n + usize::try_from(future["data_offsets"][0].as_u64().unwrap()).unwrap();
+    let steps = usize::try_from(future["shape"][1].as_u64().unwrap()).unwrap();
+    // future[1, 0, 0] (agent 1, step 1, x).
+    let at = start + (steps * 2) * 8;
+    let x = f64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+    bytes[at..at + 8].copy_from_slice(&(x + 50.0).to_le_bytes());
+    std::fs::write(&path, bytes).unwrap();
+    let sc = Scenario::from_file(&path).unwrap();
+    assert!(sc.future_at(1, 1).is_some(), "agent 1's step 1 is logged");
+}
+
+/// A run that could not run is a failure: the records of the runs that did run are written,
+/// the summary says how many could not run and why, and the exit code is 3.
+#[test]
+fn cli_exits_non_zero_when_a_run_could_not_run() {
+    let dir = two_scenes("failing");
+    jumping_future_scene(&dir, "us101-11_1-t02.1-ego144");
+    let out = dir.join("out");
+    let args = [
+        "--predictor",
+        "constant_velocity",
+        "--world",
+        "log_replay",
+        "--settle-steps",
+        "3",
+    ];
+    let mut with_out = args.to_vec();
+    with_out.extend(["--out", out.to_str().unwrap()]);
+    let (code, stdout, stderr) = simulate_in(&dir, &with_out);
+    assert_eq!(code, Some(3), "{stdout}{stderr}");
+    assert!(stdout.contains("(+1 that could not run)"), "{stdout}");
+    assert!(
+        stderr.contains("1 of 2 runs could not run")
+            && stderr.contains("us101-11_1-t02.1-ego144")
+            && stderr.contains("observed steps"),
+        "the summary does not say which run failed and why: {stderr}"
+    );
+    let runs = std::fs::read_to_string(out.join("runs.csv")).unwrap();
+    assert_eq!(runs.lines().count(), 3, "{runs}");
+    // Every run could not run: exit 3 as well, never 0.
+    std::fs::remove_file(dir.join("scenes/us101-8_1-t02.1-ego56.safetensors")).unwrap();
+    let (code, stdout, stderr) = simulate_in(&dir, &args);
+    assert_eq!(code, Some(3), "{stdout}{stderr}");
+    assert!(stderr.contains("1 of 1 runs could not run"), "{stderr}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--out` naming an existing file is refused before any run (it used to fail only after
+/// every run had finished).
+#[test]
+fn cli_refuses_an_output_path_that_is_a_file_before_any_run() {
+    let dir = two_scenes("outfile");
+    let file = dir.join("taken");
+    std::fs::write(&file, "x").unwrap();
+    let (code, stdout, stderr) = simulate_in(&dir, &["--out", file.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{stdout}{stderr}");
+    assert!(stderr.contains("taken"), "{stderr}");
+    assert!(!stdout.contains("runs "), "runs were started: {stdout}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Settings and closed-loop settings files: a repeated key is refused naming it, and a file
+/// larger than the documented bound is refused before it is read.
+#[test]
+fn cli_reads_settings_files_bounded_and_refuses_repeated_keys() {
+    let dir = two_scenes("files");
+    let dup = dir.join("dup.json");
+    std::fs::write(&dup, r#"{"max_steps": 1, "max_steps": 2}"#).unwrap();
+    let (code, _, stderr) = simulate_in(&dir, &["--config", dup.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("duplicate") && stderr.contains("max_steps"),
+        "{stderr}"
+    );
+    let sdup = dir.join("sdup.json");
+    std::fs::write(&sdup, r#"{"w_y": 1.0, "w_y": 2.0}"#).unwrap();
+    let (code, _, stderr) = simulate_in(&dir, &["--settings", sdup.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("duplicate") && stderr.contains("w_y"),
+        "{stderr}"
+    );
+    let big = dir.join("big.json");
+    let mut text = String::from("{\"max_steps\": 2");
+    text.push_str(&" ".repeat(2 << 20));
+    text.push('}');
+    std::fs::write(&big, text).unwrap();
+    for flag in ["--config", "--settings"] {
+        let (code, _, stderr) = simulate_in(&dir, &[flag, big.to_str().unwrap()]);
+        assert_eq!(code, Some(1), "{stderr}");
+        assert!(
+            stderr.contains("big.json") && stderr.contains("limit"),
+            "{flag}: {stderr}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

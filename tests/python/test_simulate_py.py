@@ -10,7 +10,7 @@ import pytest
 import nudge
 
 TIMING = {"mpc_s", "z_s", "z_median_s"}
-STATUSES = {"Converged", "MaxIterations", "Unsafe", "Backtracked", "Fallback", "SolverFailed"}
+STATUSES = {"Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"}
 
 
 def _same_records(a: dict, b: dict) -> None:
@@ -139,7 +139,7 @@ def test_errors(scenes: list[Path], tmp_path: Path) -> None:
         nudge.simulate(scenes[:1], "constant_velocity", runs=0)
     with pytest.raises(nudge.InputError, match="on_error"):
         nudge.simulate(scenes[:1], "constant_velocity", on_error="ignore")
-    with pytest.raises(nudge.InputError, match="horizon"):
+    with pytest.raises(nudge.SettingsError, match="`horizon` = 5 does not fit: the teacher predicts 6"):
         nudge.simulate(scenes[:1], "teacher", settings=nudge.PlannerSettings(horizon=5))
 
 
@@ -181,7 +181,7 @@ def test_scene_seeds(scenes: list[Path]) -> None:
 
 
 def test_limits(scenes: list[Path]) -> None:
-    with pytest.raises(nudge.InputError, match="threads: must be in 1..=256"):
+    with pytest.raises(nudge.InputError, match="`threads`: must be in 1..=256"):
         nudge.simulate(scenes[:1], "constant_velocity", threads=10**6)
     with pytest.raises(nudge.SettingsError, match="max_steps"):
         nudge.simulate(scenes[:1], "constant_velocity", max_steps=10**9)

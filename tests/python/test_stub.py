@@ -144,9 +144,14 @@ def test_defaults_come_from_rust() -> None:
 
 
 def test_package_reexports_the_module() -> None:
-    for name in _public(native) - {"simulate", "model_path"}:
+    # The package wraps the asset resolvers (with its own assets) and runs cli_main as its
+    # `nudge` command (nudge.__main__).
+    wrapped = {"simulate", "model_path", "assets_dir", "scenes_dir", "cli_main"}
+    for name in _public(native) - wrapped:
         assert getattr(nudge, name) is getattr(native, name), name
     # nudge.simulate wraps the native one (resolves named models under the assets directory).
     assert callable(nudge.simulate)
     assert nudge.model_path("teacher") == nudge.assets_dir() / "models" / "teacher.safetensors"
+    assert nudge.assets_dir() == native.assets_dir(nudge.SHIPPED_ASSETS)
+    assert nudge.scene_paths()[0].parent == native.scenes_dir(nudge.assets_dir())
     assert (Path(nudge.__file__).parent / "py.typed").exists()

@@ -27,6 +27,17 @@ pub enum SettingsError {
     /// A settings file cannot be read (missing, not a regular file, too large, not UTF-8).
     #[error("cannot read planner settings: {0}")]
     File(String),
+    /// The settings are valid on their own but do not fit the predictors or the scenes they
+    /// are used with (see [`crate::fit`]).
+    #[error("planner setting `{field}` = {value} does not fit: {reason}")]
+    Incompatible {
+        /// Name of the field (`"horizon"` or `"dt"`).
+        field: &'static str,
+        /// The value found.
+        value: f64,
+        /// What it must match, and why.
+        reason: String,
+    },
     /// One field is out of its admissible range.
     #[error("invalid planner setting `{field}` = {value}: {reason}")]
     Invalid {
@@ -263,6 +274,10 @@ impl From<QpFailure> for PlannerError {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SimConfigError {
+    /// A closed-loop settings file cannot be read (missing, not a regular file, too large, not
+    /// UTF-8).
+    #[error("cannot read closed-loop settings: {0}")]
+    File(String),
     /// One field is out of its admissible range or unknown.
     #[error("invalid closed-loop setting `{field}` = {value}: {reason}")]
     Invalid {
@@ -366,13 +381,24 @@ pub enum SimError {
         /// What is wrong.
         reason: String,
     },
-    /// The runs asked for cannot be laid out (no runs, wrong number of per-scene seeds, too
-    /// many runs, a seed that overflows).
-    #[error("runs: {field}: {reason}")]
+    /// The runs asked for cannot be laid out (no scene, no runs, wrong number of per-scene
+    /// seeds, too many runs or threads, a seed that overflows).
+    #[error("invalid argument `{field}`: {reason}")]
     Runs {
         /// The offending argument.
         field: &'static str,
         /// What is wrong.
         reason: String,
+    },
+    /// A scenario of the batch cannot be read.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// The run was cancelled ([`crate::sim::Cancel`]) before this closed-loop step.
+    #[error("scenario {scene}: cancelled before step {step}")]
+    Cancelled {
+        /// Scenario name.
+        scene: String,
+        /// Closed-loop step (0-based) that did not run.
+        step: usize,
     },
 }

@@ -16,6 +16,8 @@
 
 mod admm;
 mod error;
+pub mod fit;
+pub mod lane;
 mod model;
 mod qp;
 mod safety;
@@ -39,6 +41,7 @@ pub use safety::{
 pub use scenario::{SCHEMA, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, Summary,
-    World, WorldModel, WorldSpec, run_specs, simulate, simulate_many, target_lane,
+    Batch, BatchRequest, Cancel, IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec,
+    SimConfig, StepRecord, Summary, World, WorldModel, WorldSpec, run_specs, simulate,
+    simulate_cancellable, simulate_many, target_lane,
 };

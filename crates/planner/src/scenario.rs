@@ -189,6 +189,188 @@ fn ascending(v: &[f64]) -> bool {
     v.windows(2).all(|w| w[0] < w[1])
 }
 
+/// The agents' tensors of a scenario file (n agents).
+struct Agents {
+    /// Number of agents n (1..=[`MAX_AGENTS`]).
+    n: usize,
+    /// Observed positions `[n, 8, 2]` (m).
+    history: Vec<f64>,
+    /// Heading `[n]` (rad).
+    heading: Vec<f64>,
+    /// Speed `[n]` (m/s), ≥ 0.
+    speed: Vec<f64>,
+    /// (length, width) `[n]` (m), > 0.
+    size: Vec<[f64; 2]>,
+}
+
+/// The logged futures of a scenario file.
+struct LoggedFuture {
+    /// Logged future steps F (≥ 6).
+    n_future: usize,
+    /// Positions `[n, F, 2]` (m).
+    future: Vec<f64>,
+    /// Whether each position is real data `[n, F]`.
+    future_valid: Vec<bool>,
+}
+
+/// The lane layout of a scenario file (L lanes).
+struct Lanes {
+    /// Lane-centre y, strictly ascending `[L]` (m).
+    centres: Vec<f64>,
+    /// Lane-boundary y, strictly ascending, around the centres `[L + 1]` (m).
+    bounds: Vec<f64>,
+    /// Index of the ego's lane in `centres`.
+    ego_lane: usize,
+}
+
+impl Reader<'_> {
+    /// `history` `[n, 8, 2]` (1 ≤ n ≤ [`MAX_AGENTS`]), `heading` `[n]`, `speed` `[n]` (≥ 0)
+    /// and `size` `[n, 2]` (> 0), in this order.
+    fn agents(&self) -> Result<Agents, ScenarioError> {
+        let (hshape, history) = self.f64s("history", &[None, Some(T_OBS), Some(2)])?;
+        let n = hshape[0];
+        if n == 0 || n > MAX_AGENTS {
+            return Err(self.bad("history", format!("{n} agents; supported 1..={MAX_AGENTS}")));
+        }
+        let (_, heading) = self.f64s("heading", &[Some(n)])?;
+        let (_, speed) = self.f64s("speed", &[Some(n)])?;
+        if let Some(i) = speed.iter().position(|&v| v < 0.0) {
+            return Err(self.bad(
+                "speed",
+                format!("agent {i} has negative speed {}", speed[i]),
+            ));
+        }
+        let (_, size_flat) = self.f64s("size", &[Some(n), Some(2)])?;
+        if let Some(i) = size_flat.iter().position(|&v| v <= 0.0) {
+            return Err(self.bad(
+                "size",
+                format!(
+                    "agent {} has a non-positive dimension {}",
+                    i / 2,
+                    size_flat[i]
+                ),
+            ));
+        }
+        let size: Vec<[f64; 2]> = size_flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        Ok(Agents {
+            n,
+            history,
+            heading,
+            speed,
+            size,
+        })
+    }
+
+    /// `future` `[n, F, 2]` (F ≥ 6) and `future_valid` `[n, F]`.
+    fn future(&self, n: usize) -> Result<LoggedFuture, ScenarioError> {
+        let (fshape, future) = self.f64s("future", &[Some(n), None, Some(2)])?;
+        let nf = fshape[1];
+        if nf < 6 {
+            return Err(self.bad("future", format!("{nf} future steps; at least 6 required")));
+        }
+        let (_, fv) = self.view("future_valid", Dtype::U8, &[Some(n), Some(nf)])?;
+        let future_valid: Vec<bool> = fv.iter().map(|&b| b != 0).collect();
+        Ok(LoggedFuture {
+            n_future: nf,
+            future,
+            future_valid,
+        })
+    }
+
+    /// `lane_centres` `[L]` and `lane_bounds` `[L + 1]`, both strictly ascending with every
+    /// centre inside its bounds, and `ego_lane` `[1]` in 0..L.
+    fn lanes(&self) -> Result<Lanes, ScenarioError> {
+        let (lshape, lane_centres) = self.f64s("lane_centres", &[None])?;
+        let nl = lshape[0];
+        if nl == 0 || !ascending(&lane_centres) {
+            return Err(self.bad(
+                "lane_centres",
+                format!("{lane_centres:?} is empty or not strictly ascending"),
+            ));
+        }
+        let (_, lane_bounds) = self.f64s("lane_bounds", &[Some(nl + 1)])?;
+        if !ascending(&lane_bounds) {
+            return Err(self.bad(
+                "lane_bounds",
+                format!("{lane_bounds:?} is not strictly ascending"),
+            ));
+        }
+        for (i, c) in lane_centres.iter().enumerate() {
+            if !(lane_bounds[i] < *c && *c < lane_bounds[i + 1]) {
+                return Err(self.bad(
+                    "lane_centres",
+                    format!("centre {i} ({c}) lies outside its bounds"),
+                ));
+            }
+        }
+        let ego_lane = self.i64s("ego_lane", &[Some(1)])?[0];
+        if ego_lane < 0 || ego_lane as usize >= nl {
+            return Err(self.bad(
+                "ego_lane",
+                format!("{ego_lane} is not a lane index in 0..{nl}"),
+            ));
+        }
+        Ok(Lanes {
+            centres: lane_centres,
+            bounds: lane_bounds,
+            ego_lane: ego_lane as usize,
+        })
+    }
+}
+
+/// Parses the safetensors image `bytes` and checks its string metadata: `schema` is
+/// [`SCHEMA`] and `dt`, when present, is 0.3 (s).
+///
+/// # Errors
+/// [`ScenarioError::NotSafetensors`], [`ScenarioError::WrongSchema`],
+/// [`ScenarioError::BadMetadata`].
+fn read_header<'a>(
+    bytes: &'a [u8],
+    path: &Path,
+) -> Result<(SafeTensors<'a>, HashMap<String, String>), ScenarioError> {
+    let p = || path.to_path_buf();
+    let st = SafeTensors::deserialize(bytes).map_err(|e| ScenarioError::NotSafetensors {
+        path: p(),
+        reason: e.to_string(),
+    })?;
+    let (_, meta) =
+        SafeTensors::read_metadata(bytes).map_err(|e| ScenarioError::NotSafetensors {
+            path: p(),
+            reason: e.to_string(),
+        })?;
+    let metadata: HashMap<String, String> = meta.metadata().clone().unwrap_or_default();
+    let schema = metadata.get("schema").cloned();
+    if schema.as_deref() != Some(SCHEMA) {
+        return Err(ScenarioError::WrongSchema {
+            path: p(),
+            found: schema,
+        });
+    }
+    if let Some(dt) = metadata.get("dt") {
+        let ok = dt
+            .trim()
+            .parse::<f64>()
+            .is_ok_and(|d| (d - 0.3).abs() < 1e-9);
+        if !ok {
+            return Err(ScenarioError::BadMetadata {
+                path: p(),
+                key: "dt",
+                reason: format!("{dt:?} is not 0.3"),
+            });
+        }
+    }
+    Ok((st, metadata))
+}
+
+/// [`ScenarioError::BadValue`] naming the file and `tensor`.
+fn bad_value(path: &Path, tensor: &'static str, reason: String) -> ScenarioError {
+    ScenarioError::BadValue {
+        path: path.to_path_buf(),
+        tensor,
+        reason,
+    }
+}
+
 impl Scenario {
     /// Reads and validates a scenario file.
     ///
@@ -231,100 +413,12 @@ impl Scenario {
     /// [`ScenarioError::EgoLane`] (`ego_lane` is not the ego's lane),
     /// [`ScenarioError::EgoOverlap`] (the ego's box overlaps another vehicle's now).
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ScenarioError> {
-        let p = || path.to_path_buf();
-        let st = SafeTensors::deserialize(bytes).map_err(|e| ScenarioError::NotSafetensors {
-            path: p(),
-            reason: e.to_string(),
-        })?;
-        let (_, meta) =
-            SafeTensors::read_metadata(bytes).map_err(|e| ScenarioError::NotSafetensors {
-                path: p(),
-                reason: e.to_string(),
-            })?;
-        let metadata: HashMap<String, String> = meta.metadata().clone().unwrap_or_default();
-        let schema = metadata.get("schema").cloned();
-        if schema.as_deref() != Some(SCHEMA) {
-            return Err(ScenarioError::WrongSchema {
-                path: p(),
-                found: schema,
-            });
-        }
-        if let Some(dt) = metadata.get("dt") {
-            let ok = dt
-                .trim()
-                .parse::<f64>()
-                .is_ok_and(|d| (d - 0.3).abs() < 1e-9);
-            if !ok {
-                return Err(ScenarioError::BadMetadata {
-                    path: p(),
-                    key: "dt",
-                    reason: format!("{dt:?} is not 0.3"),
-                });
-            }
-        }
+        let (st, metadata) = read_header(bytes, path)?;
         let r = Reader { path, st };
-        let (hshape, history) = r.f64s("history", &[None, Some(T_OBS), Some(2)])?;
-        let n = hshape[0];
-        if n == 0 || n > MAX_AGENTS {
-            return Err(r.bad("history", format!("{n} agents; supported 1..={MAX_AGENTS}")));
-        }
-        let (_, heading) = r.f64s("heading", &[Some(n)])?;
-        let (_, speed) = r.f64s("speed", &[Some(n)])?;
-        if let Some(i) = speed.iter().position(|&v| v < 0.0) {
-            return Err(r.bad(
-                "speed",
-                format!("agent {i} has negative speed {}", speed[i]),
-            ));
-        }
-        let (_, size_flat) = r.f64s("size", &[Some(n), Some(2)])?;
-        if let Some(i) = size_flat.iter().position(|&v| v <= 0.0) {
-            return Err(r.bad(
-                "size",
-                format!(
-                    "agent {} has a non-positive dimension {}",
-                    i / 2,
-                    size_flat[i]
-                ),
-            ));
-        }
-        let size: Vec<[f64; 2]> = size_flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-        let (fshape, future) = r.f64s("future", &[Some(n), None, Some(2)])?;
-        let nf = fshape[1];
-        if nf < 6 {
-            return Err(r.bad("future", format!("{nf} future steps; at least 6 required")));
-        }
-        let (_, fv) = r.view("future_valid", Dtype::U8, &[Some(n), Some(nf)])?;
-        let future_valid: Vec<bool> = fv.iter().map(|&b| b != 0).collect();
-        let (lshape, lane_centres) = r.f64s("lane_centres", &[None])?;
-        let nl = lshape[0];
-        if nl == 0 || !ascending(&lane_centres) {
-            return Err(r.bad(
-                "lane_centres",
-                format!("{lane_centres:?} is empty or not strictly ascending"),
-            ));
-        }
-        let (_, lane_bounds) = r.f64s("lane_bounds", &[Some(nl + 1)])?;
-        if !ascending(&lane_bounds) {
-            return Err(r.bad(
-                "lane_bounds",
-                format!("{lane_bounds:?} is not strictly ascending"),
-            ));
-        }
-        for (i, c) in lane_centres.iter().enumerate() {
-            if !(lane_bounds[i] < *c && *c < lane_bounds[i + 1]) {
-                return Err(r.bad(
-                    "lane_centres",
-                    format!("centre {i} ({c}) lies outside its bounds"),
-                ));
-            }
-        }
-        let ego_lane = r.i64s("ego_lane", &[Some(1)])?[0];
-        if ego_lane < 0 || ego_lane as usize >= nl {
-            return Err(r.bad(
-                "ego_lane",
-                format!("{ego_lane} is not a lane index in 0..{nl}"),
-            ));
-        }
+        let agents = r.agents()?;
+        let n = agents.n;
+        let future = r.future(n)?;
+        let lanes = r.lanes()?;
         let agent_ids = r.i64s("agent_ids", &[Some(n)])?;
         let name = path.file_stem().map_or_else(
             || "<memory>".to_string(),
@@ -333,58 +427,68 @@ impl Scenario {
         let sc = Self {
             name,
             n_agents: n,
-            history,
-            heading,
-            speed,
-            size,
-            n_future: nf,
-            future,
-            future_valid,
-            lane_centres,
-            lane_bounds,
-            ego_lane: ego_lane as usize,
+            history: agents.history,
+            heading: agents.heading,
+            speed: agents.speed,
+            size: agents.size,
+            n_future: future.n_future,
+            future: future.future,
+            future_valid: future.future_valid,
+            lane_centres: lanes.centres,
+            lane_bounds: lanes.bounds,
+            ego_lane: lanes.ego_lane,
             agent_ids,
             metadata,
         };
         sc.check_plausible(path)?;
-        let ego = sc.vehicle_box(0);
-        for i in 1..n {
-            if ego.overlaps(&sc.vehicle_box(i)) {
-                return Err(ScenarioError::EgoOverlap {
-                    path: p(),
-                    agent: i,
-                    id: sc.agent_ids[i],
-                });
-            }
-        }
+        sc.check_ego_clear(path)?;
         Ok(sc)
     }
 
-    /// The physical plausibility checks of [`Scenario::from_bytes`] (format already checked).
+    /// The physical plausibility checks of [`Scenario::from_bytes`] (format already checked):
+    /// the road, then every agent, then the distances between agents, then the ego's lane.
     fn check_plausible(&self, path: &Path) -> Result<(), ScenarioError> {
-        let bad = |tensor: &'static str, reason: String| ScenarioError::BadValue {
+        self.check_road(path)?;
+        for a in 0..self.n_agents {
+            self.check_history(path, a)?;
+            self.check_state(path, a)?;
+            self.check_future(path, a)?;
+        }
+        self.check_agent_spacing(path)?;
+        self.check_ego_lane(path)
+    }
+
+    /// [`ScenarioError::Implausible`] naming `agent` (index and source id) and `field`.
+    fn implausible(
+        &self,
+        path: &Path,
+        agent: usize,
+        field: &'static str,
+        detail: String,
+    ) -> ScenarioError {
+        ScenarioError::Implausible {
             path: path.to_path_buf(),
-            tensor,
-            reason,
-        };
-        let agent_err =
-            |agent: usize, field: &'static str, detail: String| ScenarioError::Implausible {
-                path: path.to_path_buf(),
-                agent,
-                id: self.agent_ids[agent],
-                field,
-                detail,
-            };
-        // The road.
+            agent,
+            id: self.agent_ids[agent],
+            field,
+            detail,
+        }
+    }
+
+    /// The road: at most [`MAX_LANES`] lanes, boundaries within ±[`MAX_ABS_POSITION`] m,
+    /// every lane [`LANE_WIDTH`] wide.
+    fn check_road(&self, path: &Path) -> Result<(), ScenarioError> {
         let nl = self.lane_centres.len();
         if nl > MAX_LANES {
-            return Err(bad(
+            return Err(bad_value(
+                path,
                 "lane_centres",
                 format!("{nl} lanes; plausible roads have 1..={MAX_LANES}"),
             ));
         }
         if let Some(v) = self.lane_bounds.iter().find(|v| v.abs() > MAX_ABS_POSITION) {
-            return Err(bad(
+            return Err(bad_value(
+                path,
                 "lane_bounds",
                 format!("y = {v} m is beyond the accepted ±{MAX_ABS_POSITION} m"),
             ));
@@ -392,7 +496,8 @@ impl Scenario {
         for (i, w) in self.lane_bounds.windows(2).enumerate() {
             let width = w[1] - w[0];
             if !(LANE_WIDTH[0]..=LANE_WIDTH[1]).contains(&width) {
-                return Err(bad(
+                return Err(bad_value(
+                    path,
                     "lane_bounds",
                     format!(
                         "lane {i} has width {width:e} m, outside the plausible {}..={} m",
@@ -401,107 +506,137 @@ impl Scenario {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// The observed positions of `agent`, oldest first: within ±[`MAX_ABS_POSITION`] m, at
+    /// most [`ROAD_TOLERANCE`] outside the road, and at most [`MAX_SPEED`] × 0.3 s from the
+    /// previous one.
+    fn check_history(&self, path: &Path, a: usize) -> Result<(), ScenarioError> {
         let [right, left] = self.road();
-        // Every agent.
         let max_step = MAX_SPEED * nudge_predictor::DT;
-        for a in 0..self.n_agents {
-            for t in 0..T_OBS {
-                let [x, y] = self.position(a, t);
-                if x.abs().max(y.abs()) > MAX_ABS_POSITION {
-                    return Err(agent_err(
+        for t in 0..T_OBS {
+            let [x, y] = self.position(a, t);
+            if x.abs().max(y.abs()) > MAX_ABS_POSITION {
+                return Err(self.implausible(
+                    path,
+                    a,
+                    "history",
+                    format!(
+                        "({x}, {y}) m at observed step {t} is beyond the accepted \
+                         ±{MAX_ABS_POSITION} m"
+                    ),
+                ));
+            }
+            let outside = (right - y).max(y - left);
+            if outside > ROAD_TOLERANCE {
+                return Err(self.implausible(
+                    path,
+                    a,
+                    "history",
+                    format!(
+                        "y = {y} m at observed step {t} is {outside:.2} m outside the road \
+                         [{right}, {left}] m (tolerance {ROAD_TOLERANCE} m)"
+                    ),
+                ));
+            }
+            if t > 0 {
+                let p = self.position(a, t - 1);
+                let d = (x - p[0]).hypot(y - p[1]);
+                if d > max_step {
+                    return Err(self.implausible(
+                        path,
                         a,
                         "history",
                         format!(
-                            "({x}, {y}) m at observed step {t} is beyond the accepted \
-                             ±{MAX_ABS_POSITION} m"
+                            "moves {d:.2} m between observed steps {} and {t}, more than \
+                             {max_step} m ({MAX_SPEED} m/s for 0.3 s)",
+                            t - 1
                         ),
-                    ));
-                }
-                let outside = (right - y).max(y - left);
-                if outside > ROAD_TOLERANCE {
-                    return Err(agent_err(
-                        a,
-                        "history",
-                        format!(
-                            "y = {y} m at observed step {t} is {outside:.2} m outside the road \
-                             [{right}, {left}] m (tolerance {ROAD_TOLERANCE} m)"
-                        ),
-                    ));
-                }
-                if t > 0 {
-                    let p = self.position(a, t - 1);
-                    let d = (x - p[0]).hypot(y - p[1]);
-                    if d > max_step {
-                        return Err(agent_err(
-                            a,
-                            "history",
-                            format!(
-                                "moves {d:.2} m between observed steps {} and {t}, more than \
-                                 {max_step} m ({MAX_SPEED} m/s for 0.3 s)",
-                                t - 1
-                            ),
-                        ));
-                    }
-                }
-            }
-            let psi = self.heading[a];
-            if psi.abs() > MAX_HEADING {
-                return Err(agent_err(
-                    a,
-                    "heading",
-                    format!(
-                        "{psi} rad is outside the plausible |heading| <= {MAX_HEADING:.4} rad \
-                         (pi/4) relative to the road"
-                    ),
-                ));
-            }
-            let v = self.speed[a];
-            if v > MAX_SPEED {
-                return Err(agent_err(
-                    a,
-                    "speed",
-                    format!("{v} m/s is outside the plausible 0..={MAX_SPEED} m/s"),
-                ));
-            }
-            let [length, width] = self.size[a];
-            if !(VEHICLE_LENGTH[0]..=VEHICLE_LENGTH[1]).contains(&length) {
-                return Err(agent_err(
-                    a,
-                    "size",
-                    format!(
-                        "length {length} m is outside the plausible {}..={} m",
-                        VEHICLE_LENGTH[0], VEHICLE_LENGTH[1]
-                    ),
-                ));
-            }
-            if !(VEHICLE_WIDTH[0]..=VEHICLE_WIDTH[1]).contains(&width) {
-                return Err(agent_err(
-                    a,
-                    "size",
-                    format!(
-                        "width {width} m is outside the plausible {}..={} m",
-                        VEHICLE_WIDTH[0], VEHICLE_WIDTH[1]
-                    ),
-                ));
-            }
-            for k in 1..=self.n_future {
-                if let Some([x, y]) = self.future_at(a, k)
-                    && x.abs().max(y.abs()) > MAX_ABS_POSITION
-                {
-                    return Err(agent_err(
-                        a,
-                        "future",
-                        format!("({x}, {y}) m at future step {k} is beyond ±{MAX_ABS_POSITION} m"),
                     ));
                 }
             }
         }
+        Ok(())
+    }
+
+    /// The last observed state of `agent`: |heading| ≤ [`MAX_HEADING`], speed ≤
+    /// [`MAX_SPEED`], length in [`VEHICLE_LENGTH`], width in [`VEHICLE_WIDTH`].
+    fn check_state(&self, path: &Path, a: usize) -> Result<(), ScenarioError> {
+        let psi = self.heading[a];
+        if psi.abs() > MAX_HEADING {
+            return Err(self.implausible(
+                path,
+                a,
+                "heading",
+                format!(
+                    "{psi} rad is outside the plausible |heading| <= {MAX_HEADING:.4} rad \
+                     (pi/4) relative to the road"
+                ),
+            ));
+        }
+        let v = self.speed[a];
+        if v > MAX_SPEED {
+            return Err(self.implausible(
+                path,
+                a,
+                "speed",
+                format!("{v} m/s is outside the plausible 0..={MAX_SPEED} m/s"),
+            ));
+        }
+        let [length, width] = self.size[a];
+        if !(VEHICLE_LENGTH[0]..=VEHICLE_LENGTH[1]).contains(&length) {
+            return Err(self.implausible(
+                path,
+                a,
+                "size",
+                format!(
+                    "length {length} m is outside the plausible {}..={} m",
+                    VEHICLE_LENGTH[0], VEHICLE_LENGTH[1]
+                ),
+            ));
+        }
+        if !(VEHICLE_WIDTH[0]..=VEHICLE_WIDTH[1]).contains(&width) {
+            return Err(self.implausible(
+                path,
+                a,
+                "size",
+                format!(
+                    "width {width} m is outside the plausible {}..={} m",
+                    VEHICLE_WIDTH[0], VEHICLE_WIDTH[1]
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The valid logged future positions of `agent`: within ±[`MAX_ABS_POSITION`] m.
+    fn check_future(&self, path: &Path, a: usize) -> Result<(), ScenarioError> {
+        for k in 1..=self.n_future {
+            if let Some([x, y]) = self.future_at(a, k)
+                && x.abs().max(y.abs()) > MAX_ABS_POSITION
+            {
+                return Err(self.implausible(
+                    path,
+                    a,
+                    "future",
+                    format!("({x}, {y}) m at future step {k} is beyond ±{MAX_ABS_POSITION} m"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Every pair of agents at most [`MAX_AGENT_OFFSET`] m apart at the last observed step
+    /// (the later agent of the first pair too far apart is named).
+    fn check_agent_spacing(&self, path: &Path) -> Result<(), ScenarioError> {
         for i in 0..self.n_agents {
             for j in i + 1..self.n_agents {
                 let (p, q) = (self.position(i, T_OBS - 1), self.position(j, T_OBS - 1));
                 let d = (p[0] - q[0]).hypot(p[1] - q[1]);
                 if d > MAX_AGENT_OFFSET {
-                    return Err(agent_err(
+                    return Err(self.implausible(
+                        path,
                         j,
                         "history",
                         format!(
@@ -512,7 +647,12 @@ impl Scenario {
                 }
             }
         }
-        // The ego's lane.
+        Ok(())
+    }
+
+    /// The ego's y at the last observed step lies within its `ego_lane` boundaries, up to
+    /// [`EGO_LANE_TOLERANCE`].
+    fn check_ego_lane(&self, path: &Path) -> Result<(), ScenarioError> {
         let y = self.position(0, T_OBS - 1)[1];
         let (lo, hi) = (
             self.lane_bounds[self.ego_lane],
@@ -527,6 +667,21 @@ impl Scenario {
                 hi,
                 tolerance: EGO_LANE_TOLERANCE,
             });
+        }
+        Ok(())
+    }
+
+    /// The ego's box overlaps no other vehicle's box at the last observed step.
+    fn check_ego_clear(&self, path: &Path) -> Result<(), ScenarioError> {
+        let ego = self.vehicle_box(0);
+        for i in 1..self.n_agents {
+            if ego.overlaps(&self.vehicle_box(i)) {
+                return Err(ScenarioError::EgoOverlap {
+                    path: path.to_path_buf(),
+                    agent: i,
+                    id: self.agent_ids[i],
+                });
+            }
         }
         Ok(())
     }
@@ -611,6 +766,28 @@ impl Scenario {
         }
     }
 
+    /// The paths of every `.safetensors` file in `dir`, sorted by name (the order the CLI runs
+    /// them in).
+    ///
+    /// # Errors
+    /// [`ScenarioError::Io`] when the directory or one of its entries cannot be read.
+    pub fn paths_in(dir: impl AsRef<Path>) -> Result<Vec<PathBuf>, ScenarioError> {
+        let dir = dir.as_ref();
+        let io = |source| ScenarioError::Io {
+            path: dir.to_path_buf(),
+            source,
+        };
+        let mut paths = Vec::new();
+        for entry in std::fs::read_dir(dir).map_err(io)? {
+            let p = entry.map_err(io)?.path();
+            if p.extension().is_some_and(|x| x == "safetensors") {
+                paths.push(p);
+            }
+        }
+        paths.sort();
+        Ok(paths)
+    }
+
     /// Every `.safetensors` file in `dir`, sorted by name, read and validated; files that fail
     /// are returned with their error.
     ///
@@ -620,19 +797,9 @@ impl Scenario {
     pub fn load_dir(
         dir: impl AsRef<Path>,
     ) -> Result<(Vec<Self>, Vec<(PathBuf, ScenarioError)>), ScenarioError> {
-        let dir = dir.as_ref();
-        let rd = std::fs::read_dir(dir).map_err(|source| ScenarioError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-        let mut paths: Vec<PathBuf> = rd
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "safetensors"))
-            .collect();
-        paths.sort();
         let mut ok = Vec::new();
         let mut bad = Vec::new();
-        for p in paths {
+        for p in Self::paths_in(dir)? {
             match Self::from_file(&p) {
                 Ok(s) => ok.push(s),
                 Err(e) => bad.push((p, e)),

@@ -80,6 +80,12 @@ pub struct PlannerSettings {
     pub margin_x: f64,
     /// Lateral ellipse margin m_y added to the half widths (m).
     pub margin_y: f64,
+    /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
+    /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
+    /// when the rear one of the ego and the other vehicle is faster, so a plan never ends in a
+    /// gap that it, or a faster vehicle behind it, could only keep by braking harder than this.
+    /// 0 disables it.
+    pub brake_decel: f64,
     /// Only vehicles whose current centre is within this distance of the ego's are checked (m).
     pub check_range: f64,
     /// A point is safe when every checked b_i ≥ this value (≥ 0; 0 means b_i > 0 strictly
@@ -115,6 +121,33 @@ pub struct PlannerSettings {
     pub rollout_check: bool,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
+
+    /// Heading bound relative to the road (rad): every returned state has |ψ_k| ≤ heading_max
+    /// (an ego that starts beyond it gets a bound that returns to it by `heading_recovery`
+    /// per step). A value ≥ π/2 leaves the heading unbounded.
+    pub heading_max: f64,
+    /// Rate (rad per step) at which the heading bound of an ego starting beyond `heading_max`
+    /// returns to it.
+    pub heading_recovery: f64,
+    /// Lateral overshoot allowed beyond the lateral goal and behind the start (m): the ego's
+    /// centre stays within [min(y_0, y_target) − overshoot_max, max(y_0, y_target) +
+    /// overshoot_max] (and on the road, its corners included at the heading bound).
+    pub overshoot_max: f64,
+    /// Iterations of the SQP refinement of the ADMM inputs on the nonlinear roll-out, run when
+    /// that roll-out is not admissible (unsafe or out of its bounds); 0 disables it.
+    pub refine_iters: usize,
+    /// The refinement's target (units of b) above `safety_min` for the linearised safety rows.
+    pub refine_margin: f64,
+    /// Trust region of one refinement step on each steering input (rad).
+    pub refine_trust_delta: f64,
+    /// Trust region of one refinement step on each acceleration input (m/s²).
+    pub refine_trust_accel: f64,
+    /// Wall-clock budget of one MPC call (s): when it is spent the call ends with the best
+    /// admissible plan found (status `BudgetExhausted`); 0 means no budget.
+    pub budget_s: f64,
+    /// Predictor-call budget of one MPC call (deterministic, for tests and reproducible
+    /// runs); 0 means no budget.
+    pub budget_calls: usize,
 }
 
 impl Default for PlannerSettings {
@@ -143,6 +176,7 @@ impl Default for PlannerSettings {
             ellipse_scale: std::f64::consts::SQRT_2,
             margin_x: 1.5,
             margin_y: 0.3,
+            brake_decel: 4.0,
             check_range: 60.0,
             safety_min: 0.0,
             plan_buffer: 0.0,
@@ -156,6 +190,15 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             restore_step: 1.0,
+            heading_max: 0.2,
+            heading_recovery: 0.05,
+            overshoot_max: 0.3,
+            refine_iters: 5,
+            refine_margin: 0.02,
+            refine_trust_delta: 0.05,
+            refine_trust_accel: 2.0,
+            budget_s: 0.0,
+            budget_calls: 0,
         }
     }
 }
@@ -290,6 +333,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("ellipse_scale", 1.0, 4.0, ""),
     closed("margin_x", 0.0, 20.0, "m"),
     closed("margin_y", 0.0, 5.0, "m"),
+    closed("brake_decel", 0.0, 15.0, "m/s²"),
     closed(
         "check_range",
         0.0,
@@ -310,6 +354,15 @@ pub const RANGES: &[FieldRange] = &[
     closed("pgd_halvings", 0.0, 30.0, "halvings"),
     closed("pin_weight", 0.0, 1e8, ""),
     open_min("restore_step", 0.0, 10.0, "m"),
+    open_min("heading_max", 0.0, 10.0, "rad"),
+    open_min("heading_recovery", 0.0, 1.5, "rad per step"),
+    closed("overshoot_max", 0.0, 100.0, "m"),
+    closed("refine_iters", 0.0, 20.0, "iterations"),
+    closed("refine_margin", 0.0, 10.0, ""),
+    open_min("refine_trust_delta", 0.0, 1.5, "rad"),
+    open_min("refine_trust_accel", 0.0, 30.0, "m/s²"),
+    closed("budget_s", 0.0, 3600.0, "s"),
+    closed("budget_calls", 0.0, 1e9, "predictor calls"),
 ];
 
 impl PlannerSettings {
@@ -345,6 +398,7 @@ impl PlannerSettings {
             "ellipse_scale" => self.ellipse_scale,
             "margin_x" => self.margin_x,
             "margin_y" => self.margin_y,
+            "brake_decel" => self.brake_decel,
             "check_range" => self.check_range,
             "safety_min" => self.safety_min,
             "plan_buffer" => self.plan_buffer,
@@ -355,6 +409,15 @@ impl PlannerSettings {
             "pgd_halvings" => self.pgd_halvings as f64,
             "pin_weight" => self.pin_weight,
             "restore_step" => self.restore_step,
+            "heading_max" => self.heading_max,
+            "heading_recovery" => self.heading_recovery,
+            "overshoot_max" => self.overshoot_max,
+            "refine_iters" => self.refine_iters as f64,
+            "refine_margin" => self.refine_margin,
+            "refine_trust_delta" => self.refine_trust_delta,
+            "refine_trust_accel" => self.refine_trust_accel,
+            "budget_s" => self.budget_s,
+            "budget_calls" => self.budget_calls as f64,
             _ => return None,
         })
     }
@@ -398,7 +461,8 @@ impl PlannerSettings {
             value: e.to_string(),
             reason: "not valid planner settings JSON",
         };
-        let value: serde_json::Value = serde_json::from_str(text).map_err(not_json)?;
+        // A repeated key is an error naming it (serde_json would keep the last one).
+        let value = nudge_predictor::json::parse(text).map_err(not_json)?;
         if !value.is_object() {
             return Err(SettingsError::Invalid {
                 field: "<json>",

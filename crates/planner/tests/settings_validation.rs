@@ -1,6 +1,7 @@
 //! Planner settings: a JSON object only, every field validated against a documented, physically
 //! sane range, and a guard that no field of the serde representation escapes validation.
 #![allow(clippy::unwrap_used)]
+#![recursion_limit = "256"]
 
 use nudge_planner::PlannerSettings;
 use serde_json::{Value, json};
@@ -30,10 +31,14 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "delta_max": 0.15, "ddelta_max": 0.05, "a_min": -5.0, "a_max": 3.0, "da_max": 1.5,
         "v_max": 30.0, "edge_margin": 0.0, "v_lin_min": 1.0,
         "ellipse_scale": std::f64::consts::SQRT_2, "margin_x": 1.5, "margin_y": 0.3,
+        "brake_decel": 4.0,
         "check_range": 60.0, "safety_min": 0.0, "plan_buffer": 0.0,
         "max_iter": 30, "eps_primal": 0.01, "eps_change": 0.01, "pgd_steps": 5,
         "pgd_halvings": 3, "hessian_scaled": true, "pin_weight": 10000.0,
-        "warm_start_dual": false, "rollout_check": true, "restore_step": 1.0
+        "warm_start_dual": false, "rollout_check": true, "restore_step": 1.0,
+        "heading_max": 0.2, "heading_recovery": 0.05, "overshoot_max": 0.3,
+        "refine_iters": 5, "refine_margin": 0.02, "refine_trust_delta": 0.05,
+        "refine_trust_accel": 2.0, "budget_s": 0.0, "budget_calls": 0
     });
     assert_eq!(serde_json::to_value(&d).unwrap(), expected);
     assert_eq!(PlannerSettings::from_json("{}").unwrap(), d);
@@ -97,7 +102,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 33, "numeric settings");
+    assert_eq!(numeric, 43, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

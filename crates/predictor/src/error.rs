@@ -110,6 +110,14 @@ pub enum PredictorError {
         /// Maximum supported.
         max: usize,
     },
+    /// More candidates in one `predict` call than [`crate::MAX_BATCH`].
+    #[error("candidates: {got} candidates in one call; at most {max} are accepted")]
+    BatchTooLarge {
+        /// Candidates supplied.
+        got: usize,
+        /// The bound.
+        max: usize,
+    },
     /// An input buffer has the wrong length for the declared shape.
     #[error("{what}: expected {expected} values (shape {shape}), got {got}")]
     InputShape {

@@ -37,12 +37,14 @@
 //! verifies; files are read only when regular and of bounded size ([`mod@file`]). Nothing in this
 //! crate panics on any input (property-tested in `tests/reliability.rs`).
 
+mod checked;
 mod constant_velocity;
 pub mod cost;
 mod error;
 pub mod file;
 mod generator;
 mod history;
+pub mod json;
 pub mod limits;
 mod nn;
 mod recording;
@@ -69,6 +71,7 @@ pub mod weights {
     };
 }
 
+pub use checked::Checked;
 pub use constant_velocity::ConstantVelocity;
 pub use cost::{MacCount, multiply_adds};
 pub use error::{PredictorError, Quantity, Result};
@@ -76,7 +79,8 @@ pub use history::History;
 pub use recording::{Recording, Records};
 pub use simd::{SimdPath, best_simd_path, simd_path, supported_simd_paths};
 pub use spec::{
-    ASSETS_ENV, PredictorKind, PredictorSpec, UnknownPredictor, default_assets_dir, model_path,
+    ASSETS_ENV, CHECKOUT_ASSETS, PredictorKind, PredictorSpec, UnknownPredictor, assets_dir,
+    default_assets_dir, model_path, scenes_dir,
 };
 pub use student::Student;
 pub use teacher::Teacher;
@@ -128,6 +132,10 @@ pub const MAX_AGENTS: usize = 47;
 pub const DT: f64 = 0.3;
 /// Largest prediction horizon (steps) any predictor accepts (18 s).
 pub const MAX_HORIZON: usize = 60;
+/// Most ego candidates one [`Predictor::predict`] call accepts: bounds the output a caller
+/// allocates (at most 16,384 × 46 agents × 60 steps × 2 f64 = 724 MB; 72 MB at the shipped
+/// 6 steps). The planner asks for one at a time.
+pub const MAX_BATCH: usize = 1 << 14;
 
 /// An interactive predictor: given a scene history and a batch of ego candidate trajectories,
 /// predicts where every other agent goes under each candidate.
@@ -175,7 +183,8 @@ pub trait Predictor: Send {
 ///
 /// # Errors
 /// [`PredictorError::Horizon`] for horizon 0 or above [`MAX_HORIZON`],
-/// [`PredictorError::AgentCount`] for 0 agents or more than [`MAX_AGENTS`]; otherwise the
+/// [`PredictorError::AgentCount`] for 0 agents or more than [`MAX_AGENTS`],
+/// [`PredictorError::BatchTooLarge`] for more than [`MAX_BATCH`] candidates; otherwise the
 /// input errors of [`Predictor::predict`].
 pub fn check_batch(
     candidates: &[f64],
@@ -201,11 +210,26 @@ pub fn check_batch(
         });
     }
     let batch = candidates.len() / per;
+    check_batch_size(batch)?;
     history::check_finite("candidates", candidates)?;
     limits::check_candidates(candidates, horizon, ego_last)?;
     // batch * (n - 1) * horizon * 2 ≤ candidates.len() * MAX_AGENTS: cannot overflow.
     history::check_len("out", out, &[batch, n_agents - 1, horizon, 2])?;
     Ok(batch)
+}
+
+/// Checks a number of candidates for one [`Predictor::predict`] call.
+///
+/// # Errors
+/// [`PredictorError::BatchTooLarge`] above [`MAX_BATCH`].
+pub fn check_batch_size(batch: usize) -> Result<()> {
+    if batch > MAX_BATCH {
+        return Err(PredictorError::BatchTooLarge {
+            got: batch,
+            max: MAX_BATCH,
+        });
+    }
+    Ok(())
 }
 
 /// Checks a prediction horizon (steps).

@@ -82,11 +82,40 @@ impl FromStr for PredictorKind {
     }
 }
 
-/// The assets directory: `$NUDGE_ASSETS` when set, else `assets` (relative to the working
-/// directory, the repository root for the shipped tools).
+/// Where a checkout keeps the shipped assets, relative to the repository root: the assets of
+/// the tools run from the root (the `nudge` binary, the examples, the tests).
+pub const CHECKOUT_ASSETS: &str = "assets";
+
+/// The assets directory (`models/`, `scenes/`) of a nudge whose shipped assets are at
+/// `shipped`: `$NUDGE_ASSETS` when set and not empty, else `shipped`.
+///
+/// The one rule every front end resolves the assets through; only `shipped` differs: the
+/// `nudge` binary and the Rust examples pass [`CHECKOUT_ASSETS`] ([`default_assets_dir`]),
+/// the Python package `nudge` passes the `assets` folder inside the installed package (in a
+/// checkout, `python/nudge/assets` links to `assets`), and so does its `nudge` command.
+#[must_use]
+pub fn assets_dir(shipped: impl Into<PathBuf>) -> PathBuf {
+    assets_dir_from(std::env::var_os(ASSETS_ENV), shipped.into())
+}
+
+/// [`assets_dir`] with the environment variable's value given (`None`: not set).
+fn assets_dir_from(env: Option<std::ffi::OsString>, shipped: PathBuf) -> PathBuf {
+    env.filter(|v| !v.is_empty()).map_or(shipped, PathBuf::from)
+}
+
+/// The assets directory of the tools run from a checkout's root: `$NUDGE_ASSETS` when set and
+/// not empty, else `assets` (relative to the working directory): [`assets_dir`] of
+/// [`CHECKOUT_ASSETS`].
 #[must_use]
 pub fn default_assets_dir() -> PathBuf {
-    std::env::var_os(ASSETS_ENV).map_or_else(|| PathBuf::from("assets"), PathBuf::from)
+    assets_dir(CHECKOUT_ASSETS)
+}
+
+/// The shipped real scenes under the assets directory `assets`: `<assets>/scenes` (one
+/// "nudge.scenario/1" `.safetensors` file per scene). The only place that knows this layout.
+#[must_use]
+pub fn scenes_dir(assets: &Path) -> PathBuf {
+    assets.join("scenes")
 }
 
 /// The shipped weights of `kind` under the assets directory `assets`:
@@ -197,5 +226,42 @@ impl PredictorSpec {
             Self::Teacher(t) => Box::new(t.as_ref().clone()),
             Self::Student(s) => Box::new(s.as_ref().clone()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::ffi::OsString;
+    use std::path::{Path, PathBuf};
+
+    use super::{assets_dir_from, model_path, scenes_dir};
+    use crate::weights::ModelKind;
+
+    #[test]
+    fn the_variable_overrides_the_shipped_assets_unless_empty() {
+        let shipped = PathBuf::from("/opt/site-packages/nudge/assets");
+        assert_eq!(assets_dir_from(None, shipped.clone()), shipped);
+        assert_eq!(
+            assets_dir_from(Some(OsString::new()), shipped.clone()),
+            shipped
+        );
+        assert_eq!(
+            assets_dir_from(Some(OsString::from("/data/mine")), shipped),
+            PathBuf::from("/data/mine")
+        );
+    }
+
+    #[test]
+    fn models_and_scenes_lie_in_their_folders_of_the_assets() {
+        let a = Path::new("x");
+        assert_eq!(
+            model_path(a, ModelKind::Student),
+            Path::new("x/models/student.safetensors")
+        );
+        assert_eq!(
+            model_path(a, ModelKind::Teacher),
+            Path::new("x/models/teacher.safetensors")
+        );
+        assert_eq!(scenes_dir(a), Path::new("x/scenes"));
     }
 }

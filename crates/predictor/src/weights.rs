@@ -34,7 +34,7 @@
 //! and tensor. [`ModelWeights::from_file`] reads only regular files of at most
 //! [`MAX_WEIGHTS_BYTES`](crate::file::MAX_WEIGHTS_BYTES).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
@@ -472,130 +472,15 @@ impl ModelWeights {
     }
 
     fn parse(bytes: &[u8], path: PathBuf) -> Result<Self> {
-        let st = SafeTensors::deserialize(bytes).map_err(|e| PredictorError::NotSafetensors {
-            path: path.clone(),
-            reason: e.to_string(),
-        })?;
-        let (_, header) =
-            SafeTensors::read_metadata(bytes).map_err(|e| PredictorError::NotSafetensors {
-                path: path.clone(),
-                reason: e.to_string(),
-            })?;
-        let meta = header.metadata().clone().unwrap_or_default();
-        let bad = |reason: String| PredictorError::BadConfig {
-            path: path.clone(),
-            reason,
-        };
-        if let Some(fmt) = meta.get("format")
-            && fmt != WEIGHTS_FORMAT
-        {
-            return Err(bad(format!(
-                "metadata \"format\" is {fmt:?}, expected {WEIGHTS_FORMAT:?}"
-            )));
-        }
-        let trained = match meta.get("trained").map(String::as_str) {
-            None => None,
-            Some("true") => Some(true),
-            Some("false") => Some(false),
-            Some(other) => {
-                return Err(bad(format!(
-                    "metadata \"trained\" is {other:?}, expected \"true\" or \"false\""
-                )));
-            }
-        };
+        let (st, meta) = read_header(bytes, &path)?;
+        let trained = read_metadata_flags(&meta, &path)?;
         let raw = meta
             .get("config")
-            .ok_or_else(|| bad("no \"config\" metadata entry".to_owned()))?;
-        let value: serde_json::Value =
-            serde_json::from_str(raw).map_err(|e| bad(format!("config is not JSON: {e}")))?;
-        match value.get("kind") {
-            None => return Err(bad("config has no \"kind\" field".to_owned())),
-            Some(serde_json::Value::String(k)) if k == "teacher" || k == "student" => {}
-            Some(serde_json::Value::String(k)) => {
-                return Err(PredictorError::UnknownModelKind {
-                    path,
-                    kind: k.clone(),
-                });
-            }
-            Some(other) => {
-                return Err(PredictorError::UnknownModelKind {
-                    path,
-                    kind: other.to_string(),
-                });
-            }
-        }
-        let config: ModelConfig =
-            serde_json::from_value(value).map_err(|e| bad(format!("config: {e}")))?;
-        config.validate().map_err(bad)?;
-
-        let expected = expected_tensors(&config);
-        let mut tensors = BTreeMap::new();
-        for (name, shape) in &expected {
-            let view = st.tensor(name).map_err(|_| PredictorError::MissingTensor {
-                path: path.clone(),
-                tensor: name.clone(),
-            })?;
-            if view.dtype() != Dtype::F32 {
-                return Err(PredictorError::WrongDtype {
-                    path,
-                    tensor: name.clone(),
-                    got: format!("{:?}", view.dtype()),
-                });
-            }
-            if view.shape() != shape.as_slice() {
-                return Err(PredictorError::ShapeMismatch {
-                    path,
-                    tensor: name.clone(),
-                    expected: shape.clone(),
-                    got: view.shape().to_vec(),
-                });
-            }
-            // The data may be unaligned: decode byte-wise, little endian.
-            let data: Vec<f32> = view
-                .data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
-            if let Some(index) = data.iter().position(|v| !v.is_finite()) {
-                return Err(PredictorError::NonFiniteWeight {
-                    path,
-                    tensor: name.clone(),
-                    index,
-                });
-            }
-            tensors.insert(
-                name.clone(),
-                Tensor {
-                    shape: shape.clone(),
-                    data,
-                },
-            );
-        }
-        let mut names = st.names();
-        names.sort_unstable();
-        if let Some(extra) = names.into_iter().find(|n| !tensors.contains_key(*n)) {
-            return Err(PredictorError::UnexpectedTensor {
-                path,
-                tensor: extra.to_owned(),
-                kind: config.kind.as_str().to_owned(),
-            });
-        }
-        let Some(expected) = meta.get("sha256") else {
-            return Err(PredictorError::MissingHash { path });
-        };
-        let found = content_sha256(
-            raw,
-            st.tensors()
-                .iter()
-                .map(|(n, v)| (n.as_str(), v.dtype(), v.shape(), v.data())),
-        );
-        if *expected != found {
-            return Err(PredictorError::HashMismatch {
-                path,
-                expected: expected.clone(),
-                found,
-            });
-        }
+            .ok_or_else(|| bad_config(&path, "no \"config\" metadata entry".to_owned()))?;
+        let config = parse_config(raw, &path)?;
+        let tensors = read_tensors(&st, &config, &path)?;
+        check_no_extra_tensor(&st, &tensors, &config, &path)?;
+        check_content_hash(&meta, raw, &st, &path)?;
         Ok(Self {
             path,
             config,
@@ -648,4 +533,201 @@ impl ModelWeights {
             })
         }
     }
+}
+
+/// String metadata of a safetensors header (key → value).
+type StringMetadata = HashMap<String, String>;
+
+/// [`PredictorError::BadConfig`] for the file at `path`.
+fn bad_config(path: &Path, reason: String) -> PredictorError {
+    PredictorError::BadConfig {
+        path: path.to_path_buf(),
+        reason,
+    }
+}
+
+/// Parses the safetensors image `bytes` and its string metadata (empty when the header has
+/// none).
+///
+/// # Errors
+/// [`PredictorError::NotSafetensors`].
+fn read_header<'a>(bytes: &'a [u8], path: &Path) -> Result<(SafeTensors<'a>, StringMetadata)> {
+    let not_safetensors = |e: safetensors::SafeTensorError| PredictorError::NotSafetensors {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let st = SafeTensors::deserialize(bytes).map_err(not_safetensors)?;
+    let (_, header) = SafeTensors::read_metadata(bytes).map_err(not_safetensors)?;
+    Ok((st, header.metadata().clone().unwrap_or_default()))
+}
+
+/// Checks the optional `"format"` entry and reads the optional `"trained"` flag.
+///
+/// # Errors
+/// [`PredictorError::BadConfig`] for a format other than [`WEIGHTS_FORMAT`] or a flag other
+/// than `"true"` / `"false"`.
+fn read_metadata_flags(meta: &StringMetadata, path: &Path) -> Result<Option<bool>> {
+    if let Some(fmt) = meta.get("format")
+        && fmt != WEIGHTS_FORMAT
+    {
+        return Err(bad_config(
+            path,
+            format!("metadata \"format\" is {fmt:?}, expected {WEIGHTS_FORMAT:?}"),
+        ));
+    }
+    match meta.get("trained").map(String::as_str) {
+        None => Ok(None),
+        Some("true") => Ok(Some(true)),
+        Some("false") => Ok(Some(false)),
+        Some(other) => Err(bad_config(
+            path,
+            format!("metadata \"trained\" is {other:?}, expected \"true\" or \"false\""),
+        )),
+    }
+}
+
+/// Parses and validates the `"config"` metadata string `raw`: valid JSON, a known `kind`,
+/// exactly the fields of [`ModelConfig`], sane values.
+///
+/// # Errors
+/// [`PredictorError::BadConfig`], [`PredictorError::UnknownModelKind`].
+fn parse_config(raw: &str, path: &Path) -> Result<ModelConfig> {
+    let value: serde_json::Value = crate::json::parse(raw)
+        .map_err(|e| bad_config(path, format!("config is not valid JSON: {e}")))?;
+    match value.get("kind") {
+        None => return Err(bad_config(path, "config has no \"kind\" field".to_owned())),
+        Some(serde_json::Value::String(k)) if k == "teacher" || k == "student" => {}
+        Some(serde_json::Value::String(k)) => {
+            return Err(PredictorError::UnknownModelKind {
+                path: path.to_path_buf(),
+                kind: k.clone(),
+            });
+        }
+        Some(other) => {
+            return Err(PredictorError::UnknownModelKind {
+                path: path.to_path_buf(),
+                kind: other.to_string(),
+            });
+        }
+    }
+    let config: ModelConfig =
+        serde_json::from_value(value).map_err(|e| bad_config(path, format!("config: {e}")))?;
+    config
+        .validate()
+        .map_err(|reason| bad_config(path, reason))?;
+    Ok(config)
+}
+
+/// Reads every tensor `config` calls for, in [`expected_tensors`] order, keyed by name.
+///
+/// # Errors
+/// The first of [`PredictorError::MissingTensor`], [`PredictorError::WrongDtype`],
+/// [`PredictorError::ShapeMismatch`], [`PredictorError::NonFiniteWeight`] found.
+fn read_tensors(
+    st: &SafeTensors<'_>,
+    config: &ModelConfig,
+    path: &Path,
+) -> Result<BTreeMap<String, Tensor>> {
+    let mut tensors = BTreeMap::new();
+    for (name, shape) in expected_tensors(config) {
+        let tensor = read_tensor(st, &name, shape, path)?;
+        tensors.insert(name, tensor);
+    }
+    Ok(tensors)
+}
+
+/// Reads the float32 tensor `name`, which must have `shape` and finite values.
+///
+/// # Errors
+/// [`PredictorError::MissingTensor`], [`PredictorError::WrongDtype`],
+/// [`PredictorError::ShapeMismatch`], [`PredictorError::NonFiniteWeight`].
+fn read_tensor(st: &SafeTensors<'_>, name: &str, shape: Vec<usize>, path: &Path) -> Result<Tensor> {
+    let view = st.tensor(name).map_err(|_| PredictorError::MissingTensor {
+        path: path.to_path_buf(),
+        tensor: name.to_owned(),
+    })?;
+    if view.dtype() != Dtype::F32 {
+        return Err(PredictorError::WrongDtype {
+            path: path.to_path_buf(),
+            tensor: name.to_owned(),
+            got: format!("{:?}", view.dtype()),
+        });
+    }
+    if view.shape() != shape.as_slice() {
+        return Err(PredictorError::ShapeMismatch {
+            path: path.to_path_buf(),
+            tensor: name.to_owned(),
+            expected: shape,
+            got: view.shape().to_vec(),
+        });
+    }
+    // The data may be unaligned: decode byte-wise, little endian.
+    let data: Vec<f32> = view
+        .data()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    if let Some(index) = data.iter().position(|v| !v.is_finite()) {
+        return Err(PredictorError::NonFiniteWeight {
+            path: path.to_path_buf(),
+            tensor: name.to_owned(),
+            index,
+        });
+    }
+    Ok(Tensor { shape, data })
+}
+
+/// Checks that the file holds no tensor besides `tensors` (the first extra one in name order
+/// is named).
+///
+/// # Errors
+/// [`PredictorError::UnexpectedTensor`].
+fn check_no_extra_tensor(
+    st: &SafeTensors<'_>,
+    tensors: &BTreeMap<String, Tensor>,
+    config: &ModelConfig,
+    path: &Path,
+) -> Result<()> {
+    let mut names = st.names();
+    names.sort_unstable();
+    if let Some(extra) = names.into_iter().find(|n| !tensors.contains_key(*n)) {
+        return Err(PredictorError::UnexpectedTensor {
+            path: path.to_path_buf(),
+            tensor: extra.to_owned(),
+            kind: config.kind.as_str().to_owned(),
+        });
+    }
+    Ok(())
+}
+
+/// Checks the `"sha256"` metadata entry against [`content_sha256`] of the config string `raw`
+/// and every tensor.
+///
+/// # Errors
+/// [`PredictorError::MissingHash`], [`PredictorError::HashMismatch`].
+fn check_content_hash(
+    meta: &StringMetadata,
+    raw: &str,
+    st: &SafeTensors<'_>,
+    path: &Path,
+) -> Result<()> {
+    let Some(expected) = meta.get("sha256") else {
+        return Err(PredictorError::MissingHash {
+            path: path.to_path_buf(),
+        });
+    };
+    let found = content_sha256(
+        raw,
+        st.tensors()
+            .iter()
+            .map(|(n, v)| (n.as_str(), v.dtype(), v.shape(), v.data())),
+    );
+    if *expected != found {
+        return Err(PredictorError::HashMismatch {
+            path: path.to_path_buf(),
+            expected: expected.clone(),
+            found,
+        });
+    }
+    Ok(())
 }

@@ -72,6 +72,7 @@ pub fn predictor_err(err: PredictorError) -> PyErr {
         | PredictorError::NonFiniteInput { .. }
         | PredictorError::InputOutOfRange { .. }
         | PredictorError::Horizon { .. }
+        | PredictorError::BatchTooLarge { .. }
         | PredictorError::NoScene => InputError::new_err(msg),
         _ => WeightsError::new_err(msg),
     }
@@ -123,6 +124,8 @@ pub fn sim_err(err: SimError) -> PyErr {
         SimError::Planner { source, .. } => same_class(&planner_err(source), msg),
         SimError::WorldModel { .. } | SimError::Runs { .. } => InputError::new_err(msg),
         SimError::WorldFile(_) => WorldFileError::new_err(msg),
+        SimError::Scenario(e) => scenario_err(e),
+        SimError::Cancelled { .. } => NudgeError::new_err(msg),
         #[allow(unreachable_patterns)]
         _ => NudgeError::new_err(msg),
     }

@@ -3,7 +3,9 @@
 //! The only crate of the workspace that uses pyo3. Every call that runs a network, a plan or a
 //! simulation releases the GIL; every Rust error becomes a subclass of `nudge.NudgeError`.
 
+mod args;
 mod arrays;
+mod cli;
 mod errors;
 mod planner;
 mod predict;
@@ -20,22 +22,41 @@ use pyo3::prelude::*;
 /// `assets`: the path the Rust resolver loads for that name.
 #[pyfunction]
 fn model_path(assets: PathBuf, name: &str) -> PyResult<PathBuf> {
-    match name
-        .parse::<PredictorKind>()
-        .ok()
-        .and_then(PredictorKind::model)
-    {
-        Some(kind) => Ok(nudge_predictor::model_path(&assets, kind)),
-        None => Err(errors::InputError::new_err(format!(
-            "model_path: expected \"teacher\" or \"student\", got {name:?}"
-        ))),
-    }
+    args::guard(|| {
+        match name
+            .parse::<PredictorKind>()
+            .ok()
+            .and_then(PredictorKind::model)
+        {
+            Some(kind) => Ok(nudge_predictor::model_path(&assets, kind)),
+            None => Err(errors::InputError::new_err(format!(
+                "model_path: expected \"teacher\" or \"student\", got {name:?}"
+            ))),
+        }
+    })
+}
+
+/// The assets directory of the package whose shipped assets are at `shipped`:
+/// `$NUDGE_ASSETS` when set and not empty, else `shipped` (`nudge_predictor::assets_dir`, the
+/// rule of every front end).
+#[pyfunction]
+fn assets_dir(shipped: PathBuf) -> PathBuf {
+    nudge_predictor::assets_dir(shipped)
+}
+
+/// The shipped scenes under the assets directory `assets`: `<assets>/scenes`.
+#[pyfunction]
+fn scenes_dir(assets: PathBuf) -> PathBuf {
+    nudge_predictor::scenes_dir(&assets)
 }
 
 /// The extension module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
+    // Load numpy's C API now: loaded lazily on the first array instead, an import interrupted
+    // by a pending Ctrl-C would make rust-numpy panic.
+    numpy::PyArray1::<f64>::zeros(py, [0], false);
     m.add("NudgeError", py.get_type::<errors::NudgeError>())?;
     m.add("WeightsError", py.get_type::<errors::WeightsError>())?;
     m.add("InputError", py.get_type::<errors::InputError>())?;
@@ -50,6 +71,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<planner::PyPlanner>()?;
     m.add_function(wrap_pyfunction!(sim::simulate, m)?)?;
     m.add_function(wrap_pyfunction!(model_path, m)?)?;
+    m.add_function(wrap_pyfunction!(assets_dir, m)?)?;
+    m.add_function(wrap_pyfunction!(scenes_dir, m)?)?;
+    m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
     m.add("DEFAULTS", sim::defaults_dict(py)?)?;
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;

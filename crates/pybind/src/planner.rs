@@ -2,14 +2,15 @@
 
 use std::sync::Mutex;
 
-use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem};
-use nudge_predictor::{History, T_OBS};
+use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem, fit};
+use nudge_predictor::{History, MAX_AGENTS, T_OBS};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{check_shape, to_f64};
-use crate::errors::{InputError, NudgeError, planner_err, predictor_err, sim_err};
+use crate::args::{Int, guard};
+use crate::arrays::{Dim, to_f64};
+use crate::errors::{InputError, NudgeError, planner_err, predictor_err, settings_err, sim_err};
 use crate::predict::PyPredictor;
 use crate::scenario::PyScenario;
 use crate::settings::PySettings;
@@ -43,6 +44,14 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
         states
             .into_pyarray(py)
             .reshape([t, 4])
+            .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))?,
+    )?;
+    let admm: Vec<f64> = plan.admm_states.iter().flatten().copied().collect();
+    let admm_rows = plan.admm_states.len();
+    d.set_item(
+        "admm_states",
+        admm.into_pyarray(py)
+            .reshape([admm_rows, 4])
             .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))?,
     )?;
     d.set_item("cost", plan.cost)?;
@@ -104,15 +113,21 @@ impl PyPlanner {
 #[pymethods]
 impl PyPlanner {
     /// A planner with `settings` (default: `PlannerSettings.default()`) predicting with
-    /// `predictor` (its horizon must equal `settings.horizon`).
+    /// `predictor`: its horizon must equal `settings.horizon`, and a teacher or student needs
+    /// `settings.dt` = 0.3 s (`SettingsError` otherwise, `nudge_planner::fit`).
     #[new]
     #[pyo3(signature = (settings, predictor))]
     fn new(settings: Option<Bound<'_, PySettings>>, predictor: Py<PyPredictor>) -> PyResult<Self> {
-        let settings = settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
-        let planner = Planner::new(settings).map_err(planner_err)?;
-        Ok(Self {
-            planner: Mutex::new(planner),
-            predictor,
+        guard(|| {
+            let settings =
+                settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
+            let p = predictor.get();
+            fit::check_predictor(&settings, p.name(), p.lock().horizon()).map_err(settings_err)?;
+            let planner = Planner::new(settings).map_err(planner_err)?;
+            Ok(Self {
+                planner: Mutex::new(planner),
+                predictor,
+            })
         })
     }
 
@@ -166,80 +181,89 @@ impl PyPlanner {
         last_delta: f64,
         last_accel: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let (hist, hshape) = to_f64("history", history)?;
-        check_shape("history", &hshape, &[None, Some(T_OBS), Some(2)])?;
-        let n = hshape[0];
-        let (sz, sshape) = to_f64("sizes", sizes)?;
-        check_shape("sizes", &sshape, &[Some(n), Some(2)])?;
-        if let Some(bad) = sz.iter().find(|v| !v.is_finite() || **v <= 0.0) {
-            return Err(InputError::new_err(format!(
-                "sizes: every length and width must be finite and positive, got {bad}"
-            )));
-        }
-        let (e, eshape) = to_f64("ego", ego)?;
-        check_shape("ego", &eshape, &[Some(4)])?;
-        for (what, v) in [
-            ("ego[x]", e[0]),
-            ("ego[y]", e[1]),
-            ("ego[psi]", e[2]),
-            ("ego[v]", e[3]),
-        ] {
-            finite(what, v)?;
-        }
-        finite("y_target", y_target)?;
-        finite("v_ref", v_ref)?;
-        finite("road[0]", road.0)?;
-        finite("road[1]", road.1)?;
-        finite("last_delta", last_delta)?;
-        finite("last_accel", last_accel)?;
-        let history = History::new(hist, n).map_err(predictor_err)?;
-        let sizes: Vec<[f64; 2]> = sz.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-        let problem = PlanningProblem {
-            ego: EgoState {
-                x: e[0],
-                y: e[1],
-                psi: e[2],
-                v: e[3],
-            },
-            last_delta,
-            last_accel,
-            history: &history,
-            sizes: &sizes,
-            y_target,
-            v_ref,
-            road: [road.0, road.1],
-        };
-        self.run(py, &problem)
+        guard(|| {
+            let h_dims = [Dim::AtMost(MAX_AGENTS), Dim::Exact(T_OBS), Dim::Exact(2)];
+            let (hist, hshape) = to_f64("history", history, &h_dims)?;
+            let n = hshape[0];
+            let (sz, _) = to_f64("sizes", sizes, &[Dim::Exact(n), Dim::Exact(2)])?;
+            if let Some(bad) = sz.iter().find(|v| !v.is_finite() || **v <= 0.0) {
+                return Err(InputError::new_err(format!(
+                    "sizes: every length and width must be finite and positive, got {bad}"
+                )));
+            }
+            let (e, _) = to_f64("ego", ego, &[Dim::Exact(4)])?;
+            for (what, v) in [
+                ("ego[x]", e[0]),
+                ("ego[y]", e[1]),
+                ("ego[psi]", e[2]),
+                ("ego[v]", e[3]),
+            ] {
+                finite(what, v)?;
+            }
+            finite("y_target", y_target)?;
+            finite("v_ref", v_ref)?;
+            finite("road[0]", road.0)?;
+            finite("road[1]", road.1)?;
+            finite("last_delta", last_delta)?;
+            finite("last_accel", last_accel)?;
+            let history = History::new(hist, n).map_err(predictor_err)?;
+            let sizes: Vec<[f64; 2]> = sz.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+            let problem = PlanningProblem {
+                ego: EgoState {
+                    x: e[0],
+                    y: e[1],
+                    psi: e[2],
+                    v: e[3],
+                },
+                last_delta,
+                last_accel,
+                history: &history,
+                sizes: &sizes,
+                y_target,
+                v_ref,
+                road: [road.0, road.1],
+            };
+            self.run(py, &problem)
+        })
     }
 
     /// One MPC call at a scenario's start, as the simulator's first step: ego state from the
     /// last observed step, `v_ref` = its speed, target = the centre of `target_lane` (default:
     /// the lane the simulator draws for `seed`).
-    #[pyo3(signature = (scenario, target_lane = None, seed = 0))]
+    #[pyo3(
+        signature = (scenario, target_lane = None, seed = Int::from(0)),
+        text_signature = "($self, scenario, target_lane=None, seed=0)"
+    )]
     fn plan_scenario<'py>(
         &self,
         py: Python<'py>,
         scenario: &PyScenario,
-        target_lane: Option<usize>,
-        seed: u64,
+        target_lane: Option<Int>,
+        seed: Int,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let sc = &scenario.inner;
-        let lane = match target_lane {
-            Some(l) if l < sc.lane_centres.len() => l,
-            Some(l) => {
-                return Err(InputError::new_err(format!(
-                    "target_lane {l} out of range: the scenario has {} lanes",
-                    sc.lane_centres.len()
-                )));
-            }
-            None => nudge_planner::target_lane(sc, seed).map_err(sim_err)?,
-        };
-        let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;
-        let problem = PlanningProblem::at_scenario_start(sc, &history, sc.lane_centres[lane]);
-        let d = self.run(py, &problem)?;
-        d.set_item("target_lane", lane)?;
-        d.set_item("y_target", sc.lane_centres[lane])?;
-        Ok(d)
+        guard(|| {
+            let seed = seed.u64("seed", u64::MAX)?;
+            let target_lane = target_lane
+                .map(|l| l.usize("target_lane", usize::MAX))
+                .transpose()?;
+            let sc = &scenario.inner;
+            let lane = match target_lane {
+                Some(l) if l < sc.lane_centres.len() => l,
+                Some(l) => {
+                    return Err(InputError::new_err(format!(
+                        "target_lane {l} out of range: the scenario has {} lanes",
+                        sc.lane_centres.len()
+                    )));
+                }
+                None => nudge_planner::target_lane(sc, seed).map_err(sim_err)?,
+            };
+            let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;
+            let problem = PlanningProblem::at_scenario_start(sc, &history, sc.lane_centres[lane]);
+            let d = self.run(py, &problem)?;
+            d.set_item("target_lane", lane)?;
+            d.set_item("y_target", sc.lane_centres[lane])?;
+            Ok(d)
+        })
     }
 
     fn __repr__(&self) -> String {

@@ -3,11 +3,14 @@
 use std::path::PathBuf;
 use std::sync::Mutex;
 
-use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS, load_predictor};
+use nudge_predictor::{
+    ConstantVelocity, History, MAX_AGENTS, MAX_BATCH, Predictor, T_OBS, load_predictor,
+};
 use numpy::{IntoPyArray, PyArray4, PyArrayMethods};
 use pyo3::prelude::*;
 
-use crate::arrays::{check_shape, to_f64};
+use crate::args::{Int, guard};
+use crate::arrays::{Dim, to_f64};
 use crate::errors::{NudgeError, predictor_err};
 
 /// An interactive predictor loaded from a `.safetensors` weights file (teacher or student,
@@ -44,16 +47,21 @@ impl PyPredictor {
     /// Loads a teacher or student from `path` (raises `WeightsError` naming the problem).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let p = py.detach(|| load_predictor(&path)).map_err(predictor_err)?;
-        Ok(Self::wrap(p))
+        guard(|| {
+            let p = py.detach(|| load_predictor(&path)).map_err(predictor_err)?;
+            Ok(Self::wrap(p))
+        })
     }
 
     /// The constant-velocity baseline with a horizon of `horizon` steps.
     #[staticmethod]
-    #[pyo3(signature = (horizon = 6))]
-    fn constant_velocity(horizon: usize) -> PyResult<Self> {
-        let cv = ConstantVelocity::new(horizon).map_err(predictor_err)?;
-        Ok(Self::wrap(Box::new(cv)))
+    #[pyo3(signature = (horizon = Int::from(6)), text_signature = "(horizon=6)")]
+    fn constant_velocity(horizon: Int) -> PyResult<Self> {
+        guard(|| {
+            let horizon = horizon.usize("horizon", nudge_predictor::MAX_HORIZON)?;
+            let cv = ConstantVelocity::new(horizon).map_err(predictor_err)?;
+            Ok(Self::wrap(Box::new(cv)))
+        })
     }
 
     /// `"teacher"`, `"student"` or `"constant_velocity"`.
@@ -71,7 +79,8 @@ impl PyPredictor {
     /// Predicts the other agents' positions for every ego candidate.
     ///
     /// `history`: `[agents, 8, 2]` metres (agent 0 = ego); `candidates`: `[batch, horizon, 2]`
-    /// metres. Returns `[batch, agents - 1, horizon, 2]` float64. The GIL is released while the
+    /// metres (at most `MAX_BATCH` candidates); float64/float32 arrays or nested lists.
+    /// Returns `[batch, agents - 1, horizon, 2]` float64. The GIL is released while the
     /// network runs.
     fn predict<'py>(
         &self,
@@ -79,28 +88,31 @@ impl PyPredictor {
         history: &Bound<'py, PyAny>,
         candidates: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray4<f64>>> {
-        let (hist, hshape) = to_f64("history", history)?;
-        check_shape("history", &hshape, &[None, Some(T_OBS), Some(2)])?;
-        let (cand, cshape) = to_f64("candidates", candidates)?;
-        check_shape("candidates", &cshape, &[None, Some(self.horizon), Some(2)])?;
-        let n = hshape[0];
-        let batch = cshape[0];
-        let horizon = self.horizon;
-        let out = py.detach(|| -> Result<Vec<f64>, nudge_predictor::PredictorError> {
-            let history = History::new(hist, n)?;
-            let mut guard = self
-                .inner
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            guard.set_scene(&history)?;
-            let mut out = vec![0.0; batch * (n - 1) * horizon * 2];
-            guard.predict(&cand, &mut out)?;
-            Ok(out)
-        });
-        let out = out.map_err(predictor_err)?;
-        out.into_pyarray(py)
-            .reshape([batch, n - 1, horizon, 2])
-            .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))
+        guard(|| {
+            let h_dims = [Dim::AtMost(MAX_AGENTS), Dim::Exact(T_OBS), Dim::Exact(2)];
+            let (hist, hshape) = to_f64("history", history, &h_dims)?;
+            let c_dims = [
+                Dim::AtMost(MAX_BATCH),
+                Dim::Exact(self.horizon),
+                Dim::Exact(2),
+            ];
+            let (cand, cshape) = to_f64("candidates", candidates, &c_dims)?;
+            let n = hshape[0];
+            let batch = cshape[0];
+            let horizon = self.horizon;
+            let out = py.detach(|| -> Result<Vec<f64>, nudge_predictor::PredictorError> {
+                let history = History::new(hist, n)?;
+                let mut guard = self.lock();
+                guard.set_scene(&history)?;
+                let mut out = vec![0.0; batch * (n - 1) * horizon * 2];
+                guard.predict(&cand, &mut out)?;
+                Ok(out)
+            });
+            let out = out.map_err(predictor_err)?;
+            out.into_pyarray(py)
+                .reshape([batch, n - 1, horizon, 2])
+                .map_err(|e| NudgeError::new_err(format!("reshape failed: {e}")))
+        })
     }
 
     fn __repr__(&self) -> String {

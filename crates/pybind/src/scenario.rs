@@ -9,6 +9,7 @@ use nudge_predictor::T_OBS;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 
+use crate::args::{Int, guard};
 use crate::errors::{NudgeError, scenario_err};
 
 /// One real scene (agent 0 = ego), road frame, metres, 0.3 s steps.
@@ -30,12 +31,14 @@ impl PyScenario {
     /// Reads and validates a scenario file (raises `ScenarioError` naming the problem).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let sc = py
-            .detach(|| Scenario::from_file(&path))
-            .map_err(scenario_err)?;
-        Ok(Self {
-            inner: Arc::new(sc),
-            path,
+        guard(|| {
+            let sc = py
+                .detach(|| Scenario::from_file(&path))
+                .map_err(scenario_err)?;
+            Ok(Self {
+                inner: Arc::new(sc),
+                path,
+            })
         })
     }
 
@@ -149,16 +152,22 @@ impl PyScenario {
     }
 
     /// The target lane the simulator draws for `seed` (an adjacent lane of the ego's).
-    fn target_lane(&self, seed: u64) -> PyResult<usize> {
-        nudge_planner::target_lane(&self.inner, seed).map_err(crate::errors::sim_err)
+    fn target_lane(&self, seed: Int) -> PyResult<usize> {
+        guard(|| {
+            let seed = seed.u64("seed", u64::MAX)?;
+            nudge_planner::target_lane(&self.inner, seed).map_err(crate::errors::sim_err)
+        })
     }
 
     /// The ego and its `keep` nearest neighbours (nearest first).
-    fn nearest(&self, keep: usize) -> Self {
-        Self {
-            inner: Arc::new(self.inner.nearest(keep)),
-            path: self.path.clone(),
-        }
+    fn nearest(&self, keep: Int) -> PyResult<Self> {
+        guard(|| {
+            let keep = keep.usize("keep", usize::MAX)?;
+            Ok(Self {
+                inner: Arc::new(self.inner.nearest(keep)),
+                path: self.path.clone(),
+            })
+        })
     }
 
     fn __repr__(&self) -> String {

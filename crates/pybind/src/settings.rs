@@ -214,9 +214,11 @@ macro_rules! settings_class {
             #[new]
             #[pyo3(signature = (**overrides))]
             fn new(py: Python<'_>, overrides: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
-                let empty = PyDict::new(py);
-                let d = overrides.unwrap_or(&empty);
-                with_overrides(&<$rust>::default(), d.as_any()).map(|inner| Self { inner })
+                crate::args::guard(|| {
+                    let empty = PyDict::new(py);
+                    let d = overrides.unwrap_or(&empty);
+                    with_overrides(&<$rust>::default(), d.as_any()).map(|inner| Self { inner })
+                })
             }
 
             /// The defaults.
@@ -231,7 +233,9 @@ macro_rules! settings_class {
             /// `SettingsError` naming the key.
             #[staticmethod]
             fn from_dict(d: &Bound<'_, PyAny>) -> PyResult<Self> {
-                with_overrides(&<$rust>::default(), d).map(|inner| Self { inner })
+                crate::args::guard(|| {
+                    with_overrides(&<$rust>::default(), d).map(|inner| Self { inner })
+                })
             }
 
             /// Every field as a dict.
@@ -242,7 +246,9 @@ macro_rules! settings_class {
             /// Settings from JSON text (the format of the CLI's settings files).
             #[staticmethod]
             fn from_json(text: &str) -> PyResult<Self> {
-                <$rust as Settings>::parse_json(text).map(|inner| Self { inner })
+                crate::args::guard(|| {
+                    <$rust as Settings>::parse_json(text).map(|inner| Self { inner })
+                })
             }
 
             /// The settings as JSON text.
@@ -257,9 +263,11 @@ macro_rules! settings_class {
                 py: Python<'_>,
                 overrides: Option<&Bound<'_, PyDict>>,
             ) -> PyResult<Self> {
-                let empty = PyDict::new(py);
-                let d = overrides.unwrap_or(&empty);
-                with_overrides(&self.inner, d.as_any()).map(|inner| Self { inner })
+                crate::args::guard(|| {
+                    let empty = PyDict::new(py);
+                    let d = overrides.unwrap_or(&empty);
+                    with_overrides(&self.inner, d.as_any()).map(|inner| Self { inner })
+                })
             }
 
             /// Attribute access to every field.

@@ -6,18 +6,19 @@
 #![allow(clippy::result_large_err)]
 
 use std::path::PathBuf;
+use std::sync::mpsc;
+use std::time::Duration;
 
 use nudge_planner::sim::defaults;
-use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table, thread_pool};
-use nudge_planner::{
-    PlannerSettings, Predictors, RunOutput, Scenario, SimConfig, run_specs, simulate_many,
-};
+use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table};
+use nudge_planner::{Batch, BatchRequest, Cancel, PlannerSettings, RunOutput, SimConfig};
 use nudge_predictor::{Records, T_OBS, default_assets_dir};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::errors::{InputError, NudgeError, scenario_err, sim_err};
+use crate::args::{Int, guard, panic_error};
+use crate::errors::{InputError, NudgeError, sim_err};
 use crate::settings::{PySettings, PySimConfig, with_overrides};
 
 fn reshape_err(e: impl std::fmt::Display) -> PyErr {
@@ -42,6 +43,52 @@ pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     Ok(d)
 }
 
+/// How often a running batch looks for a pending signal (Ctrl-C).
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// Runs `batch` on a worker thread with the GIL released while this (the calling) thread
+/// polls Python's signal handlers every [`SIGNAL_POLL`]: on Ctrl-C the batch is cancelled
+/// (every run stops before its next closed-loop step) and the `KeyboardInterrupt` is
+/// returned.
+fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Vec<RunOutput>> {
+    let cancel = Cancel::new();
+    let mut interrupt: Option<PyErr> = None;
+    let finished = py.detach(|| {
+        std::thread::scope(|scope| {
+            let (tx, rx) = mpsc::channel();
+            let stop = &cancel;
+            let worker = scope.spawn(move || {
+                // The receiver outlives the worker: sending cannot fail.
+                let _ = tx.send(batch.run(record, stop));
+            });
+            loop {
+                match rx.recv_timeout(SIGNAL_POLL) {
+                    Ok(outputs) => return Ok(outputs),
+                    Err(mpsc::RecvTimeoutError::Timeout) => {
+                        if interrupt.is_none()
+                            && let Err(e) = Python::attach(|py| py.check_signals())
+                        {
+                            cancel.cancel();
+                            interrupt = Some(e);
+                        }
+                    }
+                    Err(mpsc::RecvTimeoutError::Disconnected) => {
+                        // The worker panicked: its payload becomes a NudgeError.
+                        return Err(worker.join().err());
+                    }
+                }
+            }
+        })
+    });
+    if let Some(e) = interrupt {
+        return Err(e);
+    }
+    finished.map_err(|payload| match payload {
+        Some(p) => panic_error(p.as_ref()),
+        None => NudgeError::new_err("the simulation worker stopped without a result"),
+    })
+}
+
 /// Closed-loop simulation of every scenario in `scene_paths` (in the given order), `runs`
 /// runs each; run r of scene i draws its target lane from seed `scene_seeds[i] + r` when
 /// `scene_seeds` is given, else `seed + i * runs + r` (`nudge_planner::run_specs`). Runs go
@@ -57,6 +104,9 @@ pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 /// e.g. `world="log_replay"`, `max_steps=4`) sets the closed loop. `on_error`: `"raise"` (the
 /// first failing run raises) or `"skip"` (its `error` column holds the message).
 ///
+/// Every argument is checked by `nudge_planner::BatchRequest::prepare` (the CLI's validation
+/// too) before any run starts. Ctrl-C raises `KeyboardInterrupt` within about a second.
+///
 /// Returns `{"runs": {...}, "steps": {...}, "collisions": {...}}` of numpy columns (plus
 /// `"examples"` when `record`): see the `.pyi` stub for every column.
 #[pyfunction]
@@ -66,9 +116,9 @@ pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     *,
     world_predictor = None,
     idm = None,
-    seed = defaults::SEED,
+    seed = Int::from(defaults::SEED),
     scene_seeds = None,
-    runs = defaults::RUNS_PER_SCENE,
+    runs = Int::from(defaults::RUNS_PER_SCENE as u64),
     threads = None,
     settings = None,
     config = None,
@@ -84,10 +134,10 @@ pub fn simulate<'py>(
     predictor: PathBuf,
     world_predictor: Option<PathBuf>,
     idm: Option<PathBuf>,
-    seed: u64,
-    scene_seeds: Option<Vec<u64>>,
-    runs: usize,
-    threads: Option<usize>,
+    seed: Int,
+    scene_seeds: Option<Vec<Int>>,
+    runs: Int,
+    threads: Option<Int>,
     settings: Option<Bound<'_, PySettings>>,
     config: Option<Bound<'_, PySimConfig>>,
     record: bool,
@@ -95,69 +145,70 @@ pub fn simulate<'py>(
     assets: Option<PathBuf>,
     config_overrides: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let settings = settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
-    let base = config.map_or_else(SimConfig::default, |c| c.get().inner);
-    let cfg = match config_overrides {
-        Some(o) => with_overrides(&base, o.as_any())?,
-        None => base,
-    };
-    let skip = match on_error {
-        "raise" => false,
-        "skip" => true,
-        other => {
-            return Err(InputError::new_err(format!(
-                "on_error: expected \"raise\" or \"skip\", got {other:?}"
-            )));
+    guard(|| {
+        let seed = seed.u64("seed", u64::MAX)?;
+        let runs = runs.usize("runs", nudge_planner::sim::MAX_RUNS)?;
+        let threads = threads
+            .map(|t| t.usize("threads", nudge_planner::sim::MAX_THREADS))
+            .transpose()?;
+        let scene_seeds: Option<Vec<u64>> = scene_seeds
+            .map(|v| {
+                v.into_iter()
+                    .map(|s| s.u64("scene_seeds", u64::MAX))
+                    .collect()
+            })
+            .transpose()?;
+        let settings = settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
+        let base = config.map_or_else(SimConfig::default, |c| c.get().inner);
+        let cfg = match config_overrides {
+            Some(o) => with_overrides(&base, o.as_any())?,
+            None => base,
+        };
+        let skip = match on_error {
+            "raise" => false,
+            "skip" => true,
+            other => {
+                return Err(InputError::new_err(format!(
+                    "on_error: expected \"raise\" or \"skip\", got {other:?}"
+                )));
+            }
+        };
+        let assets = assets.unwrap_or_else(default_assets_dir);
+        let request = BatchRequest {
+            scene_paths: &scene_paths,
+            predictor: &predictor,
+            world_predictor: world_predictor.as_deref(),
+            idm: idm.as_deref(),
+            assets: &assets,
+            seed,
+            runs_per_scene: runs,
+            scene_seeds: scene_seeds.as_deref(),
+            threads,
+            settings: &settings,
+            config: &cfg,
+        };
+        let batch = py.detach(|| request.prepare()).map_err(sim_err)?;
+        let mut outputs = run_interruptibly(py, &batch, record)?;
+        if !skip
+            && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
+            && let Err(e) = outputs.swap_remove(pos).result
+        {
+            return Err(sim_err(e));
         }
-    };
-    let pool = thread_pool(threads).map_err(sim_err)?;
-    let specs =
-        run_specs(scene_paths.len(), runs, seed, scene_seeds.as_deref()).map_err(sim_err)?;
-    let assets = assets.unwrap_or_else(default_assets_dir);
-    let horizon = settings.horizon;
-    let world_model = world_predictor.as_deref();
-    let predictors = py
-        .detach(|| {
-            Predictors::resolve(
-                &predictor,
-                cfg.world,
-                world_model,
-                idm.as_deref(),
-                &assets,
-                horizon,
-            )
-        })
-        .map_err(sim_err)?;
-    let scenes: Vec<Scenario> = py
-        .detach(|| {
-            scene_paths
-                .iter()
-                .map(Scenario::from_file)
-                .collect::<Result<Vec<_>, _>>()
-        })
-        .map_err(scenario_err)?;
-    let mut outputs: Vec<RunOutput> = py.detach(|| {
-        pool.install(|| simulate_many(&scenes, &specs, &settings, &cfg, &predictors, record))
-    });
-    if !skip
-        && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
-        && let Err(e) = outputs.swap_remove(pos).result
-    {
-        return Err(sim_err(e));
-    }
-    let out = PyDict::new(py);
-    out.set_item("runs", table_dict(py, run_table(&scenes, &outputs))?)?;
-    let steps = table_dict(py, step_table(&outputs))?;
-    add_ego(&steps)?;
-    out.set_item("steps", steps)?;
-    out.set_item(
-        "collisions",
-        table_dict(py, collision_table(&scenes, &outputs))?,
-    )?;
-    if record {
-        out.set_item("examples", examples_dict(py, outputs)?)?;
-    }
-    Ok(out)
+        let out = PyDict::new(py);
+        out.set_item("runs", table_dict(py, run_table(&batch.scenes, &outputs))?)?;
+        let steps = table_dict(py, step_table(&outputs))?;
+        add_ego(&steps)?;
+        out.set_item("steps", steps)?;
+        out.set_item(
+            "collisions",
+            table_dict(py, collision_table(&batch.scenes, &outputs))?,
+        )?;
+        if record {
+            out.set_item("examples", examples_dict(py, outputs)?)?;
+        }
+        Ok(out)
+    })
 }
 
 /// A table's columns as a dict of numpy arrays (text columns as lists of str / None).

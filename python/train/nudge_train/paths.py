@@ -6,8 +6,10 @@ variables override the defaults (read on every call, so a test or a shell can se
 * ``NUDGE_REPO``: the repository root. Default: the checkout that holds this package
   (``python/train/nudge_train`` three levels below the root), else the current directory (an
   installed, non-editable package).
-* ``NUDGE_ASSETS``: the shipped assets (``models/``, ``scenes/``). Default ``<repo>/assets``; the
-  same variable and default as ``nudge.assets_dir()`` of the Python bindings.
+* ``NUDGE_ASSETS``: the shipped assets (``models/``, ``scenes/``). Default ``<repo>/assets``. The
+  rule is the one of every front end (``nudge_predictor::assets_dir``: the variable when set and
+  not empty, else the shipped folder), and in a checkout the folder is the same as
+  ``nudge.assets_dir()``'s (the package's ``python/nudge/assets`` links to ``<repo>/assets``).
 * ``NUDGE_NGSIM``: the raw NGSIM material (see its PROVENANCE.md). Default
   ``../shared/data/ngsim`` beside the repository.
 
@@ -72,7 +74,7 @@ def repo() -> Path:
 
 
 def assets() -> Path:
-    """The shipped assets: ``$NUDGE_ASSETS``, else ``<repo>/assets``."""
+    """The shipped assets: ``$NUDGE_ASSETS`` (when not empty), else ``<repo>/assets``."""
     env = os.environ.get(ENV_ASSETS)
     return Path(env) if env else repo() / "assets"
 

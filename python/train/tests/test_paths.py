@@ -71,6 +71,8 @@ def test_nudge_assets_and_nudge_ngsim_move_only_their_folder(monkeypatch: pytest
 def test_assets_agree_with_the_bindings(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     nudge = pytest.importorskip("nudge", reason="the nudge extension is not built (run `make develop`)")
     assert nudge.assets_dir().resolve() == paths.assets().resolve()
+    monkeypatch.setenv("NUDGE_ASSETS", "")  # empty counts as unset for both
+    assert nudge.assets_dir().resolve() == paths.assets().resolve() == (paths.repo() / "assets").resolve()
     (tmp_path / "models").mkdir()
     monkeypatch.setenv("NUDGE_ASSETS", str(tmp_path))
     assert nudge.assets_dir() == paths.assets() == tmp_path

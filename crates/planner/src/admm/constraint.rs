@@ -4,6 +4,8 @@
 //! evaluates the very same function on the executed step
 //! ([`SafetyConstraint::executed_min_b`]).
 
+use std::time::{Duration, Instant};
+
 use nudge_predictor::{Predictor, T_OBS};
 
 use crate::error::PlannerError;
@@ -37,6 +39,10 @@ pub struct SafetyConstraint {
     ego_size: [f64; 2],
     scale: f64,
     margins: [f64; 2],
+    /// Step length (s), for the other vehicles' speeds from their predicted positions.
+    dt: f64,
+    /// Deceleration (m/s²) the closing-speed margin grants the rear vehicle; 0 disables it.
+    brake_decel: f64,
 }
 
 impl SafetyConstraint {
@@ -63,6 +69,8 @@ impl SafetyConstraint {
             ego_size: problem.sizes[0],
             scale: settings.ellipse_scale,
             margins: [settings.margin_x, settings.margin_y],
+            dt: settings.dt,
+            brake_decel: settings.brake_decel,
         }
     }
 
@@ -93,26 +101,76 @@ impl SafetyConstraint {
         )
     }
 
-    /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the
-    /// ego at `ego` = (x, y, ψ) (m, m, rad) and every agent at `positions[agent]` (m, agent 0
-    /// unused), each having moved from its last observed position. This is the value the
-    /// constraint gives step 1 of a candidate equal to that motion. `None` when no vehicle is
-    /// checked; −∞ when b is NaN.
+    /// The closing-speed margin (m) added to the ellipse's longitudinal semi-axis: the extra
+    /// distance the rear one of the ego (at `ego`, m, speed `ego_speed`, m/s) and the other
+    /// vehicle (at `other`, having moved from `previous` in one step) needs to brake to the
+    /// front one's speed at `brake_decel`, (v_rear² − v_front²) / (2·brake_decel) when the rear
+    /// one is faster, else 0 (speeds along the road). The ellipse alone only keeps the boxes
+    /// apart over the horizon; this keeps a gap from which the rear vehicle can still match
+    /// the front one's speed after it.
     #[must_use]
-    pub fn executed_min_b(&self, ego: [f64; 3], positions: &[[f64; 2]]) -> Option<f64> {
+    pub fn closing_margin(
+        &self,
+        ego: [f64; 2],
+        ego_speed: f64,
+        previous: [f64; 2],
+        other: [f64; 2],
+    ) -> f64 {
+        if self.brake_decel <= 0.0 {
+            return 0.0;
+        }
+        let other_speed = (other[0] - previous[0]) / self.dt;
+        let (rear, front) = if ego[0] <= other[0] {
+            (ego_speed, other_speed)
+        } else {
+            (other_speed, ego_speed)
+        };
+        let front = front.max(0.0);
+        if rear > front {
+            (rear * rear - front * front) / (2.0 * self.brake_decel)
+        } else {
+            0.0
+        }
+    }
+
+    /// b of the ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) against `vehicle` at `other`
+    /// (m), which was at `previous` one step earlier: the [`SafetyConstraint::ellipse`], with
+    /// the [`SafetyConstraint::closing_margin`] added to its longitudinal semi-axis at the
+    /// `terminal` step of the horizon (a terminal condition: the plan must end where the rear
+    /// vehicle can still match the front one's speed; within the horizon the predictions
+    /// themselves show the gap closing, and a margin there would forbid the very braking that
+    /// recovers from a short gap). The ellipse used is returned with it.
+    #[must_use]
+    pub fn b(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+        terminal: bool,
+    ) -> (f64, Ellipse) {
+        let mut ellipse = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
+        if terminal {
+            ellipse.a_x += self.closing_margin([ego[0], ego[1]], ego[3], previous, other);
+        }
+        (ellipse.value([ego[0], ego[1]], other), ellipse)
+    }
+
+    /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the
+    /// ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) and every agent at `positions[agent]` (m,
+    /// agent 0 unused), each having moved from its last observed position. This is the value
+    /// the constraint gives step 1 of a candidate equal to that motion. `None` when no vehicle
+    /// is checked; −∞ when b is NaN.
+    #[must_use]
+    pub fn executed_min_b(&self, ego: [f64; 4], positions: &[[f64; 2]]) -> Option<f64> {
         if self.vehicles.is_empty() {
             return None;
         }
-        let ego_direction = heading_direction(ego[2]);
         let min_b = self
             .vehicles
             .iter()
-            .map(|v| {
-                let other = positions[v.index];
-                self.ellipse(v, ego_direction, v.last, other)
-                    .value([ego[0], ego[1]], other)
-            })
-            .fold(f64::INFINITY, f64::min);
+            .map(|v| self.b(v, ego, v.last, positions[v.index], false).0)
+            .fold(f64::INFINITY, min_or_nan);
         Some(never_nan(min_b))
     }
 }
@@ -121,6 +179,15 @@ impl SafetyConstraint {
 fn heading_direction(psi: f64) -> [f64; 2] {
     let (sn, cs) = psi.sin_cos();
     [cs.abs(), sn.abs()]
+}
+
+/// The minimum of `a` and `b`, NaN when either is (`f64::min` would drop a NaN `b`).
+fn min_or_nan(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.min(b)
+    }
 }
 
 /// A NaN minimum is never safe: −∞.
@@ -160,13 +227,100 @@ pub(crate) struct SafetyEval<'c> {
     candidate: Vec<f64>,
     /// Prediction `[n − 1, T, 2]` (m).
     prediction: Vec<f64>,
-    /// (|cos ψ_k|, |sin ψ_k|) of the candidate, per step.
-    ego_direction: Vec<[f64; 2]>,
+    /// Heading ψ_k (rad) of the candidate, per step.
+    ego_heading: Vec<f64>,
+    /// Speed v_k (m/s) of the candidate, per step.
+    ego_speed: Vec<f64>,
     /// ∂(total violation)/∂(x_k, y_k) at the last evaluated point, prediction and ellipse
     /// sizes frozen.
     pub violation_gradient: Vec<[f64; 2]>,
     /// Predictor calls so far.
     pub calls: usize,
+    /// The (vehicle, step) pairs of the last evaluation with b below [`ROW_B`], linearised
+    /// in the ego's position (prediction and ellipse frozen), for the refinement.
+    pub rows: Vec<SafetyRow>,
+    /// The call's work budget.
+    pub budget: Budget,
+}
+
+/// The work budget of one MPC call: a wall-clock deadline and/or a number of predictor calls
+/// (`PlannerSettings::budget_s`, `budget_calls`). While it lasts every evaluation calls the
+/// predictor; once it is spent an evaluation returns "not evaluated" — unsafe, never safe —
+/// without calling it, so trial points are rejected and the ADMM loop stops. `reserve`
+/// predictor calls (and their estimated time) are kept back during the ADMM loop for the
+/// execution check.
+#[derive(Debug, Clone)]
+pub(crate) struct Budget {
+    deadline: Option<Instant>,
+    max_calls: Option<usize>,
+    /// Calls held back for the execution check (0 once it runs).
+    pub reserve: usize,
+    /// Time spent in the predictor so far.
+    predictor_time: Duration,
+    /// An evaluation was refused for lack of budget.
+    pub exhausted: bool,
+}
+
+/// Calls the execution check is guaranteed under a budget: the roll-out of the ADMM inputs
+/// and the shifted previous plan.
+pub(crate) const RESERVED_CALLS: usize = 2;
+
+impl Budget {
+    /// The budget of `settings` for a call that started at `start`; none when both are 0.
+    pub(crate) fn new(settings: &PlannerSettings, start: Instant) -> Self {
+        Self {
+            deadline: (settings.budget_s > 0.0)
+                .then(|| start + Duration::from_secs_f64(settings.budget_s)),
+            max_calls: (settings.budget_calls > 0).then_some(settings.budget_calls),
+            reserve: RESERVED_CALLS,
+            predictor_time: Duration::ZERO,
+            exhausted: false,
+        }
+    }
+
+    /// No budget at all.
+    pub(crate) fn unlimited() -> Self {
+        Self {
+            deadline: None,
+            max_calls: None,
+            reserve: 0,
+            predictor_time: Duration::ZERO,
+            exhausted: false,
+        }
+    }
+
+    /// Whether one more predictor call (after `calls`) would eat into the reserve: the call
+    /// count, or now plus the time of the call and of the reserve at the mean call time so
+    /// far (plus 0.5 ms for the QPs and bookkeeping between calls) past the deadline.
+    pub(crate) fn spent(&self, calls: usize) -> bool {
+        if self.max_calls.is_some_and(|m| calls + 1 + self.reserve > m) {
+            return true;
+        }
+        self.deadline.is_some_and(|d| {
+            let mean = if calls == 0 {
+                Duration::ZERO
+            } else {
+                self.predictor_time / u32::try_from(calls).unwrap_or(u32::MAX)
+            };
+            let reserve = u32::try_from(self.reserve + 1).unwrap_or(u32::MAX);
+            Instant::now() + mean * reserve + Duration::from_micros(500) > d
+        })
+    }
+}
+
+/// Pairs with b below this value are kept as [`SafetyRow`]s (far pairs cannot become active
+/// within one refinement step).
+pub(crate) const ROW_B: f64 = 1.5;
+
+/// One (vehicle, step) pair of a safety evaluation, linearised in the ego's position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct SafetyRow {
+    /// Step k (0-based: state z_{k+1}).
+    pub step: usize,
+    /// b at the evaluated point.
+    pub b: f64,
+    /// ∂b/∂(x_k, y_k) (1/m).
+    pub gradient: [f64; 2],
 }
 
 impl<'c> SafetyEval<'c> {
@@ -185,9 +339,12 @@ impl<'c> SafetyEval<'c> {
             threshold,
             candidate: vec![0.0; horizon * 2],
             prediction: vec![0.0; n_agents.saturating_sub(1) * horizon * 2],
-            ego_direction: vec![[1.0, 0.0]; horizon],
+            ego_heading: vec![0.0; horizon],
+            ego_speed: vec![0.0; horizon],
             violation_gradient: vec![[0.0; 2]; horizon],
             calls: 0,
+            rows: Vec::new(),
+            budget: Budget::unlimited(),
         }
     }
 
@@ -215,12 +372,24 @@ impl<'c> SafetyEval<'c> {
             self.candidate[2 * k] = zk[0] + self.origin[0];
             self.candidate[2 * k + 1] = zk[1] + self.origin[1];
             self.violation_gradient[k] = [0.0; 2];
-            self.ego_direction[k] = heading_direction(zk[2]);
+            self.ego_heading[k] = zk[2];
+            self.ego_speed[k] = zk[3];
         }
+        if self.budget.spent(self.calls) {
+            self.budget.exhausted = true;
+            self.rows.clear();
+            return Ok(Evaluation {
+                min_b: Some(f64::NEG_INFINITY),
+                violation: f64::INFINITY,
+            });
+        }
+        let t0 = Instant::now();
         predictor.predict(&self.candidate, &mut self.prediction)?;
+        self.budget.predictor_time += t0.elapsed();
         self.calls += 1;
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;
+        self.rows.clear();
         for v in checked {
             let base = (v.index - 1) * t * 2;
             let mut previous = v.last;
@@ -230,12 +399,22 @@ impl<'c> SafetyEval<'c> {
                     self.prediction[base + 2 * k],
                     self.prediction[base + 2 * k + 1],
                 ];
-                let ellipse = self
-                    .constraint
-                    .ellipse(v, self.ego_direction[k], previous, other);
+                let (b, ellipse) = self.constraint.b(
+                    v,
+                    [ego[0], ego[1], self.ego_heading[k], self.ego_speed[k]],
+                    previous,
+                    other,
+                    k + 1 == t,
+                );
                 previous = other;
-                let b = ellipse.value(ego, other);
-                min_b = min_b.min(b);
+                min_b = min_or_nan(min_b, b);
+                if b < ROW_B {
+                    self.rows.push(SafetyRow {
+                        step: k,
+                        b,
+                        gradient: ellipse.gradient(ego, other),
+                    });
+                }
                 if b <= self.threshold {
                     violation += self.threshold - b;
                     let g = ellipse.gradient(ego, other);

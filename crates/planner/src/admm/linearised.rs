@@ -50,10 +50,19 @@ pub(crate) struct LinearisedProblem {
     pub weights: State,
     /// Reference state (x ignored): (0, y_target, 0, v_ref) in this frame.
     pub reference: State,
-    /// Lower state bounds (x, ψ unbounded; y from the road, v ≥ 0).
-    pub lower: State,
-    /// Upper state bounds.
-    pub upper: State,
+    /// Lower state bounds per step `[T]` (x unbounded; y from the road and the lateral
+    /// corridor, ψ from the heading bound, v ≥ 0).
+    pub lower: Vec<State>,
+    /// Upper state bounds per step `[T]`.
+    pub upper: Vec<State>,
+    /// The road the ego's box must stay on (every corner): (right, left) edges relative to the
+    /// origin (m), each widened by the ego's overhang at the start plus [`START_OVERHANG_SLACK`]
+    /// when it starts over that edge (real data puts a few egos up to 0.33 m over it);
+    /// unbounded, like the heading, when `heading_max` ≥ π/2 (then only the centre band of
+    /// [`state_bounds`] keeps the ego on the road).
+    pub edges: [f64; 2],
+    /// The ego's (length, width) (m).
+    pub ego_size: [f64; 2],
     /// Box and rate bounds of the steering.
     pub delta_box: RateBox,
     /// Box and rate bounds of the acceleration.
@@ -108,7 +117,7 @@ impl LinearisedProblem {
             &nominal_accel,
             s.v_lin_min,
         );
-        let (y_low, y_high) = lateral_band(s, p, origin[1]);
+        let (lower, upper) = state_bounds(s, p, origin[1]);
         Self {
             horizon: t,
             origin,
@@ -120,8 +129,14 @@ impl LinearisedProblem {
             warm_duals,
             weights: State::new(0.0, s.w_y, s.w_psi, s.w_v),
             reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
-            lower: State::new(f64::NEG_INFINITY, y_low, f64::NEG_INFINITY, 0.0),
-            upper: State::new(f64::INFINITY, y_high, f64::INFINITY, s.v_max.max(p.ego.v)),
+            lower,
+            upper,
+            edges: if s.heading_max < std::f64::consts::FRAC_PI_2 {
+                road_edges(p, origin[1])
+            } else {
+                [f64::NEG_INFINITY, f64::INFINITY]
+            },
+            ego_size: p.sizes[0],
             delta_box,
             accel_box,
         }
@@ -158,9 +173,29 @@ impl LinearisedProblem {
             .collect()
     }
 
-    /// `z` clamped into the state bounds.
-    pub(crate) fn clamp(&self, z: &State) -> State {
-        z.sup(&self.lower).inf(&self.upper)
+    /// `z` (the state of step `k`, 0-based) clamped into that step's bounds.
+    pub(crate) fn clamp(&self, k: usize, z: &State) -> State {
+        z.sup(&self.lower[k]).inf(&self.upper[k])
+    }
+
+    /// How far the states `z` (`[T]`) lie outside their bounds: Σ over steps of the excess of
+    /// y, ψ and v over their bounds (m, rad, m/s) and of the box's corners over the road's
+    /// [`LinearisedProblem::edges`] (m); 0 when every state is within them.
+    pub(crate) fn bound_excess(&self, z: &[State]) -> f64 {
+        z.iter()
+            .enumerate()
+            .map(|(k, zk)| {
+                let bounds: f64 = (1..4)
+                    .map(|j| {
+                        (self.lower[k][j] - zk[j]).max(0.0) + (zk[j] - self.upper[k][j]).max(0.0)
+                    })
+                    .sum();
+                let e = half_extent_at(self.ego_size, zk[2]);
+                bounds
+                    + (self.edges[0] - (zk[1] - e)).max(0.0)
+                    + ((zk[1] + e) - self.edges[1]).max(0.0)
+            })
+            .sum()
     }
 
     /// Z⁺ = Π(Z − η·d) into `out`, Π clamping into the state bounds.
@@ -171,25 +206,98 @@ impl LinearisedProblem {
         eta: f64,
         out: &mut [State],
     ) {
-        for ((o, zk), dk) in out.iter_mut().zip(z).zip(direction) {
-            *o = self.clamp(&(zk - eta * dk));
+        for (k, ((o, zk), dk)) in out.iter_mut().zip(z).zip(direction).enumerate() {
+            *o = self.clamp(k, &(zk - eta * dk));
         }
     }
 }
 
-/// Lateral band (relative to `y0`, m) the ego's centre must stay in: the road less half the
-/// ego's width and `edge_margin`, collapsed to its middle when too narrow, widened to include
-/// the ego's current position (data noise can put it slightly outside).
-fn lateral_band(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (f64, f64) {
-    let half_width = 0.5 * p.sizes[0][1] + s.edge_margin;
-    let mut low = p.road[0] + half_width - y0;
-    let mut high = p.road[1] - half_width - y0;
-    if low > high {
-        let mid = 0.5 * (low + high);
-        low = mid;
-        high = mid;
+/// The per-step state bounds `[T]` (y relative to `y0`, m):
+///
+/// * heading: |ψ_k| ≤ max(`heading_max`, |ψ_0| − (k + 1)·`heading_recovery`), unbounded when
+///   `heading_max` ≥ π/2;
+/// * lateral: the road less the ego's half extent across the road at that heading bound (its
+///   corners stay on the road) and `edge_margin`, intersected with the corridor from the start
+///   to the lateral target widened by `overshoot_max` on both sides; collapsed to its middle
+///   when empty, and widened to include the start (data noise can put the ego slightly
+///   outside);
+/// * speed: 0 ≤ v ≤ max(`v_max`, v_0).
+fn state_bounds(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (Vec<State>, Vec<State>) {
+    let t = s.horizon;
+    let [length, width] = p.sizes[0];
+    let bounded = s.heading_max < std::f64::consts::FRAC_PI_2;
+    let goal = p.y_target - y0;
+    let (corridor_low, corridor_high) = (
+        goal.min(0.0) - s.overshoot_max,
+        goal.max(0.0) + s.overshoot_max,
+    );
+    let mut lower = Vec::with_capacity(t);
+    let mut upper = Vec::with_capacity(t);
+    for k in 0..t {
+        let (heading, half_extent) = if bounded {
+            let h = s
+                .heading_max
+                .max(p.ego.psi.abs() - (k + 1) as f64 * s.heading_recovery);
+            (h, half_extent_across(length, width, h))
+        } else {
+            (f64::INFINITY, 0.5 * width)
+        };
+        let half = half_extent + s.edge_margin;
+        let mut low = (p.road[0] + half - y0).max(corridor_low);
+        let mut high = (p.road[1] - half - y0).min(corridor_high);
+        if low > high {
+            let mid = 0.5 * (low + high);
+            low = mid;
+            high = mid;
+        }
+        lower.push(State::new(f64::NEG_INFINITY, low.min(0.0), -heading, 0.0));
+        upper.push(State::new(
+            f64::INFINITY,
+            high.max(0.0),
+            heading,
+            s.v_max.max(p.ego.v),
+        ));
     }
-    (low.min(0.0), high.max(0.0))
+    (lower, upper)
+}
+
+/// Extra room (m) beyond its start overhang an ego that starts over a road edge is given.
+pub(crate) const START_OVERHANG_SLACK: f64 = 0.05;
+
+/// The road edges relative to `y0` (m), each widened by the ego's overhang at the start
+/// (its box at its measured heading) plus [`START_OVERHANG_SLACK`] when it starts over it.
+fn road_edges(p: &PlanningProblem<'_>, y0: f64) -> [f64; 2] {
+    let e = half_extent_at(p.sizes[0], p.ego.psi);
+    let (right, left) = (p.road[0] - y0, p.road[1] - y0);
+    let over_right = right - (-e);
+    let over_left = e - left;
+    [
+        if over_right > 0.0 {
+            right - over_right - START_OVERHANG_SLACK
+        } else {
+            right
+        },
+        if over_left > 0.0 {
+            left + over_left + START_OVERHANG_SLACK
+        } else {
+            left
+        },
+    ]
+}
+
+/// Half extent across the road (m) of a box of `size` = (length, width) (m) at heading `psi`
+/// (rad): ½(L·|sin ψ| + W·|cos ψ|).
+pub(crate) fn half_extent_at(size: [f64; 2], psi: f64) -> f64 {
+    let (s, c) = psi.sin_cos();
+    0.5 * (size[0] * s.abs() + size[1] * c.abs())
+}
+
+/// Largest half extent across the road (m) of a box of `length` × `width` (m) whose heading
+/// is at most `heading` (rad) off the road: ½(L·sin ψ + W·cos ψ), which grows with ψ up to
+/// the half diagonal at ψ = atan(L/W).
+fn half_extent_across(length: f64, width: f64, heading: f64) -> f64 {
+    let h = heading.min(length.atan2(width));
+    0.5 * (length * h.sin() + width * h.cos())
 }
 
 /// Φ1 or Φ2 of an input sequence: w Σu² + w_d Σ(u_k − u_{k−1})², u_{−1} = `prev`.

@@ -70,12 +70,34 @@ impl<'a> PlanningProblem<'a> {
 }
 
 impl PlanningProblem<'_> {
-    /// Checks that the problem can be planned: finite numbers, a non-negative speed, a heading
-    /// within ±π/2 of the road, an ordered road, one positive size per agent.
+    /// Widest road accepted (m): [`crate::scenario::MAX_LANES`] lanes of the widest plausible
+    /// lane ([`crate::scenario::LANE_WIDTH`]).
+    pub const MAX_ROAD_WIDTH: f64 =
+        crate::scenario::MAX_LANES as f64 * crate::scenario::LANE_WIDTH[1];
+    /// Largest reference speed accepted (m/s): the largest plausible speed of a scenario
+    /// ([`crate::scenario::MAX_SPEED`]), also the largest admissible `v_max`.
+    pub const MAX_V_REF: f64 = crate::scenario::MAX_SPEED;
+    /// Largest measured ego speed accepted (m/s): the predictors' bound on observed motion,
+    /// [`nudge_predictor::limits::MAX_STEP`] per 0.3 s step.
+    pub const MAX_EGO_SPEED: f64 = nudge_predictor::limits::MAX_STEP / nudge_predictor::DT;
+    /// Largest |previous steering| accepted (rad): the widest admissible `delta_max`.
+    pub const MAX_LAST_DELTA: f64 = 1.5;
+    /// Largest |previous acceleration| accepted (m/s²): the widest admissible `a_min`/`a_max`.
+    pub const MAX_LAST_ACCEL: f64 = 15.0;
+
+    /// Checks that the problem can be planned: finite numbers; the ego within
+    /// ±[`nudge_predictor::limits::MAX_ABS_POSITION`] m, its speed in
+    /// 0..=[`Self::MAX_EGO_SPEED`] m/s, its heading within ±π/2 of the road; previous inputs
+    /// within ±[`Self::MAX_LAST_DELTA`] rad and ±[`Self::MAX_LAST_ACCEL`] m/s²; an ordered road
+    /// at most [`Self::MAX_ROAD_WIDTH`] m wide whose edges lie within the same coordinate
+    /// range; `y_target` on the road (edges included); `v_ref` in 0..=[`Self::MAX_V_REF`]
+    /// m/s; one positive size per agent.
     ///
     /// # Errors
     /// [`PlannerError::BadProblem`] naming the first offending field.
     pub fn check(&self) -> Result<(), PlannerError> {
+        use crate::settings::show;
+        use nudge_predictor::limits::MAX_ABS_POSITION;
         let bad =
             |field: &'static str, reason: String| Err(PlannerError::BadProblem { field, reason });
         let e = self.ego;
@@ -95,8 +117,27 @@ impl PlanningProblem<'_> {
                 return bad(field, format!("non-finite value {v}"));
             }
         }
-        if e.v < 0.0 {
-            return bad("ego.v", format!("negative speed {}", e.v));
+        for (field, v) in [("ego.x", e.x), ("ego.y", e.y)] {
+            if v.abs() > MAX_ABS_POSITION {
+                return bad(
+                    field,
+                    format!(
+                        "{} m is outside the accepted ±{} m",
+                        show(v),
+                        show(MAX_ABS_POSITION)
+                    ),
+                );
+            }
+        }
+        if !(0.0..=Self::MAX_EGO_SPEED).contains(&e.v) {
+            return bad(
+                "ego.v",
+                format!(
+                    "speed {} m/s is outside 0..={} m/s",
+                    show(e.v),
+                    Self::MAX_EGO_SPEED
+                ),
+            );
         }
         if e.psi.abs() > std::f64::consts::FRAC_PI_2 {
             return bad(
@@ -104,13 +145,55 @@ impl PlanningProblem<'_> {
                 format!("heading {} rad points off the road", e.psi),
             );
         }
-        if self.road[0] >= self.road[1] {
+        if self.last_delta.abs() > Self::MAX_LAST_DELTA {
+            return bad(
+                "last_delta",
+                format!(
+                    "{} rad is outside ±{} rad",
+                    show(self.last_delta),
+                    Self::MAX_LAST_DELTA
+                ),
+            );
+        }
+        if self.last_accel.abs() > Self::MAX_LAST_ACCEL {
+            return bad(
+                "last_accel",
+                format!(
+                    "{} m/s² is outside ±{} m/s²",
+                    show(self.last_accel),
+                    Self::MAX_LAST_ACCEL
+                ),
+            );
+        }
+        let [right, left] = self.road;
+        if right >= left {
+            return bad(
+                "road",
+                format!("right edge {right} is not below left edge {left}"),
+            );
+        }
+        if right.abs().max(left.abs()) > MAX_ABS_POSITION || left - right > Self::MAX_ROAD_WIDTH {
             return bad(
                 "road",
                 format!(
-                    "right edge {} is not below left edge {}",
-                    self.road[0], self.road[1]
+                    "edges [{}, {}] m: the road must lie within ±{} m and be at most {} m wide",
+                    show(right),
+                    show(left),
+                    show(MAX_ABS_POSITION),
+                    Self::MAX_ROAD_WIDTH
                 ),
+            );
+        }
+        if !(right..=left).contains(&self.y_target) {
+            return bad(
+                "y_target",
+                format!("{:e} m is off the road [{right}, {left}] m", self.y_target),
+            );
+        }
+        if !(0.0..=Self::MAX_V_REF).contains(&self.v_ref) {
+            return bad(
+                "v_ref",
+                format!("{} m/s is outside 0..={} m/s", self.v_ref, Self::MAX_V_REF),
             );
         }
         let n = self.history.n_agents();
@@ -133,20 +216,30 @@ impl PlanningProblem<'_> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[non_exhaustive]
 pub enum PlanStatus {
-    /// ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change; Z is safe. The roll-out of (Δ, α)
-    /// is safe too unless no repair was less violating ([`Plan::rollout_min_safety`] says).
+    /// ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change, and the nonlinear roll-out of the
+    /// ADMM inputs is admissible (safe and within the state bounds): the plan is the ADMM
+    /// answer.
     Converged,
-    /// `max_iter` reached; Z is safe (every accepted Z is); its roll-out as for `Converged`.
+    /// `max_iter` reached; the roll-out of the ADMM inputs is admissible: the plan is the ADMM
+    /// answer.
     MaxIterations,
-    /// The states could not be made safe (feasibility restoration failed); the plan is the
-    /// least-violating one found.
+    /// The roll-out of the ADMM inputs was not admissible (ADMM satisfies the linearised
+    /// dynamics only up to `eps_primal`, and Z sits on the safety boundary); SQP refinement
+    /// steps on the nonlinear model from those inputs made it admissible.
+    Refined,
+    /// No admissible plan was found (refinement, backtracking and fallbacks failed, or the
+    /// work budget ran out before one was); the plan is the least-violating one found.
     Unsafe,
-    /// The roll-out of the ADMM inputs was unsafe (Z sat on the constraint boundary, or ADMM
-    /// stopped before F ≈ 0); the plan is the ADMM inputs pulled towards the shifted previous
-    /// plan (by 3/4, 1/2 or 1/4) until the roll-out was safe, and that roll-out.
+    /// The work budget (`budget_s`, `budget_calls`) ran out during the ADMM loop; the plan is
+    /// the roll-out of the ADMM inputs at that point, or else the shifted previous plan, and it
+    /// is admissible (checked with the calls the budget held back).
+    BudgetExhausted,
+    /// The roll-out of the ADMM inputs was not admissible and the refinement failed; the plan
+    /// is the ADMM inputs pulled towards the shifted previous plan (by 3/4, 1/2 or 1/4) until
+    /// the roll-out was admissible, and that roll-out.
     Backtracked,
-    /// The roll-out of the ADMM inputs was unsafe and backtracking did not help; the plan is
-    /// the cheapest safe (else the least-violating) simple input sequence and its roll-out.
+    /// Refinement and backtracking failed; the plan is the cheapest admissible simple input
+    /// sequence and its roll-out.
     Fallback,
     /// A QP of the ADMM (Δ- or α-update) gave no usable solution, also after the
     /// equilibration-off retry; the ADMM iterates were dropped and the plan is chosen as for
@@ -183,12 +276,17 @@ impl PlanStatus {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[non_exhaustive]
 pub enum StepStatus {
-    /// ADMM converged; the plan is safe.
+    /// ADMM converged; its plan is admissible.
     Converged,
-    /// ADMM reached `max_iter`; the plan is safe.
+    /// ADMM reached `max_iter`; its plan is admissible.
     MaxIterations,
-    /// The states could not be made safe.
+    /// The ADMM inputs, refined on the nonlinear model, are admissible.
+    Refined,
+    /// No admissible plan was found.
     Unsafe,
+    /// The work budget ran out; the plan (ADMM's inputs at that point, or the previous plan)
+    /// is admissible.
+    BudgetExhausted,
     /// The ADMM inputs were pulled towards the previous plan until their roll-out was safe.
     Backtracked,
     /// A simple input sequence replaced the ADMM inputs.
@@ -199,10 +297,12 @@ pub enum StepStatus {
 
 impl StepStatus {
     /// Every status, in declaration order.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 8] = [
         Self::Converged,
         Self::MaxIterations,
+        Self::Refined,
         Self::Unsafe,
+        Self::BudgetExhausted,
         Self::Backtracked,
         Self::Fallback,
         Self::SolverFailed,
@@ -214,7 +314,9 @@ impl StepStatus {
         match self {
             Self::Converged => "Converged",
             Self::MaxIterations => "MaxIterations",
+            Self::Refined => "Refined",
             Self::Unsafe => "Unsafe",
+            Self::BudgetExhausted => "BudgetExhausted",
             Self::Backtracked => "Backtracked",
             Self::Fallback => "Fallback",
             Self::SolverFailed => "SolverFailed",
@@ -233,7 +335,9 @@ impl From<PlanStatus> for StepStatus {
         match s {
             PlanStatus::Converged => Self::Converged,
             PlanStatus::MaxIterations => Self::MaxIterations,
+            PlanStatus::Refined => Self::Refined,
             PlanStatus::Unsafe => Self::Unsafe,
+            PlanStatus::BudgetExhausted => Self::BudgetExhausted,
             PlanStatus::Backtracked => Self::Backtracked,
             PlanStatus::Fallback => Self::Fallback,
             PlanStatus::SolverFailed { .. } => Self::SolverFailed,
@@ -271,6 +375,10 @@ pub struct Plan {
     pub accel: Vec<f64>,
     /// Planned states z_1..z_T as (x, y, ψ, v) in the road frame (m, m, rad, m/s), `[T]`.
     pub states: Vec<[f64; 4]>,
+    /// ADMM's own states Z at the end of its loop, (x, y, ψ, v) in the road frame, `[T]`
+    /// (empty after a QP failure): they satisfy the linearised dynamics up to the primal
+    /// residual; [`Plan::states`] are the nonlinear roll-out of the returned inputs.
+    pub admm_states: Vec<[f64; 4]>,
     /// Cost J = Φ1 + Φ2 + Φ3 at the returned (Δ, α, Z).
     pub cost: f64,
     /// ADMM iterations run (the failed one included after a QP failure).

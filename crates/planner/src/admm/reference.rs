@@ -104,17 +104,22 @@ impl JointQp {
         }
     }
 
-    /// lower ≤ y_k, v_k ≤ upper.
+    /// lower_k ≤ (y_k, ψ_k, v_k) ≤ upper_k (infinite bounds are left out).
     fn state_bounds(&mut self, lp: &LinearisedProblem) {
         let t = lp.horizon;
         for k in 0..t {
-            for j in [1usize, 3] {
+            for j in [1usize, 2, 3] {
                 let idx = 2 * t + 4 * k + j;
-                let r = self.b.len();
-                self.a.push((r, idx, 1.0));
-                self.b.push(lp.upper[j]);
-                self.a.push((r + 1, idx, -1.0));
-                self.b.push(-lp.lower[j]);
+                if lp.upper[k][j].is_finite() {
+                    let r = self.b.len();
+                    self.a.push((r, idx, 1.0));
+                    self.b.push(lp.upper[k][j]);
+                }
+                if lp.lower[k][j].is_finite() {
+                    let r = self.b.len();
+                    self.a.push((r, idx, -1.0));
+                    self.b.push(-lp.lower[k][j]);
+                }
             }
         }
     }

@@ -1,11 +1,15 @@
 //! The execution check and its repairs. The vehicle follows the nonlinear roll-out of (Δ, α),
-//! not Z. When ADMM stopped before F ≈ 0 the two differ, and Z tends to sit on the constraint
-//! boundary, so the roll-out can dip below it. Then
-//! 1. [`Repairer::backtrack`]: pull (Δ, α) towards the nominal (the shifted previous plan) by
-//!    θ = 3/4, 1/2, 1/4 and take the first safe roll-out;
-//! 2. else [`Repairer::best_fallback`]: the cheapest safe (else the least-violating) of a few simple
-//!    input sequences: the nominal, steering straight with constant accelerations, and
-//!    [`steer_towards`] the lateral goal with those accelerations.
+//! not Z, and a plan is *admissible* when that roll-out is safe (every checked b > safety_min
+//! under the predictor's prediction of it) and within the state bounds (heading, lateral
+//! corridor, road). When ADMM stopped before F ≈ 0 the roll-out and Z differ, and Z tends to
+//! sit on the constraint boundary, so the roll-out can leave it. Then
+//! 1. [`Repairer::refine`]: SQP steps on the nonlinear roll-out from the ADMM inputs
+//!    ([`super::refine`]); the first admissible roll-out;
+//! 2. else [`Repairer::backtrack`]: pull (Δ, α) towards the nominal (the shifted previous
+//!    plan) by θ = 3/4, 1/2, 1/4 and take the first admissible roll-out;
+//! 3. else [`Repairer::best_fallback`]: the cheapest admissible (else the least-violating) of
+//!    a few simple input sequences: the nominal, [`align_with_road`] with constant
+//!    accelerations, and [`steer_towards`] the lateral goal with those accelerations.
 //!
 //! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
 
@@ -16,8 +20,9 @@ use crate::model::{Bicycle, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
 
-use super::constraint::SafetyEval;
+use super::constraint::{SafetyEval, SafetyRow};
 use super::linearised::LinearisedProblem;
+use super::refine;
 
 /// An input sequence checked on its roll-out.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,15 +37,25 @@ pub(crate) struct Candidate {
     pub min_b: Option<f64>,
     /// How it ranks among fallbacks.
     pub rank: Rank,
+    /// The safety rows of the roll-out's evaluation (for the refinement).
+    pub rows: Vec<SafetyRow>,
 }
 
-/// A fallback's rank: a safe sequence by its cost J, an unsafe one by its total violation; any
-/// safe one beats every unsafe one.
+/// Weight of the state-bound excess (per m or rad) against the safety violation (units of b)
+/// in the rank of an inadmissible candidate.
+const EXCESS_WEIGHT: f64 = 10.0;
+
+/// Bound excess below this counts as within the bounds (rounding).
+const EXCESS_TOLERANCE: f64 = 1e-9;
+
+/// A candidate's rank: an admissible sequence by its cost J, another by its total violation
+/// (safety violation + [`EXCESS_WEIGHT`] × state-bound excess); any admissible one beats
+/// every other.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
-    /// The roll-out is safe (at `safety_min`).
+    /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
     pub safe: bool,
-    /// Cost when safe, total violation when not.
+    /// Cost when admissible, total violation when not.
     pub value: f64,
 }
 
@@ -75,7 +90,8 @@ impl Repairer<'_, '_> {
         self.model
             .rollout(&self.lp.start, &delta, &accel, &mut rollout);
         let e = self.safety.eval(self.predictor, &rollout)?;
-        let rank = if e.is_safe(self.s.safety_min) {
+        let excess = self.lp.bound_excess(&rollout);
+        let rank = if e.is_safe(self.s.safety_min) && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
@@ -83,7 +99,8 @@ impl Repairer<'_, '_> {
         } else {
             Rank {
                 safe: false,
-                value: e.violation,
+                value: safety_violation(e.min_b, e.violation, self.s.safety_min)
+                    + EXCESS_WEIGHT * excess,
             }
         };
         Ok(Candidate {
@@ -92,7 +109,30 @@ impl Repairer<'_, '_> {
             rollout,
             min_b: e.min_b,
             rank,
+            rows: self.safety.rows.clone(),
         })
+    }
+
+    /// Up to `refine_iters` SQP steps ([`refine::step`]) from the inadmissible `from`; the
+    /// first admissible roll-out, or `None`.
+    pub(crate) fn refine(&mut self, from: &Candidate) -> Result<Option<Candidate>, PlannerError> {
+        let (mut delta, mut accel, mut rows) =
+            (from.delta.clone(), from.accel.clone(), from.rows.clone());
+        for _ in 0..self.s.refine_iters {
+            let Some((d, a)) = refine::step(self.s, self.model, self.lp, &delta, &accel, &rows)
+            else {
+                return Ok(None);
+            };
+            let c = self.check(d, a)?;
+            if c.rank.safe {
+                return Ok(Some(c));
+            }
+            if self.safety.budget.exhausted {
+                return Ok(None);
+            }
+            (delta, accel, rows) = (c.delta, c.accel, c.rows);
+        }
+        Ok(None)
     }
 
     /// The first of (Δ, α) pulled towards the nominal by θ = 3/4, 1/2, 1/4 whose roll-out is
@@ -140,8 +180,8 @@ fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> 
 }
 
 /// The simple input sequences of the fallback besides the nominal, in order: for each
-/// constant acceleration 0, a_min/2, a_min, a_max/2 (within the jerk bound), steering straight
-/// (δ → 0 within the rate bound), then [`steer_towards`] the lateral goal.
+/// constant acceleration 0, a_min/2, a_min, a_max/2 (within the jerk bound),
+/// [`align_with_road`], then [`steer_towards`] the lateral goal.
 pub(crate) fn simple_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
@@ -149,39 +189,102 @@ pub(crate) fn simple_inputs(
 ) -> Vec<(Vec<f64>, Vec<f64>)> {
     let t = lp.horizon;
     let mut inputs = Vec::with_capacity(8);
-    let mut straight = vec![0.0; t];
-    repair_box_rate(&mut straight, lp.delta_box);
     for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
         let mut a = vec![a_cmd; t];
         repair_box_rate(&mut a, lp.accel_box);
-        inputs.push((straight.clone(), a.clone()));
-        let d = steer_towards(model, &lp.start, &a, lp.reference[1], lp.delta_box);
+        inputs.push((
+            align_with_road(model, &lp.start, &a, lp.delta_box),
+            a.clone(),
+        ));
+        let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
+        let d = steer_towards(
+            model,
+            &lp.start,
+            &a,
+            lp.reference[1],
+            max_heading,
+            lp.delta_box,
+        );
         inputs.push((d, a));
     }
     inputs
 }
 
+/// The violation of a candidate's safety: −∞ (a NaN prediction) counts as infinitely
+/// violating, otherwise the evaluator's total violation, at least `safety_min − min_b` when
+/// that is positive.
+fn safety_violation(min_b: Option<f64>, violation: f64, safety_min: f64) -> f64 {
+    min_b.map_or(0.0, |b| violation.max(safety_min - b).max(0.0))
+}
+
+/// Steering that turns the vehicle parallel to the road (heading → 0) while it follows
+/// `accel` (m/s²), within the box and rate bounds: [`steer_to_heading`] with goal 0.
+pub(crate) fn align_with_road(
+    model: &Bicycle,
+    start: &State,
+    accel: &[f64],
+    bounds: RateBox,
+) -> Vec<f64> {
+    steer_to_heading(model, start, accel, bounds, |_| 0.0)
+}
+
 /// Steering that turns the vehicle towards the lateral goal `y_goal` (m, same frame as
 /// `start`) while it follows `accel` (m/s²): each step aims at the heading
-/// ψ* = clamp(0.05·(y_goal − y), ±0.08) rad and steers to reach it in one step, within the
-/// box and rate bounds.
+/// ψ* = clamp(0.05·(y_goal − y), ±min(0.08, `max_heading`)) rad and steers to reach it in one
+/// step, within the box and rate bounds.
 pub(crate) fn steer_towards(
     model: &Bicycle,
     start: &State,
     accel: &[f64],
     y_goal: f64,
+    max_heading: f64,
     bounds: RateBox,
 ) -> Vec<f64> {
+    let cap = max_heading.min(0.08);
+    steer_to_heading(model, start, accel, bounds, |z| {
+        (0.05 * (y_goal - z[1])).clamp(-cap, cap)
+    })
+}
+
+/// Steering towards the heading `goal(z)` (rad) of the current state while the vehicle
+/// follows `accel` (m/s²), within the box and rate bounds: each step takes, among the
+/// steering values the bounds allow, the one whose heading after this step plus the turn it
+/// takes to unwind the steering back to zero at the rate bound lands closest to the goal (so
+/// the heading does not overshoot because the steering cannot be undone at once).
+fn steer_to_heading(
+    model: &Bicycle,
+    start: &State,
+    accel: &[f64],
+    bounds: RateBox,
+    goal: impl Fn(&State) -> f64,
+) -> Vec<f64> {
+    const CHOICES: usize = 40;
     let mut z = *start;
     let mut prev = bounds.prev.clamp(bounds.lo, bounds.hi);
     let mut out = Vec::with_capacity(accel.len());
     for a in accel {
-        let heading_goal = (0.05 * (y_goal - z[1])).clamp(-0.08, 0.08);
-        // ψ⁺ − ψ ≈ dt·v·sin β / l_r with β ≈ δ·l_r/(l_f + l_r).
+        let heading_goal = goal(&z);
+        // ψ⁺ − ψ ≈ gain·δ with gain = dt·v·sin β / (l_r δ), β ≈ δ·l_r/(l_f + l_r).
         let gain = model.dt * z[3].max(1.0) / (model.l_f + model.l_r);
         let lo = bounds.lo.max(prev - bounds.rate);
         let hi = bounds.hi.min(prev + bounds.rate);
-        let d = ((heading_goal - z[2]) / gain).clamp(lo, hi);
+        let unwind = |d: f64| {
+            let (mut rest, mut turn) = (d.abs(), 0.0);
+            while rest > bounds.rate {
+                rest -= bounds.rate;
+                turn += rest;
+            }
+            gain * turn * d.signum()
+        };
+        let mut best = (f64::INFINITY, prev.clamp(lo, hi));
+        for i in 0..=CHOICES {
+            let d = lo + (hi - lo) * i as f64 / CHOICES as f64;
+            let miss = (z[2] + gain * d + unwind(d) - heading_goal).abs();
+            if miss < best.0 {
+                best = (miss, d);
+            }
+        }
+        let d = best.1;
         z = model.advance(&z, d, *a);
         out.push(d);
         prev = d;

@@ -84,11 +84,17 @@ fn trial_point(
                 mat_vec(pinned, &scratch.pinned_rhs, &mut scratch.pinned_step);
                 lp.project_step(z, &scratch.pinned_step, 1.0, &mut scratch.trial);
             } else {
-                for ((trial, zk), g) in scratch.trial.iter_mut().zip(z).zip(violation_gradient) {
+                for (k, ((trial, zk), g)) in scratch
+                    .trial
+                    .iter_mut()
+                    .zip(z)
+                    .zip(violation_gradient)
+                    .enumerate()
+                {
                     *trial = *zk;
                     trial[0] -= push * g[0] / norm;
                     trial[1] -= push * g[1] / norm;
-                    *trial = lp.clamp(trial);
+                    *trial = lp.clamp(k, trial);
                 }
             }
         }

@@ -49,13 +49,17 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem
     }
 }
 
-/// Predicts every other agent 200 m ahead of the ego candidate's last position (always safe)
-/// until `strict_from` calls have been made; from then on, it predicts agent 1 on top of the
-/// candidate (b = −1) whenever the candidate's last lateral position exceeds `y_limit`.
+/// Predicts every other agent at constant velocity from its last observed motion (always safe
+/// for the car 40 m behind at the ego's speed) until `strict_from` calls have been made; from
+/// then on, whenever the candidate's last lateral position exceeds `y_limit`, it predicts
+/// agent 1 chasing the candidate at 29 m per step (a plausible prediction: the planner refuses
+/// motions beyond 30 m per step), so that it sits on top of the candidate (b = −1) from the
+/// step it catches up.
 struct Gate {
     strict_from: usize,
     y_limit: f64,
-    n_agents: usize,
+    /// Last two observed positions of every agent.
+    last: Vec<[[f64; 2]; 2]>,
     calls: usize,
 }
 
@@ -64,7 +68,7 @@ impl Gate {
         Self {
             strict_from,
             y_limit,
-            n_agents: 0,
+            last: Vec::new(),
             calls: 0,
         }
     }
@@ -78,34 +82,67 @@ impl Predictor for Gate {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.n_agents = history.n_agents();
+        self.last = last_two(history);
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
         let blocked = self.calls >= self.strict_from && candidates[11] > self.y_limit;
         self.calls += 1;
-        for agent in 0..self.n_agents - 1 {
-            for k in 0..6 {
-                let o = (agent * 6 + k) * 2;
-                if blocked && agent == 0 {
-                    out[o] = candidates[2 * k];
-                    out[o + 1] = candidates[2 * k + 1];
-                } else {
-                    out[o] = candidates[10] + 200.0;
-                    out[o + 1] = candidates[2 * k + 1];
-                }
-            }
-        }
+        let chase = |k: usize| [candidates[2 * k], candidates[2 * k + 1]];
+        predict_others(
+            &self.last,
+            blocked.then_some(&chase as &dyn Fn(usize) -> [f64; 2]),
+            out,
+        );
         Ok(())
     }
 }
 
-/// b of a vehicle predicted 200 m ahead at the same lateral position, as the constraint sizes
-/// it for two road-aligned cars (ψ of the ego's last planned state ignored: |sin ψ| ≈ 0
-/// changes a_x by millimetres, far below what 200 m gives).
+/// The last two observed positions `[n][2]` (m) of every agent.
+fn last_two(history: &History) -> Vec<[[f64; 2]; 2]> {
+    (0..history.n_agents())
+        .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
+        .collect()
+}
+
+/// Predictions `[n − 1, 6, 2]` into `out`: every other agent at constant velocity from its
+/// `last` two positions, except agent 1 when `chase` is given: it moves towards `chase(k)` at
+/// step k at 29 m per step (a plausible prediction: the planner refuses motions beyond 30 m
+/// per step) and sits on it once it caught up.
+fn predict_others(
+    last: &[[[f64; 2]; 2]],
+    chase: Option<&dyn Fn(usize) -> [f64; 2]>,
+    out: &mut [f64],
+) {
+    for (i, [prev, now]) in last.iter().enumerate().skip(1) {
+        let mut p = *now;
+        for k in 0..6 {
+            let o = ((i - 1) * 6 + k) * 2;
+            p = match chase {
+                Some(target) if i == 1 => {
+                    let c = target(k);
+                    let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
+                    let d = dx.hypot(dy);
+                    if d <= 29.0 {
+                        c
+                    } else {
+                        [p[0] + 29.0 * dx / d, p[1] + 29.0 * dy / d]
+                    }
+                }
+                _ => [p[0] + now[0] - prev[0], p[1] + now[1] - prev[1]],
+            };
+            out[o] = p[0];
+            out[o + 1] = p[1];
+        }
+    }
+}
+
+/// A lower bound of b for the car behind at constant velocity: at least 35 m behind the ego
+/// at the same lateral position, as the constraint sizes it for two road-aligned cars (ψ of
+/// the ego's planned state ignored: |sin ψ| ≈ 0 changes a_x by millimetres).
 fn far_b_lower_bound(s: &PlannerSettings) -> f64 {
     let a_x = s.ellipse_scale * (4.5 + 1.9) + s.margin_x;
-    (200.0 / a_x).powi(2) - 1.0
+    (35.0 / a_x).powi(2) - 1.0
 }
 
 /// The nonlinear roll-out of (δ, a) from the problem's ego state, in the road frame.
@@ -124,6 +161,19 @@ fn rollout_world(
     let mut out = vec![State::zeros(); d.len()];
     model.rollout(&z0, d, a, &mut out);
     out.iter().map(|z| [z[0], z[1], z[2], z[3]]).collect()
+}
+
+/// The defaults with the refinement and the heading and corridor bounds off: the repair
+/// branches after the execution check (backtracking, fallbacks) alone, as they are reached
+/// when the refinement fails.
+fn repairs_only() -> PlannerSettings {
+    PlannerSettings {
+        refine_iters: 0,
+        heading_max: 3.0,
+        overshoot_max: 100.0,
+        brake_decel: 0.0,
+        ..PlannerSettings::default()
+    }
 }
 
 fn model(s: &PlannerSettings) -> Bicycle {
@@ -225,9 +275,9 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
             current.violation,
             first.violation
         );
-        for z in &iterates.z {
+        for (k, z) in iterates.z.iter().enumerate() {
             assert!(
-                z[1] >= lp.lower[1] && z[1] <= lp.upper[1] && z[3] >= 0.0,
+                z[1] >= lp.lower[k][1] && z[1] <= lp.upper[k][1] && z[3] >= 0.0,
                 "{z}"
             );
         }
@@ -311,10 +361,10 @@ fn y_end(s: &PlannerSettings, p: &PlanningProblem<'_>, plan: &Plan, theta: f64) 
 
 /// A roll-out that turns unsafe after ADMM (the gate closes for the execution check) and is
 /// safe again with the inputs halved: `Backtracked`, with inputs exactly θ = 1/2 of the ADMM
-/// inputs, the states their roll-out, and min b that of the far vehicle.
+/// inputs, the states their roll-out, and min b that of the car behind (not the blocked −1).
 #[test]
 fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
-    let s = PlannerSettings::default();
+    let s = repairs_only();
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let admm = reference_plan(&s, &p);
@@ -331,7 +381,7 @@ fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
     // The roll-out check, θ = 3/4 (unsafe), θ = 1/2 (safe).
     assert_eq!(plan.predictor_calls, admm_calls + 3);
     let b = plan.min_safety.unwrap();
-    assert!(b > far_b_lower_bound(&s) * 0.99, "min b {b}");
+    assert!(b > far_b_lower_bound(&s), "min b {b}");
     assert_eq!(plan.rollout_min_safety, plan.min_safety);
     assert_eq!(plan.iterations, admm.iterations);
 }
@@ -340,7 +390,7 @@ fn unsafe_rollout_is_backtracked_to_the_first_safe_pull() {
 /// sequence (safe = ending below the gate), checked on its roll-out.
 #[test]
 fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
-    let s = PlannerSettings::default();
+    let s = repairs_only();
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let admm = reference_plan(&s, &p);
@@ -389,7 +439,7 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
 /// fallback the best by rank, both checked on their roll-outs.
 #[test]
 fn repairer_checks_every_candidate_on_its_rollout() {
-    let s = PlannerSettings::default();
+    let s = repairs_only();
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
@@ -560,7 +610,7 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     let checked: Vec<usize> = constraint.vehicles().iter().map(|v| v.index).collect();
     assert_eq!(checked, [1, 2]);
     let moved = vec![[13.4, 3.2], [-3.0, -3.6], [93.6, 0.0]];
-    let ego_next = [3.6, 0.05, 0.03];
+    let ego_next = [3.6, 0.05, 0.03, 12.0];
     let mut positions = vec![[ego_next[0], ego_next[1]]];
     positions.extend_from_slice(&moved);
     let executed = constraint.executed_min_b(ego_next, &positions).unwrap();
@@ -568,13 +618,18 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
     let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety_min);
     let mut z = vec![State::new(-1000.0, 0.0, 0.0, 12.0); 6];
-    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], 12.0);
-    let planned = safety.eval(&mut StepOne(moved), &z).unwrap().min_b.unwrap();
+    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], ego_next[3]);
+    let planned = safety
+        .eval(&mut StepOne(moved.clone()), &z)
+        .unwrap()
+        .min_b
+        .unwrap();
     assert_eq!(executed.to_bits(), planned.to_bits());
     // Independent geometry: ellipses at the headings in radians (the moving car's from its
-    // displacement, the stopped car's 0), equal up to the trigonometry's rounding.
-    let b = |other: [f64; 2], heading: f64| {
-        crate::Ellipse::with_headings(
+    // displacement, the stopped car's 0), equal up to the trigonometry's rounding; no
+    // closing-speed margin at step 1 (it is the horizon's terminal condition).
+    let b = |other: [f64; 2], heading: f64, margin: f64| {
+        let mut e = crate::Ellipse::with_headings(
             sizes[0],
             ego_next[2],
             [4.5, 1.9],
@@ -582,10 +637,30 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
             s.ellipse_scale,
             s.margin_x,
             s.margin_y,
-        )
-        .value([ego_next[0], ego_next[1]], other)
+        );
+        e.a_x += margin;
+        e.value([ego_next[0], ego_next[1]], other)
     };
-    let want = b(positions[1], (-0.3f64).atan2(3.4)).min(b(positions[2], 0.0));
+    let want = b(positions[1], (-0.3f64).atan2(3.4), 0.0).min(b(positions[2], 0.0, 0.0));
+    // The terminal margin of the car ahead: it drives 3.4 m in 0.3 s, slower than the ego's
+    // 12 m/s, so the ego needs its extra braking distance at brake_decel; none for the
+    // stopped car behind the ego.
+    let v = constraint.vehicles()[0];
+    let ahead_speed: f64 = 3.4 / 0.3;
+    let margin = (12.0f64.powi(2) - ahead_speed.powi(2)) / (2.0 * s.brake_decel);
+    let terminal = constraint.b(&v, ego_next, [10.0, 3.5], moved[0], true).0;
+    assert!((terminal - b(positions[1], (-0.3f64).atan2(3.4), margin)).abs() < 1e-12);
+    let behind = constraint.vehicles()[1];
+    assert_eq!(
+        constraint.closing_margin([3.6, 0.05], 12.0, [-3.0, -3.6], moved[1]),
+        0.0
+    );
+    assert!(
+        constraint
+            .b(&behind, ego_next, [-3.0, -3.6], moved[1], true)
+            .0
+            > 0.0
+    );
     assert!((executed - want).abs() < 1e-12, "{executed} vs {want}");
     assert_eq!(
         SafetyConstraint::new(
@@ -598,4 +673,253 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
         .executed_min_b(ego_next, &positions),
         None
     );
+}
+
+/// From call `from` on, predicts agent 1 moving to a fixed road position `at` at 29 m per step
+/// (a plausible prediction: the planner refuses motions beyond 30 m per step) and staying
+/// there; before that, and every other agent always, at constant velocity from its last
+/// observed motion (always safe for the car 40 m behind at the ego's speed). A smooth obstacle
+/// that appears only for the execution check.
+struct Obstacle {
+    from: usize,
+    at: [f64; 2],
+    /// Last two observed positions of every agent.
+    last: Vec<[[f64; 2]; 2]>,
+    calls: usize,
+}
+
+impl Obstacle {
+    fn new(from: usize, at: [f64; 2]) -> Self {
+        Self {
+            from,
+            at,
+            last: Vec::new(),
+            calls: 0,
+        }
+    }
+}
+
+impl Predictor for Obstacle {
+    fn name(&self) -> &'static str {
+        "obstacle"
+    }
+    fn horizon(&self) -> usize {
+        6
+    }
+    fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
+        self.last = last_two(history);
+        Ok(())
+    }
+    fn predict(&mut self, _candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+        let present = self.calls >= self.from;
+        self.calls += 1;
+        let at = self.at;
+        let stay = move |_k: usize| at;
+        predict_others(
+            &self.last,
+            present.then_some(&stay as &dyn Fn(usize) -> [f64; 2]),
+            out,
+        );
+        Ok(())
+    }
+}
+
+/// An obstacle that appears for the execution check just beside where the ADMM roll-out
+/// ends (b slightly below 0): the refinement moves the inputs until the roll-out is safe,
+/// and the plan is that roll-out — admissible, within the bounds, cheaper than what
+/// backtracking towards the (zero) nominal gives.
+#[test]
+fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
+    // A loose heading bound: the reference ADMM roll-out is admissible as it is; no
+    // closing-speed margin (the obstacle stands still: the ellipse alone is tested here).
+    let s = PlannerSettings {
+        heading_max: 0.5,
+        brake_decel: 0.0,
+        ..PlannerSettings::default()
+    };
+    let (h, sizes) = car_behind_in_target_lane();
+    let p = problem(&h, &sizes, 12.0);
+    let admm = reference_plan(&s, &p);
+    let admm_calls = admm.predictor_calls - 1;
+    let end = admm.states[5];
+    // The ellipse's lateral semi-axis for two road-aligned cars, and an obstacle 0.97 of it
+    // to the left of the roll-out's last position (b ≈ −0.06 there).
+    let a_y = s.ellipse_scale * 1.9 + s.margin_y;
+    let at = [end[0], end[1] + 0.97 * a_y];
+    let mut obstacle = Obstacle::new(admm_calls, at);
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let plan = planner.plan(&p, &mut obstacle).unwrap();
+    assert_eq!(plan.status, PlanStatus::Refined, "{:?}", plan.status);
+    assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
+    // Independent check of safety: b of the obstacle at every step of the returned states.
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let v = constraint.vehicles()[0];
+    let mut min_b = f64::INFINITY;
+    for z in &plan.states {
+        let dir = [z[2].cos().abs(), z[2].sin().abs()];
+        let b = constraint.ellipse(&v, dir, at, at).value([z[0], z[1]], at);
+        min_b = min_b.min(b);
+    }
+    assert!(min_b > s.safety_min, "refined plan unsafe: b = {min_b}");
+    assert_eq!(
+        plan.min_safety,
+        Some(min_b).map(|_| plan.min_safety.unwrap())
+    );
+    assert!((plan.min_safety.unwrap() - min_b).abs() < 1e-9);
+    // Within the bounds.
+    for (k, z) in plan.states.iter().enumerate() {
+        assert!(z[2].abs() <= lp.upper[k][2] + 1e-12, "heading {z:?}");
+        assert!(z[1] - p.ego.y <= lp.upper[k][1] + 1e-12, "lateral {z:?}");
+    }
+    // Away from the obstacle, and no more than needed: cheaper than the backtracked plan.
+    assert!(plan.states[5][1] < end[1]);
+    let backtracked = {
+        let mut o = Obstacle::new(admm_calls, at);
+        let mut planner = Planner::new(PlannerSettings {
+            refine_iters: 0,
+            ..s.clone()
+        })
+        .unwrap();
+        planner.plan(&p, &mut o).unwrap()
+    };
+    assert!(
+        matches!(
+            backtracked.status,
+            PlanStatus::Backtracked | PlanStatus::Fallback
+        ),
+        "{:?}",
+        backtracked.status
+    );
+    assert!(
+        plan.cost < backtracked.cost,
+        "refined {} vs {:?} {}",
+        plan.cost,
+        backtracked.status,
+        backtracked.cost
+    );
+}
+
+/// The heading bound and the lateral corridor hold on every returned state of a free lane
+/// change (constant-velocity predictor, nobody in range), whatever the status; with them off
+/// the same problem turns the ego further and overshoots less tightly.
+#[test]
+fn returned_states_keep_the_heading_bound_and_the_corridor() {
+    for heading_max in [0.1, 0.15, 0.2] {
+        let s = PlannerSettings {
+            heading_max,
+            overshoot_max: 0.1,
+            ..PlannerSettings::default()
+        };
+        let (h, sizes) = scene(12.0, 0.0, &[(200.0, 3.7, 12.0)]);
+        let p = problem(&h, &sizes, 12.0);
+        let mut planner = Planner::new(s.clone()).unwrap();
+        let mut cv = ConstantVelocity::default();
+        let mut ego = State::new(0.0, 0.0, 0.0, 12.0);
+        let (mut last_delta, mut last_accel) = (0.0, 0.0);
+        for step in 0..40 {
+            let hist = h.clone();
+            let q = PlanningProblem {
+                ego: EgoState {
+                    x: ego[0],
+                    y: ego[1],
+                    psi: ego[2],
+                    v: ego[3],
+                },
+                last_delta,
+                last_accel,
+                history: &hist,
+                ..p
+            };
+            let plan = planner.plan(&q, &mut cv).unwrap();
+            assert_ne!(plan.status, PlanStatus::Unsafe, "step {step}");
+            for z in &plan.states {
+                assert!(z[2].abs() <= heading_max + 1e-9, "{heading_max}: {z:?}");
+                assert!(z[1] <= 3.7 + 0.1 + 1e-9 && z[1] >= -0.1 - 1e-9, "{z:?}");
+            }
+            ego = model(&s).advance(&ego, plan.delta[0], plan.accel[0]);
+            (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        }
+        if heading_max >= 0.1 {
+            assert!((ego[1] - 3.7).abs() < 0.3, "{heading_max}: ends at {ego:?}");
+        }
+    }
+}
+
+/// The road-aligning fallback turns the heading back towards 0 as fast as the steering box
+/// and rate bounds allow, never past it.
+#[test]
+fn align_with_road_turns_parallel_to_the_road() {
+    let s = PlannerSettings::default();
+    let m = model(&s);
+    let start = State::new(0.0, 0.0, 0.15, 12.0);
+    let bounds = RateBox {
+        lo: -s.delta_max,
+        hi: s.delta_max,
+        rate: s.ddelta_max,
+        prev: 0.1,
+    };
+    let accel = [0.0; 12];
+    let d = super::repair::align_with_road(&m, &start, &accel, bounds);
+    let mut z = start;
+    let mut prev = 0.1;
+    for dk in &d {
+        // Within the bounds, and never steering further left once the heading is left.
+        assert!((dk - prev).abs() <= s.ddelta_max + 1e-12 && dk.abs() <= s.delta_max + 1e-12);
+        prev = *dk;
+        z = m.advance(&z, *dk, 0.0);
+        assert!(z[2] > -0.02, "turned past the road's direction: {z:?}");
+    }
+    assert!(z[2].abs() < 0.01, "still turned: {z:?}");
+}
+
+/// A predictor-call budget bounds the work of one call deterministically: at most
+/// `budget_calls` calls, status `BudgetExhausted` with an admissible plan (or `Unsafe`), the
+/// same plan on every run.
+#[test]
+fn a_call_budget_bounds_the_work_and_returns_an_admissible_plan() {
+    let (h, sizes) = scene(12.0, 0.0, &[(-12.0, 3.7, 12.0), (25.0, 0.0, 11.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let free = Planner::new(PlannerSettings::default())
+        .unwrap()
+        .plan(&p, &mut ConstantVelocity::default())
+        .unwrap();
+    for budget_calls in [3, 5, 8] {
+        assert!(free.predictor_calls > budget_calls);
+        let s = PlannerSettings {
+            budget_calls,
+            ..PlannerSettings::default()
+        };
+        let run = || {
+            Planner::new(s.clone())
+                .unwrap()
+                .plan(&p, &mut ConstantVelocity::default())
+                .unwrap()
+        };
+        let plan = run();
+        assert!(
+            plan.predictor_calls <= budget_calls,
+            "{}",
+            plan.predictor_calls
+        );
+        assert!(
+            matches!(
+                plan.status,
+                PlanStatus::BudgetExhausted | PlanStatus::Unsafe
+            ),
+            "{:?}",
+            plan.status
+        );
+        if plan.status == PlanStatus::BudgetExhausted {
+            assert!(plan.min_safety.unwrap() > s.safety_min);
+        }
+        assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
+        assert_eq!(
+            plan,
+            Plan {
+                timings: plan.timings.clone(),
+                ..run()
+            }
+        );
+    }
 }

@@ -29,7 +29,12 @@ impl Iterates {
         Self {
             delta: lp.nominal_delta.clone(),
             accel: lp.nominal_accel.clone(),
-            z: lp.nominal_rollout.iter().map(|r| lp.clamp(r)).collect(),
+            z: lp
+                .nominal_rollout
+                .iter()
+                .enumerate()
+                .map(|(k, r)| lp.clamp(k, r))
+                .collect(),
             duals: lp.warm_duals.clone(),
         }
     }

@@ -3,6 +3,8 @@
 //! ([`Predictors`]), and [`simulate_many`] on a rayon pool.
 
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Records};
 use rayon::prelude::*;
@@ -14,7 +16,7 @@ use crate::settings::PlannerSettings;
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
-use super::run::simulate;
+use super::run::simulate_cancellable;
 use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
@@ -230,6 +232,32 @@ impl Predictors {
     }
 }
 
+/// A cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
+/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops before its next
+/// closed-loop step and the runs not started yet do not start, each with
+/// [`SimError::Cancelled`]. Clones share the flag.
+#[derive(Debug, Clone, Default)]
+pub struct Cancel(Arc<AtomicBool>);
+
+impl Cancel {
+    /// A flag not set.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sets the flag (from any thread).
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether the flag is set.
+    #[must_use]
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+}
+
 /// One finished run of a batch.
 #[derive(Debug)]
 pub struct RunOutput {
@@ -244,7 +272,8 @@ pub struct RunOutput {
 
 /// Runs every spec of `specs` on `scenes` in parallel on the current rayon pool (each planner
 /// call stays single-threaded), with fresh predictors per run; with `record`, the planning
-/// predictor is wrapped in a [`Recording`]. Outputs come back in the order of `specs`.
+/// predictor is wrapped in a [`Recording`]. Every run checks `cancel` before each closed-loop
+/// step. Outputs come back in the order of `specs`.
 pub fn simulate_many(
     scenes: &[Scenario],
     specs: &[RunSpec],
@@ -252,11 +281,26 @@ pub fn simulate_many(
     cfg: &SimConfig,
     predictors: &Predictors,
     record: bool,
+    cancel: &Cancel,
 ) -> Vec<RunOutput> {
     specs
         .par_iter()
         .map(|&spec| {
             let sc = &scenes[spec.scene];
+            if cancel.is_cancelled() {
+                // Not started: no predictor is built for it.
+                return RunOutput {
+                    spec,
+                    result: Err(SimError::Cancelled {
+                        scene: sc.name.clone(),
+                        step: 0,
+                    }),
+                    examples: None,
+                };
+            }
+            let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
+                simulate_cancellable(sc, settings, cfg, spec.seed, p, w, cancel)
+            };
             let mut teacher = match &predictors.world {
                 WorldSpec::Teacher(t) => Some(t.build()),
                 _ => None,
@@ -269,14 +313,11 @@ pub fn simulate_many(
             let planning = predictors.planning.build();
             let (result, examples) = if record {
                 let mut rec = Recording::new(planning);
-                let r = simulate(sc, settings, cfg, spec.seed, &mut rec, world);
+                let r = simulate(&mut rec, world);
                 (r, Some(rec.records))
             } else {
                 let mut p = planning;
-                (
-                    simulate(sc, settings, cfg, spec.seed, p.as_mut(), world),
-                    None,
-                )
+                (simulate(p.as_mut(), world), None)
             };
             RunOutput {
                 spec,

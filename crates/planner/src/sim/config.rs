@@ -168,14 +168,31 @@ impl SimConfig {
             value,
             reason: "not a JSON object of closed-loop settings",
         };
-        let value: serde_json::Value =
-            serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
+        // A repeated key is an error naming it (serde_json would keep the last one).
+        let value = nudge_predictor::json::parse(text).map_err(|e| bad(e.to_string()))?;
         if !value.is_object() {
             return Err(bad(value.to_string()));
         }
         let c: Self = serde_json::from_value(value).map_err(|e| bad(e.to_string()))?;
         c.validate()?;
         Ok(c)
+    }
+
+    /// Reads a closed-loop settings JSON file (a regular file of at most
+    /// [`crate::settings::MAX_SETTINGS_BYTES`], refused before reading otherwise) and parses it
+    /// as [`Self::from_json`].
+    ///
+    /// # Errors
+    /// [`SimConfigError::File`] naming the file when it cannot be read, otherwise as
+    /// [`Self::from_json`].
+    pub fn from_file(path: impl AsRef<std::path::Path>) -> Result<Self, SimConfigError> {
+        let path = path.as_ref();
+        let bytes = nudge_predictor::file::read_bounded(path, crate::settings::MAX_SETTINGS_BYTES)
+            .map_err(|e| SimConfigError::File(e.to_string()))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            SimConfigError::File(format!("{}: not UTF-8 text: {e}", path.display()))
+        })?;
+        Self::from_json(&text)
     }
 
     /// The settings as JSON text (every field).

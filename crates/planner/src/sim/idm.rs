@@ -267,6 +267,196 @@ impl Fields<'_> {
     }
 }
 
+/// The sections of a "nudge.idm/1" file, each read and checked on its own (in file order by
+/// [`IdmPopulation::from_json`]).
+impl Fields<'_> {
+    /// `schema` is [`IDM_SCHEMA`] and `units` names the unit of every parameter and of
+    /// `threshold_m`.
+    fn check_schema_and_units(&self, root: &Value) -> Result<(), WorldFileError> {
+        let schema = self.text(self.get(root, "", "schema")?, "schema")?;
+        if schema != IDM_SCHEMA {
+            return Err(self.err("schema", format!("{schema:?}, expected {IDM_SCHEMA:?}")));
+        }
+        let units = self.get(root, "", "units")?;
+        for (name, unit) in UNITS {
+            let field = format!("units.{name}");
+            let got = self.text(self.get(units, "units", name)?, &field)?;
+            if got != unit {
+                return Err(self.err(field, format!("{got:?}, expected {unit:?}")));
+            }
+        }
+        Ok(())
+    }
+
+    /// `parameter_names` is [`PARAMETER_NAMES`], in order.
+    fn check_parameter_names(&self, root: &Value) -> Result<(), WorldFileError> {
+        let names = self.array(self.get(root, "", "parameter_names")?, "parameter_names")?;
+        let names: Vec<&str> = names.iter().filter_map(Value::as_str).collect();
+        if names != PARAMETER_NAMES {
+            return Err(self.err(
+                "parameter_names",
+                format!("{names:?}, expected {PARAMETER_NAMES:?}"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `bounds`: the finite (lo, hi) of each parameter, in [`PARAMETER_NAMES`] order, with
+    /// 0 < lo < hi (units as in `units`).
+    fn bounds(&self, root: &Value) -> Result<[(f64, f64); 5], WorldFileError> {
+        let bounds_v = self.get(root, "", "bounds")?;
+        let mut bounds = [(0.0, 0.0); 5];
+        for (k, name) in PARAMETER_NAMES.iter().enumerate() {
+            let field = format!("bounds.{name}");
+            let pair = self.array(self.get(bounds_v, "bounds", name)?, &field)?;
+            if pair.len() != 2 {
+                return Err(self.err(field, format!("{} values, expected [lo, hi]", pair.len())));
+            }
+            let lo = self.number(&pair[0], &format!("{field}[0]"))?;
+            let hi = self.number(&pair[1], &format!("{field}[1]"))?;
+            if !(0.0 < lo && lo < hi) {
+                return Err(self.err(field, format!("[{lo}, {hi}] is not 0 < lo < hi")));
+            }
+            bounds[k] = (lo, hi);
+        }
+        Ok(bounds)
+    }
+
+    /// `model`: the positive `delta`, `max_decel_mps2` (m/s²) and `gap_floor_m` (m), and an
+    /// `integration` naming the ballistic 0.1 s update.
+    fn model(&self, root: &Value) -> Result<IdmModel, WorldFileError> {
+        let model_v = self.get(root, "", "model")?;
+        let model = IdmModel {
+            delta: self.positive(self.get(model_v, "model", "delta")?, "model.delta")?,
+            max_decel: self.positive(
+                self.get(model_v, "model", "max_decel_mps2")?,
+                "model.max_decel_mps2",
+            )?,
+            gap_floor: self.positive(
+                self.get(model_v, "model", "gap_floor_m")?,
+                "model.gap_floor_m",
+            )?,
+        };
+        let integration = self.text(
+            self.get(model_v, "model", "integration")?,
+            "model.integration",
+        )?;
+        if !(integration.contains("ballistic") && integration.contains("dt = 0.1 s")) {
+            return Err(self.err(
+                "model.integration",
+                format!(
+                    "{integration:?}: the world integrates ballistic sub-steps of 0.1 s \
+                     (\"ballistic, dt = 0.1 s\")"
+                ),
+            ));
+        }
+        Ok(model)
+    }
+
+    /// `drivers`: at least one row, each as [`Fields::driver`].
+    fn drivers(
+        &self,
+        root: &Value,
+        bounds: &[(f64, f64); 5],
+    ) -> Result<Vec<IdmDriver>, WorldFileError> {
+        let rows = self.array(self.get(root, "", "drivers")?, "drivers")?;
+        if rows.is_empty() {
+            return Err(self.err("drivers", "no driver"));
+        }
+        rows.iter()
+            .enumerate()
+            .map(|(i, row)| self.driver(i, row, bounds))
+            .collect()
+    }
+
+    /// Row `i` of `drivers`: 5 finite values in [`PARAMETER_NAMES`] order, each within its
+    /// `bounds`.
+    fn driver(
+        &self,
+        i: usize,
+        row: &Value,
+        bounds: &[(f64, f64); 5],
+    ) -> Result<IdmDriver, WorldFileError> {
+        let field = format!("drivers[{i}]");
+        let vals = self.array(row, &field)?;
+        if vals.len() != PARAMETER_NAMES.len() {
+            return Err(self.err(field, format!("{} values, expected 5", vals.len())));
+        }
+        let mut p = [0.0; 5];
+        for (k, v) in vals.iter().enumerate() {
+            let field = format!("drivers[{i}][{k}]");
+            let x = self.number(v, &field)?;
+            let (lo, hi) = bounds[k];
+            if !(lo..=hi).contains(&x) {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "{} = {x} outside its bounds [{lo}, {hi}]",
+                        PARAMETER_NAMES[k]
+                    ),
+                ));
+            }
+            p[k] = x;
+        }
+        Ok(IdmDriver {
+            t: p[0],
+            s0: p[1],
+            a_max: p[2],
+            b: p[3],
+            v0_ratio: p[4],
+        })
+    }
+
+    /// `driver_sources`: one `"i80"` or `"us101"` per driver (`n_drivers` of them).
+    fn driver_sources(
+        &self,
+        root: &Value,
+        n_drivers: usize,
+    ) -> Result<Vec<DriverSource>, WorldFileError> {
+        let src = self.array(self.get(root, "", "driver_sources")?, "driver_sources")?;
+        if src.len() != n_drivers {
+            return Err(self.err(
+                "driver_sources",
+                format!("{} entries for {} drivers", src.len(), n_drivers),
+            ));
+        }
+        let mut sources = Vec::with_capacity(src.len());
+        for (i, s) in src.iter().enumerate() {
+            let field = format!("driver_sources[{i}]");
+            sources.push(match self.text(s, &field)? {
+                "i80" => DriverSource::I80,
+                "us101" => DriverSource::Us101,
+                other => {
+                    return Err(
+                        self.err(field, format!("{other:?}, expected \"i80\" or \"us101\""))
+                    );
+                }
+            });
+        }
+        Ok(sources)
+    }
+
+    /// `intrusion`: a finite `threshold_m` (m) and a `p_yield` in [0, 1].
+    fn intrusion(&self, root: &Value) -> Result<IntrusionRule, WorldFileError> {
+        let rule = self.get(root, "", "intrusion")?;
+        let threshold_m = self.number(
+            self.get(rule, "intrusion", "threshold_m")?,
+            "intrusion.threshold_m",
+        )?;
+        let p_yield = self.number(self.get(rule, "intrusion", "p_yield")?, "intrusion.p_yield")?;
+        if !(0.0..=1.0).contains(&p_yield) {
+            return Err(self.err(
+                "intrusion.p_yield",
+                format!("{p_yield} is not a probability in [0, 1]"),
+            ));
+        }
+        Ok(IntrusionRule {
+            threshold_m,
+            p_yield,
+        })
+    }
+}
+
 impl IdmPopulation {
     /// Reads and checks a "nudge.idm/1" file.
     ///
@@ -300,134 +490,19 @@ impl IdmPopulation {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })?;
-        let schema = f.text(f.get(&root, "", "schema")?, "schema")?;
-        if schema != IDM_SCHEMA {
-            return Err(f.err("schema", format!("{schema:?}, expected {IDM_SCHEMA:?}")));
-        }
-        let units = f.get(&root, "", "units")?;
-        for (name, unit) in UNITS {
-            let field = format!("units.{name}");
-            let got = f.text(f.get(units, "units", name)?, &field)?;
-            if got != unit {
-                return Err(f.err(field, format!("{got:?}, expected {unit:?}")));
-            }
-        }
-        let names = f.array(f.get(&root, "", "parameter_names")?, "parameter_names")?;
-        let names: Vec<&str> = names.iter().filter_map(Value::as_str).collect();
-        if names != PARAMETER_NAMES {
-            return Err(f.err(
-                "parameter_names",
-                format!("{names:?}, expected {PARAMETER_NAMES:?}"),
-            ));
-        }
-        let bounds_v = f.get(&root, "", "bounds")?;
-        let mut bounds = [(0.0, 0.0); 5];
-        for (k, name) in PARAMETER_NAMES.iter().enumerate() {
-            let field = format!("bounds.{name}");
-            let pair = f.array(f.get(bounds_v, "bounds", name)?, &field)?;
-            if pair.len() != 2 {
-                return Err(f.err(field, format!("{} values, expected [lo, hi]", pair.len())));
-            }
-            let lo = f.number(&pair[0], &format!("{field}[0]"))?;
-            let hi = f.number(&pair[1], &format!("{field}[1]"))?;
-            if !(0.0 < lo && lo < hi) {
-                return Err(f.err(field, format!("[{lo}, {hi}] is not 0 < lo < hi")));
-            }
-            bounds[k] = (lo, hi);
-        }
-        let model_v = f.get(&root, "", "model")?;
-        let model = IdmModel {
-            delta: f.positive(f.get(model_v, "model", "delta")?, "model.delta")?,
-            max_decel: f.positive(
-                f.get(model_v, "model", "max_decel_mps2")?,
-                "model.max_decel_mps2",
-            )?,
-            gap_floor: f.positive(f.get(model_v, "model", "gap_floor_m")?, "model.gap_floor_m")?,
-        };
-        let integration = f.text(f.get(model_v, "model", "integration")?, "model.integration")?;
-        if !(integration.contains("ballistic") && integration.contains("dt = 0.1 s")) {
-            return Err(f.err(
-                "model.integration",
-                format!(
-                    "{integration:?}: the world integrates ballistic sub-steps of 0.1 s \
-                     (\"ballistic, dt = 0.1 s\")"
-                ),
-            ));
-        }
-        let rows = f.array(f.get(&root, "", "drivers")?, "drivers")?;
-        if rows.is_empty() {
-            return Err(f.err("drivers", "no driver"));
-        }
-        let mut drivers = Vec::with_capacity(rows.len());
-        for (i, row) in rows.iter().enumerate() {
-            let field = format!("drivers[{i}]");
-            let vals = f.array(row, &field)?;
-            if vals.len() != PARAMETER_NAMES.len() {
-                return Err(f.err(field, format!("{} values, expected 5", vals.len())));
-            }
-            let mut p = [0.0; 5];
-            for (k, v) in vals.iter().enumerate() {
-                let field = format!("drivers[{i}][{k}]");
-                let x = f.number(v, &field)?;
-                let (lo, hi) = bounds[k];
-                if !(lo..=hi).contains(&x) {
-                    return Err(f.err(
-                        field,
-                        format!(
-                            "{} = {x} outside its bounds [{lo}, {hi}]",
-                            PARAMETER_NAMES[k]
-                        ),
-                    ));
-                }
-                p[k] = x;
-            }
-            drivers.push(IdmDriver {
-                t: p[0],
-                s0: p[1],
-                a_max: p[2],
-                b: p[3],
-                v0_ratio: p[4],
-            });
-        }
-        let src = f.array(f.get(&root, "", "driver_sources")?, "driver_sources")?;
-        if src.len() != drivers.len() {
-            return Err(f.err(
-                "driver_sources",
-                format!("{} entries for {} drivers", src.len(), drivers.len()),
-            ));
-        }
-        let mut sources = Vec::with_capacity(src.len());
-        for (i, s) in src.iter().enumerate() {
-            let field = format!("driver_sources[{i}]");
-            sources.push(match f.text(s, &field)? {
-                "i80" => DriverSource::I80,
-                "us101" => DriverSource::Us101,
-                other => {
-                    return Err(f.err(field, format!("{other:?}, expected \"i80\" or \"us101\"")));
-                }
-            });
-        }
-        let rule = f.get(&root, "", "intrusion")?;
-        let threshold_m = f.number(
-            f.get(rule, "intrusion", "threshold_m")?,
-            "intrusion.threshold_m",
-        )?;
-        let p_yield = f.number(f.get(rule, "intrusion", "p_yield")?, "intrusion.p_yield")?;
-        if !(0.0..=1.0).contains(&p_yield) {
-            return Err(f.err(
-                "intrusion.p_yield",
-                format!("{p_yield} is not a probability in [0, 1]"),
-            ));
-        }
+        f.check_schema_and_units(&root)?;
+        f.check_parameter_names(&root)?;
+        let bounds = f.bounds(&root)?;
+        let model = f.model(&root)?;
+        let drivers = f.drivers(&root, &bounds)?;
+        let sources = f.driver_sources(&root, drivers.len())?;
+        let intrusion = f.intrusion(&root)?;
         Ok(Self {
             path: path.to_path_buf(),
             drivers,
             sources,
             model,
-            intrusion: IntrusionRule {
-                threshold_m,
-                p_yield,
-            },
+            intrusion,
         })
     }
 

@@ -16,7 +16,9 @@
 //! * [`batch`]: the run-spec rule ([`run_specs`]), the predictors of a batch loaded once
 //!   ([`Predictors`]) and [`simulate_many`];
 //! * [`columns`]: records → named columns ([`run_table`], [`step_table`],
-//!   [`collision_table`]), the [`Summary`] and the per-step listing.
+//!   [`collision_table`]), the [`Summary`] and the per-step listing;
+//! * [`request`]: the one validation of a batch both front ends call ([`BatchRequest`]),
+//!   before any run starts; a [`Cancel`] flag stops a running batch.
 
 // SimError carries the planner's and predictor's errors by value; they are rare, cold paths.
 #![allow(clippy::result_large_err)]
@@ -27,11 +29,12 @@ pub mod config;
 pub mod idm;
 pub mod metrics;
 pub mod records;
+pub mod request;
 pub mod run;
 pub mod world;
 
 pub use batch::{
-    MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, WorldSpec, defaults, run_specs,
+    Cancel, MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, WorldSpec, defaults, run_specs,
     simulate_many, thread_pool,
 };
 pub use columns::{
@@ -42,5 +45,6 @@ pub use config::{SimConfig, World};
 pub use idm::{IdmPopulation, IdmTraffic, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
 pub use records::{RunRecord, StepRecord, StepStatus};
-pub use run::{simulate, target_lane};
+pub use request::{Batch, BatchRequest};
+pub use run::{simulate, simulate_cancellable, target_lane};
 pub use world::WorldModel;

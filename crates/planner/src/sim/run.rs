@@ -10,10 +10,12 @@ use nudge_predictor::{History, Predictor, T_OBS};
 
 use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
 use crate::error::{PlannerError, SimError};
+use crate::lane::LaneChange;
 use crate::model::State;
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
+use super::batch::Cancel;
 use super::config::SimConfig;
 use super::metrics::{RunObserver, others_from_history};
 use super::records::{RunRecord, StepRecord, StepStatus};
@@ -47,65 +49,6 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
         });
     }
     Ok(options[((splitmix(seed) >> 32) % options.len() as u64) as usize])
-}
-
-/// The lane change's goal and its aborts: after `abort_after` consecutive steps without a
-/// safe plan while the ego is not wholly inside the target lane, aim at the own lane's centre
-/// for `abort_hold` steps, then retry.
-struct LaneChange {
-    y_target: f64,
-    y_own: f64,
-    /// |y − y_target| below which the ego is wholly inside the target lane (m).
-    inside: f64,
-    abort_after: usize,
-    abort_hold: usize,
-    unsafe_steps: usize,
-    hold: usize,
-    aborts: usize,
-}
-
-impl LaneChange {
-    fn new(sc: &Scenario, cfg: &SimConfig, y_target: f64) -> Self {
-        let y_own = sc.lane_centres[sc.ego_lane];
-        Self {
-            y_target,
-            y_own,
-            inside: (0.5 * (y_target - y_own).abs() - 0.5 * sc.size[0][1]).max(cfg.settle_y),
-            abort_after: cfg.abort_after,
-            abort_hold: cfg.abort_hold,
-            unsafe_steps: 0,
-            hold: 0,
-            aborts: 0,
-        }
-    }
-
-    /// Where the planner aims this step (m).
-    fn goal(&self) -> f64 {
-        if self.hold > 0 {
-            self.y_own
-        } else {
-            self.y_target
-        }
-    }
-
-    /// Counts a planning step of the ego at lateral position `y` (m) that ended in `status`.
-    fn after_plan(&mut self, status: StepStatus, y: f64) {
-        if self.hold > 0 {
-            self.hold -= 1;
-        } else if self.abort_after > 0
-            && status.is_unsafe_plan()
-            && (y - self.y_target).abs() > self.inside
-        {
-            self.unsafe_steps += 1;
-            if self.unsafe_steps >= self.abort_after {
-                self.hold = self.abort_hold;
-                self.unsafe_steps = 0;
-                self.aborts += 1;
-            }
-        } else {
-            self.unsafe_steps = 0;
-        }
-    }
 }
 
 /// The state of one run between steps.
@@ -211,7 +154,7 @@ impl ClosedLoop<'_> {
             predictor_calls: plan.predictor_calls,
             cost: plan.cost,
             primal_residual: plan.primal_residual,
-            min_b: constraint.executed_min_b([next[0], next[1], next[2]], &moved),
+            min_b: constraint.executed_min_b([next[0], next[1], next[2], next[3]], &moved),
             collision: !touching.is_empty(),
             status,
             delta: plan.delta[0],
@@ -235,7 +178,8 @@ impl ClosedLoop<'_> {
 /// success.
 ///
 /// # Errors
-/// [`SimError::Settings`] / [`SimError::Config`] for invalid settings,
+/// [`SimError::Settings`] / [`SimError::Config`] for invalid settings or settings that do not
+/// fit the predictors and scenes ([`crate::fit::check_closed_loop`]),
 /// [`SimError::WorldModel`] when `world` does not match `cfg.world`,
 /// [`SimError::NoAdjacentLane`], [`SimError::Predictor`] (the scene does not fit a predictor),
 /// [`SimError::Planner`] when planning fails (a bad problem or a predictor error; a QP failure
@@ -269,6 +213,23 @@ pub fn simulate(
     planner_pred: &mut dyn Predictor,
     world: WorldModel<'_>,
 ) -> Result<RunRecord, SimError> {
+    let never = Cancel::new();
+    simulate_cancellable(sc, settings, cfg, seed, planner_pred, world, &never)
+}
+
+/// [`simulate`], checking `cancel` before every closed-loop step.
+///
+/// # Errors
+/// As [`simulate`]; [`SimError::Cancelled`] once `cancel` is set.
+pub fn simulate_cancellable(
+    sc: &Scenario,
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+    seed: u64,
+    planner_pred: &mut dyn Predictor,
+    world: WorldModel<'_>,
+    cancel: &Cancel,
+) -> Result<RunRecord, SimError> {
     cfg.validate()?;
     let planner = Planner::new(settings.clone()).map_err(|e| match e {
         PlannerError::Settings(s) => SimError::Settings(s),
@@ -278,6 +239,11 @@ pub fn simulate(
             source: other,
         },
     })?;
+    let mut fit = vec![(planner_pred.name(), planner_pred.horizon())];
+    if let WorldModel::Teacher(w) = &world {
+        fit.push((w.name(), w.horizon()));
+    }
+    crate::fit::check_closed_loop(settings, &fit)?;
     let lane = target_lane(sc, seed)?;
     let mut mover = Mover::new(cfg, world, sc, seed, settings.horizon)?;
     let y_target = sc.lane_centres[lane];
@@ -292,7 +258,14 @@ pub fn simulate(
         ego: State::new(p0[0], p0[1], sc.heading[0], sc.speed[0]),
         v_ref: sc.speed[0],
         last_inputs: (0.0, 0.0),
-        lane: LaneChange::new(sc, cfg, y_target),
+        lane: LaneChange::new(
+            sc.lane_centres[sc.ego_lane],
+            y_target,
+            sc.size[0][1],
+            cfg.settle_y,
+            cfg.abort_after,
+            cfg.abort_hold,
+        ),
         observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
     };
     let mut rec = RunRecord {
@@ -313,6 +286,12 @@ pub fn simulate(
     };
     let mut settled = 0;
     for step in 0..cfg.max_steps {
+        if cancel.is_cancelled() {
+            return Err(SimError::Cancelled {
+                scene: sc.name.clone(),
+                step,
+            });
+        }
         // An ego turned across the road (only seen with erratic predictors) ends the run as a
         // failure instead of handing the planner a problem it rejects.
         if run.ego[2].abs() >= std::f64::consts::FRAC_PI_2 {
@@ -337,7 +316,7 @@ pub fn simulate(
         rec.steps_to_target = None;
     }
     rec.success = rec.steps_to_target.is_some();
-    rec.aborts = run.lane.aborts;
+    rec.aborts = run.lane.aborts();
     (rec.collisions, rec.metrics) = run.observer.finish(rec.success);
     Ok(rec)
 }

@@ -1,0 +1,167 @@
+//! The lane-change decision above the MPC: which lateral goal the planner aims at each step,
+//! and when a lane change that finds no admissible plan is given up.
+//!
+//! The planner itself ([`crate::Planner`]) plans towards one lateral goal per call. A lane
+//! change across a blocked target lane would otherwise idle across the lane line, straddling
+//! two live lanes; and giving up late, after the ego has slowed down and half entered the
+//! target lane, puts it back into its own lane's traffic at low speed. The rule:
+//!
+//! * **abort** after `abort_after` consecutive planning steps without an admissible plan
+//!   (status `Fallback`, `Unsafe` or `SolverFailed`) while the ego's centre is still on its own
+//!   side of the line between the two lanes: aim at the own lane's centre for `abort_hold`
+//!   steps, then try again;
+//! * **commit** once the centre has crossed that line: from then on the change is finished,
+//!   never aborted (going back would cross the line a second time).
+//!
+//! The simulator ([`crate::sim`]) applies it in every closed loop; a user embedding the planner
+//! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
+
+use crate::admm::StepStatus;
+
+/// The state of one lane change. Lateral positions are road-frame y (m, positive left).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LaneChange {
+    y_target: f64,
+    y_own: f64,
+    /// The line between the two lanes: the midpoint of their centres (m).
+    y_line: f64,
+    /// |y − y_target| below which the ego is wholly inside the target lane (m).
+    inside: f64,
+    abort_after: usize,
+    abort_hold: usize,
+    unsafe_steps: usize,
+    hold: usize,
+    aborts: usize,
+}
+
+impl LaneChange {
+    /// A lane change from the lane centred at `y_own` to the one centred at `y_target` (m) of
+    /// an ego `ego_width` wide (m); `settle_y` (m) is the smallest distance from the target
+    /// centre counted as inside; aborts after `abort_after` steps without an admissible plan
+    /// (0: never), holding the own lane for `abort_hold` steps.
+    #[must_use]
+    pub fn new(
+        y_own: f64,
+        y_target: f64,
+        ego_width: f64,
+        settle_y: f64,
+        abort_after: usize,
+        abort_hold: usize,
+    ) -> Self {
+        Self {
+            y_target,
+            y_own,
+            y_line: 0.5 * (y_own + y_target),
+            inside: (0.5 * (y_target - y_own).abs() - 0.5 * ego_width).max(settle_y),
+            abort_after,
+            abort_hold,
+            unsafe_steps: 0,
+            hold: 0,
+            aborts: 0,
+        }
+    }
+
+    /// The lateral goal of the next planning step (m): the target lane's centre, or the own
+    /// lane's centre while an abort holds.
+    #[must_use]
+    pub fn goal(&self) -> f64 {
+        if self.hold > 0 {
+            self.y_own
+        } else {
+            self.y_target
+        }
+    }
+
+    /// Whether the ego's centre at `y` (m) has crossed the line between the two lanes.
+    #[must_use]
+    pub fn committed(&self, y: f64) -> bool {
+        (y - self.y_line) * (self.y_target - self.y_line) > 0.0
+    }
+
+    /// Aborts so far.
+    #[must_use]
+    pub fn aborts(&self) -> usize {
+        self.aborts
+    }
+
+    /// Counts a planning step that ended in `status` with the ego's centre at `y` (m) when it
+    /// was planned.
+    pub fn after_plan(&mut self, status: StepStatus, y: f64) {
+        if self.hold > 0 {
+            self.hold -= 1;
+        } else if self.abort_after > 0
+            && status.is_unsafe_plan()
+            && (y - self.y_target).abs() > self.inside
+            && !self.committed(y)
+        {
+            self.unsafe_steps += 1;
+            if self.unsafe_steps >= self.abort_after {
+                self.hold = self.abort_hold;
+                self.unsafe_steps = 0;
+                self.aborts += 1;
+            }
+        } else {
+            self.unsafe_steps = 0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Own lane at y = 0, target at 3.7 (line at 1.85), a 1.9 m wide ego, abort after 2 steps
+    /// without an admissible plan, hold 3.
+    fn change() -> LaneChange {
+        LaneChange::new(0.0, 3.7, 1.9, 0.3, 2, 3)
+    }
+
+    #[test]
+    fn aborts_before_the_line_and_retries_after_the_hold() {
+        let mut c = change();
+        assert_eq!(c.goal(), 3.7);
+        c.after_plan(StepStatus::Fallback, 1.0);
+        assert_eq!((c.goal(), c.aborts()), (3.7, 0));
+        c.after_plan(StepStatus::Unsafe, 1.2);
+        assert_eq!((c.goal(), c.aborts()), (0.0, 1), "aborted");
+        for _ in 0..3 {
+            assert_eq!(c.goal(), 0.0);
+            c.after_plan(StepStatus::Fallback, 0.5);
+        }
+        assert_eq!(c.goal(), 3.7, "retries after the hold");
+        // An admissible plan resets the count.
+        c.after_plan(StepStatus::Fallback, 0.5);
+        c.after_plan(StepStatus::Converged, 0.6);
+        c.after_plan(StepStatus::Fallback, 0.7);
+        assert_eq!((c.goal(), c.aborts()), (3.7, 1));
+    }
+
+    #[test]
+    fn never_aborts_once_the_centre_crossed_the_line() {
+        let mut c = change();
+        assert!(!c.committed(1.84) && c.committed(1.86));
+        for _ in 0..10 {
+            c.after_plan(StepStatus::Fallback, 2.0);
+        }
+        assert_eq!((c.goal(), c.aborts()), (3.7, 0));
+        // A change to the right: the line is crossed going down.
+        let mut right = LaneChange::new(3.7, 0.0, 1.9, 0.3, 1, 1);
+        assert!(right.committed(1.0) && !right.committed(2.5));
+        right.after_plan(StepStatus::Unsafe, 2.5);
+        assert_eq!(right.aborts(), 1);
+    }
+
+    #[test]
+    fn no_aborts_inside_the_target_lane_or_when_disabled() {
+        let mut c = change();
+        for _ in 0..5 {
+            c.after_plan(StepStatus::Fallback, 3.5);
+        }
+        assert_eq!(c.aborts(), 0);
+        let mut off = LaneChange::new(0.0, 3.7, 1.9, 0.3, 0, 3);
+        for _ in 0..5 {
+            off.after_plan(StepStatus::Fallback, 0.5);
+        }
+        assert_eq!(off.aborts(), 0);
+    }
+}
