@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-table demo data teacher distill student distill-react student-react reaction goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student distill-react student-react reaction goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -135,6 +135,12 @@ bench-planner: venv
 
 bench-table: venv
 	$(TRAIN) bench inference --markdown docs/results/inference.md
+
+# The tail of the planning step over closed-loop runs on 120 test scenes, one thread
+# (docs/results/latency.md); needs the extension (make develop) and the processed scenes.
+bench-latency: venv
+	$(TRAIN) bench latency --split test --n 120
+	$(TRAIN) bench latency --split test --n 120 --predictors student teacher --budget-ms 20
 
 # ---- data, models, demo ---------------------------------------------------------------------
 goldens: venv

@@ -357,7 +357,7 @@ pub const RANGES: &[FieldRange] = &[
     open_min("heading_max", 0.0, 10.0, "rad"),
     open_min("heading_recovery", 0.0, 1.5, "rad per step"),
     closed("overshoot_max", 0.0, 100.0, "m"),
-    closed("refine_iters", 0.0, 100.0, "iterations"),
+    closed("refine_iters", 0.0, 20.0, "iterations"),
     closed("refine_margin", 0.0, 10.0, ""),
     open_min("refine_trust_delta", 0.0, 1.5, "rad"),
     open_min("refine_trust_accel", 0.0, 30.0, "m/s²"),

@@ -8,7 +8,7 @@
     nudge-train student-react              distil a student with a loss on its reaction to the ego
     nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
-    nudge-train bench inference|planner|python   benchmark tables
+    nudge-train bench inference|planner|python|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
     nudge-train idm fit|cutins|report|all  IDM fitted to real car-following, real cut-ins,
@@ -323,6 +323,9 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=paths.results() / "closed_loop.md", help="the report")
     p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
                    help="also write the summaries here")
+    p.add_argument("--before", nargs=2, default=None, metavar=("JSON", "LABEL"),
+                   help="summaries of an earlier run (its --json) on the same arms, and what it was: adds a "
+                        "before-and-after section")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
 
 
@@ -339,13 +342,14 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []))
+    before = (Path(a.before[0]), a.before[1]) if a.before else None
+    return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []), before)
 
 
 # ---- benches, goldens, figures -----------------------------------------------------------------
 def _add_bench(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmark tables", description="benchmark tables")
-    bsub = bench.add_subparsers(dest="bench_cmd", required=True, metavar="{inference,planner,python}")
+    bsub = bench.add_subparsers(dest="bench_cmd", required=True, metavar="{inference,planner,python,latency}")
 
     i = _command(bsub, "inference", "PyTorch vs Rust (criterion) inference times on the same weights and inputs",
                  _run_bench_inference)
@@ -374,6 +378,33 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
                    help="planning predictors timed")
     y.add_argument("--criterion", type=Path, default=paths.criterion(), help="criterion results")
 
+    from nudge_train.experiments.latency_config import N_EDGES, WORLDS, LatencyConfig
+
+    d = LatencyConfig(scenes=Path())
+    t = _command(bsub, "latency", "p50/p90/p99/max of the planning step over closed-loop runs on a split's scenes "
+                 "(one thread), per predictor and vehicle count, with step statuses: docs/results/latency.md",
+                 _run_bench_latency)
+    t.add_argument("--split", choices=SPLITS, default="test", help="the split whose scenes run")
+    t.add_argument("--scenes", type=Path, default=None,
+                   help="folder of scenario files (default data/processed/scenes/<split>)")
+    t.add_argument("--n", type=int, default=d.n, help="scenes drawn (seeded, as in closed-loop)")
+    t.add_argument("--seed", type=int, default=d.seed, help="seed of the scene draw and of the scene seeds")
+    t.add_argument("--runs", type=int, default=d.runs, help="runs (target-lane seeds) per scene")
+    t.add_argument("--predictors", nargs="+", default=list(d.predictors),
+                   help="planning predictors (teacher, student, constant_velocity or weights files)")
+    t.add_argument("--world", choices=WORLDS, default=d.world, help="how the other vehicles move")
+    t.add_argument("--budget-ms", type=float, default=None,
+                   help="also run every predictor with this work budget per call (PlannerSettings.budget_s, ms) "
+                        "on the same runs, and count the steps above it + 1 ms")
+    t.add_argument("--teacher-n", type=int, default=None,
+                   help="run the teacher planner on a seeded subset of this many scenes (default: all)")
+    t.add_argument("--n-edges", type=int, nargs="+", default=list(N_EDGES),
+                   help="upper bounds (inclusive) of the vehicle-count buckets")
+    t.add_argument("--chunk", type=int, default=d.chunk, help="scenes per chunk (every arm runs a chunk in turn)")
+    t.add_argument("--out", type=Path, default=paths.results() / "latency.md",
+                   help="the report (its section of this budget is replaced, the rest kept)")
+    t.add_argument("--no-progress", action="store_true", help="no progress lines")
+
 
 def _run_bench_inference(a: argparse.Namespace) -> int:
     from nudge_train.experiments.bench_inference import run
@@ -397,6 +428,21 @@ def _run_bench_python(a: argparse.Namespace) -> int:
     from nudge_train.experiments.bench_python import run
 
     return run(reps=a.reps, ns=a.ns, predictors=a.predictors, criterion=a.criterion)
+
+
+def _run_bench_latency(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.bench_latency import LatencyConfig, command_line, run
+
+    cfg = LatencyConfig(scenes=a.scenes or paths.scenes(a.split), n=a.n, seed=a.seed, runs=a.runs,
+                        predictors=tuple(a.predictors), world=a.world, budget_ms=a.budget_ms, teacher_n=a.teacher_n,
+                        n_edges=tuple(a.n_edges), chunk=a.chunk, progress=not a.no_progress)
+    try:
+        cfg.validate()
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    argv = sys.argv[3:] if sys.argv[1:3] == ["bench", "latency"] else []
+    return run(cfg, a.out, command_line(argv))
 
 
 def _add_goldens(sub: argparse._SubParsersAction) -> None:

@@ -32,6 +32,7 @@ COMMANDS: list[tuple[list[str], str]] = [
     (["bench", "inference"], "_run_bench_inference"),
     (["bench", "planner"], "_run_bench_planner"),
     (["bench", "python"], "_run_bench_python"),
+    (["bench", "latency"], "_run_bench_latency"),
     (["goldens"], "_run_goldens"),
     (["figures", "runs", "out/demo"], "_run_figures_runs"),
     (["figures", "curves", "teacher=runs/teacher", "--png", "c.png"], "_run_figures_curves"),

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest
 
+from nudge_train.experiments import closed_loop
 from nudge_train.experiments.stats import cluster_bootstrap, mcnemar_exact, paired_bootstrap, stratum, terciles
 
 
@@ -54,3 +55,24 @@ def test_terciles_and_strata() -> None:
     assert cuts == pytest.approx((1 + 8 / 3, 1 + 16 / 3))
     names = stratum(v, cuts, ("dense", "medium", "sparse"))
     assert names.tolist() == ["dense"] * 3 + ["medium"] * 3 + ["sparse"] * 3
+
+
+def _summary(success: float, at_fault: int, off_road: int) -> dict:
+    return {"runs": 9, "success": [success, success - 0.1, success + 0.05], "at_fault": [at_fault, at_fault],
+            "not_at_fault": [0, 0], "off_road": [off_road * 3, off_road], "slow": [0, 0], "slow_planned": [2, 1],
+            "heading": [0.19, 0.2], "overshoot": [0.3, 0], "score": [0.88, 0.8, 0.9], "mpc_ms": [5.0, 12.0]}
+
+
+def test_before_after_marks_what_changed_and_lists_missing_arms() -> None:
+    before = {"teacher/student/default": _summary(0.8, 2, 3), "idm/teacher/default": _summary(0.9, 0, 0)}
+    after = {"teacher/student/default": _summary(0.9, 0, 0), "log_replay/student/default": _summary(0.7, 1, 0)}
+    text = closed_loop.before_after(before, after, "the planner at commit abc")
+    rows = {line.split(" | ")[0] + "/" + line.split(" | ")[1]: line for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith("| world")}
+    assert "the planner at commit abc" in text
+    row = rows["| teacher/student"]
+    assert "80.0 [70.0, 85.0] → **90.0 [80.0, 95.0]**" in row
+    assert "2 (2) → **0 (0)**" in row and "3 → **0**" in row
+    assert "| 9 |" in row and "0.88" in row and "→ **0.88" not in row  # unchanged cells are written once
+    assert "(no before)" in rows["| log_replay/student"]
+    assert "(before only)" in rows["| idm/teacher"]

@@ -82,35 +82,58 @@ impl Predictor for Gate {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.last = (0..history.n_agents())
-            .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
-            .collect();
+        self.last = last_two(history);
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
         let blocked = self.calls >= self.strict_from && candidates[11] > self.y_limit;
         self.calls += 1;
-        for (i, [prev, now]) in self.last.iter().enumerate().skip(1) {
-            let mut p = *now;
-            for k in 0..6 {
-                let o = ((i - 1) * 6 + k) * 2;
-                if blocked && i == 1 {
-                    let c = [candidates[2 * k], candidates[2 * k + 1]];
+        let chase = |k: usize| [candidates[2 * k], candidates[2 * k + 1]];
+        predict_others(
+            &self.last,
+            blocked.then_some(&chase as &dyn Fn(usize) -> [f64; 2]),
+            out,
+        );
+        Ok(())
+    }
+}
+
+/// The last two observed positions `[n][2]` (m) of every agent.
+fn last_two(history: &History) -> Vec<[[f64; 2]; 2]> {
+    (0..history.n_agents())
+        .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
+        .collect()
+}
+
+/// Predictions `[n − 1, 6, 2]` into `out`: every other agent at constant velocity from its
+/// `last` two positions, except agent 1 when `chase` is given: it moves towards `chase(k)` at
+/// step k at 29 m per step (a plausible prediction: the planner refuses motions beyond 30 m
+/// per step) and sits on it once it caught up.
+fn predict_others(
+    last: &[[[f64; 2]; 2]],
+    chase: Option<&dyn Fn(usize) -> [f64; 2]>,
+    out: &mut [f64],
+) {
+    for (i, [prev, now]) in last.iter().enumerate().skip(1) {
+        let mut p = *now;
+        for k in 0..6 {
+            let o = ((i - 1) * 6 + k) * 2;
+            p = match chase {
+                Some(target) if i == 1 => {
+                    let c = target(k);
                     let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
                     let d = dx.hypot(dy);
-                    p = if d <= 29.0 {
+                    if d <= 29.0 {
                         c
                     } else {
                         [p[0] + 29.0 * dx / d, p[1] + 29.0 * dy / d]
-                    };
-                } else {
-                    p = [p[0] + now[0] - prev[0], p[1] + now[1] - prev[1]];
+                    }
                 }
-                out[o] = p[0];
-                out[o + 1] = p[1];
-            }
+                _ => [p[0] + now[0] - prev[0], p[1] + now[1] - prev[1]],
+            };
+            out[o] = p[0];
+            out[o + 1] = p[1];
         }
-        Ok(())
     }
 }
 
@@ -684,33 +707,19 @@ impl Predictor for Obstacle {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.last = (0..history.n_agents())
-            .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
-            .collect();
+        self.last = last_two(history);
         Ok(())
     }
     fn predict(&mut self, _candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
         let present = self.calls >= self.from;
         self.calls += 1;
-        for (i, [prev, now]) in self.last.iter().enumerate().skip(1) {
-            let mut p = *now;
-            for k in 0..6 {
-                let o = ((i - 1) * 6 + k) * 2;
-                if present && i == 1 {
-                    let (dx, dy) = (self.at[0] - p[0], self.at[1] - p[1]);
-                    let d = dx.hypot(dy);
-                    p = if d <= 29.0 {
-                        self.at
-                    } else {
-                        [p[0] + 29.0 * dx / d, p[1] + 29.0 * dy / d]
-                    };
-                } else {
-                    p = [p[0] + now[0] - prev[0], p[1] + now[1] - prev[1]];
-                }
-                out[o] = p[0];
-                out[o + 1] = p[1];
-            }
-        }
+        let at = self.at;
+        let stay = move |_k: usize| at;
+        predict_others(
+            &self.last,
+            present.then_some(&stay as &dyn Fn(usize) -> [f64; 2]),
+            out,
+        );
         Ok(())
     }
 }

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -575,29 +576,68 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
     return "\n".join(lines) + "\n"
 
 
-def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str) -> int:
-    """``nudge-train closed-loop``: collect, print and write the report. Returns the exit status
-    (2 when the scene folder holds no scenario or an argument is invalid)."""
+BEFORE_COLUMNS = ("runs", "success % [95 % CI]", "at-fault events (runs)", "not at fault (runs)", "runs off the road",
+                  "slow executed (planned) runs", "max abs heading rad, median (max)",
+                  "overshoot max m (runs > 0.3 m)", "score", "planning ms median (p90)")
+
+
+def _before_after_cells(s: dict) -> tuple[str, ...]:
+    """One arm's summary (as `summarise` returns it, or read back from its JSON) as the cells of
+    `BEFORE_COLUMNS`."""
+    return (str(s["runs"]), _ci(tuple(s["success"])), f"{s['at_fault'][0]} ({s['at_fault'][1]})",
+            f"{s['not_at_fault'][0]} ({s['not_at_fault'][1]})", str(s["off_road"][1]),
+            f"{s['slow'][1]} ({s['slow_planned'][1]})", f"{s['heading'][0]:.3f} ({s['heading'][1]:.3f})",
+            f"{s['overshoot'][0]:.2f} ({s['overshoot'][1]})", f"{s['score'][0]:.3f}",
+            f"{s['mpc_ms'][0]:.1f} ({s['mpc_ms'][1]:.1f})")
+
+
+def before_after(before: dict, after: dict, label: str) -> str:
+    """A markdown section comparing the arms of `after` with the same arms (keys
+    "world/planner/settings") of `before`, both as written by ``--json``; `label` says what
+    "before" is. Arms only one side has are listed as missing."""
+    lines = ["## Before and after", "", f"Before: {label}. Same scenes, seeds and arms; each cell before → after.",
+             "", "| world | planner | " + " | ".join(BEFORE_COLUMNS) + " |",
+             "|---|---|" + "---|" * len(BEFORE_COLUMNS)]
+    for key in after:
+        world, planner, _ = key.split("/")
+        if key not in before:
+            lines.append(f"| {world} | {planner} | " + " | ".join(["(no before)"] * len(BEFORE_COLUMNS)) + " |")
+            continue
+        cells = [f"{b} → **{a}**" if b != a else a
+                 for b, a in zip(_before_after_cells(before[key]), _before_after_cells(after[key]), strict=True)]
+        lines.append(f"| {world} | {planner} | " + " | ".join(cells) + " |")
+    lines += [f"| {k.split('/')[0]} | {k.split('/')[1]} | (before only) |" for k in before if k not in after]
+    return "\n".join(lines) + "\n"
+
+
+def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str,
+        before: tuple[Path, str] | None = None) -> int:
+    """``nudge-train closed-loop``: collect, print and write the report; with `before` (a JSON
+    written by ``--json`` of an earlier run and what it was), a before-and-after section. Returns
+    the exit status (2 when the scene folder holds no scenario or an argument is invalid)."""
     try:
+        before_data = json.loads(before[0].read_text()) if before is not None else None
         chunks, meta = collect(cfg, log=lambda s: print(s, flush=True))
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    budget = int(meta["config"].max_steps)
+    summaries = {f"{c.arm.world}/{c.arm.planner}/{c.arm.settings}": summarise(c, budget, cfg.bootstrap)
+                 for c in chunks}
     text = report(chunks, meta, cfg, command)
+    if before_data is not None:
+        text += "\n" + before_after(before_data, json.loads(json.dumps(summaries)), before[1])
     print(text)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text)
         print(f"wrote {paths.repo_relative(out)}")
     if json_path is not None:
-        budget = int(meta["config"].max_steps)
-        data = {f"{c.arm.world}/{c.arm.planner}/{c.arm.settings}": summarise(c, budget, cfg.bootstrap)
-                for c in chunks}
         json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(data, indent=1))
+        json_path.write_text(json.dumps(summaries, indent=1))
     return 0
 
 
 def command_line(argv: Sequence[str]) -> str:
     """The command as the report names it (no machine paths)."""
-    return "nudge-train closed-loop " + " ".join(argv)
+    return "nudge-train closed-loop " + shlex.join(argv)
