@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student distill-react student-react reaction goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -27,6 +27,7 @@ help:
 	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
 	@echo "make teacher  train the paper's teacher configurations, write docs/results/teacher.md"
 	@echo "make student  generate the distillation set with the planner + teacher, distil the student"
+	@echo "make reaction the teacher's and the students' reaction to the ego vs real cut-ins (docs/results/reaction.md)"
 
 # ---- set-up ---------------------------------------------------------------------------------
 $(STAMP): python/train/pyproject.toml
@@ -163,6 +164,23 @@ distill: develop
 
 student: distill
 	$(TRAIN) student
+
+# Reaction (docs/results/reaction.md): a distillation set with more scenes in $(REACT_DISTILL), a
+# student distilled with a loss on its reaction to the ego in two runs (~30 + 15 min on 1 thread;
+# exported to its run folder, never over the shipped student), and the reaction table of the
+# teacher, the shipped student and that one against real cut-ins and held-out planner candidates.
+REACT_DISTILL ?= runs/distill
+REACT_STUDENT ?= runs/student_react_cont/student.safetensors
+distill-react: develop
+	test -f data/processed/manifest.json || $(MAKE) data
+	$(TRAIN) distill --size train=160,val=32,test=32 --threads 2 --out $(REACT_DISTILL)
+
+student-react: distill-react
+	$(TRAIN) student-react --config python/train/configs/student_react.toml
+	$(TRAIN) student-react --config python/train/configs/student_react_cont.toml
+
+reaction: distill-react
+	$(TRAIN) reaction --distill $(REACT_DISTILL) $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
 # planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the

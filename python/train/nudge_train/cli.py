@@ -5,6 +5,8 @@
     nudge-train teacher                    the teacher experiments (Table I), docs/results/teacher.md
     nudge-train distill                    the distillation set (planner + teacher), data/distill
     nudge-train student                    distil, evaluate and export the student
+    nudge-train student-react              distil a student with a loss on its reaction to the ego
+    nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
     nudge-train bench inference|planner|python|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
@@ -177,6 +179,50 @@ def _run_student(a: argparse.Namespace) -> int:
 
     return run(config=a.config, distill=a.distill, data=a.data, out_dir=a.out_dir, epochs=a.epochs,
                teacher=a.teacher, report=a.report, export=None if a.no_export else a.export, threads=a.threads)
+
+
+def _add_student_react(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "student-react",
+                 "distil a student with a loss on its reaction to the ego candidate (select on validation, export)",
+                 _run_student_react)
+    p.add_argument("--config", type=Path, default=paths.configs() / "student_react.toml", help="training config")
+    p.add_argument("--out-dir", default=None, help="override the config's out_dir")
+    p.add_argument("--steps", type=int, default=None, help="override the config's optimiser steps")
+    p.add_argument("--time-budget", type=float, default=None, help="override the config's time_budget_s (s)")
+    p.add_argument("--export", default=None, help="where the student is exported (default: <out_dir>/student.safetensors)")
+
+
+def _run_student_react(a: argparse.Namespace) -> int:
+    from nudge_train.training.reaction import run
+
+    return run(config=a.config, out_dir=a.out_dir, steps=a.steps, time_budget_s=a.time_budget, export=a.export)
+
+
+def _add_reaction(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "reaction",
+                 "reaction of the teacher and students to the ego: real cut-ins and held-out planner candidates",
+                 _run_reaction)
+    p.add_argument("--distill", type=Path, default=paths.distill(), help="the distillation set (its test split)")
+    p.add_argument("--scenes-root", type=Path, default=paths.processed() / "scenes", help="planner scenes per split")
+    p.add_argument("--split", default="test", choices=SPLITS, help="split of the planner candidates")
+    p.add_argument("--cutins", type=Path, default=paths.assets() / "worlds" / "cutins.json", help="the real cut-ins")
+    p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material (the cut-ins' tracks)")
+    p.add_argument("--teacher", type=Path, default=paths.model_weights("teacher"), help="teacher weights")
+    p.add_argument("--student", type=Path, default=paths.model_weights("student"), help="the shipped student")
+    p.add_argument("--candidate", action="append", default=[], metavar="NAME=PATH",
+                   help="another student to measure, as name=weights (repeatable)")
+    p.add_argument("--report", type=Path, default=paths.results() / "reaction.md", help="the report (markdown)")
+    p.add_argument("--json", type=Path, default=paths.runs() / "reaction" / "reaction.json",
+                   help="every number of the report (JSON)")
+    p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+
+
+def _run_reaction(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.reaction_report import run
+
+    return run(a)
 
 
 def _size(text: str) -> dict[str, int | None]:
@@ -490,6 +536,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_train(sub)
     _add_teacher(sub)
     _add_student(sub)
+    _add_student_react(sub)
+    _add_reaction(sub)
     _add_distill(sub)
     _add_closed_loop(sub)
     _add_bench(sub)

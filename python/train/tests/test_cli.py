@@ -26,6 +26,8 @@ COMMANDS: list[tuple[list[str], str]] = [
     (["teacher"], "_run_teacher"),
     (["student"], "_run_student"),
     (["distill"], "_run_distill"),
+    (["student-react"], "_run_student_react"),
+    (["reaction"], "_run_reaction"),
     (["closed-loop"], "_run_closed_loop"),
     (["bench", "inference"], "_run_bench_inference"),
     (["bench", "planner"], "_run_bench_planner"),
@@ -65,6 +67,12 @@ def test_defaults_are_those_of_the_replaced_entry_points() -> None:
     s = p.parse_args(["student"])
     assert s.config == paths.repo() / "python" / "train" / "configs" / "student.toml"
     assert (s.distill, s.out_dir) == (str(paths.repo() / "data" / "distill"), str(paths.repo() / "runs" / "student"))
+    sr = p.parse_args(["student-react"])
+    assert sr.config == paths.repo() / "python" / "train" / "configs" / "student_react.toml"
+    r = p.parse_args(["reaction"])
+    assert (r.distill, r.split, r.candidate, r.bootstrap) == (paths.repo() / "data" / "distill", "test", [], 2000)
+    assert r.report == paths.repo() / "docs" / "results" / "reaction.md"
+    assert r.cutins == paths.repo() / "assets" / "worlds" / "cutins.json"
     d = p.parse_args(["distill"])
     assert d.size == {"train": 213, "val": 40, "test": 37}  # the "paper" preset
     assert (d.world, d.runs, d.seed, d.max_steps, d.scenes_per_shard, d.threads) == ("teacher", 1, 0, 30, 8, None)
@@ -95,7 +103,8 @@ def test_top_level_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) ->
     with pytest.raises(SystemExit):
         main(["--help"])
     out = capsys.readouterr().out
-    for name in ("data", "train", "teacher", "student", "distill", "closed-loop", "bench", "goldens", "figures"):
+    for name in ("data", "train", "teacher", "student", "student-react", "reaction", "distill", "closed-loop", "bench",
+                 "goldens", "figures"):
         assert f"    {name} " in out
 
 

@@ -111,6 +111,20 @@ def run(
     lines.append(_row("all", fid_all))
     if len(inter_d):
         lines.append(_row("scenes with a logged lane change", evaluate_generator(student, dtest, subset=inter_d)))
+    from nudge_train.distill.contexts import load_contexts
+    from nudge_train.experiments.reaction_report import planner_table
+
+    table, _ = planner_table(load_contexts(distill_dir, "test", paths.processed() / "scenes"),
+                             {"teacher": teacher_gen, "student": student}, np.random.default_rng(0), 2000)
+    lines += [
+        "",
+        "## Reaction to the ego: student vs teacher on the planner's candidates (distillation test split)",
+        "",
+        "How far the target-lane follower's predicted position at 1.8 s moves between a lane-change candidate "
+        "and the same candidate keeping its lane (docs/results/reaction.md, `nudge-train reaction`).",
+        "",
+        *table,
+    ]
     lines += [
         "",
         "## Accuracy on real NGSIM test windows (ego on its logged future)",

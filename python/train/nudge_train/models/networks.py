@@ -149,6 +149,11 @@ class PoolHiddenNet(nn.Module):
         self.bottleneck_dim = bottleneck_dim
         self.spatial_embedding = nn.Linear(2, embedding_dim)
         self.mlp_pre_pool = make_mlp([embedding_dim + h_dim, pool_hidden_dim, bottleneck_dim])
+        self.soft_temperature = 0.0
+        """Training only (not a weight, never exported): > 0 replaces the max over j by the
+        smooth maximum τ·log Σ_j exp(u_ij / τ) (at least the max and at most τ·log n above it), so
+        that every neighbour, not only the winning one, receives a gradient. 0 (the default, and
+        always at inference) is Social-GAN's max."""
 
     def forward(self, h: Tensor, pos: Tensor, scenes: SceneIndex) -> Tensor:
         """``h`` ``[A, h_dim]``, ``pos`` ``[A, 2]`` (m) → pooled ``[A, bottleneck_dim]``.
@@ -167,7 +172,13 @@ class PoolHiddenNet(nn.Module):
         u = torch.relu(second(torch.relu(pre)))  # [pairs, B], >= 0
         index = scenes.pair_i.unsqueeze(1).expand(-1, self.bottleneck_dim)
         out = torch.zeros(scenes.num_agents, self.bottleneck_dim, dtype=u.dtype, device=u.device)
-        return out.scatter_reduce(0, index, u, reduce="amax", include_self=False)
+        hard = out.scatter_reduce(0, index, u, reduce="amax", include_self=False)
+        tau = self.soft_temperature
+        if tau <= 0:
+            return hard
+        top = hard.detach()
+        w = torch.exp((u - top[scenes.pair_i]) / tau)  # <= 1: no overflow
+        return top + tau * torch.log(torch.zeros_like(out).index_add(0, scenes.pair_i, w))
 
 
 class Decoder(nn.Module):
