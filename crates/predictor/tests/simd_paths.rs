@@ -9,10 +9,13 @@ use std::path::{Path, PathBuf};
 use nudge_predictor::weights::synthetic_weights;
 use nudge_predictor::{
     History, ModelConfig, ModelKind, ModelWeights, Predictor, PredictorError, SimdPath, Student,
-    T_OBS, Teacher, best_simd_path, reference, simd_path, supported_simd_paths,
+    Teacher, best_simd_path, reference, simd_path, supported_simd_paths,
 };
 use proptest::prelude::*;
 use safetensors::SafeTensors;
+
+mod common;
+use common::scene;
 
 /// Largest acceptable |rust − pytorch| (and |rust − f64 reference|) in metres.
 const TOL: f64 = 1e-5;
@@ -163,53 +166,6 @@ fn path_selection() {
         }
     }
     println!("supported paths: {supported:?}, default: {chosen}");
-}
-
-/// Deterministic pseudo-random stream in [0, 1).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-}
-
-/// A highway-like scene of `n` agents and `batch` candidates `[batch, 6, 2]` (f32-exact).
-fn scene(seed: u64, n: usize, batch: usize) -> (History, Vec<f64>) {
-    let mut rng = Rng(seed);
-    let mut pos = Vec::with_capacity(n * T_OBS * 2);
-    for a in 0..n {
-        let (x0, y0) = if a == 0 {
-            (0.0, 0.0)
-        } else {
-            (rng.range(-60.0, 60.0), rng.range(-8.0, 8.0))
-        };
-        let v = rng.range(5.0, 30.0) * 0.3;
-        let drift = rng.range(-0.1, 0.1);
-        for t in 0..T_OBS {
-            let back = (T_OBS - 1 - t) as f64;
-            pos.push(f64::from((x0 - back * v) as f32));
-            pos.push(f64::from((y0 - back * drift) as f32));
-        }
-    }
-    let v0 = pos[2 * T_OBS - 2] - pos[2 * T_OBS - 4];
-    let mut cand = Vec::with_capacity(batch * 12);
-    for _ in 0..batch {
-        let accel = rng.range(-1.0, 1.0);
-        let lat = rng.range(-3.5, 3.5);
-        for k in 1..=6 {
-            let s = k as f64;
-            cand.push(f64::from((s * v0 + 0.5 * accel * s * s * 0.09) as f32));
-            cand.push(f64::from((lat * s / 6.0) as f32));
-        }
-    }
-    (History::new(pos, n).unwrap(), cand)
 }
 
 /// Every path against the portable one and the f64 reference; the fused paths bit-identical
