@@ -15,7 +15,7 @@ use proptest::prelude::*;
 use safetensors::SafeTensors;
 
 mod common;
-use common::{Rng, scene};
+use common::{Rng, max_err, run, scene};
 
 /// Largest acceptable |rust − pytorch| in metres.
 const TOL: f64 = 1e-5;
@@ -139,23 +139,6 @@ fn golden_student_trained() {
 
 fn weights(cfg: &ModelConfig) -> ModelWeights {
     ModelWeights::from_bytes(&synthetic_weights(cfg, 7).unwrap()).unwrap()
-}
-
-fn run(model: &mut dyn Predictor, history: &History, cand: &[f64]) -> Vec<f64> {
-    let n = history.n_agents();
-    let t = model.horizon();
-    let mut out = vec![f64::NAN; cand.len() / (2 * t) * (n - 1) * t * 2];
-    model.set_scene(history).unwrap();
-    model.predict(cand, &mut out).unwrap();
-    out
-}
-
-fn max_err(a: &[f64], b: &[f64]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
 }
 
 /// Fast (split pooling, folded embeddings, cached scene work) vs the literal reference.

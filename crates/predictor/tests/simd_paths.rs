@@ -15,7 +15,7 @@ use proptest::prelude::*;
 use safetensors::SafeTensors;
 
 mod common;
-use common::scene;
+use common::{max_err, run, scene};
 
 /// Largest acceptable |rust − pytorch| (and |rust − f64 reference|) in metres.
 const TOL: f64 = 1e-5;
@@ -40,23 +40,6 @@ fn model(w: &ModelWeights, path: SimdPath) -> Box<dyn Predictor> {
             Box::new(m)
         }
     }
-}
-
-fn run(model: &mut dyn Predictor, history: &History, cand: &[f64]) -> Vec<f64> {
-    let n = history.n_agents();
-    let t = model.horizon();
-    let mut out = vec![f64::NAN; cand.len() / (2 * t) * (n - 1) * t * 2];
-    model.set_scene(history).unwrap();
-    model.predict(cand, &mut out).unwrap();
-    out
-}
-
-fn max_err(a: &[f64], b: &[f64]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
 }
 
 fn f32s(st: &SafeTensors<'_>, name: &str) -> Option<Vec<f64>> {

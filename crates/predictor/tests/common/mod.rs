@@ -2,7 +2,7 @@
 //! synthetic highway scenes.
 #![allow(dead_code)]
 
-use nudge_predictor::{History, T_OBS};
+use nudge_predictor::{History, Predictor, T_OBS};
 
 /// Deterministic pseudo-random stream in [0, 1).
 pub struct Rng(pub u64);
@@ -50,4 +50,23 @@ pub fn scene(seed: u64, n: usize, batch: usize) -> (History, Vec<f64>) {
         }
     }
     (History::new(pos, n).unwrap(), cand)
+}
+
+/// Predictions `[batch, n − 1, T, 2]` (flat) of `model` for the candidates `cand` on `history`.
+pub fn run(model: &mut dyn Predictor, history: &History, cand: &[f64]) -> Vec<f64> {
+    let n = history.n_agents();
+    let t = model.horizon();
+    let mut out = vec![f64::NAN; cand.len() / (2 * t) * (n - 1) * t * 2];
+    model.set_scene(history).unwrap();
+    model.predict(cand, &mut out).unwrap();
+    out
+}
+
+/// Largest |a − b| over two equally long slices.
+pub fn max_err(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
