@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student distill-react student-react reaction goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student distill-react student-react reaction goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -123,6 +123,10 @@ lint:
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --workspace --no-deps
+
+# The generated reference pages (tests/reference.rs fails when they are out of date).
+reference-docs:
+	$(CARGO) run --release --quiet --bin nudge -- settings --format markdown > docs/reference/settings.md
 
 # ---- benches (one thread, as in the paper) ---------------------------------------------------
 bench: venv

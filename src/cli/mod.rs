@@ -4,9 +4,11 @@
 //! in where their shipped assets lie (the `shipped_assets` of [`run`]).
 //!
 //! `nudge simulate`: closed-loop lane changes of the interaction-aware planner on real
-//! scenario files (see `nudge simulate --help`).
+//! scenario files (see `nudge simulate --help`). `nudge settings`: the reference of every
+//! setting (see `nudge settings --help`).
 #![allow(clippy::print_stdout)]
 
+mod settings;
 mod simulate;
 
 use std::ffi::OsString;
@@ -23,6 +25,8 @@ struct Cli {
     command: Command,
 }
 
+// One command is parsed per process: the variants' sizes do not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Closed-loop lane-change simulations of the ADMM MPC planner on scenario files.
@@ -33,6 +37,9 @@ enum Command {
                             records written)."
     )]
     Simulate(simulate::SimulateArgs),
+    /// Every planner and closed-loop setting with its unit, default, valid values and meaning
+    /// (the page docs/reference/settings.md), or the defaults as settings files.
+    Settings(settings::SettingsArgs),
 }
 
 /// How a `nudge` command ended: the process's exit status.
@@ -79,6 +86,10 @@ where
     let status = match Cli::try_parse_from(args) {
         Ok(cli) => match cli.command {
             Command::Simulate(a) => finish(simulate::run(&a, shipped_assets)),
+            Command::Settings(a) => {
+                print!("{}", settings::render(&a));
+                ExitStatus::Success
+            }
         },
         Err(e) => {
             // Help and version go to stdout with status 0, usage errors to stderr with 2.

@@ -278,7 +278,20 @@ pub enum SimConfigError {
     /// UTF-8).
     #[error("cannot read closed-loop settings: {0}")]
     File(String),
-    /// One field is out of its admissible range or unknown.
+    /// A numeric field lies outside its range in [`crate::SimConfig::RANGES`].
+    #[error(
+        "invalid closed-loop setting `{field}` = {shown}: must be in {range}",
+        shown = crate::settings::show(*.value)
+    )]
+    OutOfRange {
+        /// Name of the field (as in the serde representation).
+        field: &'static str,
+        /// The value found.
+        value: f64,
+        /// Its admissible range.
+        range: crate::settings::FieldRange,
+    },
+    /// The settings text does not parse.
     #[error("invalid closed-loop setting `{field}` = {value}: {reason}")]
     Invalid {
         /// Name of the field (as in the serde representation; `"<json>"` for a parse error).

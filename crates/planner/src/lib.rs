@@ -15,6 +15,7 @@
 //! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.
 
 mod admm;
+pub mod describe;
 mod error;
 pub mod fit;
 pub mod lane;

@@ -1,6 +1,7 @@
 //! [`PlannerSettings`]: every weight, bound, tolerance and limit of the ADMM MPC in one
 //! validated, serde-(de)serialisable struct.
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SettingsError;
@@ -25,7 +26,7 @@ fn json_kind(v: &serde_json::Value) -> &'static str {
 /// unknown fields rejected; [`PlannerSettings::from_json`] accepts only a JSON object. Always
 /// call [`PlannerSettings::validate`] (done by [`crate::Planner::new`]) before use: every
 /// numeric field has a documented range in [`RANGES`] (the booleans are valid either way).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlannerSettings {
     /// Planning horizon T (steps); must equal the predictor's horizon (6 for shipped models).
@@ -222,7 +223,12 @@ pub struct FieldRange {
     pub unit: &'static str,
 }
 
-const fn closed(field: &'static str, min: f64, max: f64, unit: &'static str) -> FieldRange {
+pub(crate) const fn closed(
+    field: &'static str,
+    min: f64,
+    max: f64,
+    unit: &'static str,
+) -> FieldRange {
     FieldRange {
         field,
         min,
@@ -301,12 +307,12 @@ pub const RANGES: &[FieldRange] = &[
     closed("l_f", 0.5, 5.0, "m"),
     closed("l_r", 0.5, 5.0, "m"),
     closed("w_y", 0.0, W_MAX, "1/m²"),
-    closed("w_v", 0.0, W_MAX, ""),
-    closed("w_psi", 0.0, W_MAX, ""),
-    closed("w_delta", 0.0, W_MAX, ""),
-    closed("w_ddelta", 0.0, W_MAX, ""),
-    closed("w_a", 0.0, W_MAX, ""),
-    closed("w_da", 0.0, W_MAX, ""),
+    closed("w_v", 0.0, W_MAX, "s²/m²"),
+    closed("w_psi", 0.0, W_MAX, "1/rad²"),
+    closed("w_delta", 0.0, W_MAX, "1/rad²"),
+    closed("w_ddelta", 0.0, W_MAX, "1/rad²"),
+    closed("w_a", 0.0, W_MAX, "s⁴/m²"),
+    closed("w_da", 0.0, W_MAX, "s⁴/m²"),
     closed("rho", 1e-6, 1e8, ""),
     FieldRange {
         field: "delta_max",
@@ -340,8 +346,8 @@ pub const RANGES: &[FieldRange] = &[
         nudge_predictor::limits::MAX_AGENT_OFFSET,
         "m",
     ),
-    closed("safety_min", 0.0, 10.0, ""),
-    closed("plan_buffer", 0.0, 10.0, ""),
+    closed("safety_min", 0.0, 10.0, "units of b"),
+    closed("plan_buffer", 0.0, 10.0, "units of b"),
     closed(
         "max_iter",
         1.0,
@@ -352,13 +358,13 @@ pub const RANGES: &[FieldRange] = &[
     closed("eps_change", 1e-9, 1.0, ""),
     closed("pgd_steps", 1.0, 100.0, "steps"),
     closed("pgd_halvings", 0.0, 30.0, "halvings"),
-    closed("pin_weight", 0.0, 1e8, ""),
+    closed("pin_weight", 0.0, 1e8, "1/m²"),
     open_min("restore_step", 0.0, 10.0, "m"),
     open_min("heading_max", 0.0, 10.0, "rad"),
     open_min("heading_recovery", 0.0, 1.5, "rad per step"),
     closed("overshoot_max", 0.0, 100.0, "m"),
     closed("refine_iters", 0.0, 20.0, "iterations"),
-    closed("refine_margin", 0.0, 10.0, ""),
+    closed("refine_margin", 0.0, 10.0, "units of b"),
     open_min("refine_trust_delta", 0.0, 1.5, "rad"),
     open_min("refine_trust_accel", 0.0, 30.0, "m/s²"),
     closed("budget_s", 0.0, 3600.0, "s"),

@@ -3,12 +3,26 @@
 
 use std::str::FromStr;
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SimConfigError;
+use crate::settings::{FieldRange, closed};
+
+/// The range (0, ∞) of a positive, finite setting.
+const fn positive(field: &'static str, unit: &'static str) -> FieldRange {
+    FieldRange {
+        field,
+        min: 0.0,
+        min_open: true,
+        max: f64::INFINITY,
+        max_open: true,
+        unit,
+    }
+}
 
 /// How the other vehicles move.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum World {
     /// The teacher's one-step interactive prediction, given the ego's executed motion and the
@@ -66,29 +80,31 @@ impl FromStr for World {
 /// Deserialises from JSON with every field optional (missing fields take the [`Default`]) and
 /// unknown fields rejected; [`SimConfig::validate`] checks every field (done by
 /// [`crate::simulate`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {
-    /// Most planning steps per run (1..=[`SimConfig::MAX_STEPS`]).
+    /// Most planning steps per run (0.3 s each).
     pub max_steps: usize,
-    /// Settled when |y − y_target| ≤ this (m, > 0) ...
+    /// A run has settled in the target lane when |y − y_target| ≤ settle_y (m) and
+    /// |ψ| ≤ `settle_psi` for `settle_steps` consecutive steps.
     pub settle_y: f64,
-    /// ... and |ψ| ≤ this (rad, > 0) ...
+    /// Heading bound of the settling test (rad, relative to the road; see `settle_y`).
     pub settle_psi: f64,
-    /// ... for this many consecutive steps (1..=[`SimConfig::MAX_STEPS`]).
+    /// Consecutive steps the settling test must hold (see `settle_y`).
     pub settle_steps: usize,
-    /// How the others move.
+    /// How the other vehicles move: `teacher` (the teacher's interactive prediction reacts to
+    /// the ego's plan), `idm` (lane keeping with fitted Intelligent Driver Model drivers) or
+    /// `log_replay` (the logged future, never reacting).
     pub world: World,
     /// Lane-change abort: after this many consecutive planning steps without a safe
     /// lane-change plan (status `Fallback`, `Unsafe` or `SolverFailed`) while the ego is not
     /// yet wholly inside the target lane, the ego aims back at its own lane's centre instead
-    /// of idling across the lane boundary. 0 disables aborts (at most
-    /// [`SimConfig::MAX_STEPS`]).
+    /// of idling across the lane boundary. 0 disables aborts.
     pub abort_after: usize,
-    /// Steps an aborted ego keeps aiming at its own lane before it tries the lane change again
-    /// (at most [`SimConfig::MAX_STEPS`]).
+    /// Steps an aborted ego keeps aiming at its own lane before it tries the lane change
+    /// again.
     pub abort_hold: usize,
-    /// Braking limit of the at-fault rule (m/s², > 0): an ego hit from behind while wholly
+    /// Braking limit of the at-fault rule (m/s²): an ego hit from behind while wholly
     /// inside one lane is not at fault only if its applied acceleration at that step was
     /// ≥ −`fault_brake_limit` ([`crate::sim::metrics::classify_collision`]).
     pub fault_brake_limit: f64,
@@ -116,44 +132,50 @@ impl SimConfig {
     /// Most steps of one run (1000 steps = 5 minutes of driving).
     pub const MAX_STEPS: usize = 1000;
 
-    /// Checks every field.
+    /// Every numeric field's admissible range, in field order (step counts up to
+    /// [`SimConfig::MAX_STEPS`]; tolerances and the braking limit positive and finite).
+    pub const RANGES: &[FieldRange] = &[
+        closed("max_steps", 1.0, Self::MAX_STEPS as f64, "steps"),
+        positive("settle_y", "m"),
+        positive("settle_psi", "rad"),
+        closed("settle_steps", 1.0, Self::MAX_STEPS as f64, "steps"),
+        closed("abort_after", 0.0, Self::MAX_STEPS as f64, "steps"),
+        closed("abort_hold", 0.0, Self::MAX_STEPS as f64, "steps"),
+        positive("fault_brake_limit", "m/s²"),
+    ];
+
+    /// The value of numeric field `field` as f64 (`None` for `world` or an unknown name).
+    #[must_use]
+    pub fn numeric(&self, field: &str) -> Option<f64> {
+        Some(match field {
+            "max_steps" => self.max_steps as f64,
+            "settle_y" => self.settle_y,
+            "settle_psi" => self.settle_psi,
+            "settle_steps" => self.settle_steps as f64,
+            "abort_after" => self.abort_after as f64,
+            "abort_hold" => self.abort_hold as f64,
+            "fault_brake_limit" => self.fault_brake_limit,
+            _ => return None,
+        })
+    }
+
+    /// Checks every numeric field against [`SimConfig::RANGES`] (`world` is valid by type).
     ///
     /// # Errors
-    /// [`SimConfigError::Invalid`] naming the first bad field.
+    /// [`SimConfigError::OutOfRange`] naming the first field out of its range (NaN and
+    /// infinity never are in range), with the range in the message.
     pub fn validate(&self) -> Result<(), SimConfigError> {
-        let steps = |field: &'static str, v: usize, min: usize| {
-            if v < min || v > Self::MAX_STEPS {
-                Err(SimConfigError::Invalid {
-                    field,
-                    value: v.to_string(),
-                    reason: if min == 0 {
-                        "must be at most 1000"
-                    } else {
-                        "must be in 1..=1000"
-                    },
-                })
-            } else {
-                Ok(())
+        for r in Self::RANGES {
+            let value = self.numeric(r.field).unwrap_or(f64::NAN);
+            if !r.contains(value) {
+                return Err(SimConfigError::OutOfRange {
+                    field: r.field,
+                    value,
+                    range: *r,
+                });
             }
-        };
-        let positive = |field: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(SimConfigError::Invalid {
-                    field,
-                    value: v.to_string(),
-                    reason: "must be finite and > 0",
-                })
-            }
-        };
-        steps("max_steps", self.max_steps, 1)?;
-        positive("settle_y", self.settle_y)?;
-        positive("settle_psi", self.settle_psi)?;
-        steps("settle_steps", self.settle_steps, 1)?;
-        steps("abort_after", self.abort_after, 0)?;
-        steps("abort_hold", self.abort_hold, 0)?;
-        positive("fault_brake_limit", self.fault_brake_limit)
+        }
+        Ok(())
     }
 
     /// Parses JSON (missing fields default, unknown fields rejected) and validates.
@@ -301,7 +323,7 @@ mod tests {
         ];
         for (field, c) in bad {
             match c.validate() {
-                Err(SimConfigError::Invalid { field: f, .. }) => assert_eq!(f, field),
+                Err(SimConfigError::OutOfRange { field: f, .. }) => assert_eq!(f, field),
                 other => panic!("{field}: expected an error, got {other:?}"),
             }
         }
