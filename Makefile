@@ -88,10 +88,12 @@ test: venv test-rust test-examples test-python wheel-smoke
 test-rust:
 	$(CARGO) test --workspace --release
 
-# The examples/ of the facade crate, run as users would (from the repository root).
-test-examples:
+# The examples/ of the facade crate and examples/python/*.py, run as users would (from the
+# repository root; tests/python/test_examples.py also checks the quick start's output).
+test-examples: develop
 	$(CARGO) run --release --quiet --example plan_one_step
 	$(CARGO) run --release --quiet --example custom_predictor
+	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
 
 # The front-end parity test runs the CLI binary built by `build`.
 test-python: develop build

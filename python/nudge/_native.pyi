@@ -24,6 +24,13 @@ class _Defaults(TypedDict):
 DEFAULTS: _Defaults
 """The front ends' defaults, from Rust (``nudge_planner::sim::defaults``)."""
 
+class _FieldDoc(TypedDict):
+    field: str  # name, as a keyword and in JSON
+    unit: str  # "" when it has none
+    default: int | float | bool | str
+    range: str  # the values validation accepts: "[a, b]", "(a, b]", "true or false", names
+    doc: str  # meaning: the Rust doc comment
+
 class NudgeError(Exception):
     """Base class of every nudge error."""
 
@@ -71,7 +78,8 @@ class Predictor:
         -> [batch, agents - 1, horizon, 2] float64."""
 
 class PlannerSettings:
-    """Planner settings; fields are readable as attributes (``s.horizon``)."""
+    """Planner settings; fields are readable as attributes (``s.horizon``). The docstring lists
+    every field with its unit, default, valid values and meaning, as does ``describe()``."""
 
     def __init__(self, **overrides: int | float | bool) -> None: ...
     @staticmethod
@@ -83,13 +91,15 @@ class PlannerSettings:
     def from_json(text: str) -> PlannerSettings: ...
     def to_json(self) -> str: ...
     def replace(self, **overrides: int | float | bool) -> PlannerSettings: ...
+    @staticmethod
+    def describe() -> list[_FieldDoc]: ...
     def __getattr__(self, name: str) -> int | float | bool: ...
     def __eq__(self, other: object) -> bool: ...
 
 class SimConfig:
-    """Closed-loop settings; fields are readable as attributes (``c.max_steps``): max_steps,
-    settle_y (m), settle_psi (rad), settle_steps, world ("teacher", "idm" or "log_replay"),
-    abort_after, abort_hold (steps), fault_brake_limit (m/s^2)."""
+    """Closed-loop settings; fields are readable as attributes (``c.max_steps``). The docstring
+    lists every field with its unit, default, valid values and meaning, as does
+    ``describe()``."""
 
     def __init__(self, **overrides: int | float | str) -> None: ...
     @staticmethod
@@ -101,6 +111,8 @@ class SimConfig:
     def from_json(text: str) -> SimConfig: ...
     def to_json(self) -> str: ...
     def replace(self, **overrides: int | float | str) -> SimConfig: ...
+    @staticmethod
+    def describe() -> list[_FieldDoc]: ...
     def __getattr__(self, name: str) -> int | float | str: ...
     def __eq__(self, other: object) -> bool: ...
 

@@ -67,6 +67,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<predict::PyPredictor>()?;
     m.add_class::<settings::PySettings>()?;
     m.add_class::<settings::PySimConfig>()?;
+    settings::document_fields(m)?;
     m.add_class::<scenario::PyScenario>()?;
     m.add_class::<planner::PyPlanner>()?;
     m.add_function(wrap_pyfunction!(sim::simulate, m)?)?;

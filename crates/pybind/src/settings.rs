@@ -6,9 +6,10 @@
 //! stay integers, floats must be finite, names must be one of the field's names), and the
 //! result is validated by the Rust `validate()`.
 
+use nudge_planner::describe::{Described, FieldDoc, describe};
 use nudge_planner::{PlannerSettings, SimConfig};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyString};
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use serde_json::{Map, Number, Value};
@@ -16,7 +17,7 @@ use serde_json::{Map, Number, Value};
 use crate::errors::{SettingsError, settings_err, sim_config_err};
 
 /// A settings struct with serde (de)serialisation, defaults and validation.
-pub trait Settings: Serialize + DeserializeOwned + Default + Clone {
+pub trait Settings: Serialize + DeserializeOwned + Default + Clone + Described {
     /// What the struct is called in messages.
     const WHAT: &'static str;
     /// What one field is called in messages.
@@ -190,6 +191,62 @@ fn field<'py, T: Settings>(
     }
 }
 
+/// One described field as a Python dict (`field`, `unit`, `default`, `range`, `doc`).
+fn field_dict<'py>(py: Python<'py>, f: &FieldDoc) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("field", &f.field)?;
+    d.set_item("unit", f.unit)?;
+    d.set_item("default", value_to_py(py, &f.default)?)?;
+    d.set_item("range", &f.range)?;
+    d.set_item("doc", &f.doc)?;
+    Ok(d)
+}
+
+/// Every field of `T` as a list of dicts ([`describe`]).
+fn describe_list<T: Settings>(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+    let rows = describe::<T>()
+        .iter()
+        .map(|f| field_dict(py, f))
+        .collect::<PyResult<Vec<_>>>()?;
+    PyList::new(py, rows)
+}
+
+/// The class docstring of `T`: its own text, then every field with its type, unit, default,
+/// valid values and meaning (numpy style), from the same rows as `describe()`.
+fn class_doc<T: Settings>(intro: &str) -> String {
+    let mut doc = format!("{intro}\n\nFields\n------\n");
+    for f in describe::<T>() {
+        let kind = match &f.default {
+            serde_json::Value::Bool(_) => "bool",
+            serde_json::Value::Number(n) if n.is_f64() => "float",
+            serde_json::Value::Number(_) => "int",
+            _ => "str",
+        };
+        let unit = if f.unit.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", f.unit)
+        };
+        doc.push_str(&format!(
+            "{} : {kind}{unit}, default {}, valid values {}\n    {}\n",
+            f.field, f.default, f.range, f.doc
+        ));
+    }
+    doc
+}
+
+/// Sets the docstrings of the settings classes of module `m` to list every field
+/// ([`class_doc`]); called once when the module is made.
+pub fn document_fields(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    for (name, doc) in [
+        ("PlannerSettings", class_doc::<PlannerSettings>(PLANNER_DOC)),
+        ("SimConfig", class_doc::<SimConfig>(SIM_DOC)),
+    ] {
+        m.getattr(name)?.setattr("__doc__", doc)?;
+    }
+    Ok(())
+}
+
 /// The settings as JSON text.
 fn to_json<T: Settings>(s: &T) -> PyResult<String> {
     serde_json::to_string_pretty(s)
@@ -270,6 +327,14 @@ macro_rules! settings_class {
                 })
             }
 
+            /// Every field: a list of dicts with `field` (name), `unit`, `default`, `range` (the
+            /// values validation accepts) and `doc` (meaning), from the Rust settings' doc
+            /// comments, defaults and validation ranges (the page docs/reference/settings.md).
+            #[staticmethod]
+            fn describe(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+                describe_list::<$rust>(py)
+            }
+
             /// Attribute access to every field.
             fn __getattr__<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
                 field(py, &self.inner, $name, name)
@@ -286,17 +351,25 @@ macro_rules! settings_class {
     };
 }
 
+/// The opening of `PlannerSettings`'s docstring (the fields follow, [`document_fields`]).
+const PLANNER_DOC: &str = "Planner settings: every weight, bound, tolerance and limit of the ADMM MPC \
+     (units: m, s, rad, m/s, m/s²). Construct with overrides (`PlannerSettings(max_iter=50)`); \
+     `describe()` lists every field, as does docs/reference/settings.md.";
+
+/// The opening of `SimConfig`'s docstring (the fields follow, [`document_fields`]).
+const SIM_DOC: &str = "Closed-loop settings (units: m, rad, 0.3 s steps). Construct with overrides \
+     (`SimConfig(world=\"idm\")`); `describe()` lists every field, as does \
+     docs/reference/settings.md.";
+
 settings_class!(
     PySettings,
     PlannerSettings,
     "PlannerSettings",
-    "Planner settings (see `crates/planner/src/settings.rs` for every field, unit and default)."
+    "Planner settings (every field, unit, default and range: `describe()`)."
 );
 settings_class!(
     PySimConfig,
     SimConfig,
     "SimConfig",
-    "Closed-loop settings: `max_steps`, `settle_y` (m), `settle_psi` (rad), `settle_steps`, \
-     `world` (\"teacher\", \"idm\" or \"log_replay\"), `abort_after`, `abort_hold` (steps), \
-     `fault_brake_limit` (m/s²)."
+    "Closed-loop settings (every field, unit, default and range: `describe()`)."
 );
