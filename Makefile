@@ -93,6 +93,7 @@ test-rust:
 test-examples: develop
 	$(CARGO) run --release --quiet --example plan_one_step
 	$(CARGO) run --release --quiet --example custom_predictor
+	$(CARGO) run --release --quiet --example fuzz -- --seconds 1 --tries 50 > /dev/null
 	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
 
 # The front-end parity test runs the CLI binary built by `build`.

@@ -144,6 +144,7 @@ DEGENERATE: dict[str, list[Call]] = {
     ],
     "PlannerSettings.to_dict": [lambda c: c["settings"].to_dict()],
     "PlannerSettings.to_json": [lambda c: c["settings"].to_json()],
+    "PlannerSettings.describe": [lambda c: nudge.PlannerSettings.describe(), lambda c: c["settings"].describe()],
     "PlannerSettings.replace": [
         lambda c: c["settings"].replace(),
         lambda c: c["settings"].replace(horizon=0),
@@ -158,6 +159,7 @@ DEGENERATE: dict[str, list[Call]] = {
     ],
     "SimConfig.to_dict": [lambda c: c["config"].to_dict()],
     "SimConfig.to_json": [lambda c: c["config"].to_json()],
+    "SimConfig.describe": [lambda c: nudge.SimConfig.describe(), lambda c: c["config"].describe()],
     "SimConfig.replace": [lambda c: c["config"].replace(), lambda c: c["config"].replace(max_steps=0)],
     "Scenario.__new__": [lambda c: nudge.Scenario()],  # no constructor: TypeError
     "Scenario.load": [
