@@ -12,7 +12,8 @@ use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
 use super::batch::{
-    Cancel, Predictors, RunOutput, RunSpec, WorldSpec, run_specs, simulate_many, thread_pool,
+    Cancel, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
+    simulate_many, thread_pool,
 };
 use super::config::SimConfig;
 
@@ -126,6 +127,26 @@ impl BatchRequest<'_> {
             pool,
         })
     }
+
+    /// [`BatchRequest::prepare`] for a planning predictor the caller builds for every run
+    /// itself (one implemented outside nudge, e.g. a Python object), named `name` and
+    /// predicting `horizon` steps: `self.predictor` is not read (the batch's
+    /// [`Predictors::planning`] is a constant-velocity placeholder, which fits any horizon), and
+    /// the settings are checked to fit `name`'s horizon instead ([`fit::check_closed_loop`]).
+    /// Run the batch with [`Batch::run_with`].
+    ///
+    /// # Errors
+    /// As [`BatchRequest::prepare`].
+    pub fn prepare_foreign(&self, name: &str, horizon: usize) -> Result<Batch, SimError> {
+        let placeholder = Path::new(nudge_predictor::PredictorKind::ConstantVelocity.as_str());
+        let batch = BatchRequest {
+            predictor: placeholder,
+            ..*self
+        }
+        .prepare()?;
+        fit::check_closed_loop(self.settings, &[(name, horizon)])?;
+        Ok(batch)
+    }
 }
 
 impl Batch {
@@ -145,6 +166,27 @@ impl Batch {
                 cancel,
             )
         })
+    }
+
+    /// [`Batch::run`] with each run's planning predictor built by `planning` (see
+    /// [`BatchRequest::prepare_foreign`]).
+    #[must_use]
+    pub fn run_with(
+        &self,
+        record: bool,
+        cancel: &Cancel,
+        planning: &PlanningFactory<'_>,
+    ) -> Vec<RunOutput> {
+        let runs = Runs {
+            scenes: &self.scenes,
+            settings: &self.settings,
+            cfg: &self.config,
+            world: &self.predictors.world,
+            planning,
+            record,
+            cancel,
+        };
+        self.pool.install(|| runs.simulate(&self.specs))
     }
 }
 
