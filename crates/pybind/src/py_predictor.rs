@@ -43,6 +43,9 @@ use crate::predict::PyPredictor;
 /// closed-loop records).
 pub const NAME: &str = "python";
 
+/// How the settings checks ([`fit`]) name a Python predictor in their messages.
+pub const LABEL: &str = "Python predictor";
+
 /// What a Python predictor did wrong: a message naming the object's class, the method and the
 /// item, and the exception the method raised (if it raised).
 #[derive(Debug)]
@@ -275,21 +278,19 @@ impl PlanningPredictor {
     /// ([`fit::check_predictor`]: `SettingsError` naming `horizon`, or `dt` for a teacher or
     /// student); `nudge.PredictorError` for an object without `predict`.
     pub fn new(object: &Bound<'_, PyAny>, settings: &PlannerSettings) -> PyResult<Self> {
-        let (predictor, horizon) = match object.cast::<PyPredictor>() {
+        let (predictor, label, horizon) = match object.cast::<PyPredictor>() {
             Ok(native) => {
-                let horizon = native.get().lock().horizon();
-                (Self::Native(native.clone().unbind()), horizon)
+                let (name, horizon) = (native.get().name(), native.get().lock().horizon());
+                (Self::Native(native.clone().unbind()), name, horizon)
             }
             Err(_) => {
                 let p = PythonPredictor::new(object, settings.horizon)?;
                 let horizon = p.horizon;
-                (
-                    Self::Python(object.clone().unbind(), Mutex::new(p)),
-                    horizon,
-                )
+                let python = Self::Python(object.clone().unbind(), Mutex::new(p));
+                (python, LABEL, horizon)
             }
         };
-        fit::check_predictor(settings, predictor.name(), horizon).map_err(settings_err)?;
+        fit::check_predictor(settings, label, horizon).map_err(settings_err)?;
         Ok(predictor)
     }
 

@@ -20,7 +20,7 @@ use pyo3::types::PyDict;
 
 use crate::args::{Int, guard, panic_error};
 use crate::errors::{InputError, NudgeError, sim_err};
-use crate::py_predictor::{NAME as PYTHON, PredictorArg};
+use crate::py_predictor::{LABEL, NAME as PYTHON, PredictorArg};
 use crate::settings::{PySettings, PySimConfig, with_overrides};
 
 fn reshape_err(e: impl std::fmt::Display) -> PyErr {
@@ -212,7 +212,7 @@ pub fn simulate<'py>(
         };
         let batch = py
             .detach(|| match &python {
-                Some(p) => request.prepare_foreign(PYTHON, p.horizon()),
+                Some(p) => request.prepare_foreign(LABEL, p.horizon()),
                 None => request.prepare(),
             })
             .map_err(sim_err)?;
