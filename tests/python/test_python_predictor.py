@@ -15,9 +15,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import nudge
 
+MAX_STEP = 30.0  # m per 0.3 s step (nudge_predictor::limits::MAX_STEP)
+STATUSES = {"Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback",
+            "SolverFailed"}
 PLAN_KEYS = ("delta", "accel", "states", "admm_states")
 SCALAR_KEYS = ("cost", "iterations", "predictor_calls", "qp_solves", "primal_residual",
                "change_residual", "min_safety", "rollout_min_safety", "checked", "status")
@@ -318,3 +323,67 @@ def test_gil_is_released_outside_the_python_predictor(scenario: nudge.Scenario) 
         stop.set()
         t.join()
     assert during > 50 * n_plans, (during, n_plans)
+
+
+def _first_implausible(history: np.ndarray, pred: np.ndarray) -> tuple[int, int] | None:
+    """(agent, step) of the first displacement above MAX_STEP of a [n - 1, horizon, 2]
+    prediction, in the order agent, step (step 1 measured from the last observed position)."""
+    for i, traj in enumerate(pred):
+        path = np.concatenate([history[i + 1, -1:], traj])
+        steps = np.hypot(*np.diff(path, axis=0).T)
+        bad = np.flatnonzero(steps > MAX_STEP)
+        if bad.size:
+            return i + 1, int(bad[0]) + 1
+    return None
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, database=None)
+@given(data=st.data())
+def test_any_corrupted_prediction_is_refused_by_name_or_planned(scenario: nudge.Scenario,
+                                                               data: st.DataObject) -> None:
+    """Oracle: a corrupted value is refused iff it is non-finite or moves its agent more than
+    MAX_STEP in a step (computed here), naming that agent and step; a wrong shape or dtype is
+    always refused; anything else plans."""
+    sc = scenario.nearest(3)
+    n = sc.n_agents
+    kind = data.draw(st.sampled_from(["value", "shape", "dtype"]), label="kind")
+    if kind == "value":
+        agent, step = data.draw(st.integers(1, n - 1)), data.draw(st.integers(1, 6))
+        coord = data.draw(st.integers(0, 1))
+        # A non-finite value, or the right one moved by up to 60 m (2 x MAX_STEP) or 1e9 m.
+        value = data.draw(st.sampled_from([np.nan, np.inf, -np.inf]), label="value") if data.draw(
+            st.booleans()) else None
+        offset = data.draw(st.floats(-60, 60) | st.floats(-1e9, 1e9), label="offset")
+    elif kind == "shape":
+        shape = tuple(data.draw(st.lists(st.integers(0, 7), min_size=1, max_size=5), label="shape"))
+    else:
+        dtype = data.draw(st.sampled_from([np.int32, np.int64, np.float16, np.complex128, np.bool_, object]))
+
+    def corrupt(p: np.ndarray) -> Any:
+        if kind == "value":
+            p[:, agent - 1, step - 1, coord] = value if value is not None else p[0, agent - 1, step - 1, coord] + offset
+            return p
+        if kind == "shape":
+            return np.zeros(shape)
+        return p.astype(dtype)
+
+    if kind == "shape" and shape == (1, n - 1, 6, 2):
+        return  # the right shape: not a corruption
+    history = sc.history
+    planner = nudge.Planner(None, predictor=_returning(corrupt))
+    expected = None
+    if kind == "value":
+        good = np.array(ConstantVelocity().predict(history, np.zeros((1, 6, 2))))[0]
+        good[agent - 1, step - 1, coord] = value if value is not None else good[agent - 1, step - 1, coord] + offset
+        if value is not None:
+            expected = rf"non-finite position \({value:g}\)".replace("nan", "NaN") + rf" for agent {agent} at step {step}\b"
+        elif (bad := _first_implausible(history, good)) is not None:
+            expected = rf"implausible motion for agent {bad[0]} at step {bad[1]} "
+    else:
+        expected = r"returned an unusable prediction"
+    if expected is None:
+        plan = planner.plan_scenario(sc)
+        assert plan["status"] in STATUSES and np.isfinite(plan["states"]).all()
+        return
+    with pytest.raises(nudge.PredictorError, match=expected):
+        planner.plan_scenario(sc)
