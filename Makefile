@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table demo data teacher distill student distill-react student-react reaction goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -95,6 +95,7 @@ test-examples: develop
 	$(CARGO) run --release --quiet --example custom_predictor
 	$(CARGO) run --release --quiet --example fuzz -- --seconds 1 --tries 50 > /dev/null
 	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
+	$(PY) examples/python_predictor.py
 
 # The front-end parity test runs the CLI binary built by `build`.
 test-python: develop build
@@ -142,6 +143,11 @@ bench-planner: venv
 
 bench-table: venv
 	$(TRAIN) bench inference --markdown docs/results/inference.md
+
+# A predictor written in Python (numpy, PyTorch) vs the built-in ones per predictor call, one
+# thread (docs/python_predictor.md); needs the extension.
+bench-python-predictor: develop
+	$(TRAIN) bench python-predictor --markdown docs/results/python_predictor.md
 
 # The tail of the planning step over closed-loop runs on 120 test scenes, one thread
 # (docs/results/latency.md); needs the extension (make develop) and the processed scenes.

@@ -30,6 +30,7 @@ from nudge._native import (
     Planner,
     PlannerSettings,
     Predictor,
+    PredictorError,
     Scenario,
     ScenarioError,
     SettingsError,
@@ -55,6 +56,7 @@ __all__ = [
     "Planner",
     "PlannerSettings",
     "Predictor",
+    "PredictorError",
     "Scenario",
     "ScenarioError",
     "SettingsError",
@@ -109,7 +111,7 @@ def scene_paths(directory: str | os.PathLike[str] | None = None) -> list[Path]:
 
 def simulate(
     scene_paths: Sequence[str | os.PathLike[str]],
-    predictor: str | os.PathLike[str] = DEFAULTS["predictor"],
+    predictor: str | os.PathLike[str] | Any = DEFAULTS["predictor"],
     *,
     world_predictor: str | os.PathLike[str] | None = None,
     idm: str | os.PathLike[str] | None = None,
@@ -127,8 +129,10 @@ def simulate(
     (``"teacher"``, ``"student"``) and the ``idm`` world's driver population
     (``worlds/idm.json``) resolved under :func:`assets_dir`. Defaults come from Rust
     (:data:`DEFAULTS`, :meth:`SimConfig.default`); ``config_overrides`` are ``SimConfig``
-    fields (``world="idm"``, ``max_steps=4``, ...). ``scene_paths`` is a sequence of
-    paths; a single path raises ``TypeError`` (pass ``[path]``)."""
+    fields (``world="idm"``, ``max_steps=4``, ...). ``predictor`` may also be your own Python
+    object with ``predict(history, candidates)`` (see ``nudge.Planner`` and
+    ``docs/python_predictor.md``). ``scene_paths`` is a sequence of paths; a single path raises
+    ``TypeError`` (pass ``[path]``)."""
     if isinstance(scene_paths, (str, bytes, os.PathLike)):
         raise TypeError(
             f"scene_paths: expected a sequence of scenario paths, got the single path {scene_paths!r} "
@@ -136,7 +140,7 @@ def simulate(
         )
     return _simulate(
         [os.fspath(p) for p in scene_paths],
-        os.fspath(predictor),
+        os.fspath(predictor) if isinstance(predictor, (str, os.PathLike)) else predictor,
         world_predictor=None if world_predictor is None else os.fspath(world_predictor),
         idm=None if idm is None else os.fspath(idm),
         seed=seed,

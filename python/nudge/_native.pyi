@@ -5,7 +5,7 @@ that every public name of the module appears here with the module's parameters a
 from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
-from typing import Any, Literal, TypedDict
+from typing import Any, Literal, Protocol, TypedDict
 
 import numpy as np
 import numpy.typing as npt
@@ -52,6 +52,10 @@ class SolverError(NudgeError):
 class WorldFileError(NudgeError):
     """A world file (the idm world's driver population, "nudge.idm/1") is missing or malformed."""
 
+class PredictorError(NudgeError):
+    """A predictor given from Python failed (its exception is the cause), lacks a method, or
+    returned a prediction of the wrong type or shape, non-finite or implausible."""
+
 _F64 = npt.NDArray[np.float64]
 _F32 = npt.NDArray[np.float32]
 _I64 = npt.NDArray[np.int64]
@@ -76,6 +80,19 @@ class Predictor:
         """history [agents, 8, 2], candidates [batch, horizon, 2] (m; float64/float32 arrays
         or nested lists of numbers; masked arrays are refused; at most 16384 candidates)
         -> [batch, agents - 1, horizon, 2] float64."""
+
+class _PythonPredictor(Protocol):
+    """Your own predictor (docs/python_predictor.md): metres in the road frame (x along travel,
+    y lateral positive left), 0.3 s steps, agent 0 = the ego. Optional: ``set_scene(history)``,
+    called once per planning step before its ``predict`` calls, and an int attribute
+    ``horizon`` (default ``settings.horizon``)."""
+
+    def predict(self, history: _F64, candidates: _F64) -> Any:
+        """history [n, 8, 2] float64 (the last 8 observed positions of every agent, oldest
+        first; read-only, one array per planning step), candidates [batch, horizon, 2] float64
+        (the ego's positions at steps 1..horizon; read-only) -> [batch, n - 1, horizon, 2]
+        float64/float32 (or anything ``numpy.asarray`` converts, e.g. a CPU torch tensor):
+        agents 1..n-1 under each candidate."""
 
 class PlannerSettings:
     """Planner settings; fields are readable as attributes (``s.horizon``). The docstring lists
@@ -190,13 +207,16 @@ class PlanResult(TypedDict, total=False):
 class Planner:
     """The ADMM MPC planner bound to one predictor (keeps a warm start; see reset)."""
 
-    def __init__(self, settings: PlannerSettings | None, predictor: Predictor) -> None:
-        """Raises SettingsError when the settings do not fit the predictor (horizon; dt = 0.3 s
-        for a teacher or student)."""
+    def __init__(self, settings: PlannerSettings | None, predictor: Predictor | _PythonPredictor) -> None:
+        """``predictor``: a Predictor, or your own object with ``predict(history, candidates)``
+        (``_PythonPredictor``; called with the GIL held only inside its calls; failures raise
+        PredictorError naming the item, an exception it raises as the cause). Raises
+        SettingsError when the settings do not fit the predictor (horizon; dt = 0.3 s for a
+        teacher or student), PredictorError for an object without ``predict``."""
     @property
     def settings(self) -> PlannerSettings: ...
     @property
-    def predictor(self) -> Predictor: ...
+    def predictor(self) -> Predictor | _PythonPredictor: ...
     def reset(self) -> None: ...
     def plan(
         self,
@@ -226,7 +246,7 @@ def cli_main(argv: list[str], assets: _Path) -> int:
 
 def simulate(
     scene_paths: list[_Path],
-    predictor: _Path = ...,
+    predictor: _Path | _PythonPredictor = ...,
     *,
     world_predictor: _Path | None = None,
     idm: _Path | None = None,
@@ -253,7 +273,10 @@ def simulate(
 
     ``predictor`` (default ``DEFAULTS["predictor"]``) and ``world_predictor`` (the world model
     of a ``"teacher"`` world, default the shipped teacher; must be a teacher): ``"teacher"``,
-    ``"student"``, ``"constant_velocity"`` (named models under ``assets``) or a weights path.
+    ``"student"``, ``"constant_velocity"`` (named models under ``assets``) or a weights path;
+    ``predictor`` may also be your own object with ``predict(history, candidates)``
+    (``_PythonPredictor``; its runs go one after another on one thread, ``threads`` > 1 raises
+    InputError; the ``predictor`` column reads ``"python"``).
     ``idm``: the driver population of an ``"idm"`` world (default ``<assets>/worlds/idm.json``).
     ``config`` (default ``SimConfig.default()``) with ``config_overrides`` (``SimConfig`` fields:
     ``world``, ``max_steps``, ``settle_y``, ``settle_psi``, ``settle_steps``, ``abort_after``,

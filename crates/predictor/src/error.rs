@@ -218,6 +218,17 @@ pub enum PredictorError {
         /// The plausibility bound ([`crate::limits::MAX_STEP`], m).
         max: f64,
     },
+    /// A predictor implemented outside nudge (a Python object given to the bindings) failed:
+    /// raised an exception, lacks a method, or returned a prediction of the wrong type or
+    /// shape. `source` is its own error, kept whole so that the caller can hand it back (the
+    /// Python bindings re-raise the original exception as the cause).
+    #[error("{predictor} predictor: {source}")]
+    Foreign {
+        /// Predictor name (`"python"` for a Python object).
+        predictor: &'static str,
+        /// What went wrong, naming the method and the item.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// The network failed its load-time self-check on the canonical scene (non-finite or
     /// implausible predictions): the weights load but cannot be used.
     #[error("{path}: the load-time self-check on the canonical highway scene failed: {source}")]

@@ -7,6 +7,7 @@
 //! ├── SettingsError   invalid planner or closed-loop settings (unknown key, bad value)
 //! ├── ScenarioError   bad or missing scenario file
 //! ├── WorldFileError  bad or missing world file (the idm world's driver population)
+//! ├── PredictorError  a predictor given from Python failed or returned an unusable prediction
 //! └── SolverError     a QP solve or planning step failed
 //! ```
 
@@ -14,11 +15,13 @@ use nudge_planner::{
     PlannerError, ScenarioError as RsScenarioError, SettingsError as RsSettingsError,
     SimConfigError, SimError,
 };
-use nudge_predictor::PredictorError;
+use nudge_predictor::PredictorError as RsPredictorError;
 use pyo3::PyErr;
 use pyo3::Python;
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
+
+use crate::py_predictor;
 
 create_exception!(
     nudge,
@@ -58,29 +61,53 @@ create_exception!(
 );
 create_exception!(
     nudge,
+    PredictorError,
+    NudgeError,
+    "A predictor given from Python failed (its exception is the cause), lacks a method, or \
+     returned a prediction of the wrong type or shape, non-finite or implausible."
+);
+create_exception!(
+    nudge,
     SolverError,
     NudgeError,
     "An optimisation step failed."
 );
 
 /// Maps a predictor error to the matching Python exception, keeping the Rust message.
-pub fn predictor_err(err: PredictorError) -> PyErr {
+pub fn predictor_err(err: RsPredictorError) -> PyErr {
     let msg = err.to_string();
     match err {
-        PredictorError::AgentCount { .. }
-        | PredictorError::InputShape { .. }
-        | PredictorError::NonFiniteInput { .. }
-        | PredictorError::InputOutOfRange { .. }
-        | PredictorError::Horizon { .. }
-        | PredictorError::BatchTooLarge { .. }
-        | PredictorError::NoScene => InputError::new_err(msg),
+        RsPredictorError::AgentCount { .. }
+        | RsPredictorError::InputShape { .. }
+        | RsPredictorError::NonFiniteInput { .. }
+        | RsPredictorError::InputOutOfRange { .. }
+        | RsPredictorError::Horizon { .. }
+        | RsPredictorError::BatchTooLarge { .. }
+        | RsPredictorError::NoScene => InputError::new_err(msg),
+        RsPredictorError::Foreign { source, .. } => py_predictor::failure_err(msg, source),
+        RsPredictorError::NonFiniteOutput {
+            predictor: py_predictor::NAME,
+            ..
+        }
+        | RsPredictorError::ImplausibleOutput {
+            predictor: py_predictor::NAME,
+            ..
+        } => PredictorError::new_err(msg),
         _ => WeightsError::new_err(msg),
     }
 }
 
-/// An exception of the same class as `err` with message `msg`.
+/// An exception of the same class and cause as `err` with message `msg` (`err` itself when it
+/// is not a nudge error: a `KeyboardInterrupt` raised inside a Python predictor).
 fn same_class(err: &PyErr, msg: String) -> PyErr {
-    Python::attach(|py| PyErr::from_type(err.get_type(py), msg))
+    Python::attach(|py| {
+        if !err.is_instance_of::<NudgeError>(py) {
+            return err.clone_ref(py);
+        }
+        let new = PyErr::from_type(err.get_type(py), msg);
+        new.set_cause(py, err.cause(py));
+        new
+    })
 }
 
 /// Maps a settings error.

@@ -9,6 +9,7 @@ mod cli;
 mod errors;
 mod planner;
 mod predict;
+mod py_predictor;
 mod scenario;
 mod settings;
 mod sim;
@@ -63,6 +64,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SettingsError", py.get_type::<errors::SettingsError>())?;
     m.add("ScenarioError", py.get_type::<errors::ScenarioError>())?;
     m.add("SolverError", py.get_type::<errors::SolverError>())?;
+    m.add("PredictorError", py.get_type::<errors::PredictorError>())?;
     m.add("WorldFileError", py.get_type::<errors::WorldFileError>())?;
     m.add_class::<predict::PyPredictor>()?;
     m.add_class::<settings::PySettings>()?;

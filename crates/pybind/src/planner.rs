@@ -2,7 +2,7 @@
 
 use std::sync::Mutex;
 
-use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem, fit};
+use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem};
 use nudge_predictor::{History, MAX_AGENTS, T_OBS};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
@@ -10,17 +10,18 @@ use pyo3::types::PyDict;
 
 use crate::args::{Int, guard};
 use crate::arrays::{Dim, to_f64};
-use crate::errors::{InputError, NudgeError, planner_err, predictor_err, settings_err, sim_err};
-use crate::predict::PyPredictor;
+use crate::errors::{InputError, NudgeError, planner_err, predictor_err, sim_err};
+use crate::py_predictor::PlanningPredictor;
 use crate::scenario::PyScenario;
 use crate::settings::PySettings;
 
-/// The interaction-aware MPC planner bound to one predictor. Keeps its previous solution as
-/// the warm start of the next call (`reset()` forgets it).
+/// The interaction-aware MPC planner bound to one predictor (built in, or a Python object:
+/// `crate::py_predictor`). Keeps its previous solution as the warm start of the next call
+/// (`reset()` forgets it).
 #[pyclass(name = "Planner", module = "nudge._native", frozen)]
 pub struct PyPlanner {
     planner: Mutex<Planner>,
-    predictor: Py<PyPredictor>,
+    predictor: PlanningPredictor,
 }
 
 /// A finite float or `InputError` naming it.
@@ -96,14 +97,12 @@ impl PyPlanner {
         py: Python<'py>,
         problem: &PlanningProblem<'_>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let pred = self.predictor.get();
         let result = py.detach(|| {
             let mut planner = self
                 .planner
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner);
-            let mut p = pred.lock();
-            planner.plan(problem, p.as_mut())
+            self.predictor.with(|p| planner.plan(problem, p))
         });
         let plan = result.map_err(planner_err)?;
         plan_to_dict(py, &plan)
@@ -113,16 +112,19 @@ impl PyPlanner {
 #[pymethods]
 impl PyPlanner {
     /// A planner with `settings` (default: `PlannerSettings.default()`) predicting with
-    /// `predictor`: its horizon must equal `settings.horizon`, and a teacher or student needs
-    /// `settings.dt` = 0.3 s (`SettingsError` otherwise, `nudge_planner::fit`).
+    /// `predictor`: a `Predictor`, or any object with `predict(history, candidates)`
+    /// (`crate::py_predictor`). Its horizon must equal `settings.horizon`, and a teacher or
+    /// student needs `settings.dt` = 0.3 s (`SettingsError` otherwise, `nudge_planner::fit`).
     #[new]
     #[pyo3(signature = (settings, predictor))]
-    fn new(settings: Option<Bound<'_, PySettings>>, predictor: Py<PyPredictor>) -> PyResult<Self> {
+    fn new(
+        settings: Option<Bound<'_, PySettings>>,
+        predictor: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
         guard(|| {
             let settings =
                 settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
-            let p = predictor.get();
-            fit::check_predictor(&settings, p.name(), p.lock().horizon()).map_err(settings_err)?;
+            let predictor = PlanningPredictor::new(predictor, &settings)?;
             let planner = Planner::new(settings).map_err(planner_err)?;
             Ok(Self {
                 planner: Mutex::new(planner),
@@ -143,10 +145,10 @@ impl PyPlanner {
         }
     }
 
-    /// The predictor in use.
+    /// The predictor in use (the object given).
     #[getter]
-    fn predictor(&self, py: Python<'_>) -> Py<PyPredictor> {
-        self.predictor.clone_ref(py)
+    fn predictor(&self, py: Python<'_>) -> Py<PyAny> {
+        self.predictor.object(py)
     }
 
     /// Forgets the warm start.
@@ -267,6 +269,6 @@ impl PyPlanner {
     }
 
     fn __repr__(&self) -> String {
-        format!("Planner(predictor={:?})", self.predictor.get().name())
+        format!("Planner(predictor={:?})", self.predictor.name())
     }
 }

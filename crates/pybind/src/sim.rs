@@ -9,16 +9,18 @@ use std::path::PathBuf;
 use std::sync::mpsc;
 use std::time::Duration;
 
+use nudge_planner::sim::PlanningFactory;
 use nudge_planner::sim::defaults;
 use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table};
 use nudge_planner::{Batch, BatchRequest, Cancel, PlannerSettings, RunOutput, SimConfig};
-use nudge_predictor::{Records, T_OBS, default_assets_dir};
+use nudge_predictor::{Predictor, Records, T_OBS, default_assets_dir};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::args::{Int, guard, panic_error};
 use crate::errors::{InputError, NudgeError, sim_err};
+use crate::py_predictor::{LABEL, NAME as PYTHON, PredictorArg};
 use crate::settings::{PySettings, PySimConfig, with_overrides};
 
 fn reshape_err(e: impl std::fmt::Display) -> PyErr {
@@ -49,8 +51,14 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 /// Runs `batch` on a worker thread with the GIL released while this (the calling) thread
 /// polls Python's signal handlers every [`SIGNAL_POLL`]: on Ctrl-C the batch is cancelled
 /// (every run stops before its next closed-loop step) and the `KeyboardInterrupt` is
-/// returned.
-fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Vec<RunOutput>> {
+/// returned. `planning` builds each run's planning predictor when the batch was prepared for
+/// one from Python ([`BatchRequest::prepare_foreign`]).
+fn run_interruptibly(
+    py: Python<'_>,
+    batch: &Batch,
+    record: bool,
+    planning: Option<&PlanningFactory<'_>>,
+) -> PyResult<Vec<RunOutput>> {
     let cancel = Cancel::new();
     let mut interrupt: Option<PyErr> = None;
     let finished = py.detach(|| {
@@ -59,7 +67,10 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Ve
             let stop = &cancel;
             let worker = scope.spawn(move || {
                 // The receiver outlives the worker: sending cannot fail.
-                let _ = tx.send(batch.run(record, stop));
+                let _ = tx.send(match planning {
+                    Some(p) => batch.run_with(record, stop, p),
+                    None => batch.run(record, stop),
+                });
             });
             loop {
                 match rx.recv_timeout(SIGNAL_POLL) {
@@ -96,7 +107,9 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Ve
 /// single-threaded).
 ///
 /// `predictor` / `world_predictor`: `"teacher"`, `"student"`, `"constant_velocity"` (named
-/// models under `assets`, default `$NUDGE_ASSETS` or `./assets`) or a weights path; the world
+/// models under `assets`, default `$NUDGE_ASSETS` or `./assets`) or a weights path; `predictor`
+/// may also be a Python object with `predict(history, candidates)` (`crate::py_predictor`;
+/// its runs go one after another on one thread, as they share the object); the world
 /// model of a `"teacher"` world defaults to the shipped teacher and must be a teacher. `idm`:
 /// the driver population of an `"idm"` world ("nudge.idm/1" JSON, default
 /// `<assets>/worlds/idm.json`).
@@ -112,7 +125,7 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Ve
 #[pyfunction]
 #[pyo3(signature = (
     scene_paths,
-    predictor = PathBuf::from(defaults::PREDICTOR.as_str()),
+    predictor = PredictorArg::Path(PathBuf::from(defaults::PREDICTOR.as_str())),
     *,
     world_predictor = None,
     idm = None,
@@ -131,7 +144,7 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Ve
 pub fn simulate<'py>(
     py: Python<'py>,
     scene_paths: Vec<PathBuf>,
-    predictor: PathBuf,
+    predictor: PredictorArg,
     world_predictor: Option<PathBuf>,
     idm: Option<PathBuf>,
     seed: Int,
@@ -174,21 +187,40 @@ pub fn simulate<'py>(
             }
         };
         let assets = assets.unwrap_or_else(default_assets_dir);
+        let python = predictor.python(py, settings.horizon)?;
+        if python.is_some() && threads.is_some_and(|t| t != 1) {
+            return Err(InputError::new_err(format!(
+                "invalid argument `threads`: a Python predictor plans on one thread (its runs \
+                 share the object), got {threads:?}"
+            )));
+        }
         let request = BatchRequest {
             scene_paths: &scene_paths,
-            predictor: &predictor,
+            predictor: match &predictor {
+                PredictorArg::Path(p) => p,
+                PredictorArg::Object(_) => std::path::Path::new(PYTHON),
+            },
             world_predictor: world_predictor.as_deref(),
             idm: idm.as_deref(),
             assets: &assets,
             seed,
             runs_per_scene: runs,
             scene_seeds: scene_seeds.as_deref(),
-            threads,
+            threads: if python.is_some() { Some(1) } else { threads },
             settings: &settings,
             config: &cfg,
         };
-        let batch = py.detach(|| request.prepare()).map_err(sim_err)?;
-        let mut outputs = run_interruptibly(py, &batch, record)?;
+        let batch = py
+            .detach(|| match &python {
+                Some(p) => request.prepare_foreign(LABEL, p.horizon()),
+                None => request.prepare(),
+            })
+            .map_err(sim_err)?;
+        let fresh = python
+            .as_ref()
+            .map(|p| move || Box::new(p.fresh()) as Box<dyn Predictor>);
+        let planning = fresh.as_ref().map(|f| f as &PlanningFactory<'_>);
+        let mut outputs = run_interruptibly(py, &batch, record, planning)?;
         if !skip
             && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
             && let Err(e) = outputs.swap_remove(pos).result

@@ -8,7 +8,7 @@
     nudge-train student-react              distil a student with a loss on its reaction to the ego
     nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
-    nudge-train bench inference|planner|python|latency   benchmark tables
+    nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
     nudge-train idm fit|cutins|report|all  IDM fitted to real car-following, real cut-ins,
@@ -349,7 +349,7 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
 # ---- benches, goldens, figures -----------------------------------------------------------------
 def _add_bench(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmark tables", description="benchmark tables")
-    bsub = bench.add_subparsers(dest="bench_cmd", required=True, metavar="{inference,planner,python,latency}")
+    bsub = bench.add_subparsers(dest="bench_cmd", required=True, metavar="{inference,planner,python,python-predictor,latency}")
 
     i = _command(bsub, "inference", "PyTorch vs Rust (criterion) inference times on the same weights and inputs",
                  _run_bench_inference)
@@ -377,6 +377,13 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     y.add_argument("--predictors", nargs="+", default=["teacher", "student", "constant_velocity"],
                    help="planning predictors timed")
     y.add_argument("--criterion", type=Path, default=paths.criterion(), help="criterion results")
+
+    q = _command(bsub, "python-predictor", "cost per predictor call of a predictor written in Python "
+                 "(numpy, PyTorch) vs the built-in ones, one thread (docs/python_predictor.md)",
+                 _run_bench_python_predictor)
+    q.add_argument("--seeds", type=int, default=2, help="target-lane seeds per shipped scene")
+    q.add_argument("--torch-plans", type=int, default=8, help="MPC calls of the two student rows")
+    q.add_argument("--markdown", type=Path, default=None, help="also write the table here")
 
     from nudge_train.experiments.latency_config import N_EDGES, WORLDS, LatencyConfig
 
@@ -428,6 +435,12 @@ def _run_bench_python(a: argparse.Namespace) -> int:
     from nudge_train.experiments.bench_python import run
 
     return run(reps=a.reps, ns=a.ns, predictors=a.predictors, criterion=a.criterion)
+
+
+def _run_bench_python_predictor(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.bench_python_predictor import run
+
+    return run(seeds=a.seeds, torch_plans=a.torch_plans, markdown=a.markdown)
 
 
 def _run_bench_latency(a: argparse.Namespace) -> int:

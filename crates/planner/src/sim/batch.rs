@@ -270,6 +270,9 @@ pub struct RunOutput {
     pub examples: Option<Records>,
 }
 
+/// Builds the planning predictor of one run (called once per run, on the run's thread).
+pub type PlanningFactory<'a> = dyn Fn() -> Box<dyn Predictor> + Sync + 'a;
+
 /// Runs every spec of `specs` on `scenes` in parallel on the current rayon pool (each planner
 /// call stays single-threaded), with fresh predictors per run; with `record`, the planning
 /// predictor is wrapped in a [`Recording`]. Every run checks `cancel` before each closed-loop
@@ -283,47 +286,85 @@ pub fn simulate_many(
     record: bool,
     cancel: &Cancel,
 ) -> Vec<RunOutput> {
-    specs
-        .par_iter()
-        .map(|&spec| {
-            let sc = &scenes[spec.scene];
-            if cancel.is_cancelled() {
-                // Not started: no predictor is built for it.
-                return RunOutput {
-                    spec,
-                    result: Err(SimError::Cancelled {
-                        scene: sc.name.clone(),
-                        step: 0,
-                    }),
-                    examples: None,
-                };
-            }
-            let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
-                simulate_cancellable(sc, settings, cfg, spec.seed, p, w, cancel)
-            };
-            let mut teacher = match &predictors.world {
-                WorldSpec::Teacher(t) => Some(t.build()),
-                _ => None,
-            };
-            let world = match (&predictors.world, teacher.as_deref_mut()) {
-                (WorldSpec::Teacher(_), Some(t)) => WorldModel::Teacher(t as &mut dyn Predictor),
-                (WorldSpec::Idm(p), _) => WorldModel::Idm(p),
-                _ => WorldModel::LogReplay,
-            };
-            let planning = predictors.planning.build();
-            let (result, examples) = if record {
-                let mut rec = Recording::new(planning);
-                let r = simulate(&mut rec, world);
-                (r, Some(rec.records))
-            } else {
-                let mut p = planning;
-                (simulate(p.as_mut(), world), None)
-            };
-            RunOutput {
+    let planning = || predictors.planning.build();
+    let runs = Runs {
+        scenes,
+        settings,
+        cfg,
+        world: &predictors.world,
+        planning: &planning,
+        record,
+        cancel,
+    };
+    runs.simulate(specs)
+}
+
+/// What every run of a batch shares, its planning predictor built per run by `planning`
+/// (one implemented outside nudge, e.g. a Python object, as well as a [`PredictorSpec`]).
+pub struct Runs<'a> {
+    /// The scenes the specs index.
+    pub scenes: &'a [Scenario],
+    /// Planner settings.
+    pub settings: &'a PlannerSettings,
+    /// Closed-loop settings.
+    pub cfg: &'a SimConfig,
+    /// The world model.
+    pub world: &'a WorldSpec,
+    /// Builds each run's planning predictor.
+    pub planning: &'a PlanningFactory<'a>,
+    /// Whether to record the planning predictor's examples.
+    pub record: bool,
+    /// Checked before every closed-loop step.
+    pub cancel: &'a Cancel,
+}
+
+impl Runs<'_> {
+    /// [`simulate_many`] with these parts: every spec in parallel on the current rayon pool,
+    /// outputs in the order of `specs`.
+    #[must_use]
+    pub fn simulate(&self, specs: &[RunSpec]) -> Vec<RunOutput> {
+        specs.par_iter().map(|&spec| self.run(spec)).collect()
+    }
+
+    /// One run.
+    fn run(&self, spec: RunSpec) -> RunOutput {
+        let sc = &self.scenes[spec.scene];
+        if self.cancel.is_cancelled() {
+            // Not started: no predictor is built for it.
+            return RunOutput {
                 spec,
-                result,
-                examples,
-            }
-        })
-        .collect()
+                result: Err(SimError::Cancelled {
+                    scene: sc.name.clone(),
+                    step: 0,
+                }),
+                examples: None,
+            };
+        }
+        let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
+            simulate_cancellable(sc, self.settings, self.cfg, spec.seed, p, w, self.cancel)
+        };
+        let mut teacher = match self.world {
+            WorldSpec::Teacher(t) => Some(t.build()),
+            _ => None,
+        };
+        let world = match (self.world, teacher.as_deref_mut()) {
+            (WorldSpec::Teacher(_), Some(t)) => WorldModel::Teacher(t as &mut dyn Predictor),
+            (WorldSpec::Idm(p), _) => WorldModel::Idm(p),
+            _ => WorldModel::LogReplay,
+        };
+        let planning = (self.planning)();
+        let (result, examples) = if self.record {
+            let mut rec = Recording::new(planning);
+            let r = simulate(&mut rec, world);
+            (r, Some(rec.records))
+        } else {
+            let mut p = planning;
+            (simulate(p.as_mut(), world), None)
+        };
+        RunOutput {
+            spec,
+            result,
+            examples,
+        }
+    }
 }

@@ -14,7 +14,8 @@
 //!   of the target lane), computed from the run's states;
 //! * [`records`]: what a run records ([`RunRecord`], [`StepRecord`], [`StepStatus`]);
 //! * [`batch`]: the run-spec rule ([`run_specs`]), the predictors of a batch loaded once
-//!   ([`Predictors`]) and [`simulate_many`];
+//!   ([`Predictors`]) and [`simulate_many`] (or [`Runs`], with a planning predictor built per
+//!   run by the caller);
 //! * [`columns`]: records → named columns ([`run_table`], [`step_table`],
 //!   [`collision_table`]), the [`Summary`] and the per-step listing;
 //! * [`request`]: the one validation of a batch both front ends call ([`BatchRequest`]),
@@ -34,8 +35,8 @@ pub mod run;
 pub mod world;
 
 pub use batch::{
-    Cancel, MAX_RUNS, MAX_THREADS, Predictors, RunOutput, RunSpec, WorldSpec, defaults, run_specs,
-    simulate_many, thread_pool,
+    Cancel, MAX_RUNS, MAX_THREADS, PlanningFactory, Predictors, RunOutput, RunSpec, Runs,
+    WorldSpec, defaults, run_specs, simulate_many, thread_pool,
 };
 pub use columns::{
     COLLISION_COLUMNS, Column, RUN_COLUMNS, STEP_COLUMNS, Summary, Table, collision_table,

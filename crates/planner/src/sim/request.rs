@@ -12,7 +12,8 @@ use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
 use super::batch::{
-    Cancel, Predictors, RunOutput, RunSpec, WorldSpec, run_specs, simulate_many, thread_pool,
+    Cancel, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
+    simulate_many, thread_pool,
 };
 use super::config::SimConfig;
 
@@ -126,6 +127,26 @@ impl BatchRequest<'_> {
             pool,
         })
     }
+
+    /// [`BatchRequest::prepare`] for a planning predictor the caller builds for every run
+    /// itself (one implemented outside nudge, e.g. a Python object), named `name` and
+    /// predicting `horizon` steps: `self.predictor` is not read (the batch's
+    /// [`Predictors::planning`] is a constant-velocity placeholder, which fits any horizon), and
+    /// the settings are checked to fit `name`'s horizon instead ([`fit::check_closed_loop`]).
+    /// Run the batch with [`Batch::run_with`].
+    ///
+    /// # Errors
+    /// As [`BatchRequest::prepare`].
+    pub fn prepare_foreign(&self, name: &str, horizon: usize) -> Result<Batch, SimError> {
+        let placeholder = Path::new(nudge_predictor::PredictorKind::ConstantVelocity.as_str());
+        let batch = BatchRequest {
+            predictor: placeholder,
+            ..*self
+        }
+        .prepare()?;
+        fit::check_closed_loop(self.settings, &[(name, horizon)])?;
+        Ok(batch)
+    }
 }
 
 impl Batch {
@@ -145,6 +166,27 @@ impl Batch {
                 cancel,
             )
         })
+    }
+
+    /// [`Batch::run`] with each run's planning predictor built by `planning` (see
+    /// [`BatchRequest::prepare_foreign`]).
+    #[must_use]
+    pub fn run_with(
+        &self,
+        record: bool,
+        cancel: &Cancel,
+        planning: &PlanningFactory<'_>,
+    ) -> Vec<RunOutput> {
+        let runs = Runs {
+            scenes: &self.scenes,
+            settings: &self.settings,
+            cfg: &self.config,
+            world: &self.predictors.world,
+            planning,
+            record,
+            cancel,
+        };
+        self.pool.install(|| runs.simulate(&self.specs))
     }
 }
 
@@ -419,5 +461,67 @@ mod tests {
             "{:?}",
             r.map(|r| r.steps.len())
         );
+    }
+
+    /// Constant velocity under another name: a predictor implemented outside nudge.
+    struct Foreign(nudge_predictor::ConstantVelocity);
+
+    impl nudge_predictor::Predictor for Foreign {
+        fn name(&self) -> &'static str {
+            "foreign"
+        }
+        fn horizon(&self) -> usize {
+            self.0.horizon()
+        }
+        fn set_scene(&mut self, h: &nudge_predictor::History) -> nudge_predictor::Result<()> {
+            self.0.set_scene(h)
+        }
+        fn predict(&mut self, c: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+            self.0.predict(c, out)
+        }
+    }
+
+    /// A batch prepared for a predictor built by the caller runs each run with a fresh one
+    /// and gives the runs of the built-in predictor it mirrors, step for step; its horizon is
+    /// checked against the settings, naming `horizon`.
+    #[test]
+    fn a_foreign_planning_predictor_runs_as_the_built_in_one_it_mirrors() {
+        let paths = scene_paths();
+        let assets = repo().join("assets");
+        let settings = PlannerSettings::default();
+        let config = SimConfig {
+            world: World::LogReplay,
+            max_steps: 3,
+            ..SimConfig::default()
+        };
+        let req = request(&paths, &settings, &config, &assets);
+        let built = std::sync::atomic::AtomicUsize::new(0);
+        let make = || -> Box<dyn nudge_predictor::Predictor> {
+            built.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Box::new(Foreign(nudge_predictor::ConstantVelocity::new(6).unwrap()))
+        };
+        let foreign = req.prepare_foreign("foreign", 6).unwrap();
+        let got = foreign.run_with(false, &Cancel::new(), &make);
+        let want = req.prepare().unwrap().run(false, &Cancel::new());
+        assert_eq!(built.into_inner(), paths.len(), "one predictor per run");
+        for (g, w) in got.iter().zip(&want) {
+            let (g, w) = (g.result.as_ref().unwrap(), w.result.as_ref().unwrap());
+            assert_eq!(
+                (g.predictor.as_str(), w.predictor.as_str()),
+                ("foreign", "constant_velocity")
+            );
+            let states = |r: &crate::sim::RunRecord| -> Vec<[f64; 4]> {
+                r.steps.iter().map(|s| s.ego).collect()
+            };
+            assert_eq!(states(g), states(w));
+            assert!(!g.steps.is_empty());
+        }
+        assert!(matches!(
+            req.prepare_foreign("foreign", 7),
+            Err(SimError::Settings(SettingsError::Incompatible {
+                field: "horizon",
+                ..
+            }))
+        ));
     }
 }
