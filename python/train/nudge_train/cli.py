@@ -1,6 +1,6 @@
 """``nudge-train``: the one command of the training package.
 
-    nudge-train data build|report|scenes   NGSIM pipeline: windows, dataset report, planner scenes
+    nudge-train data build|report|scenes|frames   NGSIM pipeline: windows, report, planner scenes, road frames
     nudge-train train --config FILE        train one configuration (teacher or student)
     nudge-train teacher                    the teacher experiments (Table I), docs/results/teacher.md
     nudge-train distill                    the distillation set (planner + teacher), data/distill
@@ -56,7 +56,7 @@ def _command(sub: argparse._SubParsersAction, name: str, help_text: str, run: Ha
 # ---- data -------------------------------------------------------------------------------------
 def _add_data(sub: argparse._SubParsersAction) -> None:
     data = sub.add_parser("data", help="NGSIM data pipeline", description="NGSIM data pipeline")
-    dsub = data.add_subparsers(dest="data_cmd", required=True, metavar="{build,report,scenes}")
+    dsub = data.add_subparsers(dest="data_cmd", required=True, metavar="{build,report,scenes,frames}")
 
     b = _command(dsub, "build", "build training windows (safetensors shards + manifest)", _run_data_build)
     b.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
@@ -82,6 +82,23 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--range", type=float, default=60.0, help="neighbour range (m)")
     s.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    f = _command(dsub, "frames", "compare the straightened and curvilinear road frames per US-101 scene",
+                 _run_data_frames)
+    f.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
+    f.add_argument("--doc", type=Path, default=paths.results() / "road_frame.md", help="the table")
+    f.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
+    f.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _run_data_frames(a: argparse.Namespace) -> int:
+    from nudge_train.data.frame_cmd import write_frame_report
+    from nudge_train.data.splits import SplitConfig
+
+    rows = write_frame_report(a.data_root, a.doc, SplitConfig(seed=a.seed), progress=not a.no_progress)
+    refused = [r for r in rows if r.after is None]
+    print(f"wrote {a.doc}: {len(rows)} scenes, {len(refused)} refused by the curvilinear frame")
+    return 0
 
 
 def _run_data_build(a: argparse.Namespace) -> int:
