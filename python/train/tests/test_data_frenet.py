@@ -244,3 +244,34 @@ def test_straight_shared_scene_same_windows_and_scenarios(tmp_path: Path, scene:
     assert not any(ln.begins or ln.ends for ln in b.lanes.lanes)  # a straight scene: no lane begins or ends
     n_w, n_s = _assert_same(read_commonroad(dst), b)
     assert n_w > 0 and n_s > 0
+
+
+def test_frames_command_writes_the_per_scene_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import shutil
+
+    from nudge_train.cli import main
+
+    root = tmp_path / "ngsim"
+    a = root / US101_DIRS[0]
+    b = root / US101_DIRS[1]
+    a.mkdir(parents=True)
+    b.mkdir(parents=True)
+    shutil.copy(FIX / "USA_US101-1_1_T-1.xml.gz", a)
+    shutil.copy(FIX / "USA_US101-26_1_T-1_cut.xml.gz", a)
+    shutil.copy(FIX / "USA_US101-7_1_T-1_cut.xml.gz", b)
+    shutil.copy(FIX.parent / "commonroad_us101_scene_overlap_groups.csv", root / "us101")
+    doc = tmp_path / "road_frame.md"
+    rc = main(["data", "frames", "--data-root", str(root), "--doc", str(doc), "--no-progress"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "3 scenes, 0 refused" in out
+    rows = {ln.split(" | ")[0].lstrip("| "): ln.split(" | ") for ln in doc.read_text().splitlines()
+            if ln.startswith("| USA_US101")}
+    assert set(rows) == {"USA_US101-1_1_T-1.xml.gz", "USA_US101-26_1_T-1_cut.xml.gz", "USA_US101-7_1_T-1_cut.xml.gz"}
+    seven = rows["USA_US101-7_1_T-1_cut.xml.gz"]
+    assert seven[4] == "0 / 1"  # the auxiliary lane ends (it leaves the road downstream)
+    assert float(seven[3]) < float(seven[2])  # residual after < before
+    # The straightened frame's counts are today's: the same as reading the file directly.
+    from nudge_train.data.frame_cmd import frame_counts
+    t = read_commonroad(b / "USA_US101-7_1_T-1_cut.xml.gz")
+    fc = frame_counts(t, WindowConfig(), ScenarioConfig(), "test")
+    assert int(seven[5]) == fc.windows and int(seven[8]) == fc.scenarios
