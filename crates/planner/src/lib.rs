@@ -38,7 +38,7 @@ pub use safety::{
     Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
     motion_direction, motion_heading,
 };
-pub use scenario::{SCHEMA, Scenario};
+pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec,

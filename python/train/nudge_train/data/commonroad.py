@@ -16,15 +16,18 @@ from pathlib import Path
 
 import numpy as np
 
+from nudge_train.constants import ROAD_FRAMES
+
 from .errors import DataError, read_source
 from .frenet import FrameRefusal, FrenetConfig, ReferencePath, check_offsets, fit_reference, lane_extents
 from .raw import FieldRule, number
 from .tracks import LaneMap, TrackTable, lane_index_from_left, sort_and_check
 
-FRAMES = ("straightened", "frenet")
-"""Road frames of the reader: ``straightened`` (one rotation and a first-order straightening
-along a fitted curve; the default, what the shipped data were built with) and ``frenet`` (the
-curvilinear frame of :mod:`nudge_train.data.frenet`: exact projection, lanes with extents)."""
+FRAMES = ROAD_FRAMES
+"""Road frames of the reader (:data:`nudge_train.constants.ROAD_FRAMES`): ``straightened`` (one
+rotation and a first-order straightening along a fitted curve; the default, what the shipped data
+were built with) and ``frenet`` (the curvilinear frame of :mod:`nudge_train.data.frenet`: exact
+projection, lanes with extents)."""
 
 
 _LINE = "\x00line"
@@ -404,7 +407,6 @@ def read_commonroad(path: Path | str, frame: str = "straightened", frenet: Frene
     if slopes:
         theta += math.atan(float(np.average(slopes, weights=weights)))
     rot_lanelets = [(_rot(l, theta), _rot(r, theta)) for l, r in raw_lanelets]
-    road = RoadCurve.fit(rot_lanelets)
     if frame == "frenet":
         fcfg = (frenet or FrenetConfig()).validate()
         try:
@@ -414,6 +416,7 @@ def read_commonroad(path: Path | str, frame: str = "straightened", frenet: Frene
             raise DataError(path, f"scene {scene} cannot be represented in the curvilinear road frame: {exc}") \
                 from None
     else:
+        road = RoadCurve.fit(rot_lanelets)
         lanelets = [(road.to_road(l), road.to_road(r)) for l, r in rot_lanelets]
         lanes = _lane_map(lanelets, path, names)
 
