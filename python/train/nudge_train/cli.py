@@ -75,7 +75,7 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--doc", type=Path, default=paths.docs() / "data.md", help="the report")
     r.add_argument("--figures", type=Path, default=paths.figures(), help="folder of the report's figures")
 
-    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/1) of a split", _run_data_scenes)
+    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/1, or /2 with --frame frenet) of a split", _run_data_scenes)
     s.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
     s.add_argument("--split", choices=SPLITS, default="test", help="the split written")
     s.add_argument("--out", type=Path, default=None,

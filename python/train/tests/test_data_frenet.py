@@ -275,3 +275,33 @@ def test_frames_command_writes_the_per_scene_table(tmp_path: Path, capsys: pytes
     t = read_commonroad(b / "USA_US101-7_1_T-1_cut.xml.gz")
     fc = frame_counts(t, WindowConfig(), ScenarioConfig(), "test")
     assert int(seven[5]) == fc.windows and int(seven[8]) == fc.scenarios
+
+
+def test_build_in_the_curvilinear_frame_records_it(tmp_path: Path) -> None:
+    """data build --frame frenet: the same windows per source as the default frame on the fixture
+    scenes (the frames differ by centimetres in x, not in which vehicles are present), and the
+    frame recorded in the manifest; the default build does not record it."""
+    import json
+    import shutil
+
+    from nudge_train.cli import main
+
+    root = tmp_path / "ngsim"
+    a = root / US101_DIRS[0]
+    a.mkdir(parents=True)
+    for name in ("USA_US101-1_1_T-1.xml.gz", "USA_US101-26_1_T-1_cut.xml.gz", "USA_US101-9_1_T-1_cut.xml.gz"):
+        shutil.copy(FIX / name, a)
+    shutil.copy(FIX.parent / "commonroad_us101_scene_overlap_groups.csv", root / "us101")
+    mans = {}
+    for frame in ("straightened", "frenet"):
+        out = tmp_path / frame
+        assert main(["data", "build", "--data-root", str(root), "--out", str(out), "--no-i80", "--no-progress",
+                     "--frame", frame]) == 0
+        mans[frame] = json.loads((out / "manifest.json").read_text())
+    assert "road_frame" not in mans["straightened"]["config"]
+    assert mans["frenet"]["config"]["road_frame"] == "frenet"
+    for sa, sb in zip(mans["straightened"]["sources"], mans["frenet"]["sources"]):
+        assert sa["name"] == sb["name"] and sa["split"] == sb["split"]
+        assert sa.get("candidates") == sb.get("candidates")
+    nine = next(s for s in mans["frenet"]["sources"] if s["name"] == "USA_US101-9_1_T-1_cut.xml.gz")
+    assert nine["reader_notes"]["lanes_ending"] == 1

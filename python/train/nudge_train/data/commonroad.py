@@ -1,9 +1,12 @@
 """Reader for CommonRoad scenario XML (2020a ``dynamicObstacle`` and 2018b ``obstacle``/``role``).
 
 Produces a :class:`TrackTable` in a road frame: the scene is rotated so traffic runs along +x
-(direction fitted to the lanelet boundaries), y positive left. Lanes come from the lanelet
-boundaries (order by lateral position); lanelets that start or end inside the scene (on-ramps,
-lane drops) give per-x pieces of the lane map.
+(direction fitted to the lanelet boundaries), y positive left, then either straightened along a
+fitted polynomial (frame ``straightened``, the default) or mapped to arclength and offset along a
+spline reference path (frame ``frenet``, :mod:`nudge_train.data.frenet`). Lanes come from the
+lanelet boundaries (order by lateral position); lanelets that start or end inside the scene
+(on-ramps, lane drops) give per-x pieces of the lane map, and in the ``frenet`` frame every lane
+also carries its extent along s.
 """
 
 from __future__ import annotations
@@ -504,7 +507,7 @@ def read_commonroad(path: Path | str, frame: str = "straightened", frenet: Frene
         lane=lane, flags=np.zeros(n, dtype=np.int64), lanes=lanes, dt=dt,
         notes={"rotation_mrad": int(round(theta * 1000)),
                "lane_straightness_cm": int(round(lanes.straightness_m * 100)),
-               **({"lanes_beginning": sum(ln.begins for ln in lanes.lanes),
-                   "lanes_ending": sum(ln.ends for ln in lanes.lanes)} if frame == "frenet" else {})},
+               **({"lanes_beginning": int(sum(bool(ln.begins) for ln in lanes.lanes)),
+                   "lanes_ending": int(sum(bool(ln.ends) for ln in lanes.lanes))} if frame == "frenet" else {})},
     )
     return sort_and_check(table)

@@ -67,8 +67,8 @@ def frame_counts(table: TrackTable, wcfg: WindowConfig, scfg: ScenarioConfig, sp
         merge_s += int(table.lanes.ending_lane(ego[:1], ego[1:])[0])
     return FrameCounts(residual_m=table.lanes.straightness_m, windows=len(ws), merge_windows=merge_w,
                        scenarios=len(scs), merge_scenarios=merge_s, drops=drops,
-                       lanes_beginning=sum(ln.begins for ln in table.lanes.lanes),
-                       lanes_ending=sum(ln.ends for ln in table.lanes.lanes))
+                       lanes_beginning=int(sum(ln.begins for ln in table.lanes.lanes)),
+                       lanes_ending=int(sum(ln.ends for ln in table.lanes.lanes)))
 
 
 def compare_frames(data_root: Path, split_cfg: SplitConfig, progress: bool = True) -> list[SceneRow]:

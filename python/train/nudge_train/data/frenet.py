@@ -306,6 +306,6 @@ def lane_extents(lanes: list[tuple[np.ndarray, np.ndarray]], cfg: FrenetConfig) 
         keep = (grid >= s0) & (grid <= s1)
         left = np.stack([grid[keep], dl[k, keep]], axis=1)
         right = np.stack([grid[keep], dr[k, keep]], axis=1)
-        out.append(FrenetLane(s_begin=s0, s_end=s1, begins=s0 > lo_all + cfg.edge_margin_m,
-                              ends=s1 < hi_all - cfg.edge_margin_m, left=left, right=right))
+        out.append(FrenetLane(s_begin=s0, s_end=s1, begins=bool(s0 > lo_all + cfg.edge_margin_m),
+                              ends=bool(s1 < hi_all - cfg.edge_margin_m), left=left, right=right))
     return out
