@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import quad
 
 from nudge_train import paths
@@ -305,3 +307,36 @@ def test_build_in_the_curvilinear_frame_records_it(tmp_path: Path) -> None:
         assert sa.get("candidates") == sb.get("candidates")
     nine = next(s for s in mans["frenet"]["sources"] if s["name"] == "USA_US101-9_1_T-1_cut.xml.gz")
     assert nine["reader_notes"]["lanes_ending"] == 1
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), theta=st.floats(-math.pi, math.pi), bend=st.floats(0.0, 2e-3))
+def test_projection_property(seed: int, theta: float, bend: float) -> None:
+    """Random smooth paths (curvature up to about 1/250 m) and points within 15 m: the foot point
+    is orthogonal (the offset vector is perpendicular to the tangent), |d| is the distance to it,
+    and the inverse map returns the point."""
+    from scipy.interpolate import BSpline
+
+    rng = np.random.default_rng(seed)
+    h = 25.0
+    t = -200.0 + h * np.arange(-3, 20)
+    coef = np.cumsum(np.cumsum(rng.normal(0.0, bend * h * h, t.shape[0] - 4)))
+    coef -= BSpline(t, coef, 3)(0.0)
+    path = ReferencePath.build(theta, BSpline(t, coef, 3, extrapolate=False), FrenetConfig(max_turn_rad=3.0))
+    u0 = rng.uniform(path.x_lo + 30, path.x_hi - 30, 50)
+    local = np.stack([u0, path.shape(u0) + rng.uniform(-15, 15, 50)], axis=1)
+    c, s_ = math.cos(theta), math.sin(theta)
+    world = np.stack([c * local[:, 0] - s_ * local[:, 1], s_ * local[:, 0] + c * local[:, 1]], axis=1)
+    try:
+        s, d, u = path.project(world)
+    except FrameRefusal:
+        return  # a point whose nearest foot is off the path's range: refused, as it must be
+    foot = np.stack([u, path.shape(u)], axis=1)
+    foot_w = np.stack([c * foot[:, 0] - s_ * foot[:, 1], s_ * foot[:, 0] + c * foot[:, 1]], axis=1)
+    tan = np.stack([np.ones_like(u), path.shape(u, 1)], axis=1)
+    tan /= np.linalg.norm(tan, axis=1, keepdims=True)
+    tan_w = np.stack([c * tan[:, 0] - s_ * tan[:, 1], s_ * tan[:, 0] + c * tan[:, 1]], axis=1)
+    off = world - foot_w
+    assert np.max(np.abs(np.sum(off * tan_w, axis=1))) < 1e-6
+    assert np.max(np.abs(np.linalg.norm(off, axis=1) - np.abs(d))) < 1e-9
+    assert np.max(np.abs(path.to_world(s, d) - world)) < 1e-5

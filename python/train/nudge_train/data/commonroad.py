@@ -293,12 +293,11 @@ def lane_chains(names: list[tuple[str, int | None]], successors: list[list[str]]
 
 
 def _clip_sd(poly: np.ndarray, a: float, b: float) -> np.ndarray:
-    """The part of an (s, d) polyline [P, 2] (s ascending) within a <= s <= b, ends interpolated."""
+    """The part of an (s, d) polyline [P, 2] (s ascending) over a <= s <= b, with points
+    interpolated at a and b (both within the polyline's s range)."""
     inner = poly[(poly[:, 0] > a) & (poly[:, 0] < b)]
-    ends = [np.asarray([[v, np.interp(v, poly[:, 0], poly[:, 1])]]) for v in (a, b) if poly[0, 0] <= v <= poly[-1, 0]]
-    pts = np.concatenate([p for p in (ends[:1] if ends and ends[0][0, 0] == a else []) + [inner]
-                          + (ends[-1:] if ends and ends[-1][0, 0] == b else [])])
-    return pts
+    d_ab = np.interp([a, b], poly[:, 0], poly[:, 1])
+    return np.concatenate([[[a, d_ab[0]]], inner, [[b, d_ab[1]]]])
 
 
 def _frenet_lane_map(ref: ReferencePath, raw_lanelets: list[tuple[np.ndarray, np.ndarray]],
