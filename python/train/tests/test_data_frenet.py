@@ -340,3 +340,21 @@ def test_projection_property(seed: int, theta: float, bend: float) -> None:
     assert np.max(np.abs(np.sum(off * tan_w, axis=1))) < 1e-6
     assert np.max(np.abs(np.linalg.norm(off, axis=1) - np.abs(d))) < 1e-9
     assert np.max(np.abs(path.to_world(s, d) - world)) < 1e-5
+
+
+def test_offsets_near_the_radius_of_curvature_are_refused() -> None:
+    """Radius 60 m: a point 35 m inside the bend (0.58 of the radius) is refused, one 20 m
+    inside (0.33) is accepted."""
+    from nudge_train.data.frenet import check_offsets
+
+    path, _ = _curved_path(radius=60.0)
+    cfg = FrenetConfig()
+    for d_want, refused in ((20.0, False), (35.0, True)):
+        world = path.to_world(np.asarray([0.0]), np.asarray([d_want]))
+        s, d, u = path.project(world)
+        assert abs(d[0] - d_want) < 1e-6
+        if refused:
+            with pytest.raises(FrameRefusal, match="not unique"):
+                check_offsets(path, u, d, cfg)
+        else:
+            check_offsets(path, u, d, cfg)
