@@ -134,7 +134,7 @@ class SimConfig:
     def __eq__(self, other: object) -> bool: ...
 
 class Scenario:
-    """A "nudge.scenario/1" scene (agent 0 = ego), road frame, metres."""
+    """A "nudge.scenario/1" or "nudge.scenario/2" scene (agent 0 = ego), road frame, metres."""
 
     @staticmethod
     def load(path: _Path) -> Scenario: ...
@@ -166,6 +166,12 @@ class Scenario:
     def lane_centres(self) -> _F64: ...
     @property
     def lane_bounds(self) -> _F64: ...
+    @property
+    def lane_extents(self) -> _F64 | None:
+        """[L, 2] (begin, end) m; None for "nudge.scenario/1"."""
+    @property
+    def lane_extent_real(self) -> _Bool | None:
+        """[L, 2] (begins, ends); None for "nudge.scenario/1"."""
     @property
     def ego_lane(self) -> int: ...
     @property

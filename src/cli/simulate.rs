@@ -22,7 +22,7 @@ fn noted(text: &str, value: impl std::fmt::Display) -> String {
 /// JSON file; its defaults otherwise), each overridable by its own flag.
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Directory of "nudge.scenario/1" `.safetensors` files (run in sorted file-name order)
+    /// Directory of "nudge.scenario/1" or "/2" `.safetensors` files (run in sorted file-name order)
     /// [default: <assets>/scenes, the shipped real scenes].
     #[arg(long)]
     pub scenes: Option<PathBuf>,

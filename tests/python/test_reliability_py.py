@@ -194,7 +194,8 @@ DEGENERATE: dict[str, list[Call]] = {
 }
 # Getters of Scenario: on a scene reduced to the ego alone.
 for _name in ("agent_ids", "ego_lane", "future", "future_valid", "heading", "history", "lane_bounds",
-              "lane_centres", "metadata", "n_agents", "name", "path", "road", "size", "speed"):
+              "lane_centres", "lane_extent_real", "lane_extents", "metadata", "n_agents", "name", "path", "road",
+              "size", "speed"):
     DEGENERATE[f"Scenario.{_name}"] = [lambda c, n=_name: getattr(c["sc"].nearest(0), n)]
 
 # Entry points whose degenerate calls may raise Python's own exceptions: no constructor.

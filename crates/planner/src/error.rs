@@ -50,7 +50,7 @@ pub enum SettingsError {
     },
 }
 
-/// A scenario file ("nudge.scenario/1") cannot be used.
+/// A scenario file ("nudge.scenario/1" or "nudge.scenario/2") cannot be used.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ScenarioError {
@@ -71,7 +71,7 @@ pub enum ScenarioError {
         reason: String,
     },
     /// The metadata has no "schema" entry or names another schema.
-    #[error("{path}: schema is {found:?}, expected \"nudge.scenario/1\"")]
+    #[error("{path}: schema is {found:?}, expected \"nudge.scenario/1\" or \"nudge.scenario/2\"")]
     WrongSchema {
         /// File that failed.
         path: PathBuf,

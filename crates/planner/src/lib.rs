@@ -4,7 +4,7 @@
 //! 0.3 s solved by ADMM, whose steering and acceleration updates are Clarabel QPs and whose
 //! state update is projected gradient descent with every trial point checked for safety by
 //! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory ([`Planner`]; the
-//! phases are described in its module). Plus the scenario reader ("nudge.scenario/1"
+//! phases are described in its module). Plus the scenario reader ("nudge.scenario/1" and "/2"
 //! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
 //! [`simulate_many`]) in three worlds (the teacher's predictions, IDM traffic fitted to real
 //! car-following, the log; [`World`]), with the metrics every run is judged by
@@ -39,7 +39,7 @@ pub use safety::{
     Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
     motion_direction, motion_heading,
 };
-pub use scenario::{SCHEMA, Scenario};
+pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec,

@@ -1,4 +1,6 @@
-//! Reader of "nudge.scenario/1" scenario files (one real scene per `.safetensors` file).
+//! Reader of "nudge.scenario/1" and "nudge.scenario/2" scenario files (one real scene per
+//! `.safetensors` file). Version 2 adds where each lane begins and ends along x
+//! ([`Scenario::lane_extents`]); version 1 files have none (their lanes run through the scene).
 //!
 //! Besides the format (schema, tensors, dtypes, shapes, finite values), the reader checks that
 //! a scene is physically plausible for a highway, naming the agent and field that is not. The
@@ -32,8 +34,26 @@ use safetensors::{Dtype, SafeTensors};
 use crate::error::ScenarioError;
 use crate::safety::OrientedBox;
 
-/// The schema string the reader accepts.
+/// The schema string of scenario files without lane extents (lanes run through the scene).
 pub const SCHEMA: &str = "nudge.scenario/1";
+/// The schema string of scenario files with lane extents (`lane_extent`, `lane_extent_real`).
+pub const SCHEMA_EXTENTS: &str = "nudge.scenario/2";
+/// How far (m) along x the ego's centre may lie outside the extent of its `ego_lane`.
+pub const EGO_EXTENT_TOLERANCE: f64 = 0.5;
+
+/// Where one lane lies along the road (schema "nudge.scenario/2"), road-frame x (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneExtent {
+    /// x where the lane begins (m); `begin < end`.
+    pub begin: f64,
+    /// x where the lane ends (m).
+    pub end: f64,
+    /// The lane really begins at `begin` (an on-ramp joining); `false`: the lane map starts there.
+    pub begins: bool,
+    /// The lane really ends at `end` (an acceleration or exit lane: a vehicle staying on the road
+    /// must leave it before); `false`: the lane map stops there.
+    pub ends: bool,
+}
 
 /// Largest scenario file accepted (bytes): 16 MiB; real scenes are 3–10 kB.
 pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
@@ -85,6 +105,9 @@ pub struct Scenario {
     pub ego_lane: usize,
     /// Source vehicle ids `[n]`.
     pub agent_ids: Vec<i64>,
+    /// Extent of each lane `[L]`, in `lane_centres` order ("nudge.scenario/2"); `None` for
+    /// "nudge.scenario/1" files, whose lanes run through the whole scene.
+    pub lane_extents: Option<Vec<LaneExtent>>,
     /// String metadata (source, scene, split, t0_s, dt, provenance, ...).
     pub metadata: HashMap<String, String>,
 }
@@ -316,10 +339,45 @@ impl Reader<'_> {
             ego_lane: ego_lane as usize,
         })
     }
+
+    /// `lane_extent` `[L, 2]` (begin < end, m) and `lane_extent_real` `[L, 2]` (0 or 1).
+    fn lane_extents(&self, nl: usize) -> Result<Vec<LaneExtent>, ScenarioError> {
+        let (_, ext) = self.f64s("lane_extent", &[Some(nl), Some(2)])?;
+        let (_, real) = self.view("lane_extent_real", Dtype::U8, &[Some(nl), Some(2)])?;
+        if let Some(i) = real.iter().position(|&b| b > 1) {
+            return Err(self.bad(
+                "lane_extent_real",
+                format!("lane {} has flag {} (0 or 1 expected)", i / 2, real[i]),
+            ));
+        }
+        let mut out = Vec::with_capacity(nl);
+        for k in 0..nl {
+            let (begin, end) = (ext[2 * k], ext[2 * k + 1]);
+            if begin.abs().max(end.abs()) > MAX_ABS_POSITION {
+                return Err(self.bad(
+                    "lane_extent",
+                    format!("lane {k} extent [{begin}, {end}] m is beyond ±{MAX_ABS_POSITION} m"),
+                ));
+            }
+            if begin >= end {
+                return Err(self.bad(
+                    "lane_extent",
+                    format!("lane {k} begins at {begin} m, not before its end {end} m"),
+                ));
+            }
+            out.push(LaneExtent {
+                begin,
+                end,
+                begins: real[2 * k] == 1,
+                ends: real[2 * k + 1] == 1,
+            });
+        }
+        Ok(out)
+    }
 }
 
 /// Parses the safetensors image `bytes` and checks its string metadata: `schema` is
-/// [`SCHEMA`] and `dt`, when present, is 0.3 (s).
+/// [`SCHEMA`] or [`SCHEMA_EXTENTS`] and `dt`, when present, is 0.3 (s).
 ///
 /// # Errors
 /// [`ScenarioError::NotSafetensors`], [`ScenarioError::WrongSchema`],
@@ -340,7 +398,7 @@ fn read_header<'a>(
         })?;
     let metadata: HashMap<String, String> = meta.metadata().clone().unwrap_or_default();
     let schema = metadata.get("schema").cloned();
-    if schema.as_deref() != Some(SCHEMA) {
+    if !matches!(schema.as_deref(), Some(SCHEMA | SCHEMA_EXTENTS)) {
         return Err(ScenarioError::WrongSchema {
             path: p(),
             found: schema,
@@ -419,6 +477,11 @@ impl Scenario {
         let n = agents.n;
         let future = r.future(n)?;
         let lanes = r.lanes()?;
+        let lane_extents = if metadata.get("schema").map(String::as_str) == Some(SCHEMA_EXTENTS) {
+            Some(r.lane_extents(lanes.centres.len())?)
+        } else {
+            None
+        };
         let agent_ids = r.i64s("agent_ids", &[Some(n)])?;
         let name = path.file_stem().map_or_else(
             || "<memory>".to_string(),
@@ -438,6 +501,7 @@ impl Scenario {
             lane_bounds: lanes.bounds,
             ego_lane: lanes.ego_lane,
             agent_ids,
+            lane_extents,
             metadata,
         };
         sc.check_plausible(path)?;
@@ -668,6 +732,22 @@ impl Scenario {
                 tolerance: EGO_LANE_TOLERANCE,
             });
         }
+        if let Some(ext) = &self.lane_extents {
+            let x = self.position(0, T_OBS - 1)[0];
+            let e = ext[self.ego_lane];
+            if x < e.begin - EGO_EXTENT_TOLERANCE || x > e.end + EGO_EXTENT_TOLERANCE {
+                return Err(self.implausible(
+                    path,
+                    0,
+                    "lane_extent",
+                    format!(
+                        "the ego at x = {x} m is outside its lane's extent [{}, {}] m \
+                         (tolerance {EGO_EXTENT_TOLERANCE} m)",
+                        e.begin, e.end
+                    ),
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -762,6 +842,7 @@ impl Scenario {
             lane_bounds: self.lane_bounds.clone(),
             ego_lane: self.ego_lane,
             agent_ids: idx.iter().map(|&i| self.agent_ids[i]).collect(),
+            lane_extents: self.lane_extents.clone(),
             metadata: self.metadata.clone(),
         }
     }

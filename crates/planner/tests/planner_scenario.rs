@@ -179,3 +179,116 @@ fn defects_are_typed_errors() {
         Err(ScenarioError::Io { .. })
     ));
 }
+
+/// The valid scene as "nudge.scenario/2": lane 0 (the ego's, x = 21 m now) ends at 60 m, lane 1
+/// runs from -50 m to 200 m where the lane map stops.
+fn valid_v2(extent: [f64; 4], real: [u8; 4]) -> Vec<(String, Dtype, Vec<usize>, Vec<u8>)> {
+    let mut t = valid();
+    t.push((
+        "lane_extent".into(),
+        Dtype::F64,
+        vec![2, 2],
+        extent.iter().flat_map(|x| x.to_le_bytes()).collect(),
+    ));
+    t.push((
+        "lane_extent_real".into(),
+        Dtype::U8,
+        vec![2, 2],
+        real.to_vec(),
+    ));
+    t
+}
+
+#[test]
+fn lane_extents_read_from_version_2_only() {
+    let s = read(&write(
+        &valid_v2([-50.0, 60.0, -50.0, 200.0], [0, 1, 0, 0]),
+        Some("nudge.scenario/2"),
+    ))
+    .unwrap();
+    let ext = s.lane_extents.as_ref().unwrap();
+    assert_eq!(ext.len(), 2);
+    assert_eq!(
+        ext[0],
+        nudge_planner::LaneExtent {
+            begin: -50.0,
+            end: 60.0,
+            begins: false,
+            ends: true
+        }
+    );
+    assert!(!ext[1].begins && !ext[1].ends && ext[1].end == 200.0);
+    // Version 1 has none, even when the tensors are there.
+    let v1 = read(&write(
+        &valid_v2([-50.0, 60.0, -50.0, 200.0], [0, 1, 0, 0]),
+        Some("nudge.scenario/1"),
+    ))
+    .unwrap();
+    assert!(v1.lane_extents.is_none());
+    assert_eq!(v1.history, s.history);
+}
+
+#[test]
+fn lane_extent_defects_are_typed_errors() {
+    let v2 = Some("nudge.scenario/2");
+    // Version 2 without its extents.
+    assert!(matches!(
+        read(&write(&valid(), v2)),
+        Err(ScenarioError::MissingTensor {
+            tensor: "lane_extent",
+            ..
+        })
+    ));
+    // A lane that ends before it begins.
+    let e = read(&write(&valid_v2([-50.0, 60.0, 200.0, 200.0], [0; 4]), v2)).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            ScenarioError::BadValue {
+                tensor: "lane_extent",
+                ..
+            }
+        ),
+        "{e}"
+    );
+    assert!(e.to_string().contains("lane 1 begins at 200"), "{e}");
+    // A flag that is not 0 or 1.
+    assert!(matches!(
+        read(&write(
+            &valid_v2([-50.0, 60.0, -50.0, 200.0], [0, 2, 0, 0]),
+            v2
+        )),
+        Err(ScenarioError::BadValue {
+            tensor: "lane_extent_real",
+            ..
+        })
+    ));
+    // Non-finite.
+    assert!(matches!(
+        read(&write(
+            &valid_v2([-50.0, f64::INFINITY, -50.0, 200.0], [0; 4]),
+            v2
+        )),
+        Err(ScenarioError::NonFinite {
+            tensor: "lane_extent",
+            ..
+        })
+    ));
+    // The ego (x = 21 m) past the end of its lane (10 m).
+    let e = read(&write(
+        &valid_v2([-50.0, 10.0, -50.0, 200.0], [0, 1, 0, 0]),
+        v2,
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            ScenarioError::Implausible {
+                agent: 0,
+                field: "lane_extent",
+                ..
+            }
+        ),
+        "{e}"
+    );
+}

@@ -1,4 +1,5 @@
-//! `nudge._native.Scenario`: a "nudge.scenario/1" scene file, read by the Rust reader.
+//! `nudge._native.Scenario`: a "nudge.scenario/1" or "nudge.scenario/2" scene file, read by the
+//! Rust reader.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -124,6 +125,42 @@ impl PyScenario {
     #[getter]
     fn lane_bounds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         self.inner.lane_bounds.clone().into_pyarray(py)
+    }
+
+    /// Where each lane begins and ends along x `[L, 2]` (m), in `lane_centres` order;
+    /// `None` for a "nudge.scenario/1" file (its lanes run through the scene).
+    #[getter]
+    fn lane_extents<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f64>>>> {
+        self.inner
+            .lane_extents
+            .as_ref()
+            .map(|ext| {
+                let flat: Vec<f64> = ext.iter().flat_map(|e| [e.begin, e.end]).collect();
+                flat.into_pyarray(py)
+                    .reshape([ext.len(), 2])
+                    .map_err(reshape_err)
+            })
+            .transpose()
+    }
+
+    /// Whether each lane really begins / ends at its extent `[L, 2]` (an on-ramp joining, an
+    /// acceleration or exit lane ending) rather than where the lane map stops; `None` for a
+    /// "nudge.scenario/1" file.
+    #[getter]
+    fn lane_extent_real<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, PyArray2<bool>>>> {
+        self.inner
+            .lane_extents
+            .as_ref()
+            .map(|ext| {
+                let flat: Vec<bool> = ext.iter().flat_map(|e| [e.begins, e.ends]).collect();
+                flat.into_pyarray(py)
+                    .reshape([ext.len(), 2])
+                    .map_err(reshape_err)
+            })
+            .transpose()
     }
 
     /// The ego's lane index.

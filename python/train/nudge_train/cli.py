@@ -1,6 +1,6 @@
 """``nudge-train``: the one command of the training package.
 
-    nudge-train data build|report|scenes   NGSIM pipeline: windows, dataset report, planner scenes
+    nudge-train data build|report|scenes|frames   NGSIM pipeline: windows, report, planner scenes, road frames
     nudge-train train --config FILE        train one configuration (teacher or student)
     nudge-train teacher                    the teacher experiments (Table I), docs/results/teacher.md
     nudge-train distill                    the distillation set (planner + teacher), data/distill
@@ -28,7 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from nudge_train import paths
-from nudge_train.constants import BENCH_NS, SPLITS
+from nudge_train.constants import BENCH_NS, ROAD_FRAMES, SPLITS
 
 __all__ = ["build_parser", "main"]
 
@@ -56,7 +56,7 @@ def _command(sub: argparse._SubParsersAction, name: str, help_text: str, run: Ha
 # ---- data -------------------------------------------------------------------------------------
 def _add_data(sub: argparse._SubParsersAction) -> None:
     data = sub.add_parser("data", help="NGSIM data pipeline", description="NGSIM data pipeline")
-    dsub = data.add_subparsers(dest="data_cmd", required=True, metavar="{build,report,scenes}")
+    dsub = data.add_subparsers(dest="data_cmd", required=True, metavar="{build,report,scenes,frames}")
 
     b = _command(dsub, "build", "build training windows (safetensors shards + manifest)", _run_data_build)
     b.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
@@ -66,6 +66,8 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     b.add_argument("--phases", type=str, default="0,1,2", help="0.1 s phase offsets, e.g. 0 or 0,1,2")
     b.add_argument("--no-i80", action="store_true", help="leave out the Coifman & Li I-80 set")
+    b.add_argument("--frame", choices=ROAD_FRAMES, default=ROAD_FRAMES[0],
+                   help="road frame of the US-101 scenes: straightened, or frenet (curvilinear)")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     r = _command(dsub, "report", "write docs/data.md and docs/figures/data_*.png from a build", _run_data_report)
@@ -73,15 +75,35 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--doc", type=Path, default=paths.docs() / "data.md", help="the report")
     r.add_argument("--figures", type=Path, default=paths.figures(), help="folder of the report's figures")
 
-    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/1) of a split", _run_data_scenes)
+    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/1, or /2 with --frame frenet) of a split", _run_data_scenes)
     s.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
     s.add_argument("--split", choices=SPLITS, default="test", help="the split written")
     s.add_argument("--out", type=Path, default=None,
                    help="output folder (default data/processed/scenes/<split>, or assets/scenes with --ship)")
     s.add_argument("--ship", action="store_true", help="write the small shipped selection (8-12 scenarios)")
+    s.add_argument("--frame", choices=ROAD_FRAMES, default=ROAD_FRAMES[0],
+                   help="road frame: straightened (nudge.scenario/1) or frenet (curvilinear, nudge.scenario/2 "
+                        "with lane extents)")
     s.add_argument("--range", type=float, default=60.0, help="neighbour range (m)")
     s.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    f = _command(dsub, "frames", "compare the straightened and curvilinear road frames per US-101 scene",
+                 _run_data_frames)
+    f.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
+    f.add_argument("--doc", type=Path, default=paths.results() / "road_frame.md", help="the table")
+    f.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
+    f.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _run_data_frames(a: argparse.Namespace) -> int:
+    from nudge_train.data.frame_cmd import write_frame_report
+    from nudge_train.data.splits import SplitConfig
+
+    rows = write_frame_report(a.data_root, a.doc, SplitConfig(seed=a.seed), progress=not a.no_progress)
+    refused = [r for r in rows if r.after is None]
+    print(f"wrote {a.doc}: {len(rows)} scenes, {len(refused)} refused by the curvilinear frame")
+    return 0
 
 
 def _run_data_build(a: argparse.Namespace) -> int:
@@ -91,7 +113,7 @@ def _run_data_build(a: argparse.Namespace) -> int:
 
     phases = tuple(int(p) for p in a.phases.split(",") if p.strip())
     manifest = build(BuildConfig(data_root=a.data_root, out=a.out, raw=tuple(a.raw), seed=a.seed, phases=phases,
-                                 include_i80=not a.no_i80), progress=not a.no_progress)
+                                 include_i80=not a.no_i80, frame=a.frame), progress=not a.no_progress)
     print(f"wrote {a.out / 'manifest.json'}: {manifest['counts']['windows']} windows")
     for line in decision_lines([(s["split"], s.get("rule", ""), s.get("reason", "")) for s in manifest["sources"]]):
         print(f"  {line}")
@@ -112,7 +134,7 @@ def _run_data_scenes(a: argparse.Namespace) -> int:
 
     out = a.out or (paths.shipped_scenes() if a.ship else paths.scenes(a.split))
     written, drops, notes = write_scenes(a.data_root, out, ScenesConfig(split=a.split, ship=a.ship,
-                                                                        dense_range_m=a.range),
+                                                                        dense_range_m=a.range, frame=a.frame),
                                          SplitConfig(seed=a.seed), progress=not a.no_progress)
     print(f"wrote {len(written)} scenarios to {out}")
     for k, v in sorted(drops.items()):

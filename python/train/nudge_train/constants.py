@@ -15,6 +15,8 @@ __all__ = [
     "OBS_LEN",
     "PRED_LEN",
     "SCENARIO_SCHEMA",
+    "SCENARIO_SCHEMA_EXTENTS",
+    "ROAD_FRAMES",
     "SPLITS",
     "WEIGHTS_FORMAT",
     "WINDOWS_SCHEMA",
@@ -36,6 +38,13 @@ WINDOWS_SCHEMA = "nudge.windows/1"
 """One shard of training windows of a processed-data build."""
 SCENARIO_SCHEMA = "nudge.scenario/1"
 """One planner scenario file (``nudge-train data scenes``), read by the Rust scenario loader."""
+ROAD_FRAMES = ("straightened", "frenet")
+"""Road frames of the US-101 reader, the default first: ``straightened`` (what the shipped data
+use) and ``frenet`` (curvilinear: arclength and offset along a fitted reference path)."""
+SCENARIO_SCHEMA_EXTENTS = "nudge.scenario/2"
+"""A planner scenario with lane extents (where each lane begins and ends along x), written for
+the curvilinear road frame (``nudge-train data scenes --frame frenet``); the Rust loader reads
+both versions."""
 DISTILL_SCHEMA = "nudge.distill/1"
 """The distillation set: its ``manifest.json`` and every shard (``nudge-train distill``)."""
 WEIGHTS_FORMAT = "nudge.weights/1"

@@ -289,6 +289,7 @@ fn two_lane_scene(ego_y: f64, future: usize) -> Scenario {
         lane_bounds: vec![-1.75, 1.75, 5.25],
         ego_lane: 0,
         agent_ids: vec![10, 11, 12],
+        lane_extents: None,
         metadata: HashMap::new(),
     }
 }

@@ -45,6 +45,9 @@ class BuildConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     coifman: CoifmanConfig = field(default_factory=CoifmanConfig)
     raw_cfg: RawConfig = field(default_factory=RawConfig)
+    frame: str = "straightened"
+    """Road frame of the US-101 scenes (``straightened`` or ``frenet``); recorded in the manifest's
+    config as ``road_frame`` when not the default."""
 
 
 def time_blocks(table: TrackTable, block_s: float) -> list[tuple[int, int]]:
@@ -66,7 +69,7 @@ class Unit:
 def collect_units(cfg: BuildConfig, progress: bool) -> tuple[list[Unit], list[SourceEntry]]:
     split_cfg = SplitConfig(seed=cfg.seed, test_frac=cfg.split.test_frac, val_frac=cfg.split.val_frac,
                             i80_block_s=cfg.split.i80_block_s, tries=cfg.split.tries)
-    entries = us101_sources(cfg.data_root, split_cfg, progress=progress)
+    entries = us101_sources(cfg.data_root, split_cfg, progress=progress, frame=cfg.frame)
     units = [Unit(e, None) for e in entries if e.table is not None]
     long_tables: list[tuple[str, str, TrackTable, int]] = []
     if cfg.include_i80:
@@ -193,6 +196,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
             "raw": [p.name for p in cfg.raw], "windows_per_shard": cfg.windows_per_shard,
             "window": asdict(wcfg), "split": asdict(cfg.split), "coifman": asdict(cfg.coifman),
             "raw_cleaning": asdict(cfg.raw_cfg),
+            **({"road_frame": cfg.frame} if cfg.frame != "straightened" else {}),
         }),
         "counts": {"windows": total_w, "agents": sum(v["agents"] for v in splits_out.values()),
                    "sources": len(sources)},

@@ -1,9 +1,12 @@
 """Reader for CommonRoad scenario XML (2020a ``dynamicObstacle`` and 2018b ``obstacle``/``role``).
 
 Produces a :class:`TrackTable` in a road frame: the scene is rotated so traffic runs along +x
-(direction fitted to the lanelet boundaries), y positive left. Lanes come from the lanelet
-boundaries (order by lateral position); lanelets that start or end inside the scene (on-ramps,
-lane drops) give per-x pieces of the lane map.
+(direction fitted to the lanelet boundaries), y positive left, then either straightened along a
+fitted polynomial (frame ``straightened``, the default) or mapped to arclength and offset along a
+spline reference path (frame ``frenet``, :mod:`nudge_train.data.frenet`). Lanes come from the
+lanelet boundaries (order by lateral position); lanelets that start or end inside the scene
+(on-ramps, lane drops) give per-x pieces of the lane map, and in the ``frenet`` frame every lane
+also carries its extent along s.
 """
 
 from __future__ import annotations
@@ -11,14 +14,23 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 from xml.parsers import expat
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from nudge_train.constants import ROAD_FRAMES
+
 from .errors import DataError, read_source
+from .frenet import FrameRefusal, FrenetConfig, ReferencePath, check_offsets, fit_reference, lane_extents
 from .raw import FieldRule, number
 from .tracks import LaneMap, TrackTable, lane_index_from_left, sort_and_check
+
+FRAMES = ROAD_FRAMES
+"""Road frames of the reader (:data:`nudge_train.constants.ROAD_FRAMES`): ``straightened`` (one
+rotation and a first-order straightening along a fitted curve; the default, what the shipped data
+were built with) and ``frenet`` (the curvilinear frame of :mod:`nudge_train.data.frenet`: exact
+projection, lanes with extents)."""
 
 
 _LINE = "\x00line"
@@ -260,12 +272,96 @@ def _lane_map(lanelets: list[tuple[np.ndarray, np.ndarray]], path: Path,
                    pieces=tuple(merged_pieces), polylines=tuple(polylines))
 
 
-def read_commonroad(path: Path | str) -> TrackTable:
-    """Read one CommonRoad scenario (.xml or .xml.gz, format 2020a or 2018b) into a TrackTable.
+def lane_chains(names: list[tuple[str, int | None]], successors: list[list[str]]) -> list[list[int]]:
+    """Lanelets joined along the road into lanes: chains following each lanelet's first
+    successor, from every lanelet that is no lanelet's successor (indices into ``names``)."""
+    index = {lid: i for i, (lid, _) in enumerate(names)}
+    is_successor = {index[r] for succ in successors for r in succ if r in index}
+    chains: list[list[int]] = []
+    used: set[int] = set()
+    for start in [i for i in range(len(names)) if i not in is_successor] + list(range(len(names))):
+        if start in used:
+            continue
+        chain, i = [], start
+        while i is not None and i not in used:
+            chain.append(i)
+            used.add(i)
+            nxt = [index[r] for r in successors[i] if r in index]
+            i = nxt[0] if nxt else None
+        chains.append(chain)
+    return chains
+
+
+def _clip_sd(poly: np.ndarray, a: float, b: float) -> np.ndarray:
+    """The part of an (s, d) polyline [P, 2] (s ascending) over a <= s <= b, with points
+    interpolated at a and b (both within the polyline's s range)."""
+    inner = poly[(poly[:, 0] > a) & (poly[:, 0] < b)]
+    d_ab = np.interp([a, b], poly[:, 0], poly[:, 1])
+    return np.concatenate([[[a, d_ab[0]]], inner, [[b, d_ab[1]]]])
+
+
+def _frenet_lane_map(ref: ReferencePath, raw_lanelets: list[tuple[np.ndarray, np.ndarray]],
+                     names: list[tuple[str, int | None]], successors: list[list[str]], path: Path,
+                     cfg: FrenetConfig) -> LaneMap:
+    """The lane map in the curvilinear frame: lanelet bounds projected to (s, d), lanelets joined
+    into lanes (:func:`lane_chains`), each lane's extent on the carriageway
+    (:func:`~nudge_train.data.frenet.lane_extents`), lanelets cut to their lane's extent, then the
+    per-s pieces of :func:`_lane_map`; ``lanes`` holds the extents.
+
+    Raises:
+        FrameRefusal: a bound off the path, or lanes deviating from d = const by more than
+        ``cfg.max_residual_m`` within their extent.
+    """
+    sd = []
+    for left, right in raw_lanelets:
+        pair = []
+        for bound in (left, right):
+            s, d, u = ref.project(bound)
+            check_offsets(ref, u, d, cfg)
+            o = np.argsort(s, kind="stable")
+            pair.append(np.stack([s[o], d[o]], axis=1))
+        sd.append((pair[0], pair[1]))
+    chains = lane_chains(names, successors)
+    chain_bounds = [(np.concatenate([sd[i][0] for i in ch]), np.concatenate([sd[i][1] for i in ch])) for ch in chains]
+    extents = lane_extents(chain_bounds, cfg)
+    kept: list[tuple[np.ndarray, np.ndarray]] = []
+    kept_names: list[tuple[str, int | None]] = []
+    for ch, (cl, cr_), ext in zip(chains, chain_bounds, extents):
+        start = min(cl[:, 0].min(), cr_[:, 0].min())
+        stop = max(cl[:, 0].max(), cr_[:, 0].max())
+        a = ext.s_begin if ext.s_begin > start + cfg.lane_step_m else -math.inf
+        b = ext.s_end if ext.s_end < stop - cfg.lane_step_m else math.inf
+        for i in ch:
+            left, right = sd[i]
+            if a == -math.inf and b == math.inf:
+                kept.append((left, right))
+                kept_names.append(names[i])
+                continue
+            lo = max(a, left[0, 0], right[0, 0])
+            hi = min(b, left[-1, 0], right[-1, 0])
+            if hi - lo < 1.0:
+                continue
+            kept.append((_clip_sd(left, lo, hi), _clip_sd(right, lo, hi)))
+            kept_names.append(names[i])
+    if not kept:
+        raise FrameRefusal("no lane lies on the carriageway")
+    lanes = _lane_map(kept, path, kept_names)
+    if lanes.straightness_m > cfg.max_residual_m:
+        raise FrameRefusal(f"lane boundaries deviate up to {lanes.straightness_m:.2f} m from d = const within "
+                           f"their extents (at most {cfg.max_residual_m:g} m)")
+    return replace(lanes, lanes=tuple(extents))
+
+
+def read_commonroad(path: Path | str, frame: str = "straightened", frenet: FrenetConfig | None = None) -> TrackTable:
+    """Read one CommonRoad scenario (.xml or .xml.gz, format 2020a or 2018b) into a TrackTable in
+    the road frame ``frame`` (one of :data:`FRAMES`; ``frenet`` uses ``frenet`` or its defaults).
 
     Raises DataError (naming the file) for an unknown format, missing fields, non-finite
-    values, a scene without lanelets or without dynamic obstacles, or non-monotonic time.
+    values, a scene without lanelets or without dynamic obstacles, non-monotonic time, or (frame
+    ``frenet``) a scene whose geometry the curvilinear frame cannot represent, saying why.
     """
+    if frame not in FRAMES:
+        raise ValueError(f"unknown road frame {frame!r} (one of {', '.join(FRAMES)})")
     path = Path(path)
     root = _parse_xml(path)
     if root.tag != "commonRoad":
@@ -283,9 +379,11 @@ def read_commonroad(path: Path | str) -> TrackTable:
 
     raw_lanelets = []
     names: list[tuple[str, int | None]] = []
+    successors: list[list[str]] = []
     for ll in root.findall("lanelet"):
         lid = ll.get("id", "?")
         names.append((str(lid), _line(ll)))
+        successors.append([str(e.get("ref")) for e in ll.findall("successor")])
         raw_lanelets.append((_points(ll.find("leftBound"), path, lid, ll),
                              _points(ll.find("rightBound"), path, lid, ll)))
     if not raw_lanelets:
@@ -311,9 +409,18 @@ def read_commonroad(path: Path | str) -> TrackTable:
     if slopes:
         theta += math.atan(float(np.average(slopes, weights=weights)))
     rot_lanelets = [(_rot(l, theta), _rot(r, theta)) for l, r in raw_lanelets]
-    road = RoadCurve.fit(rot_lanelets)
-    lanelets = [(road.to_road(l), road.to_road(r)) for l, r in rot_lanelets]
-    lanes = _lane_map(lanelets, path, names)
+    if frame == "frenet":
+        fcfg = (frenet or FrenetConfig()).validate()
+        try:
+            ref = ReferencePath.build(theta, fit_reference(rot_lanelets, fcfg), fcfg)
+            lanes = _frenet_lane_map(ref, raw_lanelets, names, successors, path, fcfg)
+        except FrameRefusal as exc:
+            raise DataError(path, f"scene {scene} cannot be represented in the curvilinear road frame: {exc}") \
+                from None
+    else:
+        road = RoadCurve.fit(rot_lanelets)
+        lanelets = [(road.to_road(l), road.to_road(r)) for l, r in rot_lanelets]
+        lanes = _lane_map(lanelets, path, names)
 
     if version == "2020a":
         obstacles = root.findall("dynamicObstacle")
@@ -363,12 +470,22 @@ def read_commonroad(path: Path | str) -> TrackTable:
                                       VELOCITY, st))
             cols["length"].append(length)
             cols["width"].append(width)
-    xy_rot = _rot(np.stack([np.asarray(cols["x"]), np.asarray(cols["y"])], axis=1), theta)
-    xy = road.to_road(xy_rot)
-    heading = np.asarray(cols["heading"]) - theta - road.tangent_angle(xy_rot[:, 0])
+    world = np.stack([np.asarray(cols["x"]), np.asarray(cols["y"])], axis=1)
+    if frame == "frenet":
+        try:
+            x, y, u = ref.project(world)
+            check_offsets(ref, u, y, fcfg)
+        except FrameRefusal as exc:
+            raise DataError(path, f"scene {scene} cannot be represented in the curvilinear road frame: {exc}") \
+                from None
+        heading = np.asarray(cols["heading"]) - ref.tangent_angle(u)
+    else:
+        xy_rot = _rot(world, theta)
+        xy = road.to_road(xy_rot)
+        heading = np.asarray(cols["heading"]) - theta - road.tangent_angle(xy_rot[:, 0])
+        x = xy[:, 0]
+        y = xy[:, 1]
     heading = (heading + math.pi) % (2 * math.pi) - math.pi
-    x = xy[:, 0]
-    y = xy[:, 1]
     # Lane index (from the left) with the lane-map piece covering each row's x, or the nearest
     # piece for rows outside every piece.
     x0s = np.asarray([p[0] for p in lanes.pieces])
@@ -388,6 +505,8 @@ def read_commonroad(path: Path | str) -> TrackTable:
         length=np.asarray(cols["length"], dtype=np.float64), width=np.asarray(cols["width"], dtype=np.float64),
         lane=lane, flags=np.zeros(n, dtype=np.int64), lanes=lanes, dt=dt,
         notes={"rotation_mrad": int(round(theta * 1000)),
-               "lane_straightness_cm": int(round(lanes.straightness_m * 100))},
+               "lane_straightness_cm": int(round(lanes.straightness_m * 100)),
+               **({"lanes_beginning": int(sum(bool(ln.begins) for ln in lanes.lanes)),
+                   "lanes_ending": int(sum(bool(ln.ends) for ln in lanes.lanes))} if frame == "frenet" else {})},
     )
     return sort_and_check(table)

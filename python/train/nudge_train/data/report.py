@@ -246,8 +246,9 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
     axes[0].set_ylabel("windows")
     axes[1].set_xlabel("speed at last observed step (m/s)")
     axes[2].set_xlabel("time headway to leader (s, clipped at 6)")
-    for ax in axes:
-        ax.legend(fontsize=8)
+    if merged:  # an empty build (every source excluded) has nothing to label
+        for ax in axes:
+            ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(figures / "data_distributions.png", dpi=110)
     plt.close(fig)

@@ -1,4 +1,5 @@
-"""Planner scenarios in the "nudge.scenario/1" schema (one .safetensors file per scenario).
+"""Planner scenarios in the "nudge.scenario/1" schema (one .safetensors file per scenario), or
+"nudge.scenario/2" (the same plus lane extents) for tables in the curvilinear road frame.
 
 Road frame x along travel (m), y positive left (m), step 0.3 s; agent 0 = ego; see
 docs/data_schema.md for the exact tensors and metadata.
@@ -12,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from nudge_train.constants import DT, OBS_LEN, PRED_LEN, SCENARIO_SCHEMA
+from nudge_train.constants import DT, OBS_LEN, PRED_LEN, SCENARIO_SCHEMA, SCENARIO_SCHEMA_EXTENTS
 
 from .grid import Grid
 from .st_io import write_safetensors
-from .tracks import TrackTable
+from .tracks import LaneMap, TrackTable
 
 
 @dataclass(frozen=True)
@@ -52,12 +53,34 @@ class Scenario:
         return path
 
 
+def lane_extents_at(lanes: LaneMap, x: float, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Extent of each lane of ``bounds`` [L+1] (the lanes at ``x``, m) in a curvilinear lane map:
+    ``extent`` F64 [L, 2] (x where the lane begins and ends, m) and ``real`` U8 [L, 2] (1 where the
+    lane really begins / ends there, 0 where only the lane map stops). None for a map without
+    extents (the straightened frame) or when a lane at ``x`` matches no lane of the map."""
+    if not lanes.lanes:
+        return None
+    centres = 0.5 * (bounds[:-1] + bounds[1:])
+    extent = np.zeros((centres.shape[0], 2))
+    real = np.zeros((centres.shape[0], 2), dtype=np.uint8)
+    for k, c in enumerate(centres):
+        hit = [ln for ln in lanes.lanes if bool(ln.contains(np.asarray([x]), np.asarray([c]))[0])]
+        if len(hit) != 1:
+            return None
+        ln = hit[0]
+        extent[k] = (ln.s_begin, ln.s_end)
+        real[k] = (int(ln.begins), int(ln.ends))
+    return extent, real
+
+
 def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: ScenarioConfig,
                 split: str, drops: Counter, provenance: str) -> Scenario | None:
     """Scenario with ego = grid row ``ego_row`` and last observed frame ``f_last`` (grid index).
 
     Returns None (and counts the reason in ``drops``) when the ego lacks history or future, or
-    the straight-lane approximation fails near the ego.
+    the straight-lane approximation fails near the ego, or (curvilinear frame) a lane at the ego
+    matches no lane extent. In the curvilinear frame the scenario carries the lane extents
+    ("nudge.scenario/2").
     """
     stride = int(round(cfg.step_s / grid.dt))
     hist = f_last - stride * np.arange(cfg.n_hist - 1, -1, -1)
@@ -89,6 +112,10 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
     bounds = table.lanes.bounds_at(float(ego_xy[0])).astype(np.float64)
     centres = 0.5 * (bounds[:-1] + bounds[1:])
     ego_lane = int(np.clip(np.searchsorted(bounds, ego_xy[1], side="right") - 1, 0, centres.shape[0] - 1))
+    extents = lane_extents_at(table.lanes, float(ego_xy[0]), bounds)
+    if table.lanes.lanes and extents is None:
+        drops["lanes_unmatched"] += 1
+        return None
     t0 = (grid.f0 + f_last) * grid.dt
     tensors = {
         "history": history.astype(np.float64),
@@ -102,8 +129,13 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
         "ego_lane": np.asarray([ego_lane], dtype=np.int64),
         "agent_ids": grid.ids[rows].astype(np.int64),
     }
+    schema = SCENARIO_SCHEMA
+    if extents is not None:
+        tensors["lane_extent"] = extents[0]
+        tensors["lane_extent_real"] = extents[1]
+        schema = SCENARIO_SCHEMA_EXTENTS
     meta = {
-        "schema": SCENARIO_SCHEMA, "source": table.source, "scene": table.scene, "split": split,
+        "schema": schema, "source": table.source, "scene": table.scene, "split": split,
         "t0_s": f"{t0:.1f}", "dt": str(DT),
         "provenance": (f"{provenance}; ego vehicle {int(grid.ids[ego_row])}, neighbours within "
                        f"{cfg.neighbour_range_m:g} m with full 8-step history; lanes straight within "

@@ -16,6 +16,9 @@ from .splits import SplitConfig
 PROVENANCE = ("NGSIM US-101 (FHWA, public domain), Los Angeles 15 June 2005, via the CommonRoad "
               "2020a/2018b benchmark scenario {source} (TU Munich); road frame straightened along "
               "the fitted lane geometry by nudge_train.data")
+PROVENANCE_FRENET = ("NGSIM US-101 (FHWA, public domain), Los Angeles 15 June 2005, via the CommonRoad "
+                     "2020a/2018b benchmark scenario {source} (TU Munich); curvilinear road frame (arclength "
+                     "and offset along a spline fitted to the lane geometry) by nudge_train.data")
 
 
 @dataclass(frozen=True)
@@ -27,13 +30,14 @@ class ScenesConfig:
     dense_range_m: float = 60.0
     sparse_range_m: float = 25.0
     stride_steps: int = 1
+    frame: str = "straightened"
 
 
 def write_scenes(data_root: Path, out_dir: Path, cfg: ScenesConfig, split_cfg: SplitConfig,
                  progress: bool = True) -> tuple[list[Path], Counter, list[str]]:
     """Write scenarios; returns written paths, candidate drop counts (reason -> count) and the
     source-level decisions (excluded files per rule, split decisions) as printable lines."""
-    sources = us101_sources(data_root, split_cfg)
+    sources = us101_sources(data_root, split_cfg, frame=cfg.frame)
     notes = decision_lines([(e.split, e.rule, e.reason) for e in sources])
     entries = [e for e in sources if e.split == cfg.split and e.table is not None]
     drops: Counter = Counter()
@@ -44,7 +48,7 @@ def write_scenes(data_root: Path, out_dir: Path, cfg: ScenesConfig, split_cfg: S
     for e in tqdm(entries, desc=f"scenes ({cfg.split})", disable=not progress):
         assert e.table is not None
         grid = build_grid(e.table)
-        prov = PROVENANCE.format(source=e.name)
+        prov = (PROVENANCE_FRENET if cfg.frame == "frenet" else PROVENANCE).format(source=e.name)
         for sc, f_last in scene_scenarios(e.table, grid, replace(base, neighbour_range_m=cfg.dense_range_m),
                                           cfg.split, drops, prov):
             dense.append((sc, grid, f_last))

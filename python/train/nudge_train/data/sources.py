@@ -51,7 +51,7 @@ def decision_lines(sources: list[tuple[str, str, str]]) -> list[str]:
 
 
 def us101_sources(data_root: Path, cfg: SplitConfig, window_span_frames: int = 39,
-                  progress: bool = False) -> list[SourceEntry]:
+                  progress: bool = False, frame: str = "straightened") -> list[SourceEntry]:
     """Read every US-101 CommonRoad file; keep one variant per scene (variants repeat the same
     traffic, some with vehicles removed); exclude USA_US101-3_5_T-1; assign splits by overlap group
     weighted by the number of 0.1 s window starts.
@@ -61,9 +61,11 @@ def us101_sources(data_root: Path, cfg: SplitConfig, window_span_frames: int = 3
     (its vehicles may be shared with other scenes, so no split is safe for it); with fewer than 3
     overlap groups every scene goes to ``test`` (see :func:`~nudge_train.data.splits.assign_or_test`).
 
+    ``frame``: the road frame of the tables (:data:`~nudge_train.data.commonroad.FRAMES`).
+
     Raises:
         DataError: no CommonRoad file, an unreadable or malformed overlap table, or a file that
-        cannot be read (naming it).
+        cannot be read or (frame ``frenet``) represented (naming it).
     """
     files: list[Path] = []
     for d in US101_DIRS:
@@ -102,7 +104,7 @@ def us101_sources(data_root: Path, cfg: SplitConfig, window_span_frames: int = 3
                                            f"variant of scene {scene}: same traffic as {chosen.name}",
                                            DUPLICATE_VARIANT))
                 continue
-            table = read_commonroad(f)
+            table = read_commonroad(f, frame=frame)
             key = f"us101-group-{groups[scene]:02d}"
             n_frames = int(table.frame().max() - table.frame().min() + 1)
             weights[key] = weights.get(key, 0.0) + max(n_frames - window_span_frames, 0)

@@ -19,6 +19,32 @@ FLAG_SIZE_ASSUMED = 2
 
 
 @dataclass(frozen=True)
+class FrenetLane:
+    """Where one lane lies on the carriageway in the curvilinear frame (see
+    :mod:`nudge_train.data.frenet`): from ``s_begin`` to ``s_end`` (m); ``begins`` / ``ends``: the
+    lane starts (an on-ramp joining) or stops (an acceleration lane merging, an exit lane leaving)
+    inside the scene. ``left``, ``right`` [K, 2]: its boundaries (s, d) over the extent (m)."""
+
+    s_begin: float
+    s_end: float
+    begins: bool
+    ends: bool
+    left: np.ndarray
+    right: np.ndarray
+
+    def contains(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Whether points (s [N], d [N]) (m) lie in the lane's extent and lateral interval."""
+        s = np.asarray(s, dtype=np.float64)
+        d = np.asarray(d, dtype=np.float64)
+        if self.left.shape[0] == 0:
+            return np.zeros(s.shape, dtype=bool)
+        inside = (s >= self.s_begin) & (s <= self.s_end)
+        dl = np.interp(s, self.left[:, 0], self.left[:, 1])
+        dr = np.interp(s, self.right[:, 0], self.right[:, 1])
+        return inside & (d >= dr) & (d < dl)
+
+
+@dataclass(frozen=True)
 class LaneMap:
     """Straight lanes of one scene in the road frame (lanes are lines y = const).
 
@@ -35,6 +61,19 @@ class LaneMap:
     pieces: tuple[tuple[float, float, np.ndarray], ...] = ()
     # Lanelet boundary polylines in the road frame ([P, 2] each, x ascending), for local checks.
     polylines: tuple[np.ndarray, ...] = ()
+    # Curvilinear frame only: every lane with its extent along s (empty in the straightened frame).
+    lanes: tuple[FrenetLane, ...] = ()
+
+    def ending_lane(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether points (x [N], y [N]) (m) lie in a lane that ends inside the scene ahead of
+        them (an acceleration or exit lane: a merge must happen before its end). All False in
+        the straightened frame, which has no lane extents."""
+        x = np.asarray(x, dtype=np.float64)
+        out = np.zeros(x.shape, dtype=bool)
+        for lane in self.lanes:
+            if lane.ends:
+                out |= lane.contains(x, y) & (x < lane.s_end)
+        return out
 
     def local_deviation(self, x: float, half_range: float = 100.0) -> float:
         """Worst deviation (m) of a boundary covering ``x`` from y = y(x) within ``x`` +- half_range.
