@@ -7,6 +7,7 @@
 //! scenario files (see `nudge simulate --help`).
 #![allow(clippy::print_stdout)]
 
+mod commonroad;
 mod simulate;
 
 use std::ffi::OsString;

@@ -4,9 +4,12 @@
 //! **Vehicle model.** CommonRoad's KS model drives the centre of the rear axle:
 //! ẋ = v cos ψ, ẏ = v sin ψ, ψ̇ = v tan δ / L. nudge's ego is the kinematic bicycle at the
 //! centre of gravity (speed v_cg, slip β = atan(l_r tan δ_n / (l_f + l_r))); its rear axle
-//! moves exactly as KS with v = v_cg cos β and tan δ / L = tan δ_n / (l_f + l_r). The written
-//! state is therefore the rear axle (x, y), ψ, v = v_cg cos β and the steering angle δ the KS
-//! vehicle needs to drive the same path on its wheelbase L. The vehicle is CommonRoad's type 2
+//! moves exactly as KS with v = v_cg cos β and tan δ / L = tan δ_n / (l_f + l_r). CommonRoad's
+//! solutions give the position of the vehicle's centre, which its checker takes to lie `b`
+//! ahead of the rear axle (`b` of the vehicle type). The written state is therefore nudge's
+//! rear axle moved b ahead along ψ (0.02 m ahead of nudge's centre of gravity for the default
+//! l_r), ψ, v = v_cg cos β and the steering angle δ the KS vehicle needs to drive the same
+//! path on its wheelbase L. The vehicle is CommonRoad's type 2
 //! (BMW 320i, [`VEHICLE`]): of the three CommonRoad vehicles its wheelbase (2.58 m) and rear
 //! overhang l_r (1.42 m) are closest to nudge's default l_f + l_r = 2.8 m, l_r = 1.4 m.
 //!
@@ -59,7 +62,8 @@ pub const SUBSTEPS: usize = 10;
 pub struct KsState {
     /// Time step index of the file.
     pub step: i64,
-    /// Rear-axle position (m).
+    /// Position (m) of the vehicle's centre as CommonRoad defines it: the rear axle plus
+    /// [`VEHICLE`]`.b` along the orientation.
     pub pos: [f64; 2],
     /// Steering angle of the KS vehicle (rad).
     pub steering: f64,
@@ -231,13 +235,14 @@ impl Solution {
 /// The KS state (file frame) of the bicycle state `z` (road frame) steering `delta`.
 fn ks_state(scene: &CommonRoadScene, bike: Bicycle, z: [f64; 4], delta: f64, step: i64) -> KsState {
     let (s, c) = z[2].sin_cos();
-    let rear = [z[0] - bike.l_r * c, z[1] - bike.l_r * s];
+    let back = bike.l_r - VEHICLE.b;
+    let reference = [z[0] - back * c, z[1] - back * s];
     let wheelbase = VEHICLE.a + VEHICLE.b;
     KsState {
         step,
-        pos: scene.frame.to_file(rear),
+        pos: scene.frame.to_file(reference),
         steering: (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan(),
         velocity: z[3] * bike.beta(delta).cos(),
-        orientation: scene.frame.heading_to_file(rear, z[2]),
+        orientation: scene.frame.heading_to_file(reference, z[2]),
     }
 }

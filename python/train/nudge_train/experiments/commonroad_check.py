@@ -1,0 +1,206 @@
+"""CommonRoad solutions of nudge's closed-loop runs, checked by the official drivability checker.
+
+For every shipped scene (``assets/scenes``: its CommonRoad source file, ego vehicle, t0 and
+neighbour range are in its metadata) the ``nudge`` command plans in the CommonRoad source file
+itself (``nudge simulate --commonroad FILE --ego ID --t0 S``) and writes the executed ego
+trajectory as a CommonRoad KS solution; this module then checks each solution with
+``commonroad-drivability-checker`` (the ``commonroad`` extra):
+
+- **feasible**: ``feasibility_checker.trajectory_feasibility`` for the kinematic single-track
+  model of CommonRoad vehicle type 2 (BMW 320i, the vehicle whose wheelbase is closest to
+  nudge's), the scene's time step;
+- **collision (official)**: the scenario's obstacles, the ego's own logged obstacle removed,
+  against the solution as the official ``solution_checker.obstacle_collision`` builds it (the
+  vehicle type's rectangle, 4.51 m x 1.61 m, at the KS state's position);
+- **collision (footprint)**: the same obstacles against the ego's own logged box placed at its
+  centre of gravity (rear axle + l_r along the heading), as nudge's closed loop judges it.
+
+Nothing is loosened: the checker's default tolerances are used; every failure is reported with
+its reason. Light: numpy, the standard library, commonroad-io and commonroad-dc (no torch).
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import struct
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from nudge_train import paths
+
+VEHICLE_TYPE_ID = 2
+"""CommonRoad vehicle type of the solutions (written by the Rust writer as ``KS2``)."""
+
+
+@dataclass(frozen=True)
+class SceneRun:
+    """One shipped scene as a CommonRoad run: source file, ego id, t0 (s), neighbour range (m)."""
+
+    name: str
+    source: Path
+    ego: int
+    t0: float
+    range_m: float
+
+
+def _metadata(path: Path) -> dict[str, str]:
+    """The string metadata of a safetensors file (its JSON header; no safetensors package)."""
+    with path.open("rb") as fh:
+        (n,) = struct.unpack("<Q", fh.read(8))
+        header = json.loads(fh.read(n))
+    return dict(header.get("__metadata__", {}))
+
+
+def _ids(path: Path) -> int:
+    """The ego's id (first entry of ``agent_ids``, I64) of a scenario file."""
+    with path.open("rb") as fh:
+        (n,) = struct.unpack("<Q", fh.read(8))
+        header = json.loads(fh.read(n))
+        start = header["agent_ids"]["data_offsets"][0]
+        fh.seek(8 + n + start)
+        return int(struct.unpack("<q", fh.read(8))[0])
+
+
+def shipped_runs(scenes: Path, ngsim: Path) -> list[SceneRun]:
+    """The shipped scenes under ``scenes`` as CommonRoad runs on the source files under
+    ``ngsim`` (2020a first, else the 2018b folder)."""
+    out = []
+    for p in sorted(scenes.glob("*.safetensors")):
+        meta = _metadata(p)
+        us = ngsim / "us101"
+        src = us / "commonroad_us101_T-1" / meta["source"]
+        if not src.exists():
+            src = us / "commonroad_us101_2018b_extra" / meta["source"]
+        range_m = float(meta["provenance"].split("neighbours within ")[1].split(" ")[0])
+        out.append(SceneRun(p.stem, src, _ids(p), float(meta["t0_s"]), range_m))
+    return out
+
+
+def run_nudge(nudge: Path, run: SceneRun, out: Path) -> Path:
+    """Plans ``run`` with the ``nudge`` command (defaults: student planner, teacher world,
+    seed 0, one thread) and returns its solution file."""
+    cmd = [str(nudge), "simulate", "--commonroad", str(run.source), "--ego", str(run.ego),
+           "--t0", f"{run.t0:.1f}", "--neighbour-range", f"{run.range_m:g}", "--out", str(out),
+           "--threads", "1"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    sols = sorted(out.glob("solution_*.xml"))
+    if len(sols) != 1:
+        raise RuntimeError(f"{out}: expected one solution file, found {len(sols)}")
+    return sols[0]
+
+
+@dataclass
+class Check:
+    """The checker's verdict on one solution."""
+
+    feasible: bool
+    infeasible_steps: list[int]
+    collision_official: bool
+    collision_footprint: bool
+    n_states: int
+    note: str = ""
+
+
+def check_solution(scenario_file: Path, solution_file: Path, ego: int, sidecar: dict) -> Check:
+    """Checks ``solution_file`` against ``scenario_file`` (the ego obstacle ``ego`` removed)."""
+    from commonroad.common.file_reader import CommonRoadFileReader
+    from commonroad.common.solution import CommonRoadSolutionReader
+    from commonroad.geometry.shape import Rectangle
+    from commonroad.prediction.prediction import TrajectoryPrediction
+    from commonroad.scenario.state import CustomState
+    from commonroad.scenario.trajectory import Trajectory
+    from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import create_collision_object
+    from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import create_collision_checker
+    from commonroad_dc.feasibility import feasibility_checker
+    from commonroad_dc.feasibility.vehicle_dynamics import VehicleDynamics, VehicleType
+
+    if scenario_file.suffix == ".gz":  # the reader takes plain .xml only
+        with tempfile.TemporaryDirectory() as tmp:
+            plain = Path(tmp) / scenario_file.stem
+            plain.write_bytes(gzip.decompress(scenario_file.read_bytes()))
+            scenario, _ = CommonRoadFileReader(str(plain)).open()
+    else:
+        scenario, _ = CommonRoadFileReader(str(scenario_file)).open()
+    solution = CommonRoadSolutionReader.open(str(solution_file))
+    traj = solution.planning_problem_solutions[0].trajectory
+    dyn = VehicleDynamics.KS(VehicleType(VEHICLE_TYPE_ID))
+    bad = []
+    for k in range(len(traj.state_list) - 1):
+        ok, _ = feasibility_checker.state_transition_feasibility(
+            traj.state_list[k], traj.state_list[k + 1], dyn, scenario.dt)
+        if not ok:
+            bad.append(int(traj.state_list[k].time_step))
+    own = scenario.obstacle_by_id(ego)
+    if own is not None:
+        scenario.remove_obstacle(own)
+    checker = create_collision_checker(scenario)
+    official = checker.collide(create_collision_object(TrajectoryPrediction(traj, dyn.shape)))
+    # The KS position is the rear axle + b (the vehicle type's); nudge's centre of gravity is
+    # the rear axle + l_r.
+    ahead = float(sidecar["l_r_m"]) - dyn.parameters.b
+    length, width = sidecar["ego_size_m"]
+    centre = [CustomState(position=s.position + ahead * np.array([np.cos(s.orientation), np.sin(s.orientation)]),
+                          orientation=s.orientation, time_step=s.time_step) for s in traj.state_list]
+    box = TrajectoryPrediction(Trajectory(centre[0].time_step, centre), Rectangle(length, width))
+    footprint = checker.collide(create_collision_object(box))
+    return Check(feasible=not bad, infeasible_steps=bad, collision_official=bool(official),
+                 collision_footprint=bool(footprint), n_states=len(traj.state_list))
+
+
+def markdown(rows: list[tuple[SceneRun, Check | str, dict]], command: str) -> str:
+    """The results page."""
+    lines = [
+        "# CommonRoad solutions of the shipped scenes, checked by the drivability checker",
+        "",
+        "Each shipped scene planned in its CommonRoad source file by the `nudge` command (student",
+        "planner, teacher world, seed 0, one thread), the executed ego trajectory written as a",
+        "CommonRoad KS solution (vehicle type 2, BMW 320i: wheelbase 2.58 m, nearest to nudge's",
+        "2.8 m) and checked by `commonroad-drivability-checker` 2025.4.0 with its default",
+        "tolerances (position 2 cm, orientation 0.03 rad per time step). Regenerate with",
+        "",
+        f"    {command}",
+        "",
+        "| scene | source | ego | t0 (s) | states | KS feasible | infeasible transitions (time steps) "
+        "| collision (official box) | collision (ego footprint) | m from closed loop |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    n_feas = n_free = n_ok = 0
+    for run, res, side in rows:
+        if isinstance(res, str):
+            lines.append(f"| {run.name} | {run.source.name} | {run.ego} | {run.t0:.1f} | - | - | {res} | - | - | - |")
+            continue
+        n_ok += 1
+        n_feas += res.feasible
+        n_free += not res.collision_footprint and not res.collision_official
+        steps = ", ".join(map(str, res.infeasible_steps)) or "none"
+        lines.append(
+            f"| {run.name} | {run.source.name} | {run.ego} | {run.t0:.1f} | {res.n_states} | "
+            f"{'yes' if res.feasible else 'no'} | {steps} | {'yes' if res.collision_official else 'no'} | "
+            f"{'yes' if res.collision_footprint else 'no'} | {side.get('max_dev_m', float('nan')):.3f} |")
+    lines += ["", f"**{n_feas} of {n_ok} checked solutions KS-feasible; {n_free} of {n_ok} collision-free "
+              f"(both checks); {len(rows) - n_ok} not checked.**", ""]
+    return "\n".join(lines)
+
+
+def run(nudge: Path, out: Path, md: Path | None) -> str:
+    """Plans and checks every shipped scene; writes ``md`` (when given) and returns the page."""
+    rows: list[tuple[SceneRun, Check | str, dict]] = []
+    for r in shipped_runs(paths.shipped_scenes(), paths.ngsim()):
+        d = out / r.name
+        for f in d.glob("solution_*"):
+            f.unlink()
+        try:
+            sol = run_nudge(nudge, r, d)
+            side = json.loads(sol.with_suffix(".json").read_text())
+            rows.append((r, check_solution(r.source, sol, r.ego, side), side))
+        except Exception as exc:  # reported per scene in the table, never hidden
+            rows.append((r, f"not checked: {type(exc).__name__}: {str(exc).splitlines()[0][:160]}", {}))
+    page = markdown(rows, "make commonroad")
+    if md is not None:
+        md.write_text(page)
+    return page
