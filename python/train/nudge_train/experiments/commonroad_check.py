@@ -106,8 +106,9 @@ class Check:
     note: str = ""
 
 
-def check_solution(scenario_file: Path, solution_file: Path, ego: int, sidecar: dict) -> Check:
-    """Checks ``solution_file`` against ``scenario_file`` (the ego obstacle ``ego`` removed)."""
+def check_solution(scenario_file: Path, solution_file: Path, ego: int | None, sidecar: dict) -> Check:
+    """Checks ``solution_file`` against ``scenario_file`` (the ego obstacle ``ego`` removed;
+    ``None``: every obstacle kept)."""
     from commonroad.common.file_reader import CommonRoadFileReader
     from commonroad.common.solution import CommonRoadSolutionReader
     from commonroad.geometry.shape import Rectangle
@@ -135,9 +136,8 @@ def check_solution(scenario_file: Path, solution_file: Path, ego: int, sidecar: 
             traj.state_list[k], traj.state_list[k + 1], dyn, scenario.dt)
         if not ok:
             bad.append(int(traj.state_list[k].time_step))
-    own = scenario.obstacle_by_id(ego)
-    if own is not None:
-        scenario.remove_obstacle(own)
+    if ego is not None:
+        scenario.remove_obstacle(scenario.obstacle_by_id(ego))
     checker = create_collision_checker(scenario)
     official = checker.collide(create_collision_object(TrajectoryPrediction(traj, dyn.shape)))
     # The KS position is the rear axle + b (the vehicle type's); nudge's centre of gravity is
