@@ -81,13 +81,26 @@ def shipped_runs(scenes: Path, ngsim: Path) -> list[SceneRun]:
     return out
 
 
+E2E_SOURCE = "commonroad_us101_T-1/USA_US101-11_1_T-1.xml.gz"
+"""The scenario planned end to end from its planning problem (under ``<ngsim>/us101``)."""
+E2E_PROBLEM = 125
+"""Its planning problem."""
+
+
 def run_nudge(nudge: Path, run: SceneRun, out: Path) -> Path:
     """Plans ``run`` with the ``nudge`` command (defaults: student planner, teacher world,
     seed 0, one thread) and returns its solution file."""
-    cmd = [str(nudge), "simulate", "--commonroad", str(run.source), "--ego", str(run.ego),
-           "--t0", f"{run.t0:.1f}", "--neighbour-range", f"{run.range_m:g}", "--out", str(out),
-           "--threads", "1"]
-    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return _simulate(nudge, ["--ego", str(run.ego), "--t0", f"{run.t0:.1f}", "--neighbour-range",
+                             f"{run.range_m:g}"], run.source, out)
+
+
+def _simulate_args(source: Path, ego_args: list[str], out: Path) -> list[str]:
+    return ["simulate", "--commonroad", str(source), *ego_args, "--out", str(out), "--threads", "1"]
+
+
+def _simulate(nudge: Path, ego_args: list[str], source: Path, out: Path) -> Path:
+    """Runs ``nudge simulate --commonroad source`` with ``ego_args`` into ``out``; its solution."""
+    subprocess.run([str(nudge), *_simulate_args(source, ego_args, out)], check=True, capture_output=True, text=True)
     sols = sorted(out.glob("solution_*.xml"))
     if len(sols) != 1:
         raise RuntimeError(f"{out}: expected one solution file, found {len(sols)}")
@@ -106,10 +119,49 @@ class Check:
     note: str = ""
 
 
+def _open_scenario(scenario_file: Path):  # noqa: ANN202 (commonroad types are imported lazily)
+    """The scenario and planning problems of a CommonRoad file (gunzipped first when .gz: the
+    reader takes plain .xml only)."""
+    from commonroad.common.file_reader import CommonRoadFileReader
+
+    if scenario_file.suffix != ".gz":
+        return CommonRoadFileReader(str(scenario_file)).open()
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = Path(tmp) / scenario_file.stem
+        plain.write_bytes(gzip.decompress(scenario_file.read_bytes()))
+        return CommonRoadFileReader(str(plain)).open()
+
+
+def official_checks(scenario_file: Path, solution_file: Path) -> dict[str, str]:
+    """The official ``solution_checker`` steps on a planning-problem solution, each
+    ``passed`` / ``failed: <reason>`` / ``not checked: <reason>``: feasibility, obstacle
+    collision, start state, goal, road boundary."""
+    from commonroad.common.solution import CommonRoadSolutionReader
+    from commonroad_dc.feasibility import solution_checker as sc
+
+    scenario, pps = _open_scenario(scenario_file)
+    sol = CommonRoadSolutionReader.open(str(solution_file))
+    steps = {
+        "KS feasible (solution_feasible)": lambda: all(v[0] for v in sc.solution_feasible(sol, scenario.dt, pps).values()),
+        "no obstacle collision (obstacle_collision)": lambda: not sc.obstacle_collision(scenario, pps, sol),
+        "starts at the initial state (starts_at_correct_state)": lambda: sc.starts_at_correct_state(sol, pps),
+        "goal reached (goal_reached)": lambda: sc.goal_reached(scenario, pps, sol),
+        "no road-boundary collision (boundary_collision)": lambda: not sc.boundary_collision(scenario, pps, sol),
+    }
+    out = {}
+    for name, step in steps.items():
+        try:
+            out[name] = "passed" if step() else "failed"
+        except Exception as exc:  # the checker reports failures as exceptions
+            why = str(exc).splitlines()[0][:200]
+            kind = "not checked" if "triangle" in why else "failed"
+            out[name] = f"{kind}: {type(exc).__name__}: {why}"
+    return out
+
+
 def check_solution(scenario_file: Path, solution_file: Path, ego: int | None, sidecar: dict) -> Check:
     """Checks ``solution_file`` against ``scenario_file`` (the ego obstacle ``ego`` removed;
     ``None``: every obstacle kept)."""
-    from commonroad.common.file_reader import CommonRoadFileReader
     from commonroad.common.solution import CommonRoadSolutionReader
     from commonroad.geometry.shape import Rectangle
     from commonroad.prediction.prediction import TrajectoryPrediction
@@ -120,13 +172,7 @@ def check_solution(scenario_file: Path, solution_file: Path, ego: int | None, si
     from commonroad_dc.feasibility import feasibility_checker
     from commonroad_dc.feasibility.vehicle_dynamics import VehicleDynamics, VehicleType
 
-    if scenario_file.suffix == ".gz":  # the reader takes plain .xml only
-        with tempfile.TemporaryDirectory() as tmp:
-            plain = Path(tmp) / scenario_file.stem
-            plain.write_bytes(gzip.decompress(scenario_file.read_bytes()))
-            scenario, _ = CommonRoadFileReader(str(plain)).open()
-    else:
-        scenario, _ = CommonRoadFileReader(str(scenario_file)).open()
+    scenario, _ = _open_scenario(scenario_file)
     solution = CommonRoadSolutionReader.open(str(solution_file))
     traj = solution.planning_problem_solutions[0].trajectory
     dyn = VehicleDynamics.KS(VehicleType(VEHICLE_TYPE_ID))
@@ -165,6 +211,16 @@ def markdown(rows: list[tuple[SceneRun, Check | str, dict]], command: str) -> st
         "",
         f"    {command}",
         "",
+        "Columns: *states* the solution's states (one per 0.1 s); *KS feasible* every transition passes",
+        "`feasibility_checker.state_transition_feasibility`; *collision (official box)* the vehicle",
+        "type's 4.51 m x 1.61 m box at the solution's positions, as `solution_checker.obstacle_collision`",
+        "builds it; *collision (ego footprint)* the ego's own logged box at nudge's centre of gravity;",
+        "both against every other obstacle of the scenario (the ego's own logged track removed). *m from",
+        "closed loop*: the solution integrates the executed (steering, acceleration) of each 0.3 s step",
+        "with the continuous bicycle, while nudge's closed loop advances its ego by one forward-Euler step",
+        "of 0.3 s; this is their largest distance at the 0.3 s steps (Euler's position lags by a dt^2 / 2",
+        "per step under acceleration a).",
+        "",
         "| scene | source | ego | t0 (s) | states | KS feasible | infeasible transitions (time steps) "
         "| collision (official box) | collision (ego footprint) | m from closed loop |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -187,6 +243,35 @@ def markdown(rows: list[tuple[SceneRun, Check | str, dict]], command: str) -> st
     return "\n".join(lines)
 
 
+def end_to_end(nudge: Path, out: Path) -> str:
+    """The page's section on one scenario planned from its planning problem and checked by the
+    official solution checker's steps."""
+    source = paths.ngsim() / "us101" / E2E_SOURCE
+    for f in out.glob("solution_*"):
+        f.unlink()
+    sol = _simulate(nudge, ["--planning-problem", str(E2E_PROBLEM)], source, out)
+    shown = " ".join(["target/release/nudge", *_simulate_args(
+        Path("../shared/data/ngsim/us101") / E2E_SOURCE, ["--planning-problem", str(E2E_PROBLEM)],
+        Path("runs/commonroad/e2e"))])
+    side = json.loads(sol.with_suffix(".json").read_text())
+    lines = [
+        "## One scenario end to end from its planning problem", "",
+        f"`{source.name}`, planning problem {E2E_PROBLEM} (the ego starts at the problem's initial state at",
+        "t = 0 s; the other vehicles' histories before the scene's first step are extrapolated at constant",
+        "speed and heading), planned by the `nudge` command (`make build` first):", "",
+        f"    {shown}", "",
+        f"The solution ({side['n_states']} states, {side['benchmark_id']}) under the official",
+        "`commonroad_dc.feasibility.solution_checker` steps:", "",
+        "| check | result |", "|---|---|",
+    ]
+    lines += [f"| {k} | {v} |" for k, v in official_checks(source, sol).items()]
+    lines += ["", "nudge plans a lane change to a lane drawn from the seed, not to the problem's goal region (a",
+              "2.2 m x 1.7 m box at time steps 62-72), so `goal_reached` is not expected to pass; the road",
+              "boundary check needs the non-free `triangle` package, which the `commonroad` extra does not",
+              "install.", ""]
+    return "\n".join(lines)
+
+
 def run(nudge: Path, out: Path, md: Path | None) -> str:
     """Plans and checks every shipped scene; writes ``md`` (when given) and returns the page."""
     rows: list[tuple[SceneRun, Check | str, dict]] = []
@@ -200,7 +285,7 @@ def run(nudge: Path, out: Path, md: Path | None) -> str:
             rows.append((r, check_solution(r.source, sol, r.ego, side), side))
         except Exception as exc:  # reported per scene in the table, never hidden
             rows.append((r, f"not checked: {type(exc).__name__}: {str(exc).splitlines()[0][:160]}", {}))
-    page = markdown(rows, "make commonroad")
+    page = markdown(rows, "make commonroad") + end_to_end(nudge, out / "e2e")
     if md is not None:
         md.write_text(page)
     return page
