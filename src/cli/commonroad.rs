@@ -106,8 +106,7 @@ impl Prepared {
             let Ok(record) = &o.result else { continue };
             let sol = Solution::of_run(
                 &self.scene,
-                self.ego,
-                self.t0,
+                (self.ego, self.t0),
                 &self.scenario,
                 record,
                 (settings.l_f, settings.l_r),

@@ -83,7 +83,7 @@ pub struct Solution {
     /// The states, one per file time step from t0.
     pub states: Vec<KsState>,
     /// Largest distance (m) between the integrated trajectory and the closed loop's own ego
-    /// states at the 0.3 s steps.
+    /// states at the 0.3 s steps (0 when they were not given).
     pub max_dev_m: f64,
 }
 
@@ -130,44 +130,74 @@ impl Solution {
     /// `ego` at `t0_s`) with the ego's axle distances `l_f`, `l_r` (m).
     ///
     /// # Errors
-    /// [`CommonRoadError::Solution`] when the record has no steps or a non-finite state.
+    /// [`CommonRoadError::Solution`] when the record has no steps or a state is non-finite.
     pub fn of_run(
         scene: &CommonRoadScene,
-        ego: Ego,
-        t0_s: f64,
+        (ego, t0_s): (Ego, f64),
         scenario: &Scenario,
         record: &RunRecord,
+        axles: (f64, f64),
+    ) -> Result<Self, CommonRoadError> {
+        let inputs: Vec<[f64; 2]> = record.steps.iter().map(|s| [s.delta, s.accel]).collect();
+        let executed: Vec<[f64; 2]> = record.steps.iter().map(|s| [s.ego[0], s.ego[1]]).collect();
+        Self::of_inputs(
+            scene,
+            (ego, t0_s),
+            scenario,
+            (&inputs, Some(&executed)),
+            axles,
+        )
+    }
+
+    /// The solution of the inputs `[steps]` of (steering δ (rad), acceleration a (m/s²)), each
+    /// held for 0.3 s from the ego's state in `scenario` (built from `scene` for `ego` at
+    /// `t0_s`); `executed` `[steps]` (m, road frame), when given, are the closed loop's ego
+    /// positions after each step ([`Solution::max_dev_m`] compares them; 0 without).
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Solution`] when there are no inputs, `executed` has another length,
+    /// or a state is non-finite.
+    pub fn of_inputs(
+        scene: &CommonRoadScene,
+        (ego, t0_s): (Ego, f64),
+        scenario: &Scenario,
+        (inputs, executed): (&[[f64; 2]], Option<&[[f64; 2]]>),
         (l_f, l_r): (f64, f64),
     ) -> Result<Self, CommonRoadError> {
         let err = |reason: String| CommonRoadError::Solution {
             path: scene.raw.path.clone(),
             reason,
         };
-        if record.steps.is_empty() {
-            return Err(err("the run has no steps".into()));
+        if inputs.is_empty() || executed.is_some_and(|e| e.len() != inputs.len()) {
+            return Err(err(format!(
+                "{} inputs and {} executed positions (at least one input, as many positions)",
+                inputs.len(),
+                executed.map_or(inputs.len(), <[_]>::len)
+            )));
         }
         let bike = Bicycle { l_f, l_r };
-        let stride = (nudge_predictor::DT / scene.raw.dt).round();
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-        let per_step = stride as usize;
+        let per_step = (nudge_predictor::DT / scene.raw.dt).round() as usize;
         #[allow(clippy::cast_possible_truncation)]
         let step0 = (t0_s / scene.raw.dt).round() as i64;
-        let last = scenario.history[(T_OBS - 1) * 2..T_OBS * 2].to_vec();
+        let last = &scenario.history[(T_OBS - 1) * 2..T_OBS * 2];
         let mut z = [last[0], last[1], scenario.heading[0], scenario.speed[0]];
         #[allow(clippy::cast_precision_loss)]
         let h = scene.raw.dt / SUBSTEPS as f64;
-        let mut road = Vec::with_capacity(record.steps.len() * per_step + 1);
+        let mut road = Vec::with_capacity(inputs.len() * per_step + 1);
         let mut max_dev: f64 = 0.0;
-        for s in &record.steps {
+        for (k, &[delta, accel]) in inputs.iter().enumerate() {
             for _ in 0..per_step {
-                road.push((z, s.delta));
+                road.push((z, delta));
                 for _ in 0..SUBSTEPS {
-                    z = bike.rk4(z, s.delta, s.accel, h);
+                    z = bike.rk4(z, delta, accel, h);
                 }
             }
-            max_dev = max_dev.max((z[0] - s.ego[0]).hypot(z[1] - s.ego[1]));
+            if let Some(e) = executed {
+                max_dev = max_dev.max((z[0] - e[k][0]).hypot(z[1] - e[k][1]));
+            }
         }
-        road.push((z, record.steps[record.steps.len() - 1].delta));
+        road.push((z, inputs[inputs.len() - 1][0]));
         let states: Vec<KsState> = road
             .iter()
             .zip(step0..)
@@ -180,9 +210,7 @@ impl Solution {
         }) {
             return Err(err(format!("non-finite state at time step {}", bad.step)));
         }
-        let id = match ego {
-            Ego::Obstacle(id) | Ego::PlanningProblem(id) => id,
-        };
+        let (Ego::Obstacle(id) | Ego::PlanningProblem(id)) = ego;
         Ok(Self {
             benchmark_id: format!(
                 "KS{}:{COST_FUNCTION}:{}:{}",
