@@ -211,3 +211,67 @@ fn malformed_files_name_the_element_and_line() {
     std::fs::remove_dir_all(&dir).unwrap();
     let _ = Path::new("");
 }
+
+/// `nudge simulate --commonroad FILE --ego ID` writes the scenario, the records and one
+/// solution whose states step by one file time step from t0; a missing ego flag, an unknown
+/// ego and a missing --out are refused before any run, naming the problem.
+#[test]
+fn cli_plans_in_a_commonroad_file_and_writes_a_solution() {
+    use nudge::cli::{ExitStatus, run};
+    let fixture = repo().join("python/train/tests/fixtures/commonroad/USA_US101-1_1_T-1.xml.gz");
+    let out = std::env::temp_dir().join(format!("nudge-cr-cli-{}", std::process::id()));
+    let assets = repo().join("assets");
+    let args = |extra: &[&str]| {
+        let mut v: Vec<String> = ["nudge", "simulate", "--commonroad"]
+            .map(String::from)
+            .to_vec();
+        v.push(fixture.to_string_lossy().into_owned());
+        v.extend(
+            [
+                "--predictor",
+                "constant_velocity",
+                "--world",
+                "log_replay",
+                "--threads",
+                "1",
+            ]
+            .map(String::from),
+        );
+        v.extend(extra.iter().map(|s| (*s).to_string()));
+        v
+    };
+    let o = out.to_string_lossy().into_owned();
+    assert_eq!(
+        run(args(&["--ego", "484", "--out", &o]), &assets),
+        ExitStatus::Success
+    );
+    let sol = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "xml"))
+        .expect("a solution file");
+    let text = std::fs::read_to_string(&sol).unwrap();
+    assert!(
+        text.contains("benchmark_id=\"KS2:SM1:USA_US101-1_1_T-1:2020a\""),
+        "{text}"
+    );
+    assert!(text.contains("planningProblem=\"484\""));
+    let times: Vec<i64> = text
+        .split("<time>")
+        .skip(1)
+        .map(|t| t.split('<').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times[0], 21, "t0 2.1 s is time step 21");
+    assert!(times.windows(2).all(|w| w[1] == w[0] + 1) && times.len() > 10);
+    assert!(
+        out.join("USA_US101-1_1_T-1-t02.1-ego484.safetensors")
+            .exists()
+    );
+    assert_eq!(run(args(&["--out", &o]), &assets), ExitStatus::Refused);
+    assert_eq!(
+        run(args(&["--ego", "7", "--out", &o]), &assets),
+        ExitStatus::Refused
+    );
+    assert_eq!(run(args(&["--ego", "484"]), &assets), ExitStatus::Usage);
+    std::fs::remove_dir_all(&out).unwrap();
+}
