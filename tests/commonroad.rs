@@ -275,3 +275,45 @@ fn cli_plans_in_a_commonroad_file_and_writes_a_solution() {
     assert_eq!(run(args(&["--ego", "484"]), &assets), ExitStatus::Usage);
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+/// A planning problem's ego starts at its initial state (mapped into the road frame), with a
+/// history extrapolated back at its speed and heading and no logged future; the neighbours'
+/// histories before the scene's first step are extrapolated the same way.
+#[test]
+fn planning_problem_ego_starts_at_its_initial_state() {
+    let fixture = repo().join("python/train/tests/fixtures/commonroad/USA_US101-1_1_T-1.xml.gz");
+    let scene = CommonRoadScene::read(&fixture).unwrap();
+    let pp = scene.raw.planning_problems[0].clone();
+    assert_eq!(pp.id, 482);
+    let ego = Ego::PlanningProblem(pp.id);
+    let t0 = scene.default_t0(ego).unwrap();
+    #[allow(clippy::cast_precision_loss)]
+    let want_t0 = pp.initial.step as f64 * scene.raw.dt;
+    assert!((t0 - want_t0).abs() < 1e-12);
+    let sc = scene.scenario(ego, t0).unwrap();
+    assert_eq!(sc.agent_ids[0], 482);
+    let start = scene.frame.to_road([pp.initial.x, pp.initial.y]);
+    let last = sc.position(0, 7);
+    assert!((last[0] - start[0]).hypot(last[1] - start[1]) < 1e-9);
+    let heading = scene
+        .frame
+        .heading_to_road([pp.initial.x, pp.initial.y], pp.initial.orientation);
+    for k in 0..7 {
+        let p = sc.position(0, k);
+        #[allow(clippy::cast_precision_loss)]
+        let back = (7 - k) as f64 * 0.3 * pp.initial.velocity;
+        let want = [
+            start[0] - back * heading.cos(),
+            start[1] - back * heading.sin(),
+        ];
+        assert!(
+            (p[0] - want[0]).hypot(p[1] - want[1]) < 1e-9,
+            "history step {k}"
+        );
+    }
+    assert!(
+        sc.future_valid[..sc.n_future].iter().all(|v| !v),
+        "the ego has no logged future"
+    );
+    assert!(sc.n_agents > 1 && sc.future_valid[sc.n_future..].iter().any(|v| *v));
+}
