@@ -264,8 +264,15 @@ impl CommonRoadScene {
         let ego_track = self.ego_track(ego)?;
         let plan = matches!(ego, Ego::PlanningProblem(_));
         let step = (t0_s / self.raw.dt).round();
-        if !step.is_finite() || (step * self.raw.dt - t0_s).abs() > 1e-6 {
+        let (first, last) = self.step_range();
+        #[allow(clippy::cast_precision_loss)]
+        let inside = step >= first as f64 && step <= last as f64;
+        if !inside || (step * self.raw.dt - t0_s).abs() > 1e-6 {
             return Err(self.ego_err(ego, format!("t0 {t0_s} s is not a time step of the scene")));
+        }
+        if !(range_m.is_finite() && range_m >= 0.0) {
+            let why = format!("neighbour range {range_m} m is not a finite distance ≥ 0");
+            return Err(self.ego_err(ego, why));
         }
         #[allow(clippy::cast_possible_truncation)]
         let step = step as i64;
@@ -276,7 +283,6 @@ impl CommonRoadScene {
                 format!("no full {T_OBS}-step history ending at t0 {t0_s} s"),
             )
         })?;
-        let last = self.step_range().1;
         let fut: Vec<i64> = (1..=MAX_FUTURE as i64)
             .map(|k| step + stride * k)
             .take_while(|&s| s <= last)

@@ -133,20 +133,16 @@ pub struct RawScenario {
     pub planning_problems: Vec<RawPlanningProblem>,
 }
 
-/// The file's text: gunzipped when it starts with the gzip magic bytes.
+/// The file's text: gunzipped when it starts with the gzip magic bytes. Only regular files
+/// of at most [`MAX_XML_BYTES`] are read (a FIFO or device is refused before reading).
 fn read_text(path: &Path) -> Result<String, CommonRoadError> {
-    let io = |source| CommonRoadError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let file = std::fs::File::open(path).map_err(io)?;
-    let mut head = [0u8; 2];
-    let mut raw = Vec::new();
-    file.take(MAX_XML_BYTES + 1)
-        .read_to_end(&mut raw)
-        .map_err(io)?;
-    head.copy_from_slice(raw.get(..2).unwrap_or(&[0, 0]));
-    let bytes = if head == [0x1f, 0x8b] {
+    let raw = nudge_predictor::file::read_bounded(path, MAX_XML_BYTES).map_err(|e| match e {
+        nudge_predictor::PredictorError::Io { path, source } => {
+            CommonRoadError::Io { path, source }
+        }
+        other => format_error(path, 0, other.to_string()),
+    })?;
+    let bytes = if raw.starts_with(&[0x1f, 0x8b]) {
         let mut out = Vec::new();
         flate2::read::MultiGzDecoder::new(raw.as_slice())
             .take(MAX_XML_BYTES + 1)
