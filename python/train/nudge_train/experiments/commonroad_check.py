@@ -33,10 +33,6 @@ import numpy as np
 
 from nudge_train import paths
 
-VEHICLE_TYPE_ID = 2
-"""CommonRoad vehicle type of the solutions (written by the Rust writer as ``KS2``)."""
-
-
 @dataclass(frozen=True)
 class SceneRun:
     """One shipped scene as a CommonRoad run: source file, ego id, t0 (s), neighbour range (m)."""
@@ -174,8 +170,9 @@ def check_solution(scenario_file: Path, solution_file: Path, ego: int | None, si
 
     scenario, _ = _open_scenario(scenario_file)
     solution = CommonRoadSolutionReader.open(str(solution_file))
-    traj = solution.planning_problem_solutions[0].trajectory
-    dyn = VehicleDynamics.KS(VehicleType(VEHICLE_TYPE_ID))
+    pp_solution = solution.planning_problem_solutions[0]
+    traj = pp_solution.trajectory
+    dyn = VehicleDynamics.KS(VehicleType(pp_solution.vehicle_type))  # the solution's own (KS2)
     bad = []
     for k in range(len(traj.state_list) - 1):
         ok, _ = feasibility_checker.state_transition_feasibility(
