@@ -282,7 +282,7 @@ def run(nudge: Path, out: Path, md: Path | None) -> str:
             rows.append((r, check_solution(r.source, sol, r.ego, side), side))
         except Exception as exc:  # reported per scene in the table, never hidden
             rows.append((r, f"not checked: {type(exc).__name__}: {str(exc).splitlines()[0][:160]}", {}))
-    page = markdown(rows, "make commonroad") + end_to_end(nudge, out / "e2e")
+    page = markdown(rows, "make commonroad") + "\n" + end_to_end(nudge, out / "e2e")
     if md is not None:
         md.write_text(page)
     return page
