@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -83,7 +83,7 @@ wheel-smoke: wheel
 	cd "$$tmp" && env -u NUDGE_ASSETS -u NUDGE_REPO NUDGE_SMOKE_T0=$$t0 "$$tmp/venv/bin/python" smoke.py --scenes $$scenes
 
 # ---- tests ----------------------------------------------------------------------------------
-test: venv test-rust test-examples test-python wheel-smoke
+test: venv test-rust test-examples test-python test-commonroad wheel-smoke
 
 test-rust:
 	$(CARGO) test --workspace --release
@@ -100,6 +100,22 @@ test-examples: develop
 # The front-end parity test runs the CLI binary built by `build`.
 test-python: develop build
 	NUDGE_CLI=target/release/nudge $(PY) -m pytest -q
+
+# The official CommonRoad drivability checker on nudge's solutions, in its own environment
+# $(CR_VENV) (the commonroad extra; its protobuf pin conflicts with ray's).
+CR_VENV ?= .venv-commonroad
+$(CR_VENV)/.nudge-stamp: python/train/pyproject.toml
+	test -x $(CR_VENV)/bin/python || $(PYTHON) -m venv $(CR_VENV)
+	$(CR_VENV)/bin/pip install --disable-pip-version-check -q -e "python/train[commonroad]" pytest
+	touch $@
+
+test-commonroad: $(CR_VENV)/.nudge-stamp build
+	NUDGE_CLI=target/release/nudge $(CR_VENV)/bin/python -m pytest -q python/train/tests/test_commonroad_check.py
+
+# Every shipped scene planned in its CommonRoad source file, the solutions checked
+# (docs/results/commonroad.md).
+commonroad: $(CR_VENV)/.nudge-stamp build
+	$(CR_VENV)/bin/nudge-train commonroad --nudge target/release/nudge --markdown docs/results/commonroad.md
 
 # ---- fuzzing --------------------------------------------------------------------------------
 # Structure-aware mutation of weights, scenario and settings files and of planning problems

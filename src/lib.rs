@@ -5,6 +5,7 @@
 //! `nudge` binary and by the Python package's `nudge` command).
 
 pub mod cli;
+pub mod commonroad;
 
 pub use nudge_planner as planner;
 pub use nudge_predictor as predictor;

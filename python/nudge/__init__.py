@@ -39,6 +39,9 @@ from nudge._native import (
     WeightsError,
     WorldFileError,
     __version__,
+    commonroad_scenario,
+    commonroad_solution,
+    commonroad_tracks,
 )
 from nudge._native import assets_dir as _assets_dir
 from nudge._native import model_path as _model_path
@@ -66,6 +69,9 @@ __all__ = [
     "WorldFileError",
     "__version__",
     "assets_dir",
+    "commonroad_scenario",
+    "commonroad_solution",
+    "commonroad_tracks",
     "model_path",
     "scene_paths",
     "simulate",

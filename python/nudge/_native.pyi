@@ -250,6 +250,41 @@ def cli_main(argv: list[str], assets: _Path) -> int:
     """Runs the Rust ``nudge`` command line on ``argv`` (program name first) with the shipped
     assets at ``assets``; returns its exit status (0, 1, 2 or 3)."""
 
+def commonroad_scenario(
+    path: _Path,
+    *,
+    ego: int | None = None,
+    planning_problem: int | None = None,
+    t0: float | None = None,
+    neighbour_range: float | None = None,
+) -> Scenario:
+    """The nudge scenario of ``ego`` (a dynamic obstacle id) or ``planning_problem`` (an id) in
+    the CommonRoad 2020a/2018b file ``path`` (.xml or .xml.gz), in the data pipeline's road
+    frame, last observed at ``t0`` s (default: the first time with a full 2.1 s history; a
+    planning problem's initial time), neighbours within ``neighbour_range`` m (default 60).
+    Raises ``ScenarioError`` naming the file and reason (e.g. lanes not straight near the ego)."""
+
+def commonroad_solution(
+    path: _Path,
+    out: _Path,
+    delta: npt.NDArray[np.float64],
+    accel: npt.NDArray[np.float64],
+    *,
+    ego: int | None = None,
+    planning_problem: int | None = None,
+    t0: float | None = None,
+    neighbour_range: float | None = None,
+    settings: PlannerSettings | None = None,
+) -> dict[str, Any]:
+    """Writes to ``out`` the CommonRoad KS solution (vehicle type 2, the file's coordinates) of
+    the inputs ``delta`` [steps] (rad) and ``accel`` [steps] (m/s^2), each held 0.3 s from the
+    ego of ``commonroad_scenario`` with the same arguments. Returns benchmark_id,
+    planning_problem, n_states."""
+
+def commonroad_tracks(path: _Path) -> dict[str, Any]:
+    """The CommonRoad file ``path`` in the road frame: vehicle, step (int64 [N]), x, y (m),
+    heading (rad), speed (m/s) (float64 [N]) and pieces: [(x0 m, x1 m, lane bounds [L + 1] m)]."""
+
 def simulate(
     scene_paths: list[_Path],
     predictor: _Path | _PythonPredictor = ...,

@@ -8,6 +8,7 @@
 //! setting (see `nudge settings --help`).
 #![allow(clippy::print_stdout)]
 
+mod commonroad;
 mod settings;
 mod simulate;
 

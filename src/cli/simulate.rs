@@ -87,6 +87,8 @@ pub struct SimulateArgs {
     /// Print the per-step table of the first run even when running many.
     #[arg(long)]
     pub verbose_run: bool,
+    #[command(flatten)]
+    pub commonroad: super::commonroad::CommonRoadArgs,
 }
 
 fn parse_world(s: &str) -> Result<World, String> {
@@ -175,8 +177,14 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
         .assets
         .clone()
         .unwrap_or_else(|| assets_dir(shipped_assets));
-    let scenes = a.scenes.clone().unwrap_or_else(|| scenes_dir(&assets));
-    let scene_paths = Scenario::paths_in(&scenes).map_err(|e| e.to_string())?;
+    let commonroad = a.commonroad.prepare(a.out.as_deref())?;
+    let scene_paths = match &commonroad {
+        Some(c) => vec![c.scenario_path.clone()],
+        None => {
+            let scenes = a.scenes.clone().unwrap_or_else(|| scenes_dir(&assets));
+            Scenario::paths_in(&scenes).map_err(|e| e.to_string())?
+        }
+    };
     let batch = BatchRequest {
         scene_paths: &scene_paths,
         predictor: &a.predictor,
@@ -216,6 +224,11 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     if let Some(dir) = &a.out {
         write_outputs(dir, scenes, &outputs)?;
         println!("records written to {}", dir.display());
+        if let Some(c) = &commonroad {
+            for line in c.write_solutions(&outputs, &settings, dir)? {
+                println!("{line}");
+            }
+        }
     }
     if let Some(why) = failed.first() {
         eprintln!(

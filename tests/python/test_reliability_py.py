@@ -58,6 +58,7 @@ def _ctx() -> dict[str, Any]:
 
 
 Z = np.zeros
+CR_FIXTURE = str(Path(__file__).resolve().parents[2] / "python/train/tests/fixtures/commonroad/USA_US101-1_1_T-1.xml.gz")
 
 
 def _plan(c: dict[str, Any], **kw: Any) -> object:
@@ -101,6 +102,30 @@ DEGENERATE: dict[str, list[Call]] = {
                                    settings=nudge.PlannerSettings(horizon=1), max_steps=1, assets=c["assets"]),
         lambda c: _native.simulate([c["scene"]], "constant_velocity", world="log_replay", max_steps=1,
                                    assets="", runs=1, seed=2**64 - 1),
+    ],
+    "commonroad_scenario": [
+        lambda c: _native.commonroad_scenario("", ego=1),
+        lambda c: _native.commonroad_scenario("/dev/null", ego=1),
+        lambda c: _native.commonroad_scenario(c["assets"], planning_problem=1),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE, ego=-1),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE, ego=484, t0=float("nan")),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE, ego=484, t0=1e300),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE, ego=484, t0=-2.1),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE, ego=484, neighbour_range=float("nan")),
+        lambda c: _native.commonroad_scenario(CR_FIXTURE, ego=484, neighbour_range=0.0),
+    ],
+    "commonroad_solution": [
+        lambda c: _native.commonroad_solution(CR_FIXTURE, "/dev/null/s.xml", Z(0), Z(0), ego=484),
+        lambda c: _native.commonroad_solution(CR_FIXTURE, "/dev/null/s.xml", Z(2), Z(2), ego=484),
+        lambda c: _native.commonroad_solution(CR_FIXTURE, "/dev/null/s.xml", np.full(2, np.nan), Z(2), ego=484),
+        lambda c: _native.commonroad_solution(CR_FIXTURE, "/dev/null/s.xml", Z(2), np.full(2, 1e300), ego=484),
+        lambda c: _native.commonroad_solution("", "", Z(1), Z(2)),
+    ],
+    "commonroad_tracks": [
+        lambda c: _native.commonroad_tracks(""),
+        lambda c: _native.commonroad_tracks("/dev/null"),
+        lambda c: _native.commonroad_tracks(c["assets"]),
     ],
     "Predictor.__new__": [lambda c: nudge.Predictor()],  # no constructor: TypeError
     "Predictor.load": [

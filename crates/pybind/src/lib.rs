@@ -6,6 +6,7 @@
 mod args;
 mod arrays;
 mod cli;
+mod commonroad;
 mod errors;
 mod planner;
 mod predict;
@@ -77,6 +78,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(assets_dir, m)?)?;
     m.add_function(wrap_pyfunction!(scenes_dir, m)?)?;
     m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
+    m.add_function(wrap_pyfunction!(commonroad::commonroad_scenario, m)?)?;
+    m.add_function(wrap_pyfunction!(commonroad::commonroad_solution, m)?)?;
+    m.add_function(wrap_pyfunction!(commonroad::commonroad_tracks, m)?)?;
     m.add("DEFAULTS", sim::defaults_dict(py)?)?;
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;

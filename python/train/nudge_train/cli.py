@@ -11,6 +11,8 @@
     nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
+    nudge-train commonroad                 shipped scenes planned in their CommonRoad files, solutions
+                                           checked by the drivability checker (docs/results/commonroad.md)
     nudge-train idm fit|cutins|report|all  IDM fitted to real car-following, real cut-ins,
                                            the IDM world's intrusion rule (docs/results/idm_fit.md)
 
@@ -579,7 +581,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_goldens(sub)
     _add_figures(sub)
     _add_idm(sub)
+    _add_commonroad(sub)
     return parser
+
+
+# ---- CommonRoad ---------------------------------------------------------------------------------
+def _add_commonroad(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "commonroad", "plan the shipped scenes in their CommonRoad files with the nudge command and "
+                 "check the solutions with commonroad-drivability-checker (the commonroad extra)", _commonroad)
+    p.add_argument("--nudge", type=Path, default=Path("target/release/nudge"), help="the nudge command")
+    p.add_argument("--out", type=Path, default=Path("runs/commonroad"), help="runs and solutions")
+    p.add_argument("--markdown", type=Path, default=None, help="write the table here")
+
+
+def _commonroad(args: argparse.Namespace) -> int:
+    from nudge_train.experiments.commonroad_check import run
+
+    print(run(args.nudge, args.out, args.markdown))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

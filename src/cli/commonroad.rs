@@ -1,0 +1,142 @@
+//! `nudge simulate --commonroad FILE (--ego ID | --planning-problem ID)`: closed-loop runs on
+//! the nudge scenario built from a CommonRoad scenario file ([`crate::commonroad`]), each run's
+//! executed ego trajectory written as a CommonRoad solution in the file's own coordinates.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use nudge_planner::{PlannerSettings, RunOutput, Scenario};
+
+use crate::commonroad::scene::NEIGHBOUR_RANGE;
+use crate::commonroad::{CommonRoadScene, Ego, Solution};
+
+/// The CommonRoad flags of `nudge simulate`.
+#[derive(Debug, Args)]
+pub struct CommonRoadArgs {
+    /// A CommonRoad 2020a (or 2018b) scenario file (.xml or .xml.gz) to plan in instead of
+    /// --scenes; needs --out, and --ego or --planning-problem. Writes the nudge scenario built
+    /// from it and one CommonRoad solution (KS trajectory) per run into --out.
+    #[arg(long, conflicts_with = "scenes", requires = "out")]
+    pub commonroad: Option<PathBuf>,
+    /// With --commonroad: the dynamic obstacle that becomes the ego (its logged history is
+    /// the ego's).
+    #[arg(long, requires = "commonroad", conflicts_with = "planning_problem")]
+    pub ego: Option<i64>,
+    /// With --commonroad: the planning problem whose initial state is the ego's (histories
+    /// before the scene's first step are extrapolated at constant speed and heading).
+    #[arg(long, requires = "commonroad")]
+    pub planning_problem: Option<i64>,
+    /// With --commonroad: the last observed time (s of the file's clock) [default: the ego
+    /// obstacle's first time with a full 2.1 s history on the scene's 0.3 s grid; the planning
+    /// problem's initial time].
+    #[arg(long, requires = "commonroad")]
+    pub t0: Option<f64>,
+    /// With --commonroad: neighbours are the vehicles within this distance of the ego at t0 (m)
+    /// [default: 60].
+    #[arg(long, requires = "commonroad")]
+    pub neighbour_range: Option<f64>,
+}
+
+/// A CommonRoad scene made ready to run: the scene, the ego, t0, the scenario and its file.
+#[derive(Debug)]
+pub struct Prepared {
+    scene: CommonRoadScene,
+    ego: Ego,
+    t0: f64,
+    scenario: Scenario,
+    /// The scenario file written into the output directory.
+    pub scenario_path: PathBuf,
+}
+
+impl CommonRoadArgs {
+    /// Reads the CommonRoad file and writes the scenario of the ego into `out` (created);
+    /// `None` without --commonroad.
+    ///
+    /// # Errors
+    /// A message naming the file and the reason (unreadable, unsupported road shape, unknown
+    /// ego, no history), or a missing --ego / --planning-problem.
+    pub fn prepare(&self, out: Option<&Path>) -> Result<Option<Prepared>, String> {
+        let Some(path) = &self.commonroad else {
+            return Ok(None);
+        };
+        let ego = match (self.ego, self.planning_problem) {
+            (Some(id), None) => Ego::Obstacle(id),
+            (None, Some(id)) => Ego::PlanningProblem(id),
+            _ => return Err("--commonroad needs --ego ID or --planning-problem ID".into()),
+        };
+        let out = out.ok_or("--commonroad needs --out")?;
+        let scene = CommonRoadScene::read(path).map_err(|e| e.to_string())?;
+        let t0 = match self.t0 {
+            Some(t) => t,
+            None => scene.default_t0(ego).map_err(|e| e.to_string())?,
+        };
+        let range = self.neighbour_range.unwrap_or(NEIGHBOUR_RANGE);
+        let (scenario, bytes) = scene
+            .scenario_in_range(ego, t0, range)
+            .map_err(|e| e.to_string())?;
+        std::fs::create_dir_all(out).map_err(|e| format!("--out {}: {e}", out.display()))?;
+        let scenario_path = out.join(format!("{}.safetensors", scenario.name));
+        std::fs::write(&scenario_path, bytes)
+            .map_err(|e| format!("{}: {e}", scenario_path.display()))?;
+        Ok(Some(Prepared {
+            scene,
+            ego,
+            t0,
+            scenario,
+            scenario_path,
+        }))
+    }
+}
+
+impl Prepared {
+    /// Writes `solution_<scenario>_seed<seed>.xml` into `out` for every run that ran (and
+    /// beside it a `.json` with the ego's size (m), l_r (m) and the deviation (m)), and
+    /// returns one line per file (path, states, largest deviation from the closed loop).
+    ///
+    /// # Errors
+    /// A message naming the file that could not be written or the run that has no trajectory.
+    pub fn write_solutions(
+        &self,
+        outputs: &[RunOutput],
+        settings: &PlannerSettings,
+        out: &Path,
+    ) -> Result<Vec<String>, String> {
+        let mut lines = Vec::new();
+        for o in outputs {
+            let Ok(record) = &o.result else { continue };
+            let sol = Solution::of_run(
+                &self.scene,
+                (self.ego, self.t0),
+                &self.scenario,
+                record,
+                (settings.l_f, settings.l_r),
+            )
+            .map_err(|e| e.to_string())?;
+            let path = out.join(format!(
+                "solution_{}_seed{}.xml",
+                self.scenario.name, o.spec.seed
+            ));
+            sol.write(&path).map_err(|e| e.to_string())?;
+            let side = serde_json::json!({
+                "benchmark_id": sol.benchmark_id,
+                "planning_problem": sol.planning_problem,
+                "ego": self.ego.to_string(),
+                "ego_size_m": self.scenario.size[0],
+                "l_r_m": settings.l_r,
+                "max_dev_m": sol.max_dev_m,
+                "n_states": sol.states.len(),
+            });
+            let json_path = path.with_extension("json");
+            std::fs::write(&json_path, side.to_string())
+                .map_err(|e| format!("{}: {e}", json_path.display()))?;
+            lines.push(format!(
+                "CommonRoad solution {} ({}, {} states, {:.3} m from the closed loop's states)",
+                path.display(),
+                sol.benchmark_id,
+                sol.states.len(),
+                sol.max_dev_m
+            ));
+        }
+        Ok(lines)
+    }
+}

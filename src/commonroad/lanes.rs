@@ -1,0 +1,242 @@
+//! The straight lane map of a CommonRoad scene in the road frame, as the data pipeline builds
+//! it (`nudge_train.data.commonroad._lane_map` and `tracks.LaneMap`): pieces of x over which
+//! the same lanelets exist, each with its ascending lane boundaries, and the bounds as
+//! polylines for the local straightness check.
+
+use std::path::Path;
+
+use super::error::CommonRoadError;
+use super::frame::interp;
+
+/// Pieces shorter than this (m) between lanelet start/end points are skipped.
+pub const MIN_PIECE: f64 = 1.0;
+/// Lanelets overlapping laterally by more than this (m) at one x are one lane.
+pub const MERGE_OVERLAP: f64 = 0.5;
+/// Neighbouring pieces whose boundaries differ by less than this (m) are merged ...
+pub const SAME_BOUNDS: f64 = 0.2;
+/// ... when they are at most this far apart (m).
+pub const PIECE_GAP: f64 = 1.5;
+/// Points per piece at which the bounds are sampled.
+const PIECE_SAMPLES: usize = 9;
+
+/// One lanelet in the road frame: left and right bounds (x ascending, m) and its name.
+#[derive(Debug, Clone)]
+pub struct RoadLanelet {
+    /// The lanelet's id.
+    pub id: String,
+    /// 1-based line of the lanelet in the file.
+    pub line: usize,
+    /// Left bound (x, y) (m), sorted by x.
+    pub left: Vec<[f64; 2]>,
+    /// Right bound (x, y) (m), sorted by x.
+    pub right: Vec<[f64; 2]>,
+}
+
+/// Lane boundaries over x pieces, and the bound polylines (road frame, m).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LaneMap {
+    /// (x0, x1, ascending boundaries `[L + 1]`) (m).
+    pub pieces: Vec<(f64, f64, Vec<f64>)>,
+    /// Every lanelet bound, x ascending (m).
+    pub polylines: Vec<Vec<[f64; 2]>>,
+}
+
+/// Sorts a polyline by x (stable, as numpy's stable argsort).
+pub(crate) fn sorted_by_x(mut p: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
+    p.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    p
+}
+
+/// y of the x-sorted polyline `p` at x (constant beyond its ends).
+fn y_at(p: &[[f64; 2]], x: f64) -> f64 {
+    let xs: Vec<f64> = p.iter().map(|q| q[0]).collect();
+    let ys: Vec<f64> = p.iter().map(|q| q[1]).collect();
+    interp(x, &xs, &ys)
+}
+
+fn extent(ll: &RoadLanelet) -> (f64, f64) {
+    let xs = ll.left.iter().chain(&ll.right).map(|p| p[0]);
+    xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+        (l.min(x), h.max(x))
+    })
+}
+
+/// Python's `round(v, 3)` for the breakpoints (m).
+fn round3(v: f64) -> f64 {
+    (v * 1000.0).round() / 1000.0
+}
+
+/// The (right, left) mean y (m) of each lanelet present over [x0, x1], or the error of the
+/// first whose left bound is not left of its right bound.
+fn lateral_spans(
+    lanelets: &[RoadLanelet],
+    present: &[usize],
+    (x0, x1): (f64, f64),
+    path: &Path,
+) -> Result<Vec<(f64, f64)>, CommonRoadError> {
+    #[allow(clippy::cast_precision_loss)]
+    let grid: Vec<f64> = (0..PIECE_SAMPLES)
+        .map(|i| x0 + (x1 - x0) * i as f64 / (PIECE_SAMPLES - 1) as f64)
+        .collect();
+    #[allow(clippy::cast_precision_loss)]
+    let mean =
+        |p: &[[f64; 2]]| grid.iter().map(|&x| y_at(p, x)).sum::<f64>() / PIECE_SAMPLES as f64;
+    let mut rows = Vec::with_capacity(present.len());
+    for &i in present {
+        let ll = &lanelets[i];
+        let (yl, yr) = (mean(&ll.left), mean(&ll.right));
+        if yl <= yr {
+            return Err(CommonRoadError::Field {
+                path: path.to_path_buf(),
+                line: ll.line,
+                element: format!("lanelet {} leftBound", ll.id),
+                reason: format!(
+                    "left bound is not left of the right bound over x {x0:.1}..{x1:.1} m (road frame)"
+                ),
+            });
+        }
+        rows.push((yr, yl));
+    }
+    rows.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    Ok(rows)
+}
+
+/// Lane boundaries from the sorted (right, left) spans: overlapping spans merged, the
+/// boundary between neighbours their midpoint.
+fn boundaries(rows: &[(f64, f64)]) -> Vec<f64> {
+    let mut merged: Vec<[f64; 2]> = Vec::new();
+    for &(r, l) in rows {
+        match merged.last_mut() {
+            Some(m) if r < m[1] - MERGE_OVERLAP => m[1] = m[1].max(l),
+            _ => merged.push([r, l]),
+        }
+    }
+    let mut b = vec![merged[0][0]];
+    b.extend(merged.windows(2).map(|w| 0.5 * (w[0][1] + w[1][0])));
+    b.push(merged[merged.len() - 1][1]);
+    b
+}
+
+/// Neighbouring pieces with the same lanes merged (the first piece's boundaries kept).
+fn merge_pieces(pieces: Vec<(f64, f64, Vec<f64>)>) -> Vec<(f64, f64, Vec<f64>)> {
+    let mut out: Vec<(f64, f64, Vec<f64>)> = Vec::with_capacity(pieces.len());
+    for (x0, x1, b) in pieces {
+        if let Some(last) = out.last_mut() {
+            let same = last.2.len() == b.len()
+                && last
+                    .2
+                    .iter()
+                    .zip(&b)
+                    .all(|(p, q)| (p - q).abs() < SAME_BOUNDS);
+            if same && (last.1 - x0).abs() < PIECE_GAP {
+                last.1 = x1;
+                continue;
+            }
+        }
+        out.push((x0, x1, b));
+    }
+    out
+}
+
+impl LaneMap {
+    /// Builds the lane map of `lanelets` (road frame) of the file `path`.
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Field`] when a lanelet's left bound is not left of its right bound;
+    /// [`CommonRoadError::Unsupported`] when the lanelets give overlapping or inverted lanes,
+    /// or no lanes at all.
+    pub fn build(lanelets: &[RoadLanelet], path: &Path) -> Result<Self, CommonRoadError> {
+        let extents: Vec<(f64, f64)> = lanelets.iter().map(extent).collect();
+        let mut xs: Vec<f64> = extents
+            .iter()
+            .flat_map(|&(a, b)| [round3(a), round3(b)])
+            .collect();
+        xs.sort_by(f64::total_cmp);
+        xs.dedup();
+        let mut pieces = Vec::new();
+        for w in xs.windows(2) {
+            let (x0, x1) = (w[0], w[1]);
+            if x1 - x0 < MIN_PIECE {
+                continue;
+            }
+            let mid = 0.5 * (x0 + x1);
+            let present: Vec<usize> = (0..lanelets.len())
+                .filter(|&i| extents[i].0 <= mid + 1e-6 && extents[i].1 >= mid - 1e-6)
+                .collect();
+            if present.is_empty() {
+                continue;
+            }
+            let rows = lateral_spans(lanelets, &present, (x0, x1), path)?;
+            let b = boundaries(&rows);
+            if b.windows(2).any(|p| p[1] <= p[0]) {
+                let list: Vec<String> = b.iter().map(|v| format!("{v:.2}")).collect();
+                return Err(CommonRoadError::Unsupported {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "lanelets give overlapping or inverted lanes over x {x0:.1}..{x1:.1} m \
+                         (boundaries {} m are not ascending)",
+                        list.join(", ")
+                    ),
+                });
+            }
+            pieces.push((x0, x1, b));
+        }
+        if pieces.is_empty() {
+            return Err(CommonRoadError::Unsupported {
+                path: path.to_path_buf(),
+                reason: "the lanelet map has no lanes".into(),
+            });
+        }
+        let polylines = lanelets
+            .iter()
+            .flat_map(|ll| [ll.left.clone(), ll.right.clone()])
+            .collect();
+        Ok(Self {
+            pieces: merge_pieces(pieces),
+            polylines,
+        })
+    }
+
+    /// Ascending lane boundaries `[L + 1]` (m) at road x (m): the piece covering x, else the
+    /// nearest piece.
+    #[must_use]
+    pub fn bounds_at(&self, x: f64) -> &[f64] {
+        if let Some(p) = self.pieces.iter().find(|p| p.0 <= x && x <= p.1) {
+            return &p.2;
+        }
+        let dist = |p: &(f64, f64, Vec<f64>)| (x - p.0).abs().min((x - p.1).abs());
+        let mut best = &self.pieces[0];
+        for p in &self.pieces[1..] {
+            if dist(p) < dist(best) {
+                best = p;
+            }
+        }
+        &best.2
+    }
+
+    /// The worst deviation (m) from y(x) of any bound covering road x, within x ± `half_range`
+    /// (m): how far the lanes near x are from the straight lines nudge plans with.
+    #[must_use]
+    pub fn local_deviation(&self, x: f64, half_range: f64) -> f64 {
+        let mut worst: f64 = 0.0;
+        for p in &self.polylines {
+            let (first, last) = (p[0][0], p[p.len() - 1][0]);
+            if !(first <= x && x <= last) {
+                continue;
+            }
+            let y0 = y_at(p, x);
+            let ends = [
+                (x - half_range).clamp(first, last),
+                (x + half_range).clamp(first, last),
+            ];
+            let near = p
+                .iter()
+                .map(|q| q[0])
+                .filter(|&px| (px - x).abs() <= half_range);
+            for px in near.chain(ends) {
+                worst = worst.max((y_at(p, px) - y0).abs());
+            }
+        }
+        worst
+    }
+}

@@ -1,0 +1,276 @@
+//! The executed ego trajectory of a closed-loop run as a CommonRoad solution file: a
+//! kinematic single-track (KS) trajectory in the scenario's own coordinates.
+//!
+//! **Vehicle model.** CommonRoad's KS model drives the centre of the rear axle:
+//! ẋ = v cos ψ, ẏ = v sin ψ, ψ̇ = v tan δ / L. nudge's ego is the kinematic bicycle at the
+//! centre of gravity (speed v_cg, slip β = atan(l_r tan δ_n / (l_f + l_r))); its rear axle
+//! moves exactly as KS with v = v_cg cos β and tan δ / L = tan δ_n / (l_f + l_r). CommonRoad's
+//! solutions give the position of the vehicle's centre, which its checker takes to lie `b`
+//! ahead of the rear axle (`b` of the vehicle type). The written state is therefore nudge's
+//! rear axle moved b ahead along ψ (0.02 m ahead of nudge's centre of gravity for the default
+//! l_r), ψ, v = v_cg cos β and the steering angle δ the KS vehicle needs to drive the same
+//! path on its wheelbase L. The vehicle is CommonRoad's type 2
+//! (BMW 320i, [`VEHICLE`]): of the three CommonRoad vehicles its wheelbase (2.58 m) and rear
+//! overhang l_r (1.42 m) are closest to nudge's default l_f + l_r = 2.8 m, l_r = 1.4 m.
+//!
+//! **Time.** The closed loop applies each step's (δ, a) for 0.3 s; the solution integrates
+//! the bicycle's continuous dynamics under these inputs (RK4, [`SUBSTEPS`] per file step) and
+//! writes a state every file step (0.1 s for the US-101 scenes). The closed loop's own 0.3 s
+//! Euler states differ from it by [`Solution::max_dev_m`].
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use nudge_planner::{RunRecord, Scenario};
+use nudge_predictor::T_OBS;
+
+use super::error::CommonRoadError;
+use super::scene::{CommonRoadScene, Ego};
+
+/// A CommonRoad vehicle type's parameters (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VehicleType {
+    /// CommonRoad's vehicle type id (`KS<id>` in the benchmark id).
+    pub id: u8,
+    /// Length (m).
+    pub length: f64,
+    /// Width (m).
+    pub width: f64,
+    /// Centre of gravity to front axle a (m).
+    pub a: f64,
+    /// Centre of gravity to rear axle b (m).
+    pub b: f64,
+}
+
+/// CommonRoad vehicle type 2 (BMW 320i; `vehiclemodels.parameters_vehicle2`).
+pub const VEHICLE: VehicleType = VehicleType {
+    id: 2,
+    length: 4.508,
+    width: 1.61,
+    a: 1.156_195_706_4,
+    b: 1.422_717_093_6,
+};
+
+/// The solution's cost function id (CommonRoad `SM1`; the checker needs one, nudge does not
+/// optimise it).
+pub const COST_FUNCTION: &str = "SM1";
+/// RK4 sub-steps per file time step.
+pub const SUBSTEPS: usize = 10;
+
+/// One KS state in the file's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KsState {
+    /// Time step index of the file.
+    pub step: i64,
+    /// Position (m) of the vehicle's centre as CommonRoad defines it: the rear axle plus
+    /// [`VEHICLE`]`.b` along the orientation.
+    pub pos: [f64; 2],
+    /// Steering angle of the KS vehicle (rad).
+    pub steering: f64,
+    /// Rear-axle speed (m/s).
+    pub velocity: f64,
+    /// Orientation (rad).
+    pub orientation: f64,
+}
+
+/// A solution: the benchmark id, the planning problem (or ego obstacle) id and the states.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solution {
+    /// `KS2:SM1:<benchmarkID>:<version>`.
+    pub benchmark_id: String,
+    /// The planning problem's id, or the ego obstacle's.
+    pub planning_problem: i64,
+    /// The states, one per file time step from t0.
+    pub states: Vec<KsState>,
+    /// Largest distance (m) between the integrated trajectory and the closed loop's own ego
+    /// states at the 0.3 s steps (0 when they were not given).
+    pub max_dev_m: f64,
+}
+
+/// nudge's bicycle (centre of gravity): state (x, y, ψ, v), inputs (δ, a), axle distances.
+#[derive(Debug, Clone, Copy)]
+struct Bicycle {
+    l_f: f64,
+    l_r: f64,
+}
+
+impl Bicycle {
+    fn beta(self, delta: f64) -> f64 {
+        (self.l_r / (self.l_f + self.l_r) * delta.tan()).atan()
+    }
+
+    fn deriv(self, z: [f64; 4], delta: f64, accel: f64) -> [f64; 4] {
+        let b = self.beta(delta);
+        let v = z[3];
+        let dv = if v <= 0.0 && accel < 0.0 { 0.0 } else { accel };
+        [
+            v * (z[2] + b).cos(),
+            v * (z[2] + b).sin(),
+            v * b.sin() / self.l_r,
+            dv,
+        ]
+    }
+
+    /// One RK4 step of `h` s; the speed is kept ≥ 0 (the vehicle stops, it does not reverse).
+    fn rk4(self, z: [f64; 4], delta: f64, accel: f64, h: f64) -> [f64; 4] {
+        let add = |z: [f64; 4], k: [f64; 4], s: f64| std::array::from_fn(|i| z[i] + s * k[i]);
+        let k1 = self.deriv(z, delta, accel);
+        let k2 = self.deriv(add(z, k1, h / 2.0), delta, accel);
+        let k3 = self.deriv(add(z, k2, h / 2.0), delta, accel);
+        let k4 = self.deriv(add(z, k3, h), delta, accel);
+        let mut out: [f64; 4] =
+            std::array::from_fn(|i| z[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]));
+        out[3] = out[3].max(0.0);
+        out
+    }
+}
+
+impl Solution {
+    /// The solution of `record` (a closed-loop run on `scenario`, built from `scene` for
+    /// `ego` at `t0_s`) with the ego's axle distances `l_f`, `l_r` (m).
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Solution`] when the record has no steps or a state is non-finite.
+    pub fn of_run(
+        scene: &CommonRoadScene,
+        (ego, t0_s): (Ego, f64),
+        scenario: &Scenario,
+        record: &RunRecord,
+        axles: (f64, f64),
+    ) -> Result<Self, CommonRoadError> {
+        let inputs: Vec<[f64; 2]> = record.steps.iter().map(|s| [s.delta, s.accel]).collect();
+        let executed: Vec<[f64; 2]> = record.steps.iter().map(|s| [s.ego[0], s.ego[1]]).collect();
+        Self::of_inputs(
+            scene,
+            (ego, t0_s),
+            scenario,
+            (&inputs, Some(&executed)),
+            axles,
+        )
+    }
+
+    /// The solution of the inputs `[steps]` of (steering δ (rad), acceleration a (m/s²)), each
+    /// held for 0.3 s from the ego's state in `scenario` (built from `scene` for `ego` at
+    /// `t0_s`); `executed` `[steps]` (m, road frame), when given, are the closed loop's ego
+    /// positions after each step ([`Solution::max_dev_m`] compares them; 0 without).
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Solution`] when there are no inputs, `executed` has another length,
+    /// or a state is non-finite.
+    pub fn of_inputs(
+        scene: &CommonRoadScene,
+        (ego, t0_s): (Ego, f64),
+        scenario: &Scenario,
+        (inputs, executed): (&[[f64; 2]], Option<&[[f64; 2]]>),
+        (l_f, l_r): (f64, f64),
+    ) -> Result<Self, CommonRoadError> {
+        let err = |reason: String| CommonRoadError::Solution {
+            path: scene.raw.path.clone(),
+            reason,
+        };
+        if inputs.is_empty() || executed.is_some_and(|e| e.len() != inputs.len()) {
+            return Err(err(format!(
+                "{} inputs and {} executed positions (at least one input, as many positions)",
+                inputs.len(),
+                executed.map_or(inputs.len(), <[_]>::len)
+            )));
+        }
+        let bike = Bicycle { l_f, l_r };
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+        let per_step = (nudge_predictor::DT / scene.raw.dt).round() as usize;
+        #[allow(clippy::cast_possible_truncation)]
+        let step0 = (t0_s / scene.raw.dt).round() as i64;
+        let last = &scenario.history[(T_OBS - 1) * 2..T_OBS * 2];
+        let mut z = [last[0], last[1], scenario.heading[0], scenario.speed[0]];
+        #[allow(clippy::cast_precision_loss)]
+        let h = scene.raw.dt / SUBSTEPS as f64;
+        let mut road = Vec::with_capacity(inputs.len() * per_step + 1);
+        let mut max_dev: f64 = 0.0;
+        for (k, &[delta, accel]) in inputs.iter().enumerate() {
+            for _ in 0..per_step {
+                road.push((z, delta));
+                for _ in 0..SUBSTEPS {
+                    z = bike.rk4(z, delta, accel, h);
+                }
+            }
+            if let Some(e) = executed {
+                max_dev = max_dev.max((z[0] - e[k][0]).hypot(z[1] - e[k][1]));
+            }
+        }
+        road.push((z, inputs[inputs.len() - 1][0]));
+        let states: Vec<KsState> = road
+            .iter()
+            .zip(step0..)
+            .map(|(&(z, delta), step)| ks_state(scene, bike, z, delta, step))
+            .collect();
+        if let Some(bad) = states.iter().find(|s| {
+            ![s.pos[0], s.pos[1], s.steering, s.velocity, s.orientation]
+                .iter()
+                .all(|v| v.is_finite())
+        }) {
+            return Err(err(format!("non-finite state at time step {}", bad.step)));
+        }
+        let (Ego::Obstacle(id) | Ego::PlanningProblem(id)) = ego;
+        Ok(Self {
+            benchmark_id: format!(
+                "KS{}:{COST_FUNCTION}:{}:{}",
+                VEHICLE.id, scene.raw.benchmark_id, scene.raw.version
+            ),
+            planning_problem: id,
+            states,
+            max_dev_m: max_dev,
+        })
+    }
+
+    /// The solution as CommonRoad solution XML.
+    #[must_use]
+    pub fn to_xml(&self) -> String {
+        let mut s = String::from("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
+        let _ = writeln!(
+            s,
+            "<CommonRoadSolution benchmark_id=\"{}\">",
+            self.benchmark_id
+        );
+        let _ = writeln!(
+            s,
+            "  <ksTrajectory planningProblem=\"{}\">",
+            self.planning_problem
+        );
+        for k in &self.states {
+            let _ = writeln!(
+                s,
+                "    <ksState><x>{}</x><y>{}</y><steeringAngle>{}</steeringAngle>\
+                 <velocity>{}</velocity><orientation>{}</orientation><time>{}</time></ksState>",
+                k.pos[0], k.pos[1], k.steering, k.velocity, k.orientation, k.step
+            );
+        }
+        s.push_str("  </ksTrajectory>\n</CommonRoadSolution>\n");
+        s
+    }
+
+    /// Writes [`Solution::to_xml`] to `path`.
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Io`] naming `path`.
+    pub fn write(&self, path: &Path) -> Result<(), CommonRoadError> {
+        std::fs::write(path, self.to_xml()).map_err(|source| CommonRoadError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
+/// The KS state (file frame) of the bicycle state `z` (road frame) steering `delta`.
+fn ks_state(scene: &CommonRoadScene, bike: Bicycle, z: [f64; 4], delta: f64, step: i64) -> KsState {
+    let (s, c) = z[2].sin_cos();
+    let back = bike.l_r - VEHICLE.b;
+    let reference = [z[0] - back * c, z[1] - back * s];
+    let wheelbase = VEHICLE.a + VEHICLE.b;
+    KsState {
+        step,
+        pos: scene.frame.to_file(reference),
+        steering: (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan(),
+        velocity: z[3] * bike.beta(delta).cos(),
+        orientation: scene.frame.heading_to_file(reference, z[2]),
+    }
+}
