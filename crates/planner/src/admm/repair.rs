@@ -9,7 +9,10 @@
 //!    plan) by θ = 3/4, 1/2, 1/4 and take the first admissible roll-out;
 //! 3. else [`Repairer::best_fallback`]: the cheapest admissible (else the least-violating) of
 //!    a few simple input sequences: the nominal, [`align_with_road`] with constant
-//!    accelerations, and [`steer_towards`] the lateral goal with those accelerations.
+//!    accelerations, [`steer_towards`] the lateral goal with those accelerations, and
+//!    [`steer_towards`] the retreat lane's centre when the problem has one (checked within
+//!    the bounds of a plan aiming there): with nothing admissible, the least-violating of
+//!    holding, finishing or cancelling a lane change.
 //!
 //! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
 
@@ -70,6 +73,15 @@ impl Rank {
     }
 }
 
+/// The lateral goal whose state bounds a candidate is checked within.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Goal {
+    /// The call's target (its corridor from the start to `y_target`).
+    Target,
+    /// The retreat lane ([`super::linearised::Retreat`]).
+    Retreat,
+}
+
 /// The context every repair needs.
 pub(crate) struct Repairer<'a, 'c> {
     pub s: &'a PlannerSettings,
@@ -86,11 +98,24 @@ impl Repairer<'_, '_> {
         delta: Vec<f64>,
         accel: Vec<f64>,
     ) -> Result<Candidate, PlannerError> {
+        self.check_within(delta, accel, Goal::Target)
+    }
+
+    /// [`Self::check`] within the state bounds of a plan aiming at `goal`.
+    fn check_within(
+        &mut self,
+        delta: Vec<f64>,
+        accel: Vec<f64>,
+        goal: Goal,
+    ) -> Result<Candidate, PlannerError> {
         let mut rollout = vec![State::zeros(); self.lp.horizon];
         self.model
             .rollout(&self.lp.start, &delta, &accel, &mut rollout);
         let e = self.safety.eval(self.predictor, &rollout)?;
-        let excess = self.lp.bound_excess(&rollout);
+        let excess = match (goal, &self.lp.retreat) {
+            (Goal::Retreat, Some(r)) => self.lp.bound_excess_within(&r.lower, &r.upper, &rollout),
+            _ => self.lp.bound_excess(&rollout),
+        };
         let rank = if e.is_safe(self.s.safety_min) && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
@@ -153,13 +178,21 @@ impl Repairer<'_, '_> {
         Ok(None)
     }
 
-    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`];
-    /// every one is checked.
+    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`], then
+    /// the [`retreat_inputs`] (checked within the retreat's bounds); every one is checked.
+    /// When none is admissible this is the minimum-risk choice between holding, finishing
+    /// and cancelling a lane change: the least-violating.
     pub(crate) fn best_fallback(&mut self) -> Result<Candidate, PlannerError> {
         let nominal = (self.lp.nominal_delta.clone(), self.lp.nominal_accel.clone());
         let mut best = self.check(nominal.0, nominal.1)?;
-        for (d, a) in simple_inputs(self.s, self.model, self.lp) {
-            let c = self.check(d, a)?;
+        let target = simple_inputs(self.s, self.model, self.lp)
+            .into_iter()
+            .map(|u| (u, Goal::Target));
+        let retreat = retreat_inputs(self.s, self.model, self.lp)
+            .into_iter()
+            .map(|u| (u, Goal::Retreat));
+        for ((d, a), goal) in target.chain(retreat) {
+            let c = self.check_within(d, a, goal)?;
             if c.rank.beats(&best.rank) {
                 best = c;
             }
@@ -208,6 +241,33 @@ pub(crate) fn simple_inputs(
         inputs.push((d, a));
     }
     inputs
+}
+
+/// The retreat sequences of the fallback (none when the problem has no retreat lane): for
+/// each constant acceleration of [`simple_inputs`], [`steer_towards`] the retreat lane's
+/// centre.
+pub(crate) fn retreat_inputs(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let Some(retreat) = &lp.retreat else {
+        return Vec::new();
+    };
+    let max_heading = retreat
+        .upper
+        .iter()
+        .map(|u| u[2])
+        .fold(f64::INFINITY, f64::min);
+    [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
+        .into_iter()
+        .map(|a_cmd| {
+            let mut a = vec![a_cmd; lp.horizon];
+            repair_box_rate(&mut a, lp.accel_box);
+            let d = steer_towards(model, &lp.start, &a, retreat.y, max_heading, lp.delta_box);
+            (d, a)
+        })
+        .collect()
 }
 
 /// The violation of a candidate's safety: −∞ (a NaN prediction) counts as infinitely
