@@ -10,9 +10,9 @@
 //! 3. else [`Repairer::best_fallback`]: the cheapest admissible (else the least-violating) of
 //!    a few simple input sequences: the nominal, [`align_with_road`] with constant
 //!    accelerations, [`steer_towards`] the lateral goal with those accelerations, and
-//!    [`steer_towards`] the retreat lane's centre when the problem has one (checked within
-//!    the bounds of a plan aiming there): with nothing admissible, the least-violating of
-//!    holding, finishing or cancelling a lane change.
+//!    when the best of these is unsafe by the prediction, [`steer_towards`] the retreat
+//!    lane's centre (checked within the bounds of a plan aiming there): with nothing
+//!    admissible, the least-violating of holding, finishing or cancelling a lane change.
 //!
 //! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
 
@@ -38,6 +38,8 @@ pub(crate) struct Candidate {
     pub rollout: Vec<State>,
     /// Minimum b of the roll-out (`None` when nothing is checked).
     pub min_b: Option<f64>,
+    /// The predictor's verdict: the roll-out is safe at `safety_min` (state bounds aside).
+    pub predicted_safe: bool,
     /// How it ranks among fallbacks.
     pub rank: Rank,
     /// The safety rows of the roll-out's evaluation (for the refinement).
@@ -116,7 +118,8 @@ impl Repairer<'_, '_> {
             (Goal::Retreat, Some(r)) => self.lp.bound_excess_within(&r.lower, &r.upper, &rollout),
             _ => self.lp.bound_excess(&rollout),
         };
-        let rank = if e.is_safe(self.s.safety_min) && excess <= EXCESS_TOLERANCE {
+        let predicted_safe = e.is_safe(self.s.safety_min);
+        let rank = if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
@@ -133,6 +136,7 @@ impl Repairer<'_, '_> {
             accel,
             rollout,
             min_b: e.min_b,
+            predicted_safe,
             rank,
             rows: self.safety.rows.clone(),
         })
@@ -178,21 +182,25 @@ impl Repairer<'_, '_> {
         Ok(None)
     }
 
-    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`], then
-    /// the [`retreat_inputs`] (checked within the retreat's bounds); every one is checked.
-    /// When none is admissible this is the minimum-risk choice between holding, finishing
-    /// and cancelling a lane change: the least-violating.
+    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`]; when
+    /// that one is unsafe by the prediction (not only outside the state bounds), the
+    /// [`retreat_inputs`] too (checked within the retreat's bounds). With nothing admissible
+    /// this is the minimum-risk choice between holding, finishing and cancelling a lane
+    /// change: the least-violating; a change is cancelled only for what the predictor sees.
     pub(crate) fn best_fallback(&mut self) -> Result<Candidate, PlannerError> {
         let nominal = (self.lp.nominal_delta.clone(), self.lp.nominal_accel.clone());
         let mut best = self.check(nominal.0, nominal.1)?;
-        let target = simple_inputs(self.s, self.model, self.lp)
-            .into_iter()
-            .map(|u| (u, Goal::Target));
-        let retreat = retreat_inputs(self.s, self.model, self.lp)
-            .into_iter()
-            .map(|u| (u, Goal::Retreat));
-        for ((d, a), goal) in target.chain(retreat) {
-            let c = self.check_within(d, a, goal)?;
+        for (d, a) in simple_inputs(self.s, self.model, self.lp) {
+            let c = self.check(d, a)?;
+            if c.rank.beats(&best.rank) {
+                best = c;
+            }
+        }
+        if best.predicted_safe {
+            return Ok(best);
+        }
+        for (d, a) in retreat_inputs(self.s, self.model, self.lp) {
+            let c = self.check_within(d, a, Goal::Retreat)?;
             if c.rank.beats(&best.rank) {
                 best = c;
             }
