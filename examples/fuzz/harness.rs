@@ -1031,6 +1031,7 @@ fn scenario_try(rng: &mut Rng, seeds: &[Vec<u8>], student: Option<&Student>) -> 
         y_target: sc.lane_centres[target],
         v_ref: sc.speed[0],
         road: sc.road(),
+        y_retreat: Some(sc.lane_centres[sc.ego_lane]),
     };
     let mut planner = Planner::new(settings.clone()).unwrap();
     let mut cv = ConstantVelocity::default();
@@ -1207,6 +1208,7 @@ fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
         y_target: sc.lane_centres[(sc.ego_lane + 1).min(sc.lane_centres.len() - 1)],
         v_ref: sc.speed[0],
         road: sc.road(),
+        y_retreat: Some(sc.lane_centres[sc.ego_lane]),
     };
     match planner.plan(&problem, &mut cv) {
         Ok(plan) => match judge_plan(&planner, ego, &plan) {
@@ -1354,6 +1356,7 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
     };
     let mut last = (0.0, 0.0);
     let mut y_target = sc.lane_centres[lane];
+    let mut y_retreat = rng.chance(0.5).then(|| sc.lane_centres[sc.ego_lane]);
     let mut v_ref = sc.speed[0];
     let mut road = sc.road();
     // Zero to four edits; most tries keep most of the scene so that plans run.
@@ -1402,10 +1405,15 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
                 }
             }
             6 => {
-                y_target = if rng.chance(0.5) {
+                let y = if rng.chance(0.5) {
                     rng.wild()
                 } else {
                     rng.range(road[0] - 3.0, road[1] + 3.0)
+                };
+                if rng.chance(0.5) {
+                    y_target = y;
+                } else {
+                    y_retreat = Some(y);
                 }
             }
             7 => {
@@ -1449,6 +1457,7 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
                 ego.x += d;
                 ego.y += d;
                 y_target += d;
+                y_retreat = y_retreat.map(|y| y + d);
                 road = [road[0] + d, road[1] + d];
             }
         }
@@ -1466,6 +1475,7 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
         y_target,
         v_ref,
         road,
+        y_retreat,
     };
     let settings = PlannerSettings::default();
     let mut planner = Planner::new(settings.clone()).unwrap();

@@ -72,6 +72,15 @@ impl LaneChange {
         }
     }
 
+    /// The lane centre the planner may fall back to this step with the ego's centre at `y`
+    /// (m, [`crate::PlanningProblem::y_retreat`]): the own lane's while the goal is the target
+    /// lane and the centre has not crossed the line; none while an abort holds (the goal is
+    /// the own lane then) or once committed (going back would cross the line a second time).
+    #[must_use]
+    pub fn retreat(&self, y: f64) -> Option<f64> {
+        (self.hold == 0 && !self.committed(y)).then_some(self.y_own)
+    }
+
     /// Whether the ego's centre at `y` (m) has crossed the line between the two lanes.
     #[must_use]
     pub fn committed(&self, y: f64) -> bool {
@@ -119,11 +128,21 @@ mod tests {
     #[test]
     fn aborts_before_the_line_and_retries_after_the_hold() {
         let mut c = change();
-        assert_eq!(c.goal(), 3.7);
+        assert_eq!((c.goal(), c.retreat(1.0)), (3.7, Some(0.0)));
+        assert_eq!(
+            c.retreat(1.9),
+            None,
+            "no retreat once the centre crossed the line"
+        );
         c.after_plan(StepStatus::Fallback, 1.0);
         assert_eq!((c.goal(), c.aborts()), (3.7, 0));
         c.after_plan(StepStatus::Unsafe, 1.2);
         assert_eq!((c.goal(), c.aborts()), (0.0, 1), "aborted");
+        assert_eq!(
+            c.retreat(1.2),
+            None,
+            "no retreat while the goal is the own lane"
+        );
         for _ in 0..3 {
             assert_eq!(c.goal(), 0.0);
             c.after_plan(StepStatus::Fallback, 0.5);

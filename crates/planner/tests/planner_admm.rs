@@ -45,6 +45,7 @@ fn problem<'a>(
         y_target: yt,
         v_ref: v,
         road: [-1.85, 9.25],
+        y_retreat: None,
     }
 }
 

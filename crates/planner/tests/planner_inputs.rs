@@ -36,6 +36,7 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
         y_target: 3.7,
         v_ref: 12.0,
         road: [-1.85, 5.55],
+        y_retreat: None,
     }
 }
 

@@ -224,6 +224,7 @@ impl PyPlanner {
                 y_target,
                 v_ref,
                 road: [road.0, road.1],
+                y_retreat: None,
             };
             self.run(py, &problem)
         })

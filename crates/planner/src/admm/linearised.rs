@@ -27,6 +27,18 @@ fn shifted<T: Copy>(v: &[T], empty: T) -> Vec<T> {
     s
 }
 
+/// The lane centre a lane change may fall back to ([`PlanningProblem::y_retreat`]) and the
+/// state bounds of a plan aiming at it: those of the call with the corridor running from the
+/// start to this centre instead of the target.
+pub(crate) struct Retreat {
+    /// Its lateral position in the call's frame (m).
+    pub y: f64,
+    /// Lower state bounds per step `[T]`.
+    pub lower: Vec<State>,
+    /// Upper state bounds per step `[T]`.
+    pub upper: Vec<State>,
+}
+
 /// One MPC call's linearised problem, in a frame centred on the ego's position (x and y of
 /// every state here are relative to [`LinearisedProblem::origin`]).
 pub(crate) struct LinearisedProblem {
@@ -50,6 +62,9 @@ pub(crate) struct LinearisedProblem {
     pub weights: State,
     /// Reference state (x ignored): (0, y_target, 0, v_ref) in this frame.
     pub reference: State,
+    /// The lane centre the ego may fall back to when the problem has one, with the state
+    /// bounds of a plan that aims at it.
+    pub retreat: Option<Retreat>,
     /// Lower state bounds per step `[T]` (x unbounded; y from the road and the lateral
     /// corridor, ψ from the heading bound, v ≥ 0).
     pub lower: Vec<State>,
@@ -117,7 +132,7 @@ impl LinearisedProblem {
             &nominal_accel,
             s.v_lin_min,
         );
-        let (lower, upper) = state_bounds(s, p, origin[1]);
+        let (lower, upper) = state_bounds(s, p, origin[1], p.y_target);
         Self {
             horizon: t,
             origin,
@@ -129,6 +144,14 @@ impl LinearisedProblem {
             warm_duals,
             weights: State::new(0.0, s.w_y, s.w_psi, s.w_v),
             reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
+            retreat: p.y_retreat.map(|y| {
+                let (lower, upper) = state_bounds(s, p, origin[1], y);
+                Retreat {
+                    y: y - origin[1],
+                    lower,
+                    upper,
+                }
+            }),
             lower,
             upper,
             edges: if s.heading_max < std::f64::consts::FRAC_PI_2 {
@@ -182,13 +205,17 @@ impl LinearisedProblem {
     /// y, ψ and v over their bounds (m, rad, m/s) and of the box's corners over the road's
     /// [`LinearisedProblem::edges`] (m); 0 when every state is within them.
     pub(crate) fn bound_excess(&self, z: &[State]) -> f64 {
+        self.bound_excess_within(&self.lower, &self.upper, z)
+    }
+
+    /// [`Self::bound_excess`] against the state bounds `lower`, `upper` (`[T]`) instead of
+    /// the call's (the road's edges stay the same).
+    pub(crate) fn bound_excess_within(&self, lower: &[State], upper: &[State], z: &[State]) -> f64 {
         z.iter()
             .enumerate()
             .map(|(k, zk)| {
                 let bounds: f64 = (1..4)
-                    .map(|j| {
-                        (self.lower[k][j] - zk[j]).max(0.0) + (zk[j] - self.upper[k][j]).max(0.0)
-                    })
+                    .map(|j| (lower[k][j] - zk[j]).max(0.0) + (zk[j] - upper[k][j]).max(0.0))
                     .sum();
                 let e = half_extent_at(self.ego_size, zk[2]);
                 bounds
@@ -218,15 +245,21 @@ impl LinearisedProblem {
 ///   `heading_max` ≥ π/2;
 /// * lateral: the road less the ego's half extent across the road at that heading bound (its
 ///   corners stay on the road) and `edge_margin`, intersected with the corridor from the start
-///   to the lateral target widened by `overshoot_max` on both sides; collapsed to its middle
+///   to the lateral goal `y_goal` (the target, or the retreat lane's centre) widened by
+///   `overshoot_max` on both sides; collapsed to its middle
 ///   when empty, and widened to include the start (data noise can put the ego slightly
 ///   outside);
 /// * speed: 0 ≤ v ≤ max(`v_max`, v_0).
-fn state_bounds(s: &PlannerSettings, p: &PlanningProblem<'_>, y0: f64) -> (Vec<State>, Vec<State>) {
+fn state_bounds(
+    s: &PlannerSettings,
+    p: &PlanningProblem<'_>,
+    y0: f64,
+    y_goal: f64,
+) -> (Vec<State>, Vec<State>) {
     let t = s.horizon;
     let [length, width] = p.sizes[0];
     let bounded = s.heading_max < std::f64::consts::FRAC_PI_2;
-    let goal = p.y_target - y0;
+    let goal = y_goal - y0;
     let (corridor_low, corridor_high) = (
         goal.min(0.0) - s.overshoot_max,
         goal.max(0.0) + s.overshoot_max,

@@ -212,6 +212,7 @@ impl Planner {
     ///     y_target: 3.7,
     ///     v_ref: 12.0,
     ///     road: [-1.85, 5.55],
+    ///     y_retreat: None,
     /// };
     /// let mut planner = Planner::new(PlannerSettings::default())?;
     /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6)?)?;

@@ -41,6 +41,11 @@ pub struct PlanningProblem<'a> {
     pub v_ref: f64,
     /// Road edges (right, left) as lateral y (m), right < left.
     pub road: [f64; 2],
+    /// The lane centre the ego may fall back to (m, lateral y): during a lane change the
+    /// centre of the lane it came from (`None`: no such lane). The lateral corridor includes
+    /// it, and when no admissible plan exists the fallbacks also steer towards it, so the
+    /// least-violating plan may cancel the change instead of holding the ego across the line.
+    pub y_retreat: Option<f64>,
 }
 
 impl<'a> PlanningProblem<'a> {
@@ -65,6 +70,7 @@ impl<'a> PlanningProblem<'a> {
             y_target,
             v_ref: sc.speed[0],
             road: sc.road(),
+            y_retreat: None,
         }
     }
 }
@@ -90,7 +96,7 @@ impl PlanningProblem<'_> {
     /// 0..=[`Self::MAX_EGO_SPEED`] m/s, its heading within ±π/2 of the road; previous inputs
     /// within ±[`Self::MAX_LAST_DELTA`] rad and ±[`Self::MAX_LAST_ACCEL`] m/s²; an ordered road
     /// at most [`Self::MAX_ROAD_WIDTH`] m wide whose edges lie within the same coordinate
-    /// range; `y_target` on the road (edges included); `v_ref` in 0..=[`Self::MAX_V_REF`]
+    /// range; `y_target` and `y_retreat` (when given) on the road (edges included); `v_ref` in 0..=[`Self::MAX_V_REF`]
     /// m/s; one positive size per agent.
     ///
     /// # Errors
@@ -188,6 +194,14 @@ impl PlanningProblem<'_> {
             return bad(
                 "y_target",
                 format!("{:e} m is off the road [{right}, {left}] m", self.y_target),
+            );
+        }
+        if let Some(y) = self.y_retreat
+            && !(right..=left).contains(&y)
+        {
+            return bad(
+                "y_retreat",
+                format!("{y:e} m is off the road [{right}, {left}] m (or not finite)"),
             );
         }
         if !(0.0..=Self::MAX_V_REF).contains(&self.v_ref) {

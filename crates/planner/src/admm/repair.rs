@@ -9,7 +9,10 @@
 //!    plan) by θ = 3/4, 1/2, 1/4 and take the first admissible roll-out;
 //! 3. else [`Repairer::best_fallback`]: the cheapest admissible (else the least-violating) of
 //!    a few simple input sequences: the nominal, [`align_with_road`] with constant
-//!    accelerations, and [`steer_towards`] the lateral goal with those accelerations.
+//!    accelerations, [`steer_towards`] the lateral goal with those accelerations, and
+//!    when the best of these is unsafe by the prediction, [`steer_towards`] the retreat
+//!    lane's centre (checked within the bounds of a plan aiming there): with nothing
+//!    admissible, the least-violating of holding, finishing or cancelling a lane change.
 //!
 //! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
 
@@ -35,6 +38,8 @@ pub(crate) struct Candidate {
     pub rollout: Vec<State>,
     /// Minimum b of the roll-out (`None` when nothing is checked).
     pub min_b: Option<f64>,
+    /// The predictor's verdict: the roll-out is safe at `safety_min` (state bounds aside).
+    pub predicted_safe: bool,
     /// How it ranks among fallbacks.
     pub rank: Rank,
     /// The safety rows of the roll-out's evaluation (for the refinement).
@@ -70,6 +75,15 @@ impl Rank {
     }
 }
 
+/// The lateral goal whose state bounds a candidate is checked within.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Goal {
+    /// The call's target (its corridor from the start to `y_target`).
+    Target,
+    /// The retreat lane ([`super::linearised::Retreat`]).
+    Retreat,
+}
+
 /// The context every repair needs.
 pub(crate) struct Repairer<'a, 'c> {
     pub s: &'a PlannerSettings,
@@ -86,12 +100,26 @@ impl Repairer<'_, '_> {
         delta: Vec<f64>,
         accel: Vec<f64>,
     ) -> Result<Candidate, PlannerError> {
+        self.check_within(delta, accel, Goal::Target)
+    }
+
+    /// [`Self::check`] within the state bounds of a plan aiming at `goal`.
+    fn check_within(
+        &mut self,
+        delta: Vec<f64>,
+        accel: Vec<f64>,
+        goal: Goal,
+    ) -> Result<Candidate, PlannerError> {
         let mut rollout = vec![State::zeros(); self.lp.horizon];
         self.model
             .rollout(&self.lp.start, &delta, &accel, &mut rollout);
         let e = self.safety.eval(self.predictor, &rollout)?;
-        let excess = self.lp.bound_excess(&rollout);
-        let rank = if e.is_safe(self.s.safety_min) && excess <= EXCESS_TOLERANCE {
+        let excess = match (goal, &self.lp.retreat) {
+            (Goal::Retreat, Some(r)) => self.lp.bound_excess_within(&r.lower, &r.upper, &rollout),
+            _ => self.lp.bound_excess(&rollout),
+        };
+        let predicted_safe = e.is_safe(self.s.safety_min);
+        let rank = if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
@@ -108,6 +136,7 @@ impl Repairer<'_, '_> {
             accel,
             rollout,
             min_b: e.min_b,
+            predicted_safe,
             rank,
             rows: self.safety.rows.clone(),
         })
@@ -153,13 +182,25 @@ impl Repairer<'_, '_> {
         Ok(None)
     }
 
-    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`];
-    /// every one is checked.
+    /// The best by [`Rank`] (the first on ties) of the nominal and the [`simple_inputs`]; when
+    /// that one is unsafe by the prediction (not only outside the state bounds), the
+    /// [`retreat_inputs`] too (checked within the retreat's bounds). With nothing admissible
+    /// this is the minimum-risk choice between holding, finishing and cancelling a lane
+    /// change: the least-violating; a change is cancelled only for what the predictor sees.
     pub(crate) fn best_fallback(&mut self) -> Result<Candidate, PlannerError> {
         let nominal = (self.lp.nominal_delta.clone(), self.lp.nominal_accel.clone());
         let mut best = self.check(nominal.0, nominal.1)?;
         for (d, a) in simple_inputs(self.s, self.model, self.lp) {
             let c = self.check(d, a)?;
+            if c.rank.beats(&best.rank) {
+                best = c;
+            }
+        }
+        if best.predicted_safe {
+            return Ok(best);
+        }
+        for (d, a) in retreat_inputs(self.s, self.model, self.lp) {
+            let c = self.check_within(d, a, Goal::Retreat)?;
             if c.rank.beats(&best.rank) {
                 best = c;
             }
@@ -208,6 +249,33 @@ pub(crate) fn simple_inputs(
         inputs.push((d, a));
     }
     inputs
+}
+
+/// The retreat sequences of the fallback (none when the problem has no retreat lane): for
+/// each constant acceleration of [`simple_inputs`], [`steer_towards`] the retreat lane's
+/// centre.
+pub(crate) fn retreat_inputs(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let Some(retreat) = &lp.retreat else {
+        return Vec::new();
+    };
+    let max_heading = retreat
+        .upper
+        .iter()
+        .map(|u| u[2])
+        .fold(f64::INFINITY, f64::min);
+    [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
+        .into_iter()
+        .map(|a_cmd| {
+            let mut a = vec![a_cmd; lp.horizon];
+            repair_box_rate(&mut a, lp.accel_box);
+            let d = steer_towards(model, &lp.start, &a, retreat.y, max_heading, lp.delta_box);
+            (d, a)
+        })
+        .collect()
 }
 
 /// The violation of a candidate's safety: −∞ (a NaN prediction) counts as infinitely

@@ -8,7 +8,7 @@ use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 use super::constraint::SafetyEval;
 use super::inputs::{Input, InputQps};
 use super::linearised::LinearisedProblem;
-use super::repair::{Repairer, simple_inputs};
+use super::repair::{Repairer, retreat_inputs, simple_inputs};
 use super::restoration::restore;
 use super::workspace::{CurrentSafety, Iterates, Workspace, mat_vec};
 use super::z_update::Lagrangian;
@@ -46,6 +46,7 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem
         y_target: 3.7,
         v_ref: v,
         road: [-1.85, 5.55],
+        y_retreat: None,
     }
 }
 
@@ -920,6 +921,84 @@ fn a_call_budget_bounds_the_work_and_returns_an_admissible_plan() {
                 timings: plan.timings.clone(),
                 ..run()
             }
+        );
+    }
+}
+
+/// A lane change from y = 0 to y = 3.7 stopped 1.6 m across (the centre still on its own side
+/// of the line at 1.85) while a faster car in the target lane comes up alongside: no plan that
+/// holds or finishes the change is admissible. With the own lane as the retreat, the fallbacks
+/// include steering back to it, and the least-violating plan cancels the change: it ends
+/// nearer the own lane and violates less than the best plan without the retreat, which holds
+/// the ego across the line.
+#[test]
+fn without_an_admissible_plan_the_fallback_may_cancel_the_change() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = scene(12.0, 1.6, &[(-4.0, 3.7, 15.0)]);
+    let mut p = problem(&h, &sizes, 12.0);
+    p.ego.y = 1.6;
+    let hold = Planner::new(s.clone())
+        .unwrap()
+        .plan(&p, &mut ConstantVelocity::default())
+        .unwrap();
+    p.y_retreat = Some(0.0);
+    let cancel = Planner::new(s.clone())
+        .unwrap()
+        .plan(&p, &mut ConstantVelocity::default())
+        .unwrap();
+    assert_eq!(hold.status, PlanStatus::Unsafe, "{hold:?}");
+    let (b_hold, b_cancel) = (hold.min_safety.unwrap(), cancel.min_safety.unwrap());
+    assert!(b_cancel > b_hold, "min b {b_cancel} vs {b_hold}");
+    let (y_hold, y_cancel) = (hold.states[5][1], cancel.states[5][1]);
+    assert!(
+        y_hold >= 1.55,
+        "without a retreat the ego holds across the line: {y_hold}"
+    );
+    assert!(
+        y_cancel < 1.2,
+        "with the retreat it steers back: {y_cancel}"
+    );
+    // The retreat's corridor reaches the own lane (to 0 − overshoot_max).
+    assert!(
+        cancel
+            .states
+            .iter()
+            .all(|z| z[1] >= -s.overshoot_max - 1e-9)
+    );
+}
+
+/// The fallback set steers towards the retreat lane too: for each of the four constant
+/// accelerations one sequence that ends nearer the retreat than it starts; none without a
+/// retreat lane.
+#[test]
+fn the_fallback_set_includes_steering_back_to_the_retreat_lane() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = scene(12.0, 1.6, &[(-40.0, 3.7, 12.0)]);
+    let mut p = problem(&h, &sizes, 12.0);
+    p.ego.y = 1.6;
+    let m = model(&s);
+    let lp = LinearisedProblem::new(&s, &m, None, &p);
+    assert!(retreat_inputs(&s, &m, &lp).is_empty());
+    p.y_retreat = Some(0.0);
+    let lp = LinearisedProblem::new(&s, &m, None, &p);
+    let back = retreat_inputs(&s, &m, &lp);
+    assert_eq!(back.len(), 4);
+    for (i, (d, a)) in back.iter().enumerate() {
+        let end = rollout_world(&s, &p, d, a)[5][1];
+        assert!(
+            end < 1.6 - 0.05,
+            "sequence {i} towards the retreat ends at {end}"
+        );
+        // Within the retreat's bounds (its corridor reaches 0 − overshoot_max), not the call's.
+        let local = rollout_world(&s, &p, d, a)
+            .iter()
+            .map(|z| State::new(z[0], z[1] - 1.6, z[2], z[3]))
+            .collect::<Vec<_>>();
+        let r = lp.retreat.as_ref().unwrap();
+        assert!(lp.bound_excess_within(&r.lower, &r.upper, &local) < 1e-9);
+        assert!(
+            lp.bound_excess(&local) > 0.0,
+            "outside the corridor towards the target"
         );
     }
 }

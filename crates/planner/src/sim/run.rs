@@ -103,6 +103,7 @@ impl ClosedLoop<'_> {
             y_target: self.lane.goal(),
             v_ref: self.v_ref,
             road: sc.road(),
+            y_retreat: self.lane.retreat(self.ego[1]),
         };
         let t0 = Instant::now();
         let plan: Plan =
