@@ -234,6 +234,7 @@ class Planner:
         road: tuple[float, float],
         last_delta: float = 0.0,
         last_accel: float = 0.0,
+        y_retreat: float | None = None,
     ) -> PlanResult: ...
     def plan_scenario(self, scenario: Scenario, target_lane: int | None = None, seed: int = 0) -> PlanResult: ...
 

@@ -210,6 +210,9 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: _plan(c, road=(1.0, 1.0)),
         lambda c: _plan(c, road=(0.0, 0.0), y_target=0.0),
         lambda c: _plan(c, v_ref=0.0, ego=Z(4)),
+        lambda c: _plan(c, y_retreat=float("nan")),
+        lambda c: _plan(c, y_retreat=1e300),
+        lambda c: _plan(c, y_retreat=-1.0),
     ],
     "Planner.plan_scenario": [
         lambda c: c["planner"].plan_scenario(c["sc"].nearest(0)),
@@ -462,3 +465,14 @@ def test_repeated_keys_are_refused_naming_the_key(cls: type) -> None:
     key = "max_iter" if cls is nudge.PlannerSettings else "settle_steps"
     with pytest.raises(nudge.SettingsError, match=f"duplicate.*`{key}`"):
         cls.from_json(f'{{"{key}": 3, "{key}": 4}}')
+
+
+def test_plan_names_a_retreat_lane_off_the_road() -> None:
+    c = {"planner": nudge.Planner(None, nudge.Predictor.constant_velocity())}
+    x = np.arange(8.0) * 3.0
+    history = np.stack([np.stack([x, np.zeros(8)], 1), np.stack([x + 20.0, np.zeros(8)], 1)])
+    ego = np.array([21.0, 0.0, 0.0, 10.0])
+    assert _plan(c, history=history, ego=ego, y_retreat=-1.0)["status"] != "SolverFailed"
+    for bad in (5.0, float("nan")):
+        with pytest.raises(nudge.NudgeError, match="y_retreat"):
+            _plan(c, history=history, ego=ego, y_retreat=bad)

@@ -164,12 +164,13 @@ impl PyPlanner {
     /// `history` `[n, 8, 2]` (m, agent 0 = ego), `sizes` `[n, 2]` (length, width, m),
     /// `ego` `[4]` = (x, y, ψ, v) (m, m, rad, m/s), `y_target` (m), `v_ref` (m/s),
     /// `road` = (right, left) edge y (m), previous inputs `last_delta` (rad), `last_accel`
-    /// (m/s²). Returns a dict: `delta` `[T]`, `accel` `[T]`, `states` `[T, 4]`, `cost`,
+    /// (m/s²), `y_retreat` (m or None: the lane centre the fallbacks may steer back to,
+    /// `PlanningProblem::y_retreat`). Returns a dict: `delta` `[T]`, `accel` `[T]`, `states` `[T, 4]`, `cost`,
     /// `iterations`, `predictor_calls`, `qp_solves`, `primal_residual`, `change_residual`,
     /// `min_safety` and `rollout_min_safety` (float or None), `checked`, `status` (a
     /// `PlanStatus` name), `solver_failure` (`(qp, clarabel_status)` for `"SolverFailed"`,
     /// else None), `timings` (dict, seconds).
-    #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0))]
+    #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0, y_retreat = None))]
     #[allow(clippy::too_many_arguments)]
     fn plan<'py>(
         &self,
@@ -182,6 +183,7 @@ impl PyPlanner {
         road: (f64, f64),
         last_delta: f64,
         last_accel: f64,
+        y_retreat: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
             let h_dims = [Dim::AtMost(MAX_AGENTS), Dim::Exact(T_OBS), Dim::Exact(2)];
@@ -208,6 +210,9 @@ impl PyPlanner {
             finite("road[1]", road.1)?;
             finite("last_delta", last_delta)?;
             finite("last_accel", last_accel)?;
+            if let Some(y) = y_retreat {
+                finite("y_retreat", y)?;
+            }
             let history = History::new(hist, n).map_err(predictor_err)?;
             let sizes: Vec<[f64; 2]> = sz.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
             let problem = PlanningProblem {
@@ -224,7 +229,7 @@ impl PyPlanner {
                 y_target,
                 v_ref,
                 road: [road.0, road.1],
-                y_retreat: None,
+                y_retreat,
             };
             self.run(py, &problem)
         })
