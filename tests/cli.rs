@@ -10,7 +10,7 @@ use nudge::planner::sim::{
     COLLISION_COLUMNS, RUN_COLUMNS, STEP_COLUMNS, Table, collision_table, run_table, step_table,
 };
 use nudge::planner::{
-    Cancel, PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
+    Cancel, Keep, PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
 };
 
 const TIMING: [&str; 3] = ["mpc_s", "z_s", "z_median_s"];
@@ -119,7 +119,7 @@ fn cli_writes_the_shared_columns_of_the_library_runs() {
         &settings,
         &cfg,
         &predictors,
-        false,
+        Keep::default(),
         &Cancel::new(),
     );
     let runs = run_table(&loaded, &outputs);

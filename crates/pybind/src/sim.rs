@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use nudge_planner::sim::defaults;
 use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table};
-use nudge_planner::{Batch, BatchRequest, Cancel, PlannerSettings, RunOutput, SimConfig};
+use nudge_planner::{Batch, BatchRequest, Cancel, Keep, PlannerSettings, RunOutput, SimConfig};
 use nudge_predictor::{Records, T_OBS, default_assets_dir};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
@@ -50,7 +50,7 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 /// polls Python's signal handlers every [`SIGNAL_POLL`]: on Ctrl-C the batch is cancelled
 /// (every run stops before its next closed-loop step) and the `KeyboardInterrupt` is
 /// returned.
-fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Vec<RunOutput>> {
+fn run_interruptibly(py: Python<'_>, batch: &Batch, keep: Keep) -> PyResult<Vec<RunOutput>> {
     let cancel = Cancel::new();
     let mut interrupt: Option<PyErr> = None;
     let finished = py.detach(|| {
@@ -59,7 +59,7 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Ve
             let stop = &cancel;
             let worker = scope.spawn(move || {
                 // The receiver outlives the worker: sending cannot fail.
-                let _ = tx.send(batch.run(record, stop));
+                let _ = tx.send(batch.run(keep, stop));
             });
             loop {
                 match rx.recv_timeout(SIGNAL_POLL) {
@@ -123,6 +123,7 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, record: bool) -> PyResult<Ve
     settings = None,
     config = None,
     record = false,
+    trace = false,
     on_error = "raise",
     assets = None,
     **config_overrides
@@ -141,6 +142,7 @@ pub fn simulate<'py>(
     settings: Option<Bound<'_, PySettings>>,
     config: Option<Bound<'_, PySimConfig>>,
     record: bool,
+    trace: bool,
     on_error: &str,
     assets: Option<PathBuf>,
     config_overrides: Option<&Bound<'_, PyDict>>,
@@ -188,7 +190,11 @@ pub fn simulate<'py>(
             config: &cfg,
         };
         let batch = py.detach(|| request.prepare()).map_err(sim_err)?;
-        let mut outputs = run_interruptibly(py, &batch, record)?;
+        let keep = Keep {
+            examples: record,
+            traces: trace,
+        };
+        let mut outputs = run_interruptibly(py, &batch, keep)?;
         if !skip
             && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
             && let Err(e) = outputs.swap_remove(pos).result

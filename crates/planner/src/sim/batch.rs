@@ -16,7 +16,7 @@ use crate::settings::PlannerSettings;
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
-use super::run::simulate_cancellable;
+use super::run::{RunControl, simulate_with};
 use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
@@ -270,17 +270,27 @@ pub struct RunOutput {
     pub examples: Option<Records>,
 }
 
+/// What the runs of a batch keep besides their records' columns (both off by default).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Keep {
+    /// Every candidate the planning predictor evaluated, with its prediction
+    /// ([`RunOutput::examples`]; the planning predictor wrapped in a [`Recording`]).
+    pub examples: bool,
+    /// Every step's plan and predicted reaction ([`crate::StepRecord::trace`]).
+    pub traces: bool,
+}
+
 /// Runs every spec of `specs` on `scenes` in parallel on the current rayon pool (each planner
-/// call stays single-threaded), with fresh predictors per run; with `record`, the planning
-/// predictor is wrapped in a [`Recording`]. Every run checks `cancel` before each closed-loop
-/// step. Outputs come back in the order of `specs`.
+/// call stays single-threaded), with fresh predictors per run, keeping what `keep` asks for.
+/// Every run checks `cancel` before each closed-loop step. Outputs come back in the order of
+/// `specs`.
 pub fn simulate_many(
     scenes: &[Scenario],
     specs: &[RunSpec],
     settings: &PlannerSettings,
     cfg: &SimConfig,
     predictors: &Predictors,
-    record: bool,
+    keep: Keep,
     cancel: &Cancel,
 ) -> Vec<RunOutput> {
     specs
@@ -298,8 +308,12 @@ pub fn simulate_many(
                     examples: None,
                 };
             }
+            let control = RunControl {
+                cancel,
+                trace: keep.traces,
+            };
             let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
-                simulate_cancellable(sc, settings, cfg, spec.seed, p, w, cancel)
+                simulate_with(sc, settings, cfg, spec.seed, p, w, control)
             };
             let mut teacher = match &predictors.world {
                 WorldSpec::Teacher(t) => Some(t.build()),
@@ -311,7 +325,7 @@ pub fn simulate_many(
                 _ => WorldModel::LogReplay,
             };
             let planning = predictors.planning.build();
-            let (result, examples) = if record {
+            let (result, examples) = if keep.examples {
                 let mut rec = Recording::new(planning);
                 let r = simulate(&mut rec, world);
                 (r, Some(rec.records))

@@ -12,7 +12,7 @@ use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
 use super::batch::{
-    Cancel, Predictors, RunOutput, RunSpec, WorldSpec, run_specs, simulate_many, thread_pool,
+    Cancel, Keep, Predictors, RunOutput, RunSpec, WorldSpec, run_specs, simulate_many, thread_pool,
 };
 use super::config::SimConfig;
 
@@ -130,10 +130,10 @@ impl BatchRequest<'_> {
 
 impl Batch {
     /// Runs every run on the batch's pool ([`simulate_many`]), checking `cancel` before every
-    /// closed-loop step; with `record`, the planning predictor's examples are kept. Outputs in
-    /// the order of [`Batch::specs`].
+    /// closed-loop step and keeping what `keep` asks for (the planning predictor's examples,
+    /// the steps' traces). Outputs in the order of [`Batch::specs`].
     #[must_use]
-    pub fn run(&self, record: bool, cancel: &Cancel) -> Vec<RunOutput> {
+    pub fn run(&self, keep: Keep, cancel: &Cancel) -> Vec<RunOutput> {
         self.pool.install(|| {
             simulate_many(
                 &self.scenes,
@@ -141,7 +141,7 @@ impl Batch {
                 &self.settings,
                 &self.config,
                 &self.predictors,
-                record,
+                keep,
                 cancel,
             )
         })
@@ -356,12 +356,12 @@ mod tests {
         let batch = request(&paths, &settings, &config, &assets)
             .prepare()
             .unwrap();
-        let outputs = batch.run(false, &Cancel::new());
+        let outputs = batch.run(Keep::default(), &Cancel::new());
         assert_eq!(outputs.len(), 2);
         assert!(outputs.iter().all(|o| o.result.is_ok()));
         let cancel = Cancel::new();
         cancel.cancel();
-        for o in batch.run(false, &cancel) {
+        for o in batch.run(Keep::default(), &cancel) {
             assert!(
                 matches!(o.result, Err(SimError::Cancelled { step: 0, .. })),
                 "{:?}",
