@@ -222,8 +222,11 @@ fn animate_runs(
 /// # Errors
 /// A message naming the problem, before any run: unreadable scenes or settings, invalid or
 /// incompatible settings, missing weights, a bad count, an output path that cannot be a
-/// directory; after the runs, an output that cannot be written.
+/// directory, `--animate` without `--out`; after the runs, an output that cannot be written.
 pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
+    if a.animate && a.out.is_none() {
+        return Err("--animate needs --out (the animations go to <out>/animations)".into());
+    }
     let settings = a.planner_settings()?;
     let config = a.sim_config()?;
     let assets = a
@@ -249,8 +252,6 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     .map_err(|e| e.to_string())?;
     if let Some(dir) = &a.out {
         output_dir(dir)?;
-    } else if a.animate {
-        return Err("--animate needs --out (the animations go to <out>/animations)".into());
     }
     let keep = Keep {
         examples: false,

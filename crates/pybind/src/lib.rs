@@ -3,6 +3,7 @@
 //! The only crate of the workspace that uses pyo3. Every call that runs a network, a plan or a
 //! simulation releases the GIL; every Rust error becomes a subclass of `nudge.NudgeError`.
 
+mod animate;
 mod args;
 mod arrays;
 mod cli;
@@ -74,6 +75,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(assets_dir, m)?)?;
     m.add_function(wrap_pyfunction!(scenes_dir, m)?)?;
     m.add_function(wrap_pyfunction!(cli::cli_main, m)?)?;
+    m.add_function(wrap_pyfunction!(animate::animate, m)?)?;
+    m.add_function(wrap_pyfunction!(animate::find_ffmpeg, m)?)?;
     m.add("DEFAULTS", sim::defaults_dict(py)?)?;
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;

@@ -107,8 +107,14 @@ fn run_interruptibly(py: Python<'_>, batch: &Batch, keep: Keep) -> PyResult<Vec<
 /// Every argument is checked by `nudge_planner::BatchRequest::prepare` (the CLI's validation
 /// too) before any run starts. Ctrl-C raises `KeyboardInterrupt` within about a second.
 ///
+/// `trace`: keep every step's plan and the planning predictor's predicted reaction to it;
+/// the result then holds `"traces"`, one dict per run (`None` for a run that could not run)
+/// with `plan` `[steps, T + 1, 4]`, `predicted` `[steps, n − 1, T, 2]`, the binding vehicle
+/// and its ellipses, the agents `[steps + 1, n, 3]`, ... (`nudge._native.animate` draws it).
+/// Off by default: the other outputs are the same either way.
+///
 /// Returns `{"runs": {...}, "steps": {...}, "collisions": {...}}` of numpy columns (plus
-/// `"examples"` when `record`): see the `.pyi` stub for every column.
+/// `"examples"` when `record`, `"traces"` when `trace`): see the `.pyi` stub for every column.
 #[pyfunction]
 #[pyo3(signature = (
     scene_paths,
@@ -210,11 +216,34 @@ pub fn simulate<'py>(
             "collisions",
             table_dict(py, collision_table(&batch.scenes, &outputs))?,
         )?;
+        if trace {
+            out.set_item("traces", traces_list(py, &batch, &outputs)?)?;
+        }
         if record {
             out.set_item("examples", examples_dict(py, outputs)?)?;
         }
         Ok(out)
     })
+}
+
+/// One trace dict per run (`crate::animate::reel_dict`; `None` for a run that could not
+/// run), in run order.
+fn traces_list<'py>(
+    py: Python<'py>,
+    batch: &Batch,
+    outputs: &[RunOutput],
+) -> PyResult<Vec<Option<Bound<'py, PyDict>>>> {
+    outputs
+        .iter()
+        .map(|o| {
+            let Ok(rec) = &o.result else {
+                return Ok(None);
+            };
+            let reel = nudge::animate::Reel::from_run(&batch.scenes[o.spec.scene], rec)
+                .map_err(crate::animate::animate_err)?;
+            crate::animate::reel_dict(py, &reel).map(Some)
+        })
+        .collect()
 }
 
 /// A table's columns as a dict of numpy arrays (text columns as lists of str / None).
