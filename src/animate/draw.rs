@@ -6,9 +6,7 @@ use embedded_graphics::Drawable;
 use embedded_graphics::mono_font::MonoTextStyle;
 use embedded_graphics::mono_font::ascii::FONT_6X10;
 use embedded_graphics::prelude::{Point, Primitive, Size};
-use embedded_graphics::primitives::{
-    Circle, Ellipse, Line, Polyline, PrimitiveStyle, Rectangle, Triangle,
-};
+use embedded_graphics::primitives::{Circle, Line, Polyline, PrimitiveStyle, Rectangle, Triangle};
 use embedded_graphics::text::{Baseline, Text};
 
 use super::canvas::{Canvas, Ink};
@@ -57,8 +55,51 @@ pub fn draw_frame(reel: &Reel, k: usize, settings: &AnimationSettings, size: (u3
 
 /// Whether the world point `p` (m) lies within [`CULL_PX`] of the frame horizontally.
 fn near(c: &Canvas, view: &View, p: [f64; 2]) -> bool {
-    let x = view.to_px(p)[0];
-    x > -CULL_PX && x < f64::from(c.width()) + CULL_PX
+    let [x, y] = view.to_px(p);
+    x > -CULL_PX
+        && x < f64::from(c.width()) + CULL_PX
+        && y > -CULL_PX
+        && y < f64::from(c.height()) + CULL_PX
+}
+
+/// The part of the segment from `a` to `b` (continuous pixel coordinates) inside the frame
+/// widened by 2 pixels (Liang–Barsky); `None` when none of it is, or a coordinate is not
+/// finite. Clipping first keeps the work of a line proportional to its visible part, however
+/// far away its ends lie.
+#[must_use]
+pub fn clip_segment(c: &Canvas, a: [f64; 2], b: [f64; 2]) -> Option<([f64; 2], [f64; 2])> {
+    if !a.iter().chain(&b).all(|v| v.is_finite()) {
+        return None;
+    }
+    let (lo, hi) = (
+        [-2.0, -2.0],
+        [f64::from(c.width()) + 2.0, f64::from(c.height()) + 2.0],
+    );
+    let d = [b[0] - a[0], b[1] - a[1]];
+    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
+    for axis in 0..2 {
+        for (p, q) in [
+            (-d[axis], a[axis] - lo[axis]),
+            (d[axis], hi[axis] - a[axis]),
+        ] {
+            if p == 0.0 {
+                if q < 0.0 {
+                    return None;
+                }
+            } else {
+                let r = q / p;
+                if p < 0.0 {
+                    t0 = t0.max(r);
+                } else {
+                    t1 = t1.min(r);
+                }
+            }
+        }
+    }
+    (t0 <= t1).then(|| {
+        let at = |t: f64| [a[0] + t * d[0], a[1] + t * d[1]];
+        (at(t0), at(t1))
+    })
 }
 
 /// The road surface between its edges, the edges as solid lines and the inner lane
@@ -72,13 +113,18 @@ fn road(c: &mut Canvas, view: &View, reel: &Reel) {
     let _ = Rectangle::new(Point::new(0, top), band)
         .into_styled(PrimitiveStyle::with_fill(Ink::Road))
         .draw(c);
-    let x_right = view.x_left + f64::from(c.width()) / view.px_per_m;
+    let shown_m = f64::from(c.width()) / view.px_per_m;
+    let x_right = view.x_left + shown_m;
+    let period = DASH_M[0] + DASH_M[1];
+    let first = (view.x_left / period).floor() * period;
+    // A count, not a distance: far from the origin, x + period may not move x at all.
+    // In range: at most the frame's width in dashes.
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let dashes = (shown_m / period).ceil().min(f64::from(c.width())) as u32 + 1;
     for &y in &bounds[1..bounds.len() - 1] {
-        let period = DASH_M[0] + DASH_M[1];
-        let mut x = (view.x_left / period).floor() * period;
-        while x < x_right {
+        for k in 0..dashes {
+            let x = first + f64::from(k) * period;
             line(c, view, [x, y], [x + DASH_M[0], y], Ink::Marking, 1);
-            x += period;
         }
     }
     for y in [lo, hi] {
@@ -88,21 +134,34 @@ fn road(c: &mut Canvas, view: &View, reel: &Reel) {
 
 /// A line from `a` to `b` (m).
 fn line(c: &mut Canvas, view: &View, a: [f64; 2], b: [f64; 2], ink: Ink, width: u32) {
-    let _ = Line::new(view.point(a), view.point(b))
+    segment(c, view.to_px(a), view.to_px(b), ink, width);
+}
+
+/// A line between the continuous pixel coordinates `a` and `b`, clipped to the frame.
+fn segment(c: &mut Canvas, a: [f64; 2], b: [f64; 2], ink: Ink, width: u32) {
+    let Some((a, b)) = clip_segment(c, a, b) else {
+        return;
+    };
+    // Clipped to the frame: the casts are exact.
+    #[allow(clippy::cast_possible_truncation)]
+    let pixel = |p: [f64; 2]| Point::new(p[0].round() as i32, p[1].round() as i32);
+    let _ = Line::new(pixel(a), pixel(b))
         .into_styled(PrimitiveStyle::with_stroke(ink, width))
         .draw(c);
 }
 
 /// A polyline through the points `pts` (m).
 fn polyline(c: &mut Canvas, view: &View, pts: &[[f64; 2]], ink: Ink, width: u32) {
-    let points: Vec<Point> = pts.iter().map(|p| view.point(*p)).collect();
-    let _ = Polyline::new(&points)
-        .into_styled(PrimitiveStyle::with_stroke(ink, width))
-        .draw(c);
+    for w in pts.windows(2) {
+        line(c, view, w[0], w[1], ink, width);
+    }
 }
 
-/// A filled dot of `diameter` pixels centred on `p` (m).
+/// A filled dot of `diameter` pixels centred on `p` (m), when near the frame.
 fn dot(c: &mut Canvas, view: &View, p: [f64; 2], ink: Ink, diameter: u32) {
+    if !near(c, view, p) {
+        return;
+    }
     let _ = Circle::with_center(view.point(p), diameter)
         .into_styled(PrimitiveStyle::with_fill(ink))
         .draw(c);
@@ -182,10 +241,23 @@ fn ellipses(c: &mut Canvas, view: &View, p: &PlannedStep) {
         } else {
             (Ink::Ellipse, 1)
         };
-        let size = Size::new(view.len_px(2.0 * axes[0]), view.len_px(2.0 * axes[1]));
-        let _ = Ellipse::with_center(view.point(*centre), size)
-            .into_styled(PrimitiveStyle::with_stroke(ink, width))
-            .draw(c);
+        ellipse(c, view, *centre, *axes, ink, width);
+    }
+}
+
+/// Vertices of a drawn ellipse.
+const ELLIPSE_VERTICES: u32 = 96;
+
+/// The axis-aligned ellipse centred on `centre` with semi-axes `axes` = (a_x, a_y) (m), as a
+/// closed polygon of [`ELLIPSE_VERTICES`] clipped segments (its cost does not grow with its
+/// size).
+fn ellipse(c: &mut Canvas, view: &View, centre: [f64; 2], axes: [f64; 2], ink: Ink, width: u32) {
+    let at = |k: u32| {
+        let t = std::f64::consts::TAU * f64::from(k) / f64::from(ELLIPSE_VERTICES);
+        view.to_px([centre[0] + axes[0] * t.cos(), centre[1] + axes[1] * t.sin()])
+    };
+    for k in 0..ELLIPSE_VERTICES {
+        segment(c, at(k), at(k + 1), ink, width);
     }
 }
 
@@ -206,7 +278,10 @@ fn caption(c: &mut Canvas, reel: &Reel, k: usize) {
     let _ = Rectangle::new(Point::zero(), band)
         .into_styled(PrimitiveStyle::with_fill(Ink::Caption))
         .draw(c);
-    text(c, &reel.title, 4, 0, Ink::Text);
+    // FONT_6X10: 6 pixels a character; what cannot show is not drawn.
+    let fits = usize::try_from(c.width() / 6).unwrap_or(usize::MAX);
+    let title: String = reel.title.chars().take(fits).collect();
+    text(c, &title, 4, 0, Ink::Text);
     text(c, &step_line(reel, k), 4, 1, Ink::Text);
     let mut x = 4;
     for (s, ink) in [

@@ -30,10 +30,10 @@ mod view;
 use std::path::{Path, PathBuf};
 
 pub use canvas::{Canvas, Ink};
-pub use draw::{corners, draw_frame, step_line};
+pub use draw::{clip_segment, corners, draw_frame, step_line};
 pub use encode::{GifSink, Mp4Sink, find_ffmpeg};
 pub use error::AnimateError;
-pub use reel::{PlannedStep, Reel, Shot};
+pub use reel::{MAX_SHOTS, MAX_VEHICLE_M, PlannedStep, Reel, Shot};
 pub use view::{AnimationSettings, CAPTION_PX, MAX_SIDE_PX, View, frame_size};
 
 /// What [`animate`] wrote.

@@ -7,6 +7,13 @@ use nudge_predictor::T_OBS;
 
 use super::error::AnimateError;
 
+/// Largest vehicle length or width a reel may hold (m).
+pub const MAX_VEHICLE_M: f64 = 100.0;
+
+/// Most frames a reel may hold: the states of the longest run
+/// ([`nudge_planner::SimConfig::MAX_STEPS`] steps, plus the end).
+pub const MAX_SHOTS: usize = nudge_planner::SimConfig::MAX_STEPS + 1;
+
 /// What one planning step planned and expected (drawn on the frame of the state it planned
 /// from).
 #[derive(Debug, Clone, PartialEq)]
@@ -121,7 +128,7 @@ impl Reel {
     }
 
     /// Checks that the reel can be drawn: at least one lane (two ascending finite bounds), at
-    /// least one agent with a positive finite size, at least one shot, and in every shot one
+    /// least one agent, every length and width in (0, [`MAX_VEHICLE_M`]] m, 1..=[`MAX_SHOTS`] shots, and in every shot one
     /// finite (x, y, heading) per agent, a finite speed, and for a planned step a finite plan
     /// of T + 1 ≥ 2 states, finite predictions `[n − 1][T]`, a binding vehicle among agents
     /// 1..n with T positive finite semi-axes and its step below T, a finite non-negative
@@ -146,15 +153,18 @@ impl Reel {
         if let Some(i) = self
             .sizes
             .iter()
-            .position(|s| !s.iter().all(|v| v.is_finite() && *v > 0.0))
+            .position(|s| !s.iter().all(|v| *v > 0.0 && *v <= MAX_VEHICLE_M))
         {
             return Err(invalid_item(
                 "sizes",
-                format!("agent {i}: length and width must be positive and finite"),
+                format!("agent {i}: length and width must be in (0, {MAX_VEHICLE_M}] m"),
             ));
         }
-        if self.shots.is_empty() {
-            return Err(invalid_item("shots", "no frame".into()));
+        if self.shots.is_empty() || self.shots.len() > MAX_SHOTS {
+            return Err(invalid_item(
+                "shots",
+                format!("{} frames, expected 1..={MAX_SHOTS}", self.shots.len()),
+            ));
         }
         for (k, shot) in self.shots.iter().enumerate() {
             shot.validate(k, n)?;

@@ -309,6 +309,10 @@ fn malformed_reels_and_settings_are_refused_by_name() {
         (Box::new(|r| r.sizes[1] = [0.0, 2.0]), "sizes"),
         (Box::new(|r| r.shots.clear()), "shots"),
         (
+            Box::new(|r| r.shots = vec![r.shots[2].clone(); MAX_SHOTS + 1]),
+            "shots",
+        ),
+        (
             Box::new(|r| r.shots[1].agents.pop().map(drop).unwrap_or(())),
             "frame 1 agents",
         ),
@@ -401,4 +405,49 @@ fn plan_of(r: &mut Reel, k: usize) -> &mut PlannedStep {
 
 fn binding_of(r: &mut Reel) -> &mut BindingVehicle {
     plan_of(r, 0).binding.as_mut().unwrap()
+}
+
+#[test]
+fn segments_are_clipped_to_the_frame() {
+    let c = Canvas::new(600, 148, Ink::Road);
+    // Horizontal through the frame: cut at the widened edges x = −2 and 602.
+    assert_eq!(
+        clip_segment(&c, [-100.0, 50.0], [700.0, 50.0]),
+        Some(([-2.0, 50.0], [602.0, 50.0]))
+    );
+    // The diagonal y = x from far away enters at (−2, −2) and leaves at the bottom (150, 150).
+    assert_eq!(
+        clip_segment(&c, [-1e12, -1e12], [1e12, 1e12]),
+        Some(([-2.0, -2.0], [150.0, 150.0]))
+    );
+    // Wholly outside, and non-finite.
+    assert_eq!(clip_segment(&c, [-10.0, -10.0], [-10.0, 500.0]), None);
+    assert_eq!(clip_segment(&c, [0.0, 0.0], [f64::NAN, 1.0]), None);
+    assert_eq!(
+        clip_segment(&c, [10.0, 10.0], [20.0, 20.0]),
+        Some(([10.0, 10.0], [20.0, 20.0]))
+    );
+}
+
+#[test]
+fn far_away_geometry_is_drawn_clipped_at_once() {
+    let mut r = reel(0.0, &[[115.0, 2.0], [90.0, 2.0]]);
+    let mut p = planned(&r, 2);
+    // A plan running off 10⁹ km ahead, a huge ellipse, a prediction far off the road.
+    p.plan[6] = [1e12, 5.5, 0.0, 12.0];
+    p.binding.as_mut().unwrap().semi_axes[0] = [1e9, 1e9];
+    p.predicted[1][5] = [1e15, -1e15];
+    r.shots[0].planned = Some(p);
+    let t0 = std::time::Instant::now();
+    let c = frame(&r);
+    assert!(t0.elapsed().as_secs_f64() < 5.0);
+    // The plan's last segment leaves through the right edge.
+    assert!(road_bbox(&c, Ink::Plan).is_some_and(|b| b[2] == 599));
+    // Vehicles longer than MAX_VEHICLE_M are refused.
+    r.sizes[1] = [MAX_VEHICLE_M + 1.0, 2.0];
+    let e = r.validate();
+    assert!(
+        matches!(&e, Err(AnimateError::Invalid { item, .. }) if item == "sizes"),
+        "{e:?}"
+    );
 }
