@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import copy
 import os
+import shutil
 import stat
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -172,3 +174,16 @@ def test_bad_records_runs_and_settings_raise_typed_errors(traced: dict[str, Any]
         nudge.animate(traced, tmp_path, bogus=1.0)
     with pytest.raises(nudge.NudgeError):
         native.animate(traced["traces"][0], tmp_path / "no" / "such" / "dir" / "x.gif")
+
+
+@pytest.mark.skipif(nudge.find_ffmpeg() is None, reason="ffmpeg is not on PATH")
+def test_a_real_ffmpeg_writes_an_mp4_of_every_frame(traced: dict[str, Any], tmp_path: Path) -> None:
+    written = nudge.animate(traced, tmp_path, runs=[0], mp4=True)
+    assert [p.suffix for p in written] == [".gif", ".mp4"]
+    data = written[1].read_bytes()
+    assert data[4:8] == b"ftyp"
+    probe = shutil.which("ffprobe")
+    if probe is not None:
+        out = subprocess.run([probe, "-v", "error", "-count_frames", "-show_entries", "stream=nb_read_frames",
+                              "-of", "csv=p=0", str(written[1])], capture_output=True, text=True, check=True)
+        assert int(out.stdout.strip()) == len(traced["traces"][0]["status"]) + 1
