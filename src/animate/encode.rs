@@ -113,6 +113,8 @@ pub struct Mp4Sink {
     path: PathBuf,
     child: Child,
     stdin: Option<ChildStdin>,
+    /// Reads ffmpeg's error output while it runs (a full pipe would stall it).
+    stderr: Option<std::thread::JoinHandle<String>>,
 }
 
 impl Mp4Sink {
@@ -146,10 +148,18 @@ impl Mp4Sink {
                 source,
             })?;
         let stdin = child.stdin.take();
+        let stderr = child.stderr.take().map(|mut e| {
+            std::thread::spawn(move || {
+                let mut text = String::new();
+                let _ = e.read_to_string(&mut text);
+                text
+            })
+        });
         Ok(Self {
             path: path.to_path_buf(),
             child,
             stdin,
+            stderr,
         })
     }
 
@@ -174,10 +184,11 @@ impl Mp4Sink {
             path: self.path.clone(),
             source,
         })?;
-        let mut stderr = String::new();
-        if let Some(mut e) = self.child.stderr.take() {
-            let _ = e.read_to_string(&mut stderr);
-        }
+        let stderr = self
+            .stderr
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default();
         if status.success() && complete {
             return Ok(());
         }
