@@ -4,7 +4,7 @@
 //!   settings (720 px wide);
 //! * `animate/run`: a whole run drawn and written as a GIF ([`animate`], no MP4).
 //!
-//! The run: the shipped scene us101-19_1-t02.1-ego451 (46 vehicles), planned with constant
+//! The run: the shipped scene us101-19_1-t02.1-ego451 (17 vehicles), planned with constant
 //! velocity, the log moving the others, 30 steps at most.
 #![allow(clippy::unwrap_used)]
 
