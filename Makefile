@@ -155,6 +155,7 @@ bench: venv
 
 bench-planner: venv
 	RAYON_NUM_THREADS=1 $(CARGO) bench -p nudge --bench planner -- --warm-up-time 1 --measurement-time 4
+	RAYON_NUM_THREADS=1 $(CARGO) bench -p nudge --bench animate -- --warm-up-time 1 --measurement-time 3
 	$(TRAIN) bench planner
 
 bench-table: venv
@@ -214,12 +215,13 @@ reaction: distill-react
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
 # planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the
 # others), the trained teacher moving the other vehicles; per-step table of one run, summary
-# over all, records (CSV/JSON) and a picture in out/demo/, drawn in the light environment
-# $(DEMO_VENV).
+# over all, records (CSV/JSON), an animation of the first run (out/demo/animations/) and a
+# picture in out/demo/, drawn in the light environment $(DEMO_VENV).
 PREDICTOR ?= student
 demo: venv-demo build
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
-		--world teacher --seed 0 --runs 1 --threads 2 --out out/demo --verbose-run
+		--world teacher --seed 0 --runs 1 --threads 2 --out out/demo --verbose-run \
+		--animate --animate-runs 1
 	$(DEMO_VENV)/bin/nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
 
 ci: lint test

@@ -2,8 +2,10 @@
 //!
 //! The facade of the nudge workspace: re-exports [`predictor`] (`nudge-predictor`) and
 //! [`planner`] (`nudge-planner`), and hosts the `nudge` command-line tool ([`cli`], run by the
-//! `nudge` binary and by the Python package's `nudge` command).
+//! `nudge` binary and by the Python package's `nudge` command) and the renderer of run
+//! animations ([`animate`], used by `nudge simulate --animate` and Python's `nudge.animate`).
 
+pub mod animate;
 pub mod cli;
 pub mod commonroad;
 

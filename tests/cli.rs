@@ -10,7 +10,7 @@ use nudge::planner::sim::{
     COLLISION_COLUMNS, RUN_COLUMNS, STEP_COLUMNS, Table, collision_table, run_table, step_table,
 };
 use nudge::planner::{
-    Cancel, PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
+    Cancel, Keep, PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
 };
 
 const TIMING: [&str; 3] = ["mpc_s", "z_s", "z_median_s"];
@@ -119,7 +119,7 @@ fn cli_writes_the_shared_columns_of_the_library_runs() {
         &settings,
         &cfg,
         &predictors,
-        false,
+        Keep::default(),
         &Cancel::new(),
     );
     let runs = run_table(&loaded, &outputs);
@@ -359,5 +359,51 @@ fn cli_reads_settings_files_bounded_and_refuses_repeated_keys() {
             "{flag}: {stderr}"
         );
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--animate` traces the runs (records.json gains each step's trace) and writes one GIF per
+/// animated run into <out>/animations; without `--out` it is refused before any run.
+#[test]
+fn cli_animates_traced_runs_into_the_output_directory() {
+    let dir = two_scenes("animate");
+    let (code, stdout, stderr) = simulate_in(&dir, &["--animate"]);
+    assert_eq!(code, Some(1), "{stdout}{stderr}");
+    assert!(stderr.contains("--animate needs --out"), "{stderr}");
+    assert!(!stdout.contains("runs "), "runs were started: {stdout}");
+    let out = dir.join("out");
+    let args = [
+        "--out",
+        out.to_str().unwrap(),
+        "--animate",
+        "--animate-runs",
+        "1",
+    ];
+    let (code, stdout, stderr) = simulate_in(&dir, &args);
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    let gifs: Vec<_> = std::fs::read_dir(out.join("animations"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".gif"))
+        .collect();
+    assert_eq!(gifs, ["us101-11_1-t02.1-ego144-seed0.gif"]);
+    assert!(stdout.contains("animation: "), "{stdout}");
+    let records = std::fs::read_to_string(out.join("records.json")).unwrap();
+    assert_eq!(records.matches("\"trace\"").count(), 4, "2 runs × 2 steps");
+    // The GIF: one frame per state (2 steps + the end).
+    let mut d = gif::DecodeOptions::new()
+        .read_info(std::fs::File::open(out.join("animations").join(&gifs[0])).unwrap())
+        .unwrap();
+    let mut frames = 0;
+    while d.read_next_frame().unwrap().is_some() {
+        frames += 1;
+    }
+    assert_eq!(frames, 3);
+    // Without --animate the records carry no trace.
+    let plain = dir.join("plain");
+    let (code, _, _) = simulate_in(&dir, &["--out", plain.to_str().unwrap()]);
+    assert_eq!(code, Some(0));
+    let records = std::fs::read_to_string(plain.join("records.json")).unwrap();
+    assert!(!records.contains("\"trace\""));
     std::fs::remove_dir_all(&dir).unwrap();
 }

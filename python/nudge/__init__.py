@@ -11,12 +11,14 @@ installed package is the Rust command line (:mod:`nudge.__main__`)::
     out = teacher.predict(sc.history, cands)   # [agents, 8, 2], [batch, 6, 2] -> [batch, agents-1, 6, 2]
     plan = nudge.Planner(nudge.PlannerSettings.default(), teacher).plan_scenario(sc)
     rec = nudge.simulate(nudge.scene_paths(), "student", world="idm", max_steps=20)
+    runs = nudge.simulate(nudge.scene_paths()[:1], trace=True)
+    nudge.animate(runs, "out/animations")              # one GIF (and MP4 with ffmpeg) per run
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +45,9 @@ from nudge._native import (
     commonroad_solution,
     commonroad_tracks,
 )
+from nudge._native import animate as _animate
 from nudge._native import assets_dir as _assets_dir
+from nudge._native import find_ffmpeg
 from nudge._native import model_path as _model_path
 from nudge._native import scenes_dir as _scenes_dir
 from nudge._native import simulate as _simulate
@@ -68,10 +72,12 @@ __all__ = [
     "WeightsError",
     "WorldFileError",
     "__version__",
+    "animate",
     "assets_dir",
     "commonroad_scenario",
     "commonroad_solution",
     "commonroad_tracks",
+    "find_ffmpeg",
     "model_path",
     "scene_paths",
     "simulate",
@@ -128,6 +134,7 @@ def simulate(
     settings: PlannerSettings | None = None,
     config: SimConfig | None = None,
     record: bool = False,
+    trace: bool = False,
     on_error: str = "raise",
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
@@ -137,8 +144,9 @@ def simulate(
     (:data:`DEFAULTS`, :meth:`SimConfig.default`); ``config_overrides`` are ``SimConfig``
     fields (``world="idm"``, ``max_steps=4``, ...). ``predictor`` may also be your own Python
     object with ``predict(history, candidates)`` (see ``nudge.Planner`` and
-    ``docs/python_predictor.md``). ``scene_paths`` is a sequence of paths; a single path raises
-    ``TypeError`` (pass ``[path]``)."""
+    ``docs/python_predictor.md``). ``trace=True`` adds ``"traces"`` (each step's plan and the
+    predicted reaction to it, per run) for :func:`animate`. ``scene_paths`` is a sequence of
+    paths; a single path raises ``TypeError`` (pass ``[path]``)."""
     if isinstance(scene_paths, (str, bytes, os.PathLike)):
         raise TypeError(
             f"scene_paths: expected a sequence of scenario paths, got the single path {scene_paths!r} "
@@ -156,7 +164,57 @@ def simulate(
         settings=settings,
         config=config,
         record=record,
+        trace=trace,
         on_error=on_error,
         assets=os.fspath(_assets_path()),
         **config_overrides,
     )
+
+
+def animate(
+    records: Mapping[str, Any],
+    out_dir: str | os.PathLike[str],
+    *,
+    runs: Iterable[int] | None = None,
+    mp4: bool | None = None,
+    **settings: float,
+) -> list[Path]:
+    """Writes one animation per run of ``records`` (what :func:`simulate` returned with
+    ``trace=True``) into ``out_dir``: ``<scenario>-seed<seed>.gif``, and ``.mp4`` when ffmpeg
+    is on ``PATH`` (``mp4=None``; ``True`` requires it, ``False`` writes GIFs only). ``runs``:
+    the run indices to draw (default: every run that ran). ``settings``: ``px_per_m``,
+    ``behind_m``, ``ahead_m``, ``margin_m`` (m), ``frame_s`` (s). The renderer is the one of
+    ``nudge simulate --animate`` (:func:`nudge._native.animate`). Returns the files written.
+
+    Raises ``InputError`` when ``records`` holds no traces or a run index is out of range or
+    its trace is malformed, ``SettingsError`` for a bad setting, ``NudgeError`` when writing
+    fails or ``mp4=True`` without ffmpeg."""
+    traces = records.get("traces") if isinstance(records, Mapping) else None
+    table = records.get("runs") if isinstance(records, Mapping) else None
+    if not isinstance(traces, list) or not isinstance(table, Mapping):
+        raise InputError("records: no traces (pass what nudge.simulate(..., trace=True) returned)")
+    try:
+        names, seeds = list(table["scenario"]), [int(s) for s in table["seed"]]
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"records['runs']: needs the scenario and seed columns ({e})") from None
+    if not len(names) == len(seeds) == len(traces):
+        raise InputError(f"records: {len(traces)} traces for {len(names)} runs")
+    chosen = [i for i, t in enumerate(traces) if t is not None] if runs is None else list(runs)
+    ffmpeg = None if mp4 is False else find_ffmpeg()
+    if mp4 is True and ffmpeg is None:
+        raise NudgeError("mp4=True: ffmpeg not found on PATH")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for i in chosen:
+        if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(traces):
+            raise InputError(f"runs: {i!r} is not a run index in 0..{len(traces) - 1}")
+        if traces[i] is None:
+            raise InputError(f"runs: run {i} could not run (its error is in records['runs']['error'])")
+        stem = out / f"{names[i]}-seed{seeds[i]}"
+        video = stem.with_name(stem.name + ".mp4") if ffmpeg is not None else None
+        w = _animate(traces[i], stem.with_name(stem.name + ".gif"), mp4=video, ffmpeg=ffmpeg, **settings)
+        written.append(Path(w["gif"]))
+        if w["mp4"] is not None:
+            written.append(Path(w["mp4"]))
+    return written

@@ -286,6 +286,66 @@ def commonroad_tracks(path: _Path) -> dict[str, Any]:
     """The CommonRoad file ``path`` in the road frame: vehicle, step (int64 [N]), x, y (m),
     heading (rad), speed (m/s) (float64 [N]) and pieces: [(x0 m, x1 m, lane bounds [L + 1] m)]."""
 
+class _Trace(TypedDict):
+    """One traced run (S steps, n agents, horizon T, L lanes; road frame, m, rad, m/s, s)."""
+
+    title: str
+    """Caption title: scenario, seed, predictors, outcome."""
+    lane_bounds: _F64
+    """[L + 1] lane-boundary y, ascending; the road edges first and last."""
+    sizes: _F64
+    """[n, 2] (length, width) per agent."""
+    agents: _F64
+    """[S + 1, n, 3] (x, y, heading) per state (before step 0, after each step), agent 0 the ego."""
+    speed: _F64
+    """[S + 1] ego speed per state."""
+    collision: _Bool
+    """[S + 1] the ego's box overlaps another in that state."""
+    status: list[str]
+    """[S] each step's plan status."""
+    mpc_s: _F64
+    """[S] planning time per step."""
+    plan: _F64
+    """[S, T + 1, 4] the plan z_0..z_T (x, y, psi, v) from the measured state."""
+    predicted: _F64
+    """[S, n - 1, T, 2] the planning predictor's positions of agents 1..n given the plan."""
+    binding: _I64
+    """[S] the agent the plan's safety binds on (smallest b), -1 when none is checked."""
+    binding_step: _I64
+    """[S] the plan step of its smallest b, -1 when none."""
+    binding_b: _F64
+    """[S] its smallest b, NaN when none."""
+    semi_axes: _F64
+    """[S, T, 2] (a_x, a_y) of its safety ellipse at each plan step, NaN when none."""
+
+class _Written(TypedDict):
+    gif: Path
+    mp4: Path | None
+    frames: int
+    width: int
+    height: int
+
+def animate(
+    trace: _Trace,
+    gif: _Path,
+    *,
+    mp4: _Path | None = None,
+    ffmpeg: _Path | None = None,
+    **settings: float,
+) -> _Written:
+    """Draws the traced run ``trace`` into the GIF ``gif`` (one frame per state, the camera
+    following the ego: lanes, every vehicle as its rotated box, the executed path, the plan,
+    the predicted reaction, the binding vehicle's safety ellipses, a caption) and, when
+    ``mp4`` is given, into that MP4 through ``ffmpeg`` (default: the one on ``PATH``), with the
+    renderer of ``nudge simulate --animate``. ``settings``: ``px_per_m`` (default 6),
+    ``behind_m`` (30), ``ahead_m`` (90), ``margin_m`` (2), ``frame_s`` (0.3 s, real time).
+
+    Raises ``InputError`` for a malformed trace (naming the key), ``SettingsError`` for a bad
+    setting, ``NudgeError`` when writing fails or an MP4 is asked for without ffmpeg."""
+
+def find_ffmpeg() -> Path | None:
+    """The ``ffmpeg`` program on ``PATH`` (the one ``nudge simulate --animate`` uses), or None."""
+
 def simulate(
     scene_paths: list[_Path],
     predictor: _Path | _PythonPredictor = ...,
@@ -299,10 +359,11 @@ def simulate(
     settings: PlannerSettings | None = None,
     config: SimConfig | None = None,
     record: bool = False,
+    trace: bool = False,
     on_error: Literal["raise", "skip"] = "raise",
     assets: _Path | None = None,
     **config_overrides: int | float | str,
-) -> dict[str, dict[str, Any]]:
+) -> dict[str, Any]:
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
     run ``r`` of scene ``i`` draws its target lane from seed ``scene_seeds[i] + r`` when given,
     else ``seed + i * runs + r``.
@@ -328,8 +389,13 @@ def simulate(
     own lane's centre for ``abort_hold`` steps, then retries (``abort_after = 0`` disables aborts).
     The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).
 
+    ``trace``: keep every step's plan and the planning predictor's predicted reaction to it
+    (one more predictor call per step; off by default, the other outputs are the same either
+    way): the result then holds ``"traces"``, a list with one trace dict per run (``_Trace``) (``None``
+    for a run that could not run), which :func:`animate` draws.
+
     Returns ``{"runs": ..., "steps": ..., "collisions": ...}`` (+ ``"examples"`` when
-    ``record``), the columns of ``nudge_planner::sim::columns`` (the CLI's CSV has the same names
+    ``record``, ``"traces"`` when ``trace``), the columns of ``nudge_planner::sim::columns`` (the CLI's CSV has the same names
     and values):
 
     - runs (one row per run): scenario list[str], scene_index i64, seed u64,

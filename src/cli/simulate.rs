@@ -3,12 +3,17 @@
 //! argument parsing and the file writing is `nudge_planner::sim`, shared with Python.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use clap::Args;
 use nudge_planner::sim::defaults;
 use nudge_planner::sim::{Summary, collision_table, run_table, step_listing, step_table};
-use nudge_planner::{BatchRequest, Cancel, PlannerSettings, RunRecord, Scenario, SimConfig, World};
+use nudge_planner::{
+    BatchRequest, Cancel, Keep, PlannerSettings, RunRecord, Scenario, SimConfig, World,
+};
 use nudge_predictor::{assets_dir, scenes_dir};
+
+use crate::animate::{AnimationSettings, Reel, animate, find_ffmpeg};
 
 /// The closed-loop defaults the flags' help shows.
 const DEFAULT: SimConfig = SimConfig::DEFAULT;
@@ -89,6 +94,14 @@ pub struct SimulateArgs {
     pub verbose_run: bool,
     #[command(flatten)]
     pub commonroad: super::commonroad::CommonRoadArgs,
+    /// Trace every step (its plan and the predicted reaction of the others, kept in
+    /// records.json) and write an animation of each run into <out>/animations:
+    /// <scene>-seed<seed>.gif, and .mp4 when ffmpeg is on PATH. Needs --out.
+    #[arg(long)]
+    pub animate: bool,
+    /// Animate only the first N runs that ran [default: every run].
+    #[arg(long, value_name = "N", requires = "animate")]
+    pub animate_runs: Option<usize>,
 }
 
 fn parse_world(s: &str) -> Result<World, String> {
@@ -161,6 +174,48 @@ fn write_outputs(
     std::fs::write(&p, json).map_err(|e| io(&p, &e))
 }
 
+/// Writes an animation of each of the first `n` runs of `outputs` that ran into the directory
+/// `dir` (`<scene>-seed<seed>.gif`, and `.mp4` when ffmpeg is on `PATH`), printing each file
+/// with its frame count, size and rendering time.
+fn animate_runs(
+    dir: &Path,
+    scenes: &[Scenario],
+    outputs: &[nudge_planner::RunOutput],
+    n: usize,
+) -> Result<(), String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let ffmpeg = find_ffmpeg();
+    if ffmpeg.is_none() {
+        println!("ffmpeg not found on PATH: animations as GIF only (no MP4)");
+    }
+    let settings = AnimationSettings::default();
+    let ran = outputs
+        .iter()
+        .filter_map(|o| Some((o.spec, o.result.as_ref().ok()?)));
+    for (spec, rec) in ran.take(n) {
+        let t0 = Instant::now();
+        let reel = Reel::from_run(&scenes[spec.scene], rec).map_err(|e| e.to_string())?;
+        let stem = format!("{}-seed{}", rec.scenario, spec.seed);
+        let gif = dir.join(format!("{stem}.gif"));
+        let mp4 = dir.join(format!("{stem}.mp4"));
+        let video = ffmpeg.as_deref().map(|f| (mp4.as_path(), f));
+        let w = animate(&reel, &settings, &gif, video).map_err(|e| e.to_string())?;
+        let files: Vec<String> = std::iter::once(&w.gif)
+            .chain(w.mp4.as_ref())
+            .map(|p| p.display().to_string())
+            .collect();
+        println!(
+            "animation: {} ({} frames, {}x{} px, {:.2} s)",
+            files.join(" and "),
+            w.frames,
+            w.size.0,
+            w.size.1,
+            t0.elapsed().as_secs_f64()
+        );
+    }
+    Ok(())
+}
+
 /// Runs `nudge simulate` (the named models and the default scenes under `--assets`, else
 /// under [`assets_dir`] of `shipped_assets`): every argument is checked by the library's
 /// [`BatchRequest::prepare`] (the one validation `nudge.simulate` uses too) before any run
@@ -169,8 +224,11 @@ fn write_outputs(
 /// # Errors
 /// A message naming the problem, before any run: unreadable scenes or settings, invalid or
 /// incompatible settings, missing weights, a bad count, an output path that cannot be a
-/// directory; after the runs, an output that cannot be written.
+/// directory, `--animate` without `--out`; after the runs, an output that cannot be written.
 pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
+    if a.animate && a.out.is_none() {
+        return Err("--animate needs --out (the animations go to <out>/animations)".into());
+    }
     let settings = a.planner_settings()?;
     let config = a.sim_config()?;
     let assets = a
@@ -203,7 +261,11 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     if let Some(dir) = &a.out {
         output_dir(dir)?;
     }
-    let outputs = batch.run(false, &Cancel::new());
+    let keep = Keep {
+        examples: false,
+        traces: a.animate,
+    };
+    let outputs = batch.run(keep, &Cancel::new());
     let scenes = &batch.scenes;
     let failed: Vec<String> = outputs
         .iter()
@@ -228,6 +290,10 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
             for line in c.write_solutions(&outputs, &settings, dir)? {
                 println!("{line}");
             }
+        }
+        if a.animate {
+            let n = a.animate_runs.unwrap_or(usize::MAX);
+            animate_runs(&dir.join("animations"), scenes, &outputs, n)?;
         }
     }
     if let Some(why) = failed.first() {

@@ -22,6 +22,7 @@ import os
 import struct
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -385,6 +386,7 @@ def test_simulate_gives_typed_errors_or_valid_columns(data: st.DataObject) -> No
         "settings": st.sampled_from([nudge.PlannerSettings(horizon=5), nudge.PlannerSettings(dt=0.5),
                                      nudge.PlannerSettings(max_iter=2)]),
         "record": st.booleans(),
+        "trace": st.booleans(),
     }
     for name, strategy in optional.items():
         if data.draw(st.integers(0, 4), label=f"set {name}") == 0:
@@ -393,6 +395,39 @@ def test_simulate_gives_typed_errors_or_valid_columns(data: st.DataObject) -> No
                                            "/nonexistent.safetensors"]), label="predictor")
     _judge("simulate", lambda: nudge.simulate(paths, predictor, **kwargs), _columns_valid,
            python_errors=(TypeError,))
+
+
+TRACE = nudge.simulate(SCENES[:1], "constant_velocity", world="log_replay", max_steps=4, trace=True)["traces"][0]
+TRACE_KEYS = sorted(TRACE)
+
+
+def _animation_valid(w: Any) -> None:
+    assert w["frames"] >= 1 and w["width"] >= 2 and w["height"] >= 2
+    assert Path(w["gif"]).stat().st_size > 0
+
+
+@FUZZ
+@seed(SEED + 6)
+@given(data=st.data())
+def test_animate_gives_typed_errors_or_an_animation(tmp_path_factory: pytest.TempPathFactory,
+                                                    data: st.DataObject) -> None:
+    trace: Any = dict(TRACE)
+    for key in data.draw(st.lists(st.sampled_from(TRACE_KEYS), max_size=2, unique=True), label="spoil"):
+        base = TRACE[key]
+        if isinstance(base, np.ndarray) and base.dtype == np.float64:
+            trace[key] = data.draw(float_arrays(base), label=key)
+        elif data.draw(st.booleans(), label=f"drop {key}"):
+            del trace[key]
+        else:
+            trace[key] = data.draw(junk, label=key)
+    if data.draw(st.integers(0, 19), label="trace kind") == 0:
+        trace = data.draw(junk, label="trace")
+    settings: dict[str, Any] = {}
+    if data.draw(st.integers(0, 3), label="settings") == 0:
+        field = data.draw(st.sampled_from(["px_per_m", "behind_m", "ahead_m", "margin_m", "frame_s", "bogus"]))
+        settings[field] = data.draw(st.one_of(wild_float, junk), label=field)
+    gif = tmp_path_factory.mktemp("anim") / "run.gif"
+    _judge("animate", lambda: nudge._native.animate(trace, gif, **settings), _animation_valid)
 
 
 def test_the_short_mode_exercised_every_entry_point() -> None:
@@ -406,7 +441,7 @@ def test_the_short_mode_exercised_every_entry_point() -> None:
         for k, v in c.items():
             g[k] = g.get(k, 0) + v
     assert set(groups) == {"predict", "plan", "plan_scenario", "PlannerSettings", "SimConfig", "Scenario",
-                           "simulate"}, sorted(groups)
+                           "simulate", "animate"}, sorted(groups)
     for group, c in groups.items():
         assert c.get("valid", 0) > 0, f"{group}: no valid result: {c}"
         assert sum(v for k, v in c.items() if k != "valid") > 0, f"{group}: no refusal: {c}"

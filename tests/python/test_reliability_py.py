@@ -61,6 +61,16 @@ Z = np.zeros
 CR_FIXTURE = str(Path(__file__).resolve().parents[2] / "python/train/tests/fixtures/commonroad/USA_US101-1_1_T-1.xml.gz")
 
 
+def _still(n: int) -> dict[str, Any]:
+    """A trace of no step: n agents standing on a one-lane road."""
+    return {
+        "title": "", "lane_bounds": np.array([0.0, 3.5]), "sizes": np.ones((n, 2)), "agents": Z((1, n, 3)),
+        "speed": Z(1), "collision": Z(1, dtype=bool), "status": [], "mpc_s": Z(0), "plan": Z((0, 1, 4)),
+        "predicted": Z((0, max(n - 1, 0), 0, 2)), "binding": Z(0, dtype=np.int64),
+        "binding_step": Z(0, dtype=np.int64), "binding_b": Z(0), "semi_axes": Z((0, 0, 2)),
+    }
+
+
 def _plan(c: dict[str, Any], **kw: Any) -> object:
     args: dict[str, Any] = {
         "history": Z((2, 8, 2)), "sizes": np.ones((2, 2)), "ego": Z(4), "y_target": 0.0, "v_ref": 10.0,
@@ -89,6 +99,18 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: _native.cli_main(["nudge", "simulate", "--scenes", ""], ""),
         lambda c: _native.cli_main(["nudge", "simulate", "--runs", "-1"], ""),
     ],
+    # Animations: a trace of no step and one agent (one frame, drawn), of no agent, of no
+    # state, empty; a GIF path that cannot be written; no ffmpeg where it is missing.
+    "animate": [
+        lambda c: _native.animate(_still(1), os.devnull),
+        lambda c: _native.animate(_still(0), os.devnull),
+        lambda c: _native.animate({**_still(1), "agents": Z((0, 1, 3))}, os.devnull),
+        lambda c: _native.animate({}, os.devnull),
+        lambda c: _native.animate(_still(1), ""),
+        lambda c: _native.animate(_still(1), os.devnull, mp4=os.devnull, ffmpeg=""),
+        lambda c: _native.animate(_still(1), os.devnull, px_per_m=0.0),
+    ],
+    "find_ffmpeg": [lambda c: _native.find_ffmpeg()],
     "simulate": [
         lambda c: _native.simulate([]),
         lambda c: _native.simulate([c["scene"]], runs=0),

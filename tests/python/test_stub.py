@@ -144,9 +144,10 @@ def test_defaults_come_from_rust() -> None:
 
 
 def test_package_reexports_the_module() -> None:
-    # The package wraps the asset resolvers (with its own assets) and runs cli_main as its
-    # `nudge` command (nudge.__main__).
-    wrapped = {"simulate", "model_path", "assets_dir", "scenes_dir", "cli_main"}
+    # The package wraps the asset resolvers (with its own assets), runs cli_main as its
+    # `nudge` command (nudge.__main__) and animates every run of simulate's records with the
+    # native animate (one trace each).
+    wrapped = {"simulate", "model_path", "assets_dir", "scenes_dir", "cli_main", "animate"}
     for name in _public(native) - wrapped:
         assert getattr(nudge, name) is getattr(native, name), name
     # nudge.simulate wraps the native one (resolves named models under the assets directory).
@@ -155,3 +156,4 @@ def test_package_reexports_the_module() -> None:
     assert nudge.assets_dir() == native.assets_dir(nudge.SHIPPED_ASSETS)
     assert nudge.scene_paths()[0].parent == native.scenes_dir(nudge.assets_dir())
     assert (Path(nudge.__file__).parent / "py.typed").exists()
+    assert callable(nudge.animate) and nudge.animate is not native.animate

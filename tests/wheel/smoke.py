@@ -2,9 +2,10 @@
 environment outside the checkout (numpy the only dependency; no torch).
 
 Checks that the package and its assets come from the installed package, then predicts with the
-shipped teacher and student, plans one step, simulates a shipped scene, and runs the ``nudge``
-command: its help, ``nudge simulate`` on the package's scenes (no path given), and one case of
-each failing exit status (1 refused, 2 unparsable, 3 a run that could not run).
+shipped teacher and student, plans one step, simulates a shipped scene and animates it
+(``trace=True``, ``nudge.animate``), and runs the ``nudge`` command: its help, ``nudge simulate
+--animate`` on the package's scenes (no path given), and one case of each failing exit status
+(1 refused, 2 unparsable, 3 a run that could not run).
 
 Usage: ``python smoke.py [--scenes N]`` (N: the number of scenes the wheel must carry).
 ``$NUDGE_SMOKE_T0`` (seconds since the epoch, taken before ``pip install``) adds the time from
@@ -74,14 +75,45 @@ def plan(scene: Path, t0: float | None) -> None:
             print(f"time from pip install to the first plan: {time.time() - t0:.1f} s")
 
 
-def simulate(scene: Path) -> None:
-    rec = nudge.simulate([scene], "student", world="teacher", seed=0, threads=1)
+def gif_frames(path: Path) -> int:
+    """The number of images of the GIF at ``path``, read block by block (the smoke test's
+    environment has no image library)."""
+    data = path.read_bytes()
+    check(data[:6] == b"GIF89a", f"{path.name}: not a GIF")
+    at = 13 + (3 << ((data[10] & 7) + 1) if data[10] & 0x80 else 0)
+
+    def sub_blocks(i: int) -> int:
+        while data[i]:
+            i += data[i] + 1
+        return i + 1
+
+    frames = 0
+    while data[at] != 0x3B:  # the trailer
+        if data[at] == 0x21:  # an extension: label, sub-blocks
+            at = sub_blocks(at + 2)
+        else:
+            check(data[at] == 0x2C, f"{path.name}: unexpected block {data[at]:#x} at {at}")
+            flags = data[at + 9]
+            at += 10 + (3 << ((flags & 7) + 1) if flags & 0x80 else 0)
+            at = sub_blocks(at + 1)  # the LZW code size, then the image data
+            frames += 1
+    return frames
+
+
+def simulate(scene: Path, work: Path) -> None:
+    rec = nudge.simulate([scene], "student", world="teacher", seed=0, threads=1, trace=True)
     runs, steps = rec["runs"], rec["steps"]
     check(len(runs["scenario"]) == 1 and not runs["error"][0], f"simulate: {runs['error']}")
     check(not runs["collision"][0], "simulate: collision")
     check(bool(np.isfinite(steps["ego"]).all()), "simulate: non-finite ego states")
     print(f"simulate student/teacher {runs['scenario'][0]}: success {runs['success'][0]}, "
           f"{runs['n_steps'][0]} steps, no collision")
+    start = time.perf_counter()
+    (gif,) = nudge.animate(rec, work / "animations", mp4=False)
+    frames = gif_frames(gif)
+    check(frames == runs["n_steps"][0] + 1, f"animate: {frames} frames for {runs['n_steps'][0]} steps")
+    print(f"animate: {gif.name}, {frames} frames, {gif.stat().st_size // 1024} KiB, "
+          f"{time.perf_counter() - start:.2f} s")
 
 
 def command(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -109,12 +141,13 @@ def cli(work: Path, n_scenes: int | None) -> None:
     print("nudge --help: exit 0, lists simulate")
     out = work / "out"
     start = time.perf_counter()
-    r = command("simulate", "--threads", "2", "--out", str(out), cwd=work)
+    r = command("simulate", "--threads", "2", "--out", str(out), "--animate", "--animate-runs", "1", cwd=work)
     check(r.returncode == 0, f"nudge simulate: exit {r.returncode}: {r.stderr}")
     with (out / "runs.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
     check(all(not row["error"] and row["collision"] == "false" for row in rows), "nudge simulate: a run failed")
     check(n_scenes is None or len(rows) == n_scenes, f"nudge simulate ran {len(rows)} scenes, expected {n_scenes}")
+    check(len(list((out / "animations").glob("*.gif"))) == 1, "nudge simulate --animate: no GIF")
     ok = sum(row["success"] == "true" for row in rows)
     print(f"nudge simulate (the package's {len(rows)} scenes, student in the teacher world): exit 0, "
           f"{ok}/{len(rows)} lane changes, no collision, {time.perf_counter() - start:.1f} s")
@@ -145,8 +178,8 @@ def main() -> None:
           f"assets: 2 models, {len(scenes)} scenes")
     plan(scenes[0], t0)
     predict(scenes[0])
-    simulate(scenes[0])
     with tempfile.TemporaryDirectory() as work:
+        simulate(scenes[0], Path(work))
         cli(Path(work), n_scenes)
     print("wheel smoke test passed")
 

@@ -27,8 +27,8 @@ pub mod settings;
 pub mod sim;
 
 pub use admm::{
-    CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus, Planner,
-    PlanningProblem, SafetyConstraint, StepStatus,
+    BindingVehicle, CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus,
+    Planner, PlanningProblem, SafetyConstraint, StepStatus,
 };
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
@@ -42,7 +42,7 @@ pub use safety::{
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Batch, BatchRequest, Cancel, IdmPopulation, Predictors, RunOutput, RunRecord, RunSpec,
-    SimConfig, StepRecord, Summary, World, WorldModel, WorldSpec, run_specs, simulate,
-    simulate_cancellable, simulate_many, target_lane,
+    Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutput, RunRecord,
+    RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel, WorldSpec, run_specs,
+    simulate, simulate_cancellable, simulate_many, simulate_with, target_lane,
 };

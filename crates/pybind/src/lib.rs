@@ -3,6 +3,7 @@
 //! The only crate of the workspace that uses pyo3. Every call that runs a network, a plan or a
 //! simulation releases the GIL; every Rust error becomes a subclass of `nudge.NudgeError`.
 
+mod animate;
 mod args;
 mod arrays;
 mod cli;
@@ -81,6 +82,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(commonroad::commonroad_scenario, m)?)?;
     m.add_function(wrap_pyfunction!(commonroad::commonroad_solution, m)?)?;
     m.add_function(wrap_pyfunction!(commonroad::commonroad_tracks, m)?)?;
+    m.add_function(wrap_pyfunction!(animate::animate, m)?)?;
+    m.add_function(wrap_pyfunction!(animate::find_ffmpeg, m)?)?;
     m.add("DEFAULTS", sim::defaults_dict(py)?)?;
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;

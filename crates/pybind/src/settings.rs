@@ -17,7 +17,7 @@ use serde_json::{Map, Number, Value};
 use crate::errors::{SettingsError, settings_err, sim_config_err};
 
 /// A settings struct with serde (de)serialisation, defaults and validation.
-pub trait Settings: Serialize + DeserializeOwned + Default + Clone + Described {
+pub trait Settings: Serialize + DeserializeOwned + Default + Clone {
     /// What the struct is called in messages.
     const WHAT: &'static str;
     /// What one field is called in messages.
@@ -203,7 +203,7 @@ fn field_dict<'py>(py: Python<'py>, f: &FieldDoc) -> PyResult<Bound<'py, PyDict>
 }
 
 /// Every field of `T` as a list of dicts ([`describe`]).
-fn describe_list<T: Settings>(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+fn describe_list<T: Settings + Described>(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
     let rows = describe::<T>()
         .iter()
         .map(|f| field_dict(py, f))
@@ -213,7 +213,7 @@ fn describe_list<T: Settings>(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
 
 /// The class docstring of `T`: its own text, then every field with its type, unit, default,
 /// valid values and meaning (numpy style), from the same rows as `describe()`.
-fn class_doc<T: Settings>(intro: &str) -> String {
+fn class_doc<T: Settings + Described>(intro: &str) -> String {
     let mut doc = format!("{intro}\n\nFields\n------\n");
     for f in describe::<T>() {
         let kind = match &f.default {

@@ -12,7 +12,7 @@ use std::time::Duration;
 use nudge_planner::sim::PlanningFactory;
 use nudge_planner::sim::defaults;
 use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table};
-use nudge_planner::{Batch, BatchRequest, Cancel, PlannerSettings, RunOutput, SimConfig};
+use nudge_planner::{Batch, BatchRequest, Cancel, Keep, PlannerSettings, RunOutput, SimConfig};
 use nudge_predictor::{Predictor, Records, T_OBS, default_assets_dir};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
@@ -56,7 +56,7 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 fn run_interruptibly(
     py: Python<'_>,
     batch: &Batch,
-    record: bool,
+    keep: Keep,
     planning: Option<&PlanningFactory<'_>>,
 ) -> PyResult<Vec<RunOutput>> {
     let cancel = Cancel::new();
@@ -68,8 +68,8 @@ fn run_interruptibly(
             let worker = scope.spawn(move || {
                 // The receiver outlives the worker: sending cannot fail.
                 let _ = tx.send(match planning {
-                    Some(p) => batch.run_with(record, stop, p),
-                    None => batch.run(record, stop),
+                    Some(p) => batch.run_with(keep, stop, p),
+                    None => batch.run(keep, stop),
                 });
             });
             loop {
@@ -120,8 +120,14 @@ fn run_interruptibly(
 /// Every argument is checked by `nudge_planner::BatchRequest::prepare` (the CLI's validation
 /// too) before any run starts. Ctrl-C raises `KeyboardInterrupt` within about a second.
 ///
+/// `trace`: keep every step's plan and the planning predictor's predicted reaction to it;
+/// the result then holds `"traces"`, one dict per run (`None` for a run that could not run)
+/// with `plan` `[steps, T + 1, 4]`, `predicted` `[steps, n − 1, T, 2]`, the binding vehicle
+/// and its ellipses, the agents `[steps + 1, n, 3]`, ... (`nudge._native.animate` draws it).
+/// Off by default: the other outputs are the same either way.
+///
 /// Returns `{"runs": {...}, "steps": {...}, "collisions": {...}}` of numpy columns (plus
-/// `"examples"` when `record`): see the `.pyi` stub for every column.
+/// `"examples"` when `record`, `"traces"` when `trace`): see the `.pyi` stub for every column.
 #[pyfunction]
 #[pyo3(signature = (
     scene_paths,
@@ -136,6 +142,7 @@ fn run_interruptibly(
     settings = None,
     config = None,
     record = false,
+    trace = false,
     on_error = "raise",
     assets = None,
     **config_overrides
@@ -154,6 +161,7 @@ pub fn simulate<'py>(
     settings: Option<Bound<'_, PySettings>>,
     config: Option<Bound<'_, PySimConfig>>,
     record: bool,
+    trace: bool,
     on_error: &str,
     assets: Option<PathBuf>,
     config_overrides: Option<&Bound<'_, PyDict>>,
@@ -220,7 +228,11 @@ pub fn simulate<'py>(
             .as_ref()
             .map(|p| move || Box::new(p.fresh()) as Box<dyn Predictor>);
         let planning = fresh.as_ref().map(|f| f as &PlanningFactory<'_>);
-        let mut outputs = run_interruptibly(py, &batch, record, planning)?;
+        let keep = Keep {
+            examples: record,
+            traces: trace,
+        };
+        let mut outputs = run_interruptibly(py, &batch, keep, planning)?;
         if !skip
             && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
             && let Err(e) = outputs.swap_remove(pos).result
@@ -236,11 +248,34 @@ pub fn simulate<'py>(
             "collisions",
             table_dict(py, collision_table(&batch.scenes, &outputs))?,
         )?;
+        if trace {
+            out.set_item("traces", traces_list(py, &batch, &outputs)?)?;
+        }
         if record {
             out.set_item("examples", examples_dict(py, outputs)?)?;
         }
         Ok(out)
     })
+}
+
+/// One trace dict per run (`crate::animate::reel_dict`; `None` for a run that could not
+/// run), in run order.
+fn traces_list<'py>(
+    py: Python<'py>,
+    batch: &Batch,
+    outputs: &[RunOutput],
+) -> PyResult<Vec<Option<Bound<'py, PyDict>>>> {
+    outputs
+        .iter()
+        .map(|o| {
+            let Ok(rec) = &o.result else {
+                return Ok(None);
+            };
+            let reel = nudge::animate::Reel::from_run(&batch.scenes[o.spec.scene], rec)
+                .map_err(crate::animate::animate_err)?;
+            crate::animate::reel_dict(py, &reel).map(Some)
+        })
+        .collect()
 }
 
 /// A table's columns as a dict of numpy arrays (text columns as lists of str / None).

@@ -175,6 +175,60 @@ impl SafetyConstraint {
     }
 }
 
+/// The vehicle a plan's safety binds on: the checked vehicle with the smallest b over the
+/// plan's steps under one prediction ([`SafetyConstraint::binding`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BindingVehicle {
+    /// Agent index (≥ 1).
+    pub agent: usize,
+    /// Plan step k of the smallest b (0-based: state z_{k+1}).
+    pub step: usize,
+    /// The smallest b over the plan (−∞ when b is NaN).
+    pub b: f64,
+    /// Semi-axes (a_x, a_y) (m) of the vehicle's safety ellipse at every plan step, `[T]`,
+    /// the closing-speed margin included at the last step: the ellipse of step k is centred
+    /// on the vehicle's predicted position at step k, axis-aligned with the road.
+    pub semi_axes: Vec<[f64; 2]>,
+}
+
+impl SafetyConstraint {
+    /// The binding vehicle of the planned states `states` = z_1..z_T (x, y, ψ, v) (m, m, rad,
+    /// m/s, `[T]`) under `prediction` (m, `[n − 1, T, 2]` flat, agents 1..n at steps 1..T, the
+    /// planning predictor's output for that plan): b of every checked vehicle at every step,
+    /// exactly as the planner evaluates a candidate, and the vehicle and step of the smallest
+    /// (the first in agent-then-step order on ties). `None` when no vehicle is checked.
+    #[must_use]
+    pub fn binding(&self, states: &[[f64; 4]], prediction: &[f64]) -> Option<BindingVehicle> {
+        let t = states.len();
+        let mut best: Option<BindingVehicle> = None;
+        for v in &self.vehicles {
+            let base = (v.index - 1) * t * 2;
+            let mut previous = v.last;
+            let mut semi_axes = Vec::with_capacity(t);
+            let mut own = (f64::INFINITY, 0);
+            for (k, z) in states.iter().enumerate() {
+                let other = [prediction[base + 2 * k], prediction[base + 2 * k + 1]];
+                let (b, ellipse) = self.b(v, *z, previous, other, k + 1 == t);
+                previous = other;
+                semi_axes.push([ellipse.a_x, ellipse.a_y]);
+                let b = never_nan(b);
+                if b < own.0 {
+                    own = (b, k);
+                }
+            }
+            if best.as_ref().is_none_or(|w| own.0 < w.b) {
+                best = Some(BindingVehicle {
+                    agent: v.index,
+                    step: own.1,
+                    b: own.0,
+                    semi_axes,
+                });
+            }
+        }
+        best
+    }
+}
+
 /// (|cos ψ|, |sin ψ|).
 fn heading_direction(psi: f64) -> [f64; 2] {
     let (sn, cs) = psi.sin_cos();

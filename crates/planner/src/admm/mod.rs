@@ -38,7 +38,7 @@ use crate::model::{Bicycle, State};
 use crate::qp::QpFailure;
 use crate::settings::PlannerSettings;
 
-pub use constraint::{CheckedVehicle, SafetyConstraint};
+pub use constraint::{BindingVehicle, CheckedVehicle, SafetyConstraint};
 pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
 

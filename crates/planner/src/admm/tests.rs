@@ -1002,3 +1002,52 @@ fn the_fallback_set_includes_steering_back_to_the_retreat_lane() {
         );
     }
 }
+
+/// The binding vehicle of a returned plan is the planner's own minimum: its b equals the
+/// minimum the planner's safety evaluation gives the same states under the same prediction,
+/// bit for bit, and equals the ellipse value recomputed from the reported semi-axes and
+/// positions; a vehicle out of range is never binding.
+#[test]
+fn binding_vehicle_is_the_planners_minimum_over_the_plan() {
+    let s = PlannerSettings::default();
+    // A car ahead in the target lane, one behind in the ego's lane, one out of range.
+    let (h, sizes) = scene(
+        12.0,
+        0.0,
+        &[(14.0, 3.7, 11.0), (-12.0, 0.0, 12.0), (90.0, 0.0, 12.0)],
+    );
+    let p = problem(&h, &sizes, 12.0);
+    let mut cv = ConstantVelocity::new(6).unwrap();
+    let plan = Planner::new(s.clone()).unwrap().plan(&p, &mut cv).unwrap();
+    let constraint = SafetyConstraint::new(&p, &s);
+    let candidate: Vec<f64> = plan.states.iter().flat_map(|z| [z[0], z[1]]).collect();
+    let mut prediction = vec![0.0; 3 * 6 * 2];
+    cv.set_scene(&h).unwrap();
+    cv.predict(&candidate, &mut prediction).unwrap();
+    let b = constraint.binding(&plan.states, &prediction).unwrap();
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety_min);
+    let local: Vec<State> = plan
+        .states
+        .iter()
+        .map(|z| State::new(z[0] - lp.origin[0], z[1] - lp.origin[1], z[2], z[3]))
+        .collect();
+    let min_b = safety.eval(&mut cv, &local).unwrap().min_b.unwrap();
+    assert_eq!(b.b.to_bits(), min_b.to_bits());
+    assert!(b.agent == 1 || b.agent == 2, "agent {}", b.agent);
+    assert_eq!(b.semi_axes.len(), 6);
+    let other = &prediction[(b.agent - 1) * 12 + 2 * b.step..][..2];
+    let ego = plan.states[b.step];
+    let [ax, ay] = b.semi_axes[b.step];
+    let value = ((ego[0] - other[0]) / ax).powi(2) + ((ego[1] - other[1]) / ay).powi(2) - 1.0;
+    assert!((value - b.b).abs() < 1e-12, "{value} vs {}", b.b);
+    // Nothing in range: no binding vehicle.
+    let far = SafetyConstraint::new(
+        &p,
+        &PlannerSettings {
+            check_range: 1.0,
+            ..s
+        },
+    );
+    assert_eq!(far.binding(&plan.states, &prediction), None);
+}

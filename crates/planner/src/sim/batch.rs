@@ -16,7 +16,7 @@ use crate::settings::PlannerSettings;
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
-use super::run::simulate_cancellable;
+use super::run::{RunControl, simulate_with};
 use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
@@ -273,17 +273,27 @@ pub struct RunOutput {
 /// Builds the planning predictor of one run (called once per run, on the run's thread).
 pub type PlanningFactory<'a> = dyn Fn() -> Box<dyn Predictor> + Sync + 'a;
 
+/// What the runs of a batch keep besides their records' columns (both off by default).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Keep {
+    /// Every candidate the planning predictor evaluated, with its prediction
+    /// ([`RunOutput::examples`]; the planning predictor wrapped in a [`Recording`]).
+    pub examples: bool,
+    /// Every step's plan and predicted reaction ([`crate::StepRecord::trace`]).
+    pub traces: bool,
+}
+
 /// Runs every spec of `specs` on `scenes` in parallel on the current rayon pool (each planner
-/// call stays single-threaded), with fresh predictors per run; with `record`, the planning
-/// predictor is wrapped in a [`Recording`]. Every run checks `cancel` before each closed-loop
-/// step. Outputs come back in the order of `specs`.
+/// call stays single-threaded), with fresh predictors per run, keeping what `keep` asks for.
+/// Every run checks `cancel` before each closed-loop step. Outputs come back in the order of
+/// `specs`.
 pub fn simulate_many(
     scenes: &[Scenario],
     specs: &[RunSpec],
     settings: &PlannerSettings,
     cfg: &SimConfig,
     predictors: &Predictors,
-    record: bool,
+    keep: Keep,
     cancel: &Cancel,
 ) -> Vec<RunOutput> {
     let planning = || predictors.planning.build();
@@ -293,7 +303,7 @@ pub fn simulate_many(
         cfg,
         world: &predictors.world,
         planning: &planning,
-        record,
+        keep,
         cancel,
     };
     runs.simulate(specs)
@@ -312,8 +322,8 @@ pub struct Runs<'a> {
     pub world: &'a WorldSpec,
     /// Builds each run's planning predictor.
     pub planning: &'a PlanningFactory<'a>,
-    /// Whether to record the planning predictor's examples.
-    pub record: bool,
+    /// What the runs keep besides their records' columns.
+    pub keep: Keep,
     /// Checked before every closed-loop step.
     pub cancel: &'a Cancel,
 }
@@ -340,8 +350,12 @@ impl Runs<'_> {
                 examples: None,
             };
         }
+        let control = RunControl {
+            cancel: self.cancel,
+            trace: self.keep.traces,
+        };
         let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
-            simulate_cancellable(sc, self.settings, self.cfg, spec.seed, p, w, self.cancel)
+            simulate_with(sc, self.settings, self.cfg, spec.seed, p, w, control)
         };
         let mut teacher = match self.world {
             WorldSpec::Teacher(t) => Some(t.build()),
@@ -353,7 +367,7 @@ impl Runs<'_> {
             _ => WorldModel::LogReplay,
         };
         let planning = (self.planning)();
-        let (result, examples) = if self.record {
+        let (result, examples) = if self.keep.examples {
             let mut rec = Recording::new(planning);
             let r = simulate(&mut rec, world);
             (r, Some(rec.records))

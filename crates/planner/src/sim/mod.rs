@@ -35,7 +35,7 @@ pub mod run;
 pub mod world;
 
 pub use batch::{
-    Cancel, MAX_RUNS, MAX_THREADS, PlanningFactory, Predictors, RunOutput, RunSpec, Runs,
+    Cancel, Keep, MAX_RUNS, MAX_THREADS, PlanningFactory, Predictors, RunOutput, RunSpec, Runs,
     WorldSpec, defaults, run_specs, simulate_many, thread_pool,
 };
 pub use columns::{
@@ -45,7 +45,7 @@ pub use columns::{
 pub use config::{SimConfig, World};
 pub use idm::{IdmPopulation, IdmTraffic, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
-pub use records::{RunRecord, StepRecord, StepStatus};
+pub use records::{RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
-pub use run::{simulate, simulate_cancellable, target_lane};
+pub use run::{RunControl, simulate, simulate_cancellable, simulate_with, target_lane};
 pub use world::WorldModel;

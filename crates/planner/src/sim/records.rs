@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::admm::BindingVehicle;
 pub use crate::admm::StepStatus;
 
 use super::config::World;
@@ -48,6 +49,28 @@ pub struct StepRecord {
     pub v_planned: f64,
     /// What the step is judged by ([`crate::sim::metrics`]).
     pub metrics: StepMetrics,
+    /// The step's plan and the planning predictor's predicted reaction to it, kept only when
+    /// a run is asked to trace ([`crate::sim::RunControl::trace`]); `None` (and absent from
+    /// JSON) otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trace: Option<StepTrace>,
+}
+
+/// What the planner planned and expected at one closed-loop step: enough to draw the step
+/// (the animations of the `nudge` crate).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StepTrace {
+    /// The applied plan: the measured ego state it starts from, then the planned states,
+    /// z_0..z_T as (x, y, ψ, v) in the road frame (m, m, rad, m/s), `[T + 1]`.
+    pub plan: Vec<[f64; 4]>,
+    /// The planning predictor's prediction of the other vehicles given the plan's positions
+    /// z_1..z_T: positions (m, road frame) `[n − 1][T]`, agents 1..n at plan steps 1..T.
+    pub predicted: Vec<Vec<[f64; 2]>>,
+    /// The vehicle the plan's safety binds on under that prediction, with its safety
+    /// ellipses ([`crate::SafetyConstraint::binding`]); `None` when no vehicle is checked.
+    pub binding: Option<BindingVehicle>,
+    /// Every agent's position after the step (m, road frame), `[n]`, agent 0 = the ego.
+    pub agents: Vec<[f64; 2]>,
 }
 
 /// One closed-loop run.

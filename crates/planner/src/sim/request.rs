@@ -12,7 +12,7 @@ use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
 
 use super::batch::{
-    Cancel, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
+    Cancel, Keep, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
     simulate_many, thread_pool,
 };
 use super::config::SimConfig;
@@ -151,10 +151,10 @@ impl BatchRequest<'_> {
 
 impl Batch {
     /// Runs every run on the batch's pool ([`simulate_many`]), checking `cancel` before every
-    /// closed-loop step; with `record`, the planning predictor's examples are kept. Outputs in
-    /// the order of [`Batch::specs`].
+    /// closed-loop step and keeping what `keep` asks for (the planning predictor's examples,
+    /// the steps' traces). Outputs in the order of [`Batch::specs`].
     #[must_use]
-    pub fn run(&self, record: bool, cancel: &Cancel) -> Vec<RunOutput> {
+    pub fn run(&self, keep: Keep, cancel: &Cancel) -> Vec<RunOutput> {
         self.pool.install(|| {
             simulate_many(
                 &self.scenes,
@@ -162,7 +162,7 @@ impl Batch {
                 &self.settings,
                 &self.config,
                 &self.predictors,
-                record,
+                keep,
                 cancel,
             )
         })
@@ -173,7 +173,7 @@ impl Batch {
     #[must_use]
     pub fn run_with(
         &self,
-        record: bool,
+        keep: Keep,
         cancel: &Cancel,
         planning: &PlanningFactory<'_>,
     ) -> Vec<RunOutput> {
@@ -183,7 +183,7 @@ impl Batch {
             cfg: &self.config,
             world: &self.predictors.world,
             planning,
-            record,
+            keep,
             cancel,
         };
         self.pool.install(|| runs.simulate(&self.specs))
@@ -398,12 +398,12 @@ mod tests {
         let batch = request(&paths, &settings, &config, &assets)
             .prepare()
             .unwrap();
-        let outputs = batch.run(false, &Cancel::new());
+        let outputs = batch.run(Keep::default(), &Cancel::new());
         assert_eq!(outputs.len(), 2);
         assert!(outputs.iter().all(|o| o.result.is_ok()));
         let cancel = Cancel::new();
         cancel.cancel();
-        for o in batch.run(false, &cancel) {
+        for o in batch.run(Keep::default(), &cancel) {
             assert!(
                 matches!(o.result, Err(SimError::Cancelled { step: 0, .. })),
                 "{:?}",
@@ -501,8 +501,8 @@ mod tests {
             Box::new(Foreign(nudge_predictor::ConstantVelocity::new(6).unwrap()))
         };
         let foreign = req.prepare_foreign("foreign", 6).unwrap();
-        let got = foreign.run_with(false, &Cancel::new(), &make);
-        let want = req.prepare().unwrap().run(false, &Cancel::new());
+        let got = foreign.run_with(Keep::default(), &Cancel::new(), &make);
+        let want = req.prepare().unwrap().run(Keep::default(), &Cancel::new());
         assert_eq!(built.into_inner(), paths.len(), "one predictor per run");
         for (g, w) in got.iter().zip(&want) {
             let (g, w) = (g.result.as_ref().unwrap(), w.result.as_ref().unwrap());

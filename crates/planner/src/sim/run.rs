@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use nudge_predictor::{History, Predictor, T_OBS};
+use nudge_predictor::{Checked, History, Predictor, T_OBS};
 
 use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
 use crate::error::{PlannerError, SimError};
@@ -18,7 +18,7 @@ use crate::settings::PlannerSettings;
 use super::batch::Cancel;
 use super::config::SimConfig;
 use super::metrics::{RunObserver, others_from_history};
-use super::records::{RunRecord, StepRecord, StepStatus};
+use super::records::{RunRecord, StepRecord, StepStatus, StepTrace};
 use super::world::{Mover, WorldModel};
 
 /// SplitMix64: a tiny deterministic generator for the target-lane draw.
@@ -63,6 +63,21 @@ struct ClosedLoop<'a> {
     last_inputs: (f64, f64),
     lane: LaneChange,
     observer: RunObserver,
+    /// Keep each step's [`StepTrace`].
+    trace: bool,
+}
+
+/// How one run is run besides its settings: when it stops early and what it records beyond
+/// its columns.
+#[derive(Debug, Clone, Copy)]
+pub struct RunControl<'c> {
+    /// Checked before every closed-loop step: once set, the run stops with
+    /// [`SimError::Cancelled`].
+    pub cancel: &'c Cancel,
+    /// Keep every step's plan and the planning predictor's predicted reaction to it
+    /// ([`StepRecord::trace`]; one more predictor call per step). Off, the records are those of
+    /// an untraced run, bit for bit.
+    pub trace: bool,
 }
 
 impl ClosedLoop<'_> {
@@ -76,6 +91,47 @@ impl ClosedLoop<'_> {
         History::new(flat, self.sc.n_agents).map_err(|source| SimError::Predictor {
             scene: self.sc.name.clone(),
             source,
+        })
+    }
+
+    /// The trace of a step planned from `history` with the ego at `ego` (the measured state):
+    /// the plan from `ego`, the planning predictor's prediction of the others given the plan
+    /// (checked finite and plausible), the binding vehicle under that prediction, and the
+    /// agents' positions `moved` after the step.
+    fn trace(
+        &self,
+        history: &History,
+        ego: [f64; 4],
+        plan: &Plan,
+        constraint: &SafetyConstraint,
+        planner_pred: &mut dyn Predictor,
+        moved: &[[f64; 2]],
+    ) -> Result<StepTrace, SimError> {
+        let n_others = self.sc.n_agents - 1;
+        let t = plan.states.len();
+        let mut prediction = vec![0.0; n_others * t * 2];
+        if n_others > 0 {
+            let candidate: Vec<f64> = plan.states.iter().flat_map(|z| [z[0], z[1]]).collect();
+            let mut checked = Checked::new(planner_pred);
+            checked
+                .set_scene(history)
+                .and_then(|()| checked.predict(&candidate, &mut prediction))
+                .map_err(|source| SimError::Predictor {
+                    scene: self.sc.name.clone(),
+                    source,
+                })?;
+        }
+        let predicted = prediction
+            .chunks_exact(t * 2)
+            .map(|a| a.chunks_exact(2).map(|p| [p[0], p[1]]).collect())
+            .collect();
+        let mut states = vec![ego];
+        states.extend(plan.states.iter().copied());
+        Ok(StepTrace {
+            plan: states,
+            predicted,
+            binding: constraint.binding(&plan.states, &prediction),
+            agents: moved.to_vec(),
         })
     }
 
@@ -132,6 +188,14 @@ impl ClosedLoop<'_> {
             &next,
             &plan.states,
         )?;
+        let trace = if self.trace {
+            let e = &problem.ego;
+            let measured = [e.x, e.y, e.psi, e.v];
+            let t = self.trace(&history, measured, &plan, &constraint, planner_pred, &moved)?;
+            Some(t)
+        } else {
+            None
+        };
         for (h, p) in self.observed.iter_mut().zip(&moved) {
             h.remove(0);
             h.push(*p);
@@ -165,6 +229,7 @@ impl ClosedLoop<'_> {
             y_goal,
             v_planned,
             metrics,
+            trace,
         })
     }
 }
@@ -231,6 +296,29 @@ pub fn simulate_cancellable(
     world: WorldModel<'_>,
     cancel: &Cancel,
 ) -> Result<RunRecord, SimError> {
+    let control = RunControl {
+        cancel,
+        trace: false,
+    };
+    simulate_with(sc, settings, cfg, seed, planner_pred, world, control)
+}
+
+/// [`simulate`] under `control`: checking its cancel flag before every closed-loop step and,
+/// when it asks to trace, keeping every step's [`StepTrace`].
+///
+/// # Errors
+/// As [`simulate`]; [`SimError::Cancelled`] once the cancel flag is set;
+/// [`SimError::Predictor`] when the traced prediction fails.
+pub fn simulate_with(
+    sc: &Scenario,
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+    seed: u64,
+    planner_pred: &mut dyn Predictor,
+    world: WorldModel<'_>,
+    control: RunControl<'_>,
+) -> Result<RunRecord, SimError> {
+    let cancel = control.cancel;
     cfg.validate()?;
     let planner = Planner::new(settings.clone()).map_err(|e| match e {
         PlannerError::Settings(s) => SimError::Settings(s),
@@ -268,6 +356,7 @@ pub fn simulate_cancellable(
             cfg.abort_hold,
         ),
         observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
+        trace: control.trace,
     };
     let mut rec = RunRecord {
         scenario: sc.name.clone(),
