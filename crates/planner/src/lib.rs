@@ -44,5 +44,5 @@ pub use settings::PlannerSettings;
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutput, RunRecord,
     RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel, WorldSpec, run_specs,
-    simulate, simulate_cancellable, simulate_many, simulate_with, target_lane,
+    simulate, simulate_many, simulate_with, target_lane,
 };

@@ -47,5 +47,5 @@ pub use idm::{IdmPopulation, IdmTraffic, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
 pub use records::{RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
-pub use run::{RunControl, simulate, simulate_cancellable, simulate_with, target_lane};
+pub use run::{RunControl, simulate, simulate_with, target_lane};
 pub use world::WorldModel;

@@ -384,17 +384,26 @@ mod tests {
         ));
     }
 
-    /// A prepared batch runs; a cancelled one stops every run before its next step.
-    #[test]
-    fn a_cancelled_batch_stops_at_the_next_step() {
-        let paths = scene_paths();
-        let assets = repo().join("assets");
-        let settings = PlannerSettings::default();
+    /// The shipped scenes and assets, default planner settings, and a log-replay closed loop
+    /// of at most 3 steps.
+    fn three_log_replay_steps() -> (Vec<PathBuf>, PathBuf, PlannerSettings, SimConfig) {
         let config = SimConfig {
             world: World::LogReplay,
             max_steps: 3,
             ..SimConfig::default()
         };
+        (
+            scene_paths(),
+            repo().join("assets"),
+            PlannerSettings::default(),
+            config,
+        )
+    }
+
+    /// A prepared batch runs; a cancelled one stops every run before its next step.
+    #[test]
+    fn a_cancelled_batch_stops_at_the_next_step() {
+        let (paths, assets, settings, config) = three_log_replay_steps();
         let batch = request(&paths, &settings, &config, &assets)
             .prepare()
             .unwrap();
@@ -447,14 +456,18 @@ mod tests {
             inner: nudge_predictor::ConstantVelocity::new(6).unwrap(),
             cancel: cancel.clone(),
         };
-        let r = crate::sim::simulate_cancellable(
+        let control = crate::sim::RunControl {
+            cancel: &cancel,
+            trace: false,
+        };
+        let r = crate::sim::simulate_with(
             &sc,
             &PlannerSettings::default(),
             &config,
             0,
             &mut p,
             crate::sim::WorldModel::LogReplay,
-            &cancel,
+            control,
         );
         assert!(
             matches!(r, Err(SimError::Cancelled { step: 1, .. })),
@@ -486,14 +499,7 @@ mod tests {
     /// checked against the settings, naming `horizon`.
     #[test]
     fn a_foreign_planning_predictor_runs_as_the_built_in_one_it_mirrors() {
-        let paths = scene_paths();
-        let assets = repo().join("assets");
-        let settings = PlannerSettings::default();
-        let config = SimConfig {
-            world: World::LogReplay,
-            max_steps: 3,
-            ..SimConfig::default()
-        };
+        let (paths, assets, settings, config) = three_log_replay_steps();
         let req = request(&paths, &settings, &config, &assets);
         let built = std::sync::atomic::AtomicUsize::new(0);
         let make = || -> Box<dyn nudge_predictor::Predictor> {

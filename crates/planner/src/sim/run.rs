@@ -280,24 +280,8 @@ pub fn simulate(
     world: WorldModel<'_>,
 ) -> Result<RunRecord, SimError> {
     let never = Cancel::new();
-    simulate_cancellable(sc, settings, cfg, seed, planner_pred, world, &never)
-}
-
-/// [`simulate`], checking `cancel` before every closed-loop step.
-///
-/// # Errors
-/// As [`simulate`]; [`SimError::Cancelled`] once `cancel` is set.
-pub fn simulate_cancellable(
-    sc: &Scenario,
-    settings: &PlannerSettings,
-    cfg: &SimConfig,
-    seed: u64,
-    planner_pred: &mut dyn Predictor,
-    world: WorldModel<'_>,
-    cancel: &Cancel,
-) -> Result<RunRecord, SimError> {
     let control = RunControl {
-        cancel,
+        cancel: &never,
         trace: false,
     };
     simulate_with(sc, settings, cfg, seed, planner_pred, world, control)
