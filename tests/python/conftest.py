@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +63,33 @@ def straight_candidates(sc: nudge.Scenario, batch: int, horizon: int = 6) -> np.
     out[..., 0] = x0 + v * k[None, :]
     out[..., 1] = y0 + dy[:, None] * (k[None, :] / k[-1])
     return out
+
+
+def spin_ticks_while_planning(pl: nudge.Planner, sc: nudge.Scenario) -> tuple[int, int]:
+    """(ticks, plans): how often a spinning Python thread ran while ``pl`` planned ``sc`` over
+    and over for at least 0.5 s (and at least twice). With the GIL held for a whole plan the
+    spinner would run only at the switch points between calls, a handful of ticks per plan."""
+    ticks = 0
+    stop = threading.Event()
+
+    def spin() -> None:
+        nonlocal ticks
+        while not stop.is_set():
+            ticks += 1
+            time.sleep(0)
+
+    t = threading.Thread(target=spin)
+    t.start()
+    try:
+        t0 = time.perf_counter()
+        n_plans = 0
+        before = ticks
+        while time.perf_counter() - t0 < 0.5 or n_plans < 2:
+            pl.reset()
+            pl.plan_scenario(sc)
+            n_plans += 1
+        during = ticks - before
+    finally:
+        stop.set()
+        t.join()
+    return during, n_plans

@@ -3,8 +3,6 @@ and the GIL released while planning."""
 
 from __future__ import annotations
 
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import nudge
+from conftest import spin_ticks_while_planning
 
 
 def test_scenario_fields(scenario: nudge.Scenario) -> None:
@@ -184,29 +183,5 @@ def test_plan_non_finite_scalars(scenario: nudge.Scenario) -> None:
 def test_gil_is_released_while_planning(teacher: nudge.Predictor, scenario: nudge.Scenario) -> None:
     """A Python thread keeps running while another thread is inside plan()."""
     pl = nudge.Planner(None, teacher)
-    ticks = 0
-    stop = threading.Event()
-
-    def spin() -> None:
-        nonlocal ticks
-        while not stop.is_set():
-            ticks += 1
-            time.sleep(0)
-
-    t = threading.Thread(target=spin)
-    t.start()
-    try:
-        t0 = time.perf_counter()
-        n_plans = 0
-        before = ticks
-        while time.perf_counter() - t0 < 0.5 or n_plans < 2:
-            pl.reset()
-            pl.plan_scenario(scenario)
-            n_plans += 1
-        during = ticks - before
-    finally:
-        stop.set()
-        t.join()
-    # With the GIL held for the whole plan the spinner would only run at the switch points
-    # between calls (a handful of ticks per call).
+    during, n_plans = spin_ticks_while_planning(pl, scenario)
     assert during > 50 * n_plans, (during, n_plans)

@@ -8,8 +8,6 @@ must agree bit for bit (no tolerance)."""
 
 from __future__ import annotations
 
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import nudge
+from conftest import spin_ticks_while_planning
 
 MAX_STEP = 30.0  # m per 0.3 s step (nudge_predictor::limits::MAX_STEP)
 STATUSES = {"Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback",
@@ -299,29 +298,7 @@ def test_gil_is_released_outside_the_python_predictor(scenario: nudge.Scenario) 
     """A Python thread keeps running while another thread plans with a Python predictor: the
     GIL is held only inside its calls."""
     pl = nudge.Planner(None, predictor=ConstantVelocity())
-    ticks = 0
-    stop = threading.Event()
-
-    def spin() -> None:
-        nonlocal ticks
-        while not stop.is_set():
-            ticks += 1
-            time.sleep(0)
-
-    t = threading.Thread(target=spin)
-    t.start()
-    try:
-        t0 = time.perf_counter()
-        n_plans = 0
-        before = ticks
-        while time.perf_counter() - t0 < 0.5 or n_plans < 2:
-            pl.reset()
-            pl.plan_scenario(scenario)
-            n_plans += 1
-        during = ticks - before
-    finally:
-        stop.set()
-        t.join()
+    during, n_plans = spin_ticks_while_planning(pl, scenario)
     assert during > 50 * n_plans, (during, n_plans)
 
 
