@@ -92,7 +92,10 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// too). Measured on validation (269 scenes × 3 seeds, student): at-fault collisions in the
 /// IDM world 5 → 3 and planned slow steps in 15–46 → 8–34 runs, success unchanged in every
 /// world; offering it after the crossing too removed 4 of 5 log-replay at-fault collisions
-/// but cost 2.3 pp of success in the teacher's world (p = 0.007), so it is not done.
+/// but cost 2.3 pp of success in the teacher's world (p = 0.007), so it is not done. With the
+/// teacher planning (60 validation scenes) log-replay at-fault events rose 4 → 9 (2 → 3
+/// situations: a follower that never yields hits the retreating, braking ego); on the test
+/// split they fell 21 → 15 (`docs/results/closed_loop.md`).
 ///
 /// **Bounded work.** `budget_s` (wall time) and `budget_calls` (predictor calls), when set,
 /// end the call with [`PlanStatus::BudgetExhausted`] and a checked plan: one predictor call is
