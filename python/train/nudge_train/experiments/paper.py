@@ -20,7 +20,8 @@ that the pipeline runs end to end, not of the numbers).
 The output folder gets ``README.md`` (our results beside the paper's, point by point, and where
 and why they differ), ``table1.md``, ``table2.md``, ``fig7_inference.{png,md}``,
 ``fig8_z_update.{png,md}``, ``fig9_planning_step.{png,md}``, ``fig10_cost.{png,md}``,
-``outcomes.{png,md}`` and ``paper.json`` (every number of the tables).
+``outcomes.{png,md}``, ``figures.md`` (the figures' section of the README) and ``paper.json``
+(every number of the tables). A stage not run keeps its earlier section files.
 """
 
 from __future__ import annotations
@@ -163,24 +164,24 @@ def run(cfg: PaperConfig, command: str, log: Any = print) -> int:
     cfg.out.mkdir(parents=True, exist_ok=True)
     doc: dict[str, Any] = {"command": command, "quick": cfg.quick, "machine_start": start,
                            "started": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
-    sections: dict[str, Any] = {}
+    previous = cfg.out / "paper.json"
+    if previous.is_file():
+        try:
+            old = json.loads(previous.read_text())
+            doc.update({k: old[k] for k in ("figures", "table2") if k in old and k not in cfg.stages})
+        except (json.JSONDecodeError, UnicodeDecodeError, TypeError):
+            log(f"  {previous}: unreadable; the stages not run this time are left out of it")
     if "table1" in cfg.stages:
-        sections["table1"] = table1_markdown(cfg.teacher_report)
-        (cfg.out / "table1.md").write_text("# Table I: teachers\n\n" + sections["table1"])
-    elif (cfg.out / "table1.md").is_file():
-        sections["table1"] = (cfg.out / "table1.md").read_text().split("\n", 2)[2]
+        (cfg.out / "table1.md").write_text("# Table I: teachers\n\n" + table1_markdown(cfg.teacher_report))
     if "figures" in cfg.stages:
-        doc["figures"] = _figures(cfg, sections, log)
+        doc["figures"] = _figures(cfg, log)
     if "table2" in cfg.stages:
-        doc["table2"] = _table2(cfg, sections, log)
-    elif (cfg.out / "table2.md").is_file() and "pending" not in (cfg.out / "table2.md").read_text()[:200]:
-        sections["table2"] = (cfg.out / "table2.md").read_text().split("\n", 2)[2]
-    else:
-        sections["table2"] = table2_pending(cfg)
-        (cfg.out / "table2.md").write_text("# Table II: students (pending)\n\n" + sections["table2"])
+        doc["table2"] = _table2(cfg, log)
+    elif not (cfg.out / "table2.md").is_file():
+        (cfg.out / "table2.md").write_text("# Table II: students (pending)\n\n" + table2_pending(cfg))
     doc["wall_s"] = time.perf_counter() - t_start
     doc["machine_end"] = machine()
-    (cfg.out / "README.md").write_text(readme(cfg, doc, sections, command))
+    (cfg.out / "README.md").write_text(readme(cfg, doc, command))
     (cfg.out / "paper.json").write_text(json.dumps(_jsonable(doc), indent=1, allow_nan=True) + "\n")
     log(f"wrote {paths.repo_relative(cfg.out)} in {doc['wall_s']:.0f} s")
     return 0
@@ -202,7 +203,7 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def _figures(cfg: PaperConfig, sections: dict[str, Any], log: Any) -> dict[str, Any]:
+def _figures(cfg: PaperConfig, log: Any) -> dict[str, Any]:
     from nudge_train.experiments import paper_report as rep
     from nudge_train.experiments.paper_runs import LoopSpec, collect_closed_loop, collect_inference
 
@@ -233,8 +234,7 @@ def _figures(cfg: PaperConfig, sections: dict[str, Any], log: Any) -> dict[str, 
               "outcomes": "Closed-loop outcomes by vehicle count"}
     for name, table in tables.items():
         (out / f"{name}.md").write_text(f"# {titles[name]}\n\n![{name}]({name}.png)\n\n{table}\n")
-        sections[name] = table
-    loads = [a["load"] for n in cfg.ns for a in (loop[n]["arms"][p] for p in cfg.predictors) if a.get("load")]
+    loads = {n: loop[n]["arms"][cfg.predictors[0]].get("load") or [None, None] for n in cfg.ns}
     sim_wall = sum(stats[n][p]["wall_s"] for n in cfg.ns for p in cfg.predictors)
     sim_cpu = sum(stats[n][p]["cpu_s"] for n in cfg.ns for p in cfg.predictors)
     infer_wall = sum(d["wall_s"] for d in infer.values())
@@ -246,7 +246,8 @@ def _figures(cfg: PaperConfig, sections: dict[str, Any], log: Any) -> dict[str, 
         "loads": loads, "computed_at": sorted({a.get("computed_at", "") for n in cfg.ns
                                                for a in loop[n]["arms"].values()}),
     }
-    sections["figures_text"] = figures_text(cfg, summary, stats, infer)
+    text = figures_text(cfg, summary, stats, infer)
+    (out / "figures.md").write_text("# Figures 7–10\n\n" + figures_section(cfg, summary, tables, text))
     return summary
 
 
@@ -261,7 +262,7 @@ def _table2_spec(cfg: PaperConfig) -> Any:
                       threads=cfg.threads, progress=cfg.progress)
 
 
-def _table2(cfg: PaperConfig, sections: dict[str, Any], log: Any) -> dict[str, Any]:
+def _table2(cfg: PaperConfig, log: Any) -> dict[str, Any]:
     from nudge_train.experiments import paper_table2 as t2
 
     t0 = time.perf_counter()
@@ -271,8 +272,7 @@ def _table2(cfg: PaperConfig, sections: dict[str, Any], log: Any) -> dict[str, A
     note = (f"\n\nDistillation-set generation {gen_s / 60:.1f} min, training {train_s / 60:.1f} min "
             f"({cfg.threads} thread(s)); this invocation of the stage {(time.perf_counter() - t0) / 60:.1f} min. "
             "The chosen student is not exported: the shipped `assets/models/student.safetensors` is unchanged.")
-    sections["table2"] = res["markdown"] + note
-    (cfg.out / "table2.md").write_text("# Table II: students\n\n" + sections["table2"] + "\n")
+    (cfg.out / "table2.md").write_text("# Table II: students\n\n" + res["markdown"] + note + "\n")
     return {"generation_s": gen_s, "train_s": train_s,
             "chosen": list(min(res["trained"], key=lambda k: res["trained"][k]["best_val_ade"])),
             "val_ade": {t2.name_of(*k): v["best_val_ade"] for k, v in res["trained"].items()},
@@ -346,107 +346,120 @@ def figures_text(cfg: PaperConfig, summary: dict[str, Any], stats: dict, infer: 
     }
 
 
-def readme(cfg: PaperConfig, doc: dict[str, Any], sections: dict[str, Any], command: str) -> str:
-    """The output folder's README: how it was made, every table beside the paper's, the
-    differences and why."""
+def figures_section(cfg: PaperConfig, fig: dict[str, Any], tables: dict[str, str], text: dict[str, str]) -> str:
+    """The figures' part of the README (also ``figures.md``): how they were run, every table, the
+    comparison with the paper."""
+    total = (fig["sim_wall_s"] + fig["infer_wall_s"]) / 60
+    share = 100 * fig["sim_cpu_s"] / max(fig["sim_wall_s"], 1e-9)
+    loads = "; ".join(f"N = {n}: {_load(a)} → {_load(b)}" for n, (a, b) in fig["loads"].items())
+    return "\n".join([
+        "### How the figures were run",
+        "",
+        f"- {len(cfg.ns)} vehicle counts × {cfg.sims} closed-loop runs × {len(cfg.predictors)} planning predictors "
+        f"({', '.join(cfg.predictors)}), world `{cfg.world}`, "
+        f"{'the default' if cfg.max_steps is None else cfg.max_steps} max steps per run, seed {cfg.seed}, one run per "
+        "scene with a random target lane (the scene's seed); the arms interleaved in chunks of "
+        f"{cfg.chunk} scenes. Real scenes per N: " + ", ".join(f"{n}: {fig['pools'][n]}" for n in cfg.ns)
+        + " (test scenes with at least N vehicles; each N draws its runs from them).",
+        f"- {fig['sim_wall_s'] / 60:.1f} min of simulation and {fig['infer_wall_s'] / 60:.1f} min of inference timing: "
+        f"{total:.1f} min for the figures from scratch on this machine; computed {', '.join(fig['computed_at'])}. "
+        f"The simulations got {share:.0f} % of a core (process CPU time / wall time): the rest of the time the "
+        "thread waited for the shared CPUs, and that wait is inside the measured times.",
+        f"- load average (1 / 5 / 15 min) at the start → end of each N's simulations: {loads}.",
+        "",
+        "## Fig. 7: predictor inference time",
+        "",
+        "One prediction for t_plan = 6 (one ego candidate: its constant-velocity future), mean over "
+        f"{cfg.infer_scenes} cut scenes per N of each scene's median of {cfg.infer_reps} calls; Rust through "
+        "the binding (`nudge.Predictor.predict`), PyTorch the reference implementation (inference mode), both on "
+        "one thread, the four interleaved scene by scene.",
+        "",
+        "![Fig. 7](fig7_inference.png)",
+        "",
+        tables["fig7_inference"],
+        "",
+        text["fig7"],
+        "",
+        "## Fig. 8: Z-update time",
+        "",
+        "Per planning step the simulator records the count of Z-updates (`z_updates`) and their summed "
+        "time (`z_s`); a box is the distribution over steps of `z_s / z_updates` (quartiles, red median, "
+        "whiskers 5–95 %); *mean* is Σ `z_s` / Σ `z_updates`, the exact mean of one Z-update.",
+        "",
+        "![Fig. 8](fig8_z_update.png)",
+        "",
+        tables["fig8_z_update"],
+        "",
+        text["fig8"],
+        "",
+        "## Fig. 9: planning-step time",
+        "",
+        "`mpc_s`: one MPC call per closed-loop step (the planner's own wall time); the shaded bands are the "
+        "paper's 0.5–0.7 Hz (teacher) and 2–4 Hz (student).",
+        "",
+        "![Fig. 9](fig9_planning_step.png)",
+        "",
+        tables["fig9_planning_step"],
+        "",
+        text["fig9"],
+        "",
+        "## Fig. 10: optimal cost",
+        "",
+        "![Fig. 10](fig10_cost.png)",
+        "",
+        tables["fig10_cost"],
+        "",
+        text["fig10"],
+        "",
+        "## Success, collisions, time to target (not in the paper)",
+        "",
+        "![outcomes](outcomes.png)",
+        "",
+        tables["outcomes"],
+        "",
+    ])
+
+
+def _body(path: Path) -> str | None:
+    """A section file's text below its title line, or None when absent."""
+    if not path.is_file():
+        return None
+    return path.read_text().split("\n", 2)[-1].strip() + "\n"
+
+
+def readme(cfg: PaperConfig, doc: dict[str, Any], command: str) -> str:
+    """The output folder's README from its section files (``table1.md``, ``table2.md``,
+    ``figures.md``: a stage not run this time keeps its earlier section): how it was made, every
+    table beside the paper's, the differences and why."""
     ms, me = doc["machine_start"], doc["machine_end"]
-    fig = doc.get("figures")
+    figures = _body(cfg.out / "figures.md")
     lines = [
         "# The paper's tables and figures, reproduced" + (" (quick check, not results)" if cfg.quick else ""),
         "",
-        f"Generated by `{command}` (`make paper`); every number below comes from this folder's run. "
-        "Paper: Sec. \"Results\" and Tables I–II of the interaction-aware planner with knowledge distillation.",
+        f"Generated by `{command}`; `make paper` runs every stage. Every number below comes from the runs of "
+        "this folder. Paper: Sec. \"Results\" and Tables I–II of the interaction-aware planner with knowledge "
+        "distillation.",
         "",
         "## How it was run",
         "",
         f"- machine: {ms['cpu']}, {ms['cpus']} logical CPUs shared with other jobs; every timing on one "
         f"thread (`RAYON_NUM_THREADS=1`, simulations `threads=1`, torch `set_num_threads(1)`); niceness "
         f"{ms['nice']}; load average (1 / 5 / 15 min) {_load(ms['load'])} at the start, {_load(me['load'])} "
-        "at the end.",
-        f"- this invocation: {doc['wall_s'] / 60:.1f} min (cached stages are verified and reused, not rerun).",
-    ]
-    if fig:
-        total = (fig["sim_wall_s"] + fig["infer_wall_s"]) / 60
-        lines += [
-            f"- figures: {len(cfg.ns)} vehicle counts × {cfg.sims} closed-loop runs × {len(cfg.predictors)} "
-            f"planning predictors ({', '.join(cfg.predictors)}), world `{cfg.world}`, "
-            f"{'default' if cfg.max_steps is None else cfg.max_steps} max steps, seed {cfg.seed}; "
-            f"{fig['sim_wall_s'] / 60:.1f} min of simulation and {fig['infer_wall_s'] / 60:.1f} min of inference "
-            f"timing ({total:.1f} min for the figures from scratch); computed {', '.join(fig['computed_at'])}. "
-            f"The simulations got {100 * fig['sim_cpu_s'] / max(fig['sim_wall_s'], 1e-9):.0f} % of a core "
-            "(process CPU time / wall time): the rest of the time the thread waited for the shared CPUs, and "
-            "that wait is inside the measured times.",
-            f"- load average during the simulations (per N, start → end, 1 / 5 / 15 min): "
-            + "; ".join(f"{_load(a)} → {_load(b)}" for a, b in fig["loads"][:: len(cfg.predictors)]),
-        ]
-    lines += [
+        f"at the end of this invocation ({doc['wall_s'] / 60:.1f} min; stages: {', '.join(cfg.stages)}; "
+        "cached results are verified and reused, not rerun).",
         "- scenes: the test split's planner scenes (`data/processed/scenes/test`, NGSIM US-101 and I-80, "
         "split by overlap group so no vehicle of a test scene is in training), each cut to the ego and its "
         "N − 1 nearest vehicles at the last observed step; N counts the ego.",
         "",
         "## Table I: teachers (ADE / FDE, m)",
         "",
-        sections.get("table1", "(not run)"),
-        "",
+        _body(cfg.out / "table1.md") or "(not run yet: `nudge-train paper --stages table1`)",
         "## Table II: students (ADE / FDE at 1.8 s, m)",
         "",
-        sections.get("table2", "(not run)"),
+        _body(cfg.out / "table2.md") or "(not run yet: `nudge-train paper --stages table2`)",
+        "## Figures 7–10",
         "",
-    ]
-    if fig:
-        text = sections["figures_text"]
-        lines += [
-            "## Fig. 7: predictor inference time",
-            "",
-            "One prediction for t_plan = 6 (one ego candidate: its constant-velocity future), mean over "
-            f"{cfg.infer_scenes} cut scenes per N of each scene's median of {cfg.infer_reps} calls; Rust through "
-            "the binding (`nudge.Predictor.predict`), PyTorch the reference implementation, both one thread.",
-            "",
-            "![Fig. 7](fig7_inference.png)",
-            "",
-            sections["fig7_inference"],
-            "",
-            text["fig7"],
-            "",
-            "## Fig. 8: Z-update time",
-            "",
-            "Per planning step the simulator records the count of Z-updates (`z_updates`) and their summed "
-            "time (`z_s`); a box is the distribution over steps of `z_s / z_updates` (quartiles, red median, "
-            "whiskers 5–95 %); *mean* is Σ `z_s` / Σ `z_updates`, the exact mean of one Z-update.",
-            "",
-            "![Fig. 8](fig8_z_update.png)",
-            "",
-            sections["fig8_z_update"],
-            "",
-            text["fig8"],
-            "",
-            "## Fig. 9: planning-step time",
-            "",
-            "`mpc_s`: one MPC call per closed-loop step (the planner's own wall time); the shaded bands are the "
-            "paper's 0.5–0.7 Hz (teacher) and 2–4 Hz (student).",
-            "",
-            "![Fig. 9](fig9_planning_step.png)",
-            "",
-            sections["fig9_planning_step"],
-            "",
-            text["fig9"],
-            "",
-            "## Fig. 10: optimal cost",
-            "",
-            "![Fig. 10](fig10_cost.png)",
-            "",
-            sections["fig10_cost"],
-            "",
-            text["fig10"],
-            "",
-            "## Success, collisions, time to target (not in the paper)",
-            "",
-            "![outcomes](outcomes.png)",
-            "",
-            sections["outcomes"],
-            "",
-        ]
-    lines += [
+        figures or "(not run yet: `nudge-train paper --stages figures`)",
         "## Where and why we differ from the paper",
         "",
         "- **Hardware and language.** The paper times Python on a single-threaded Intel Xeon E5-2640 v4 "
@@ -454,26 +467,28 @@ def readme(cfg: PaperConfig, doc: dict[str, Any], sections: dict[str, Any], comm
         "thread of a 2-core AMD EPYC shared with other jobs (load above). Absolute times are not comparable; "
         "the teacher / student ratios are, because both arms ran in the same run, interleaved chunk by chunk, "
         "so the load fell on both.",
-        "- **Why our ratios are larger than the paper's.** Our teacher is Social-GAN run recursively "
-        "(six one-step generator calls per candidate, pooling O(N²) with a 512-wide hidden layer); the "
-        "student runs its decoder once. In PyTorch both pay a fixed per-call overhead of about 1 ms, which "
-        "compresses the ratio toward the paper's; in Rust the overhead is gone and the ratio is the networks'. "
-        "The Z-update adds the planner's own work (projection, roll-outs), the same for both, which "
-        "shrinks the ratio again; and teacher and student propose slightly different trial points, so the "
-        "number of predictor calls per Z-update differs too.",
+        "- **What sets the ratios.** Our teacher is Social-GAN run recursively (six one-step generator calls per "
+        "candidate, pooling O(N²) with a 512-wide hidden layer); the student runs its decoder once. In PyTorch "
+        "both pay a fixed per-call overhead of about a millisecond, which compresses the ratio at small N; in "
+        "Rust that overhead is gone and the ratio is the networks'. A Z-update adds the planner's own work "
+        "(projection, roll-outs), the same for both predictors, and a planning step adds the Δ- and α-updates "
+        "that call no predictor at all, so the step ratio is smaller than the Z-update ratio, and both shrink "
+        "where the predictor is a small share of the work (small N). Teacher and student also propose slightly "
+        "different trial points, so the number of Z-updates and predictor calls per step differs.",
         "- **Data.** The paper's scenes come from its own filtered I-80 set (the teacher's test set, 9–30 "
         "planning steps, 16 on average); ours from the NGSIM material available here (US-101 CommonRoad scenes "
-        "and the Coifman & Li I-80 re-extraction), split by overlap group; every run here is at most "
-        "30 steps and ends when the ego settles in the target lane. The paper does not say how it made "
-        "scenes of N vehicles; we cut real scenes to the N − 1 nearest vehicles, so small N are the same "
-        "scenes with fewer vehicles, and N = 16 has fewer eligible scenes (listed per N).",
+        "and the Coifman & Li I-80 re-extraction), split by overlap group; every run here ends when the ego has "
+        "settled in the target lane or after the step limit. The paper does not say how it made scenes of N "
+        "vehicles; we cut real scenes to the N − 1 nearest vehicles, so small N are the same traffic with fewer "
+        "vehicles, and larger N have fewer eligible scenes (listed per N).",
         "- **Units and what is counted.** Times in ms (the paper's Figs. 8–9 are in s). The paper's Z-update "
         "boxes are over single updates (≈ 11,000 per N); ours are over per-step means, since the simulator "
         "records each step's count and sum (the exact mean per update is in the table). N counts the ego. "
-        "Costs are our planner's objective (its weights, docs/results/planner.md), not the paper's, so only "
-        "teacher against student is comparable, not the values.",
+        "Costs are our planner's objective (its weights and horizon, docs/results/planner.md), not the paper's, "
+        "so only teacher against student is comparable, not the values.",
         "- **Students.** The figures use the shipped student (docs/results/student.md), distilled from an "
-        "earlier planner's candidates (docs/distill.md); Table II's students are trained on a fresh set.",
+        "earlier planner's candidates (docs/distill.md); Table II's students are trained on a fresh set and "
+        "none of them is shipped by this command.",
         "- **Outcomes.** The paper reports no success rates or collisions; ours are the simulator's "
         "(docs/results/closed_loop.md has the rules), in the teacher world (the other vehicles follow the "
         "teacher's interactive prediction of the ego's executed motion).",
@@ -482,9 +497,9 @@ def readme(cfg: PaperConfig, doc: dict[str, Any], sections: dict[str, Any], comm
         "",
         "```sh",
         "make develop",
-        "make paper                       # = .venv/bin/nudge-train paper (all stages; resumable)",
-        ".venv/bin/nudge-train paper --stages table1 figures   # the figures only (no Table II)",
-        ".venv/bin/nudge-train paper --quick                   # the end-to-end check (runs/paper_quick)",
+        "make paper                                            # every stage (Table II: hours); resumable",
+        ".venv/bin/nudge-train paper --stages table1 figures   # Table I and the figures only",
+        ".venv/bin/nudge-train paper --quick                   # the end-to-end check (into runs/paper_quick)",
         "```",
         "",
     ]
