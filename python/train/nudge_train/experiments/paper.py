@@ -177,7 +177,7 @@ def run(cfg: PaperConfig, command: str, log: Any = print) -> int:
         doc["figures"] = _figures(cfg, log)
     if "table2" in cfg.stages:
         doc["table2"] = _table2(cfg, log)
-    elif not (cfg.out / "table2.md").is_file():
+    elif _pending_or_absent(cfg.out / "table2.md"):
         (cfg.out / "table2.md").write_text("# Table II: students (pending)\n\n" + table2_pending(cfg))
     doc["wall_s"] = time.perf_counter() - t_start
     doc["machine_end"] = machine()
@@ -185,6 +185,11 @@ def run(cfg: PaperConfig, command: str, log: Any = print) -> int:
     (cfg.out / "paper.json").write_text(json.dumps(_jsonable(doc), indent=1, allow_nan=True) + "\n")
     log(f"wrote {paths.repo_relative(cfg.out)} in {doc['wall_s']:.0f} s")
     return 0
+
+
+def _pending_or_absent(path: Path) -> bool:
+    """True when the Table II section is absent or the pending note (rewritten on every run)."""
+    return not path.is_file() or "(pending)" in path.read_text().split("\n", 1)[0]
 
 
 def _jsonable(x: Any) -> Any:
@@ -361,8 +366,9 @@ def figures_section(cfg: PaperConfig, fig: dict[str, Any], tables: dict[str, str
         "scene with a random target lane (the scene's seed); the arms interleaved in chunks of "
         f"{cfg.chunk} scenes. Real scenes per N: " + ", ".join(f"{n}: {fig['pools'][n]}" for n in cfg.ns)
         + " (test scenes with at least N vehicles; each N draws its runs from them).",
+        f"- planning steps per run: {_steps(fig)} (the paper: 9 to 30, 16 on average).",
         f"- {fig['sim_wall_s'] / 60:.1f} min of simulation and {fig['infer_wall_s'] / 60:.1f} min of inference timing: "
-        f"{total:.1f} min for the figures from scratch on this machine; computed {', '.join(fig['computed_at'])}. "
+        f"{total:.1f} min for the figures from scratch on this machine; computed {_span(fig['computed_at'])}. "
         f"The simulations got {share:.0f} % of a core (process CPU time / wall time): the rest of the time the "
         "thread waited for the shared CPUs, and that wait is inside the measured times.",
         f"- load average (1 / 5 / 15 min) at the start → end of each N's simulations: {loads}.",
@@ -418,6 +424,24 @@ def figures_section(cfg: PaperConfig, fig: dict[str, Any], tables: dict[str, str
         tables["outcomes"],
         "",
     ])
+
+
+def _steps(fig: dict[str, Any]) -> str:
+    """Planning steps per run over every arm: ``lo to hi, mean on average``."""
+    spr = [a["steps_per_run"] for arms in fig["stats"].values() for a in arms.values() if a.get("steps_per_run")]
+    if not spr:
+        return "n/a"
+    runs = [a["runs"] for arms in fig["stats"].values() for a in arms.values() if a.get("steps_per_run")]
+    mean = sum(r * s[1] for r, s in zip(runs, spr, strict=True)) / max(sum(runs), 1)
+    return f"{min(s[0] for s in spr)} to {max(s[2] for s in spr)}, {mean:.1f} on average"
+
+
+def _span(stamps: list[str]) -> str:
+    """``first – last`` of sorted time stamps (one when they are all equal)."""
+    stamps = sorted(s for s in stamps if s)
+    if not stamps:
+        return "n/a"
+    return stamps[0] if stamps[0] == stamps[-1] else f"{stamps[0]} – {stamps[-1]}"
 
 
 def _body(path: Path) -> str | None:

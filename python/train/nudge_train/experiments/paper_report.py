@@ -56,6 +56,7 @@ def arm_stats(payload: dict[str, Any]) -> dict[str, Any]:
     step_ms = np.asarray(steps["mpc_s"], dtype=np.float64) * 1e3
     cost = np.asarray(steps["cost"], dtype=np.float64)
     cost = cost[np.isfinite(cost)]
+    per_run = np.asarray(runs["n_steps"], dtype=np.int64)[ok] if "n_steps" in runs else np.zeros(0, np.int64)
     return {
         "runs": int(ok.sum()), "errors": int((~ok).sum()),
         "success": float(success.mean()) if success.size else math.nan,
@@ -65,6 +66,7 @@ def arm_stats(payload: dict[str, Any]) -> dict[str, Any]:
         "reached": int(reached.size), "ttt_mean": float(reached.mean()) if reached.size else math.nan,
         "ttt_median": float(np.median(reached)) if reached.size else math.nan,
         "steps": int(step_ms.size), "z_updates": int(zu.sum()),
+        "steps_per_run": [int(per_run.min()), float(per_run.mean()), int(per_run.max())] if per_run.size else None,
         "z_ms": z_ms, "step_ms": step_ms, "cost": cost,
         "z_mean_ms": float(zs.sum() / zu.sum() * 1e3) if zu.sum() > 0 else math.nan,
         "z_q": _quartiles(z_ms), "step_q": _quartiles(step_ms),
@@ -273,7 +275,7 @@ def plot_boxes(stats: dict[int, dict[str, dict]], pools: dict[int, int], field: 
                    medianprops={"color": "red", "linewidth": 1.5})
         ax.plot([], [], color=COLOURS.get(p, "k"), lw=8, alpha=0.6, label=p)
     for p, (lo, hi) in (bands or {}).items():
-        ax.axhspan(lo, hi, color=COLOURS.get(p, "k"), alpha=0.12, label=f"paper {p} ({lo:g}–{hi:g} ms)")
+        ax.axhspan(lo, hi, color=COLOURS.get(p, "k"), alpha=0.12, label=f"paper {p} ({lo:.0f}–{hi:.0f} ms)")
     runs = {n: max(a["runs"] for a in stats[n].values()) for n in ns}
     ax.set_xticks(np.arange(len(ns)), _pool_labels(ns, pools, runs), fontsize=7)
     ax.set_yscale("log")
