@@ -173,3 +173,25 @@ def test_paper_quick_end_to_end_and_resume(tmp_path: Path, monkeypatch: pytest.M
     assert main(argv) == 0
     assert f"{entry}: content hash mismatch" in capsys.readouterr().out
     assert (out / "outcomes.md").read_text() == outcomes
+
+
+def test_table2_choice_is_the_lowest_validation_ade() -> None:
+    from nudge_train.experiments.paper_table2 import CONFIGS, PAPER_TABLE_II, table_markdown
+
+    val = {(1, 1): 0.30, (1, 0): 0.12, (64, 1): 0.20, (64, 0): 0.11, (128, 0): 0.13}
+    tcfg = {"epochs": 2, "samples_per_epoch": 100, "batch_size": 8, "lr": 1e-3, "lr_schedule": "cosine",
+            "max_val_windows": 50}
+    trained = {k: {"best_val_ade": v, "epochs_run": 2, "train_s": 1.0, "tcfg": tcfg} for k, v in val.items()}
+    metric = {"ade1": 0.05, "ade6": 0.2, "fde6": 0.4, "scenes": 3, "agents": 9}
+    tested = {k: {"fidelity_all": metric, "fidelity_interactive": None, "real_all": metric,
+                  "real_interactive": metric} for k in CONFIGS}
+    manifest = {"teacher": {"sha256": "ab" * 32}, "splits": {s: {"examples": 10} for s in ("train", "val", "test")}}
+    text = table_markdown(trained, tested, manifest)
+    assert "Chosen on validation: **k_var = 64, I_adv = 0**" in text
+    rows = [ln.split("|") for ln in text.splitlines() if ln.startswith(("| 1", "| 64", "| 128"))]
+    assert [r[1].strip() for r in rows] == ["1", "1", "64", "64 (chosen)", "128"]
+    for (kv, adv), r in zip(CONFIGS, rows, strict=True):
+        assert r[2].strip() == str(adv)
+        assert r[12].strip().startswith(str(PAPER_TABLE_II[(kv, adv)][0])) and r[13].strip() == str(
+            PAPER_TABLE_II[(kv, adv)][1])
+        assert r[6].strip() == "–"  # no lane-change scenes in the held-out candidates
