@@ -154,13 +154,16 @@ def test_paper_quick_end_to_end_and_resume(tmp_path: Path, monkeypatch: pytest.M
     assert doc["quick"] is True and sorted(doc["figures"]["pools"]) == ["2", "4"]
     assert paths.model_weights("student").read_bytes() == student_before  # Table II exports nothing
 
-    # A rerun takes everything from the verified caches: no simulation, no training.
+    # A rerun takes everything from the verified caches: no simulation, no training, no evaluation,
+    # no inference timing.
     def boom(*args: object, **kwargs: object) -> None:
         raise AssertionError("recomputed although cached")
 
     with monkeypatch.context() as m:
         m.setattr(nudge, "simulate", boom)
         m.setattr("nudge_train.training.loop.train", boom)
+        m.setattr("nudge_train.training.evaluate.evaluate_generator", boom)
+        m.setattr("nudge_train.models.interactive.teacher_interactive", boom)
         assert main(argv) == 0
     assert (out / "outcomes.md").read_text() == outcomes
 

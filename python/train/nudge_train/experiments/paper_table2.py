@@ -116,8 +116,10 @@ def train_all(spec: Table2Spec, log: Log) -> dict[tuple[int, int], dict[str, Any
 
 
 def evaluate_all(spec: Table2Spec, trained: dict[tuple[int, int], dict[str, Any]], real_root: Path,
-                 log: Log) -> dict[tuple[int, int], dict[str, Any]]:
-    """The once-on-test metrics of every configuration (cached per configuration)."""
+                 manifest: dict, log: Log) -> dict[tuple[int, int], dict[str, Any]]:
+    """The once-on-test metrics of every configuration (cached per configuration, keyed by the
+    weights, the sha256 of every test shard the distillation ``manifest`` lists and the real
+    test set's manifest)."""
     import numpy as np
     import torch
 
@@ -127,12 +129,13 @@ def evaluate_all(spec: Table2Spec, trained: dict[tuple[int, int], dict[str, Any]
 
     torch.set_num_threads(spec.threads)
     real_manifest = real_root / "manifest.json"
+    test_shards = [e["sha256"] for e in manifest["splits"]["test"]["shards"]]
     dtest = real = None
     out: dict[tuple[int, int], dict[str, Any]] = {}
     for (kv, adv), info in trained.items():
         run_dir = spec.runs / name_of(kv, adv)
-        inputs = {"best": file_sha(run_dir / "best.pt"), "distill": file_sha(spec.distill / "manifest.json"),
-                  "real": file_sha(real_manifest), "max_real": spec.max_real}
+        inputs = {"best": file_sha(run_dir / "best.pt"), "distill_test": test_shards, "real": file_sha(real_manifest),
+                  "max_real": spec.max_real}
         key = sha256(json.dumps(inputs, sort_keys=True).encode())
         path = spec.cache / "table2" / f"{name_of(kv, adv)}-test.json"
         payload = load_cached(path, key, log)
@@ -201,6 +204,6 @@ def run(spec: Table2Spec, real_root: Path, log: Log) -> dict[str, Any]:
     if incomplete:
         raise RuntimeError(f"{spec.distill}: splits {incomplete} are incomplete after generation")
     trained = train_all(spec, log)
-    tested = evaluate_all(spec, trained, real_root, log)
+    tested = evaluate_all(spec, trained, real_root, manifest, log)
     return {"markdown": table_markdown(trained, tested, manifest), "manifest": manifest, "trained": trained,
             "tested": tested}
