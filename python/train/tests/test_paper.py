@@ -198,3 +198,21 @@ def test_table2_choice_is_the_lowest_validation_ade() -> None:
         assert r[12].strip().startswith(str(PAPER_TABLE_II[(kv, adv)][0])) and r[13].strip() == str(
             PAPER_TABLE_II[(kv, adv)][1])
         assert r[6].strip() == "–"  # no lane-change scenes in the held-out candidates
+
+
+def test_a_training_run_of_other_inputs_starts_afresh(tmp_path: Path) -> None:
+    from nudge_train.experiments.paper_table2 import INPUTS_FILE, _check_run_inputs
+
+    run = tmp_path / "student_k1_adv0"
+    logs: list[str] = []
+    _check_run_inputs(run, {"data": ["a"], "train": {"epochs": 2}}, logs.append)
+    (run / "last.pt").write_bytes(b"checkpoint")
+    _check_run_inputs(run, {"data": ["a"], "train": {"epochs": 2}}, logs.append)
+    assert (run / "last.pt").is_file() and not logs  # same inputs: kept, resumable
+    _check_run_inputs(run, {"data": ["b"], "train": {"epochs": 2}}, logs.append)
+    assert not (run / "last.pt").exists() and (run / INPUTS_FILE).is_file()
+    assert "trained on other data or settings" in logs[-1]
+    (run / "summary.json").write_text("{}")
+    (run / INPUTS_FILE).unlink()  # a folder without its record is not trusted either
+    _check_run_inputs(run, {"data": ["b"], "train": {"epochs": 2}}, logs.append)
+    assert not (run / "summary.json").exists() and len(logs) == 2

@@ -74,6 +74,38 @@ def generate_set(spec: Table2Spec, log: Log) -> dict:
     return generate(cfg, log=log)
 
 
+INPUTS_FILE = "paper_inputs.json"
+"""The inputs a Table II training run was started with (data shards, configuration), in its folder."""
+
+
+def _shards_key(distill: Path, splits: tuple[str, ...]) -> list[str]:
+    """The sha256 of every shard of ``splits`` the distillation manifest lists, in order."""
+    from nudge_train.jsonio import load_json
+
+    manifest = load_json(distill / "manifest.json")
+    return [e["sha256"] for s in splits for e in manifest["splits"][s]["shards"]]
+
+
+def _check_run_inputs(run_dir: Path, inputs: dict[str, Any], log: Log) -> None:
+    """Keeps a training run folder only when it was started with ``inputs`` (same data shards,
+    same configuration); otherwise removes it, so the run starts afresh, and says so."""
+    import shutil
+
+    key = sha256(json.dumps(inputs, sort_keys=True, default=str).encode())
+    record = run_dir / INPUTS_FILE
+    if run_dir.exists() and any(run_dir.iterdir()):
+        try:
+            ok = json.loads(record.read_text()).get("key") == key
+        except (OSError, json.JSONDecodeError, AttributeError):
+            ok = False
+        if ok:
+            return
+        log(f"table2: {run_dir} was trained on other data or settings; training it afresh")
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps({"key": key, "inputs": inputs}, indent=1, default=str))
+
+
 def train_all(spec: Table2Spec, log: Log) -> dict[tuple[int, int], dict[str, Any]]:
     """Trains (or resumes, or skips) the five configurations; returns their summaries (with the
     training wall time summed over epochs, ``train_s``)."""
@@ -94,11 +126,14 @@ def train_all(spec: Table2Spec, log: Log) -> dict[tuple[int, int], dict[str, Any
     if spec.epochs is not None:
         over["patience"] = spec.epochs
     train_set = val_set = None
+    data_key = _shards_key(spec.distill, ("train", "val"))
     out: dict[tuple[int, int], dict[str, Any]] = {}
     for kv, adv in CONFIGS:
         tcfg = dataclasses.replace(base, **over, k_var=float(kv), i_adv=adv,
                                    out_dir=str(spec.runs / name_of(kv, adv))).validate()
         run_dir = Path(tcfg.out_dir)
+        settings = {k: v for k, v in dataclasses.asdict(tcfg).items() if k not in ("out_dir", "data", "threads", "device")}
+        _check_run_inputs(run_dir, {"data": data_key, "train": settings, "model": mcfg.to_dict()}, log)
         if (run_dir / "summary.json").exists():
             summary = load_json(run_dir / "summary.json")
             log(f"table2: {name_of(kv, adv)} already trained (best epoch {summary['best_epoch'] + 1})")
