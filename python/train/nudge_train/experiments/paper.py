@@ -508,7 +508,7 @@ def readme(cfg: PaperConfig, doc: dict[str, Any], command: str) -> str:
         "- **Units and what is counted.** Times in ms (the paper's Figs. 8–9 are in s). The paper's Z-update "
         "boxes are over single updates (≈ 11,000 per N); ours are over per-step means, since the simulator "
         "records each step's count and sum (the exact mean per update is in the table). N counts the ego. "
-        "Costs are our planner's objective (its weights and horizon, docs/results/planner.md), not the paper's, "
+        "Costs are our planner's objective (its weights and horizon: docs/reference/settings.md), not the paper's, "
         "so only teacher against student is comparable, not the values.",
         "- **Students.** The figures use the shipped student (docs/results/student.md), distilled from an "
         "earlier planner's candidates (docs/distill.md); Table II's students are trained on a fresh set and "
