@@ -471,7 +471,7 @@ def readme(cfg: PaperConfig, doc: dict[str, Any], command: str) -> str:
         f"{ms['nice']}; load average (1 / 5 / 15 min) {_load(ms['load'])} at the start, {_load(me['load'])} "
         f"at the end of this invocation ({doc['wall_s'] / 60:.1f} min; stages: {', '.join(cfg.stages)}; "
         "cached results are verified and reused, not rerun).",
-        "- scenes: the test split's planner scenes (`data/processed/scenes/test`, NGSIM US-101 and I-80, "
+        "- scenes: the test split's planner scenes (`data/processed/scenes/test`, NGSIM US-101: the I-80 data have no planner scenes; "
         "split by overlap group so no vehicle of a test scene is in training), each cut to the ego and its "
         "N − 1 nearest vehicles at the last observed step; N counts the ego.",
         "",
