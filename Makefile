@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -27,6 +27,7 @@ help:
 	@echo "make data     build the processed NGSIM dataset from DATA=$(DATA)"
 	@echo "make teacher  train the paper's teacher configurations, write docs/results/teacher.md"
 	@echo "make student  generate the distillation set with the planner + teacher, distil the student"
+	@echo "make paper    the paper's Tables I-II and Figures 7-10 into docs/paper (resumable, hours: Table II)"
 	@echo "make reaction the teacher's and the students' reaction to the ego vs real cut-ins (docs/results/reaction.md)"
 
 # ---- set-up ---------------------------------------------------------------------------------
@@ -211,6 +212,17 @@ student-react: distill-react
 
 reaction: distill-react
 	$(TRAIN) reaction --distill $(REACT_DISTILL) $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)
+
+# The paper's evidence in one command (docs/paper/README.md): Table I from docs/results/teacher.md,
+# Figures 7-10 by vehicle count (7 x 100 closed-loop runs per predictor, one thread) and Table II
+# (a fresh paper-size distillation set and five students: hours). Resumable; caches in runs/paper.
+# paper-quick: the same pipeline end to end on tiny sizes into runs/paper_quick (tests run it too).
+paper: develop
+	test -f data/processed/manifest.json || $(MAKE) data
+	$(TRAIN) paper
+
+paper-quick: develop
+	$(TRAIN) paper --quick --no-progress
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
 # planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the

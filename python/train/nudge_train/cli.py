@@ -8,6 +8,7 @@
     nudge-train student-react              distil a student with a loss on its reaction to the ego
     nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
+    nudge-train paper [--quick]            the paper's Tables I-II and Figures 7-10 into docs/paper
     nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
@@ -370,6 +371,52 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
     return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []), before)
 
 
+# ---- the paper ---------------------------------------------------------------------------------
+def _add_paper(sub: argparse._SubParsersAction) -> None:
+    from nudge_train.experiments.paper import STAGES, PaperConfig
+
+    d = PaperConfig(out=Path("docs/paper"), cache=Path("runs/paper"), scenes=Path(), processed=Path(),
+                    teacher_report=Path())
+    p = _command(sub, "paper", "the paper's Tables I-II and Figures 7-10 regenerated into docs/paper "
+                 "(resumable; every timing on one thread)", _run_paper)
+    p.add_argument("--quick", action="store_true",
+                   help="a check that the pipeline runs end to end (2 vehicle counts, a few short runs, a tiny "
+                        "Table II), into runs/paper_quick unless --out / --cache are given")
+    p.add_argument("--out", type=Path, default=None, help=f"output folder (default {d.out})")
+    p.add_argument("--cache", type=Path, default=None, help=f"resumable intermediate results (default {d.cache})")
+    p.add_argument("--stages", nargs="+", default=None, metavar="STAGE",
+                   help=f"stages to run, among {' '.join(STAGES)} (default: all)")
+    p.add_argument("--ns", nargs="+", type=int, default=None,
+                   help=f"vehicle counts, ego included (default {' '.join(map(str, d.ns))})")
+    p.add_argument("--sims", type=int, default=None,
+                   help=f"closed-loop runs per vehicle count and predictor (default {d.sims})")
+    p.add_argument("--seed", type=int, default=None,
+                   help=f"seed of the scene draw and target lanes (default {d.seed})")
+    p.add_argument("--threads", type=int, default=None,
+                   help=f"threads of the distillation-set generation and the student training (default "
+                        f"{d.threads}; timings always run on one)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _run_paper(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.paper import PaperConfig, run
+
+    over = {k: v for k, v in (("out", a.out), ("cache", a.cache), ("sims", a.sims), ("seed", a.seed),
+                              ("threads", a.threads)) if v is not None}
+    if a.stages is not None:
+        over["stages"] = tuple(a.stages)
+    if a.ns is not None:
+        over["ns"] = tuple(a.ns)
+    over["progress"] = not a.no_progress
+    argv = sys.argv[2:] if len(sys.argv) > 2 and sys.argv[1] == "paper" else []
+    try:
+        cfg = (PaperConfig.quick_config(**over) if a.quick else PaperConfig(**over)).validate()
+        return run(cfg, " ".join(["nudge-train", "paper", *argv]))
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
 # ---- benches, goldens, figures -----------------------------------------------------------------
 def _add_bench(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmark tables", description="benchmark tables")
@@ -568,7 +615,7 @@ def build_parser() -> argparse.ArgumentParser:
                "override them.",
     )
     sub = parser.add_subparsers(dest="cmd", required=True,
-                                metavar="{data,train,teacher,student,distill,closed-loop,bench,goldens,figures,idm}")
+                                metavar="{data,train,teacher,student,distill,closed-loop,paper,bench,goldens,figures,idm}")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
@@ -577,6 +624,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_reaction(sub)
     _add_distill(sub)
     _add_closed_loop(sub)
+    _add_paper(sub)
     _add_bench(sub)
     _add_goldens(sub)
     _add_figures(sub)
