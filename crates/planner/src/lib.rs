@@ -17,6 +17,7 @@
 mod admm;
 pub mod describe;
 mod error;
+pub mod extents;
 pub mod fit;
 pub mod lane;
 mod model;
@@ -33,6 +34,7 @@ pub use admm::{
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
 };
+pub use extents::{LaneViolation, LaneViolationKind, Lanes};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
@@ -42,7 +44,7 @@ pub use safety::{
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutput, RunRecord,
-    RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel, WorldSpec, run_specs,
-    simulate, simulate_many, simulate_with, target_lane,
+    Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
+    RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,
+    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane,
 };

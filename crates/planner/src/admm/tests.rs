@@ -47,6 +47,7 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem
         v_ref: v,
         road: [-1.85, 5.55],
         y_retreat: None,
+        lanes: None,
     }
 }
 

@@ -13,7 +13,7 @@ use super::records::{RunRecord, StepRecord, StepStatus};
 
 /// Run columns, in order (one row per run, failed runs included). The metric columns are
 /// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
-pub const RUN_COLUMNS: [&str; 39] = [
+pub const RUN_COLUMNS: [&str; 40] = [
     "scenario",
     "scene_index",
     "seed",
@@ -52,6 +52,7 @@ pub const RUN_COLUMNS: [&str; 39] = [
     "max_overshoot",
     "free_gap",
     "score",
+    "outcome",
     "error",
 ];
 
@@ -327,6 +328,7 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
         float("max_overshoot", |m| m.max_overshoot),
         float("free_gap", |m| m.free_gap),
         float("score", |m| m.score),
+        ("outcome", text(|r| r.outcome.as_str().to_string())),
         (
             "error",
             Column::OptText(
