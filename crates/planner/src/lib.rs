@@ -7,7 +7,8 @@
 //! phases are described in its module). Plus the scenario reader ("nudge.scenario/1" and "/2"
 //! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
 //! [`simulate_many`]) in three worlds (the teacher's predictions, IDM traffic fitted to real
-//! car-following, the log; [`World`]), with the metrics every run is judged by
+//! car-following, the log; [`World`]; lanes that begin and end, [`extents`]: a merge out of a
+//! lane that ends, a run that fails as [`RunOutcome::LaneEnded`]), with the metrics every run is judged by
 //! ([`sim::metrics`]: collisions at fault or not, off-road, straddling, slow steps, time to
 //! collision, comfort, the score) and the records and columns both front ends report.
 //!

@@ -349,11 +349,11 @@ fn lane_layout(
     let flags: Vec<bool> = match real {
         None => vec![true; 2 * nl],
         Some(r) => {
-            // A bool array is read as 0/1; anything else must hold exactly 0 or 1.
+            // A bool or integer array is read as numbers; every value must be exactly 0 or 1.
             let np = r.py().import("numpy")?;
             let arr = np.call_method1("asarray", (r,))?;
             let kind: String = arr.getattr("dtype")?.getattr("kind")?.extract()?;
-            let arr = if kind == "b" {
+            let arr = if matches!(kind.as_str(), "b" | "i" | "u") {
                 arr.call_method1("astype", ("float64",))?
             } else {
                 r.clone()
