@@ -14,6 +14,10 @@
 //!   begin, and how far it is from leaving the lane sideways, m) and repairs it; a plan that
 //!   still has one is [`crate::PlanStatus::Unsafe`] and names the first such state
 //!   ([`crate::Plan::lane_violation`]).
+//! * **A lane not yet begun as the goal**: while the lateral target lies in a lane that
+//!   really begins beyond the horizon's reach (x_0 + v_0 · T · dt), the call aims at the
+//!   centre of the ego's own lane instead (without it the ego pressed against the line of the
+//!   closed lane and, with no admissible plan left, crossed it: found by the property test).
 //! * **Urgency** (a cost): while the ego's centre is in a lane that really ends ahead and the
 //!   lateral target lies outside that lane (a merge), the weight of the lateral tracking error
 //!   grows as the remaining distance d to the end (m, from the ego's centre) shrinks:

@@ -137,7 +137,8 @@ impl LinearisedProblem {
             &nominal_accel,
             s.v_lin_min,
         );
-        let (lower, upper) = state_bounds(s, p, origin[1], p.y_target);
+        let y_goal = held_goal(s, p);
+        let (lower, upper) = state_bounds(s, p, origin[1], y_goal);
         Self {
             horizon: t,
             origin,
@@ -148,7 +149,7 @@ impl LinearisedProblem {
             nominal_rollout,
             warm_duals,
             weights: State::new(0.0, lateral_weight(s, p), s.w_psi, s.w_v),
-            reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
+            reference: State::new(0.0, y_goal - origin[1], 0.0, p.v_ref),
             retreat: p.y_retreat.map(|y| {
                 let (lower, upper) = state_bounds(s, p, origin[1], y);
                 Retreat {
@@ -274,6 +275,26 @@ pub(crate) fn lateral_weight(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f6
         s.w_y + s.w_deadline * factor
     } else {
         s.w_y
+    }
+}
+
+/// The lateral goal of the call (m): `y_target`, except while `y_target` lies in a lane that
+/// really begins beyond the reach of the horizon (x_0 + v_0 · T · dt < begin) and the ego is
+/// in another lane: then the centre of the ego's own lane, so that the ego does not press
+/// against the line of a lane it may not enter yet.
+fn held_goal(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
+    let Some(lanes) = p.lanes else {
+        return p.y_target;
+    };
+    let (Some(target), Some(own)) = (lanes.lane_at(p.y_target), lanes.lane_at(p.ego.y)) else {
+        return p.y_target;
+    };
+    let e = lanes.extents[target];
+    let reach = p.ego.x + p.ego.v * s.horizon as f64 * s.dt;
+    if target != own && e.begins && reach < e.begin {
+        0.5 * (lanes.bounds[own] + lanes.bounds[own + 1])
+    } else {
+        p.y_target
     }
 }
 
