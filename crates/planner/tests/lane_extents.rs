@@ -158,13 +158,18 @@ fn a_blocked_main_lane_ends_the_run_as_lane_ended() {
         result: Ok(run),
         examples: None,
     };
-    let table = nudge_planner::sim::run_table(std::slice::from_ref(&sc), &[out]);
+    let table =
+        nudge_planner::sim::run_table(std::slice::from_ref(&sc), std::slice::from_ref(&out));
     let mut csv = Vec::new();
     table.write_csv(&mut csv).unwrap();
     let csv = String::from_utf8(csv).unwrap();
     let (head, row) = csv.split_once('\n').unwrap();
     let i = head.split(',').position(|c| c == "outcome").unwrap();
     assert_eq!(row.trim().split(',').nth(i), Some("LaneEnded"), "{csv}");
+    // And the summary both front ends print counts it.
+    let summary = nudge_planner::Summary::of(std::slice::from_ref(&out));
+    assert_eq!(summary.lane_out, (1, 0));
+    assert!(summary.to_string().contains("(LaneEnded): 1;"), "{summary}");
 }
 
 #[test]
