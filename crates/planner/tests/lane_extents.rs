@@ -381,3 +381,38 @@ fn shipped_scenes_plan_bit_for_bit_the_same_with_lanes_that_span_the_scene() {
         assert_eq!(x, y, "{}", sc.name);
     }
 }
+
+/// The shipped real merges (`assets/scenes/merge`, US-101 vehicle 434 in the auxiliary lane):
+/// schema 2 with the ego's lane really ending ahead; in closed loop (constant-velocity planning,
+/// the others replaying the log) every run merges before the end without a collision.
+#[test]
+fn shipped_real_merges_complete_before_the_end() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes/merge");
+    let (scenes, bad) = Scenario::load_dir(&dir).unwrap();
+    assert!(bad.is_empty(), "{bad:?}");
+    assert_eq!(scenes.len(), 7);
+    let cfg = log_replay(30);
+    for sc in &scenes {
+        let lanes = sc.lanes().unwrap();
+        let own = lanes.extents[sc.ego_lane];
+        let x0 = sc.position(0, T_OBS - 1)[0];
+        assert!(own.ends && own.end > x0, "{}: the ego's lane ends ahead", sc.name);
+        let mut cv = ConstantVelocity::default();
+        let run = simulate(
+            sc,
+            &PlannerSettings::default(),
+            &cfg,
+            0,
+            &mut cv,
+            WorldModel::LogReplay,
+        )
+        .unwrap();
+        assert_eq!(run.outcome, RunOutcome::Success, "{}", sc.name);
+        let line = sc.lane_bounds[sc.ego_lane + 1];
+        let crossed = run.steps.iter().find(|s| s.ego[1] > line).unwrap();
+        assert!(crossed.ego[0] < own.end, "{}", sc.name);
+        for s in &run.steps {
+            assert_eq!(lanes.outside(s.ego[0], s.ego[1]), None);
+        }
+    }
+}
