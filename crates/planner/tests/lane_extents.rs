@@ -396,7 +396,11 @@ fn shipped_real_merges_complete_before_the_end() {
         let lanes = sc.lanes().unwrap();
         let own = lanes.extents[sc.ego_lane];
         let x0 = sc.position(0, T_OBS - 1)[0];
-        assert!(own.ends && own.end > x0, "{}: the ego's lane ends ahead", sc.name);
+        assert!(
+            own.ends && own.end > x0,
+            "{}: the ego's lane ends ahead",
+            sc.name
+        );
         let mut cv = ConstantVelocity::default();
         let run = simulate(
             sc,
