@@ -183,11 +183,15 @@ impl Lanes<'_> {
 
     /// The lane whose band holds lateral position `y` (m): lane j when
     /// `bounds[j] <= y < bounds[j + 1]` (the left edge counts to the last lane); `None` off
-    /// the road.
+    /// the road (and for a layout without L + 1 boundaries).
     #[must_use]
     pub fn lane_at(&self, y: f64) -> Option<usize> {
         let nl = self.extents.len();
-        if nl == 0 || !(self.bounds[0]..=self.bounds[nl]).contains(&y) {
+        // A layout that fails [`Lanes::check`] (the wrong number of boundaries) holds no lane.
+        if nl == 0
+            || self.bounds.len() != nl + 1
+            || !(self.bounds[0]..=self.bounds[nl]).contains(&y)
+        {
             return None;
         }
         Some(self.bounds[1..nl].partition_point(|&b| b <= y))
@@ -365,6 +369,12 @@ mod tests {
             Err(e) => panic!("{e}"),
         };
         assert_eq!(check(&b[..3], &x), Some((0, "bounds")));
+        let short = Lanes {
+            bounds: &b[..3],
+            extents: &x,
+        };
+        assert_eq!(short.lane_at(0.0), None, "a malformed layout holds no lane");
+        assert_eq!(short.outside(1e4, 0.0), None);
         let mut b2 = b.clone();
         b2[2] = 1.0;
         assert_eq!(check(&b2, &x), Some((1, "bounds")));

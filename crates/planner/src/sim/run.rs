@@ -45,11 +45,14 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
     if sc.ego_lane + 1 < sc.lane_centres.len() {
         options.push(sc.ego_lane + 1);
     }
-    if let Some(ext) = &sc.lane_extents {
+    if let Some(ext) = &sc.lane_extents
+        && let Some(&own) = ext.get(sc.ego_lane)
+    {
         let x = sc.position(0, T_OBS - 1)[0];
-        let own = ext[sc.ego_lane];
         options.retain(|&j| {
-            let e = ext[j];
+            let Some(&e) = ext.get(j) else {
+                return false;
+            };
             let closed = (e.begins && x < e.begin) || (e.ends && x > e.end);
             let outlasts = !own.ends || !e.ends || e.end >= own.end;
             !closed && outlasts
