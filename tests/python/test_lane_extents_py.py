@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, seed, settings
+from hypothesis import strategies as st
 
 import nudge
 
@@ -70,3 +72,36 @@ def test_simulate_reports_the_outcome(scenes: list[Path]) -> None:
     for ok, collision, outcome in zip(runs["success"], runs["collision"], runs["outcome"], strict=True):
         want = "Success" if ok else ("Collision" if collision else "Unfinished")
         assert outcome == want
+
+
+_value = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(min_value=-600.0, max_value=2100.0),
+    st.sampled_from([-1.85, 1.85, 5.55, 120.0, 1e300, -0.0]),
+)
+
+
+@seed(14)
+@settings(max_examples=60, deadline=None, database=None)
+@given(
+    n_lanes=st.integers(min_value=0, max_value=4),
+    n_bounds_delta=st.sampled_from([1, 1, 1, 0, 2]),
+    data=st.data(),
+)
+def test_arbitrary_layouts_give_a_plan_or_an_input_error(n_lanes: int, n_bounds_delta: int,
+                                                          data: st.DataObject) -> None:
+    """Any layout (non-finite, unordered, the wrong number of boundaries, odd flags): a plan
+    whose ``lane_violation`` is None or names a lane of the layout, or InputError; never
+    another exception."""
+    bounds = np.array(data.draw(st.lists(_value, min_size=n_lanes + n_bounds_delta,
+                                         max_size=n_lanes + n_bounds_delta)), dtype=np.float64)
+    extents = np.array(data.draw(st.lists(_value, min_size=2 * n_lanes, max_size=2 * n_lanes)),
+                       dtype=np.float64).reshape(n_lanes, 2)
+    real = np.array(data.draw(st.lists(st.sampled_from([0, 1, 1, 2]), min_size=2 * n_lanes,
+                                       max_size=2 * n_lanes)), dtype=np.int64).reshape(n_lanes, 2)
+    try:
+        out = _plan(100.0, 3.7, lane_bounds=bounds, lane_extents=extents, lane_extent_real=real)
+    except nudge.InputError:
+        return
+    v = out["lane_violation"]
+    assert v is None or (0 <= v["lane"] < n_lanes and v["kind"] in ("Ended", "NotBegun"))
