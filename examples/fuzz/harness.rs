@@ -1032,6 +1032,7 @@ fn scenario_try(rng: &mut Rng, seeds: &[Vec<u8>], student: Option<&Student>) -> 
         v_ref: sc.speed[0],
         road: sc.road(),
         y_retreat: Some(sc.lane_centres[sc.ego_lane]),
+        lanes: sc.lanes(),
     };
     let mut planner = Planner::new(settings.clone()).unwrap();
     let mut cv = ConstantVelocity::default();
@@ -1209,6 +1210,7 @@ fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
         v_ref: sc.speed[0],
         road: sc.road(),
         y_retreat: Some(sc.lane_centres[sc.ego_lane]),
+        lanes: sc.lanes(),
     };
     match planner.plan(&problem, &mut cv) {
         Ok(plan) => match judge_plan(&planner, ego, &plan) {
@@ -1476,6 +1478,7 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
         v_ref,
         road,
         y_retreat,
+        lanes: sc.lanes(),
     };
     let settings = PlannerSettings::default();
     let mut planner = Planner::new(settings.clone()).unwrap();

@@ -190,6 +190,12 @@ class Timings(TypedDict):
     total_s: float
     z_updates_s: _F64
 
+class LaneViolation(TypedDict):
+    step: int  # plan step, 1-based
+    lane: int
+    kind: Literal["Ended", "NotBegun"]
+    x: float  # m
+
 class PlanResult(TypedDict, total=False):
     delta: _F64  # [T] rad
     accel: _F64  # [T] m/s^2
@@ -207,6 +213,7 @@ class PlanResult(TypedDict, total=False):
     status: Literal["Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"]
     solver_failure: tuple[str, str] | None  # (qp "delta" | "alpha", Clarabel status) for SolverFailed
     timings: Timings
+    lane_violation: LaneViolation | None  # first planned state in a lane outside its extent
     target_lane: int  # plan_scenario only
     y_target: float  # plan_scenario only
 
@@ -235,7 +242,16 @@ class Planner:
         last_delta: float = 0.0,
         last_accel: float = 0.0,
         y_retreat: float | None = None,
-    ) -> PlanResult: ...
+        lane_bounds: _Coords | None = None,
+        lane_extents: _Coords | None = None,
+        lane_extent_real: _Coords | None = None,
+    ) -> PlanResult:
+        """One MPC call on raw arrays. Lanes that begin and end (as ``Scenario.lane_bounds``,
+        ``lane_extents``, ``lane_extent_real`` give them): ``lane_bounds`` ``[L + 1]`` (m),
+        ``lane_extents`` ``[L, 2]`` (begin, end x, m), ``lane_extent_real`` ``[L, 2]`` (bool or
+        0/1, default all true); both of the first two or neither. A planned state in a lane that
+        has not begun or has ended is inadmissible (``lane_violation``); a bad layout raises
+        InputError naming the lane and field."""
     def plan_scenario(self, scenario: Scenario, target_lane: int | None = None, seed: int = 0) -> PlanResult: ...
 
 def model_path(assets: _Path, name: Literal["teacher", "student"]) -> Path:
@@ -409,8 +425,9 @@ def simulate(
       max_abs_lat_accel, rms_lat_accel f64 (m/s^2), max_abs_yaw_rate, rms_yaw_rate f64
       (rad/s), max_abs_yaw_accel f64 (rad/s^2), min_accel, max_accel f64 (m/s^2),
       comfortable bool, max_abs_heading f64 (rad), max_overshoot f64 (m, beyond the target lane's
-      centre), free_gap f64 (m), score f64, error list[str | None] (metric columns of
-      a failed run: -1 / NaN / False);
+      centre), free_gap f64 (m), score f64, outcome list[str] ("Success", "Collision",
+      "LaneEnded", "LaneNotBegun", "Unfinished"; "" on error), error list[str | None] (metric
+      columns of a failed run: -1 / NaN / False);
     - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
       z_updates i64, z_s f64 (sum of the Z-update times), z_median_s f64, iterations i64,
       predictor_calls i64, cost f64, primal_residual f64, min_b f64 (the planner's constraint

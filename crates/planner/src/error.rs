@@ -234,6 +234,17 @@ pub enum PlannerError {
         /// What is wrong.
         reason: String,
     },
+    /// The lane layout of the planning problem ([`crate::PlanningProblem::lanes`]) is
+    /// malformed.
+    #[error("bad planning problem: lane {lane} {field}: {reason}")]
+    BadLane {
+        /// Index of the offending lane.
+        lane: usize,
+        /// The offending field of it (`bounds`, `begin`, `end`).
+        field: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
     /// Clarabel could not set up the joint reference QP ([`crate::Planner::reference_qp`];
     /// inside [`crate::Planner::plan`] a QP failure ends in status
     /// [`crate::PlanStatus::SolverFailed`] instead).

@@ -7,7 +7,8 @@
 //! phases are described in its module). Plus the scenario reader ("nudge.scenario/1" and "/2"
 //! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
 //! [`simulate_many`]) in three worlds (the teacher's predictions, IDM traffic fitted to real
-//! car-following, the log; [`World`]), with the metrics every run is judged by
+//! car-following, the log; [`World`]; lanes that begin and end, [`extents`]: a merge out of a
+//! lane that ends, a run that fails as [`RunOutcome::LaneEnded`]), with the metrics every run is judged by
 //! ([`sim::metrics`]: collisions at fault or not, off-road, straddling, slow steps, time to
 //! collision, comfort, the score) and the records and columns both front ends report.
 //!
@@ -17,6 +18,7 @@
 mod admm;
 pub mod describe;
 mod error;
+pub mod extents;
 pub mod fit;
 pub mod lane;
 mod model;
@@ -33,6 +35,7 @@ pub use admm::{
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
 };
+pub use extents::{LaneViolation, LaneViolationKind, Lanes};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
@@ -42,7 +45,7 @@ pub use safety::{
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;
 pub use sim::{
-    Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutput, RunRecord,
-    RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel, WorldSpec, run_specs,
-    simulate, simulate_many, simulate_with, target_lane,
+    Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
+    RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,
+    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane,
 };

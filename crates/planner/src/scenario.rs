@@ -786,6 +786,18 @@ impl Scenario {
         }
     }
 
+    /// The lane layout with extents for a [`crate::PlanningProblem`] (`None` for a
+    /// "nudge.scenario/1" scene).
+    #[must_use]
+    pub fn lanes(&self) -> Option<crate::extents::Lanes<'_>> {
+        self.lane_extents
+            .as_deref()
+            .map(|extents| crate::extents::Lanes {
+                bounds: &self.lane_bounds,
+                extents,
+            })
+    }
+
     /// Road edges (right, left) y (m).
     #[must_use]
     pub fn road(&self) -> [f64; 2] {

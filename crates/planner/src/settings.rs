@@ -40,6 +40,12 @@ pub struct PlannerSettings {
 
     /// Weight of (y − y_target)² per step (1/m²).
     pub w_y: f64,
+    /// Deadline weight of a merge (1/m²): while the ego's centre is in a lane that really ends
+    /// d m ahead and the target lies outside it, the lateral weight is w_y + w_deadline ·
+    /// clamp(1 − d / `deadline_distance`, 0, 1)² ([`crate::extents`]); 0 disables it.
+    pub w_deadline: f64,
+    /// Distance to the end of the ego's lane (m) from which the deadline weight counts.
+    pub deadline_distance: f64,
     /// Weight of (v − v_ref)² per step.
     pub w_v: f64,
     /// Weight of ψ² per step (heading relative to the road).
@@ -159,6 +165,8 @@ impl Default for PlannerSettings {
             l_f: 1.4,
             l_r: 1.4,
             w_y: 15.0,
+            w_deadline: 60.0,
+            deadline_distance: 100.0,
             w_v: 3.0,
             w_psi: 1.0,
             w_delta: 3.0,
@@ -307,6 +315,8 @@ pub const RANGES: &[FieldRange] = &[
     closed("l_f", 0.5, 5.0, "m"),
     closed("l_r", 0.5, 5.0, "m"),
     closed("w_y", 0.0, W_MAX, "1/m²"),
+    closed("w_deadline", 0.0, W_MAX, "1/m²"),
+    open_min("deadline_distance", 0.0, 1e4, "m"),
     closed("w_v", 0.0, W_MAX, "s²/m²"),
     closed("w_psi", 0.0, W_MAX, "1/rad²"),
     closed("w_delta", 0.0, W_MAX, "1/rad²"),
@@ -386,6 +396,8 @@ impl PlannerSettings {
             "l_f" => self.l_f,
             "l_r" => self.l_r,
             "w_y" => self.w_y,
+            "w_deadline" => self.w_deadline,
+            "deadline_distance" => self.deadline_distance,
             "w_v" => self.w_v,
             "w_psi" => self.w_psi,
             "w_delta" => self.w_delta,

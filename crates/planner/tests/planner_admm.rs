@@ -46,6 +46,7 @@ fn problem<'a>(
         v_ref: v,
         road: [-1.85, 9.25],
         y_retreat: None,
+        lanes: None,
     }
 }
 

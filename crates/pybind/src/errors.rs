@@ -132,9 +132,9 @@ pub fn planner_err(err: PlannerError) -> PyErr {
         PlannerError::Settings(e) => settings_err(e),
         // Keep the planner's context ("predictor failed: ...") in the message.
         PlannerError::Predictor(e) => same_class(&predictor_err(e), msg),
-        PlannerError::BadProblem { .. } | PlannerError::HorizonMismatch { .. } => {
-            InputError::new_err(msg)
-        }
+        PlannerError::BadProblem { .. }
+        | PlannerError::BadLane { .. }
+        | PlannerError::HorizonMismatch { .. } => InputError::new_err(msg),
         _ => SolverError::new_err(msg),
     }
 }

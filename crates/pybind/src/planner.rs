@@ -2,7 +2,10 @@
 
 use std::sync::Mutex;
 
-use nudge_planner::{EgoState, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem};
+use nudge_planner::scenario::{LaneExtent, MAX_LANES};
+use nudge_planner::{
+    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem,
+};
 use nudge_predictor::{History, MAX_AGENTS, T_OBS};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
@@ -65,6 +68,24 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
     d.set_item("checked", plan.checked)?;
     d.set_item("rollout_min_safety", plan.rollout_min_safety)?;
     d.set_item("status", plan.status.name())?;
+    let violation = plan
+        .lane_violation
+        .map(|v| -> PyResult<Bound<'py, PyDict>> {
+            let e = PyDict::new(py);
+            e.set_item("step", v.step)?;
+            e.set_item("lane", v.lane)?;
+            e.set_item(
+                "kind",
+                match v.kind {
+                    LaneViolationKind::Ended => "Ended",
+                    LaneViolationKind::NotBegun => "NotBegun",
+                },
+            )?;
+            e.set_item("x", v.x)?;
+            Ok(e)
+        })
+        .transpose()?;
+    d.set_item("lane_violation", violation)?;
     // Which QP failed and Clarabel's status, for status "SolverFailed".
     let failure = match plan.status {
         PlanStatus::SolverFailed { qp, status } => Some((
@@ -169,8 +190,15 @@ impl PyPlanner {
     /// `iterations`, `predictor_calls`, `qp_solves`, `primal_residual`, `change_residual`,
     /// `min_safety` and `rollout_min_safety` (float or None), `checked`, `status` (a
     /// `PlanStatus` name), `solver_failure` (`(qp, clarabel_status)` for `"SolverFailed"`,
-    /// else None), `timings` (dict, seconds).
-    #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0, y_retreat = None))]
+    /// else None), `timings` (dict, seconds), `lane_violation` (None, or a dict `step`,
+    /// `lane`, `kind` (`"Ended"` / `"NotBegun"`), `x`: the first planned state in a lane
+    /// outside its extent).
+    ///
+    /// Lanes that begin and end (`PlanningProblem::lanes`, as `Scenario.lane_bounds`,
+    /// `Scenario.lane_extents`, `Scenario.lane_extent_real` give them): `lane_bounds` `[L + 1]`
+    /// (m), `lane_extents` `[L, 2]` (begin, end x, m), `lane_extent_real` `[L, 2]` (bool or
+    /// 0/1; default all true). Both `lane_bounds` and `lane_extents` or neither.
+    #[pyo3(signature = (history, sizes, ego, y_target, v_ref, road, last_delta = 0.0, last_accel = 0.0, y_retreat = None, lane_bounds = None, lane_extents = None, lane_extent_real = None))]
     #[allow(clippy::too_many_arguments)]
     fn plan<'py>(
         &self,
@@ -184,6 +212,9 @@ impl PyPlanner {
         last_delta: f64,
         last_accel: f64,
         y_retreat: Option<f64>,
+        lane_bounds: Option<&Bound<'py, PyAny>>,
+        lane_extents: Option<&Bound<'py, PyAny>>,
+        lane_extent_real: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
             let h_dims = [Dim::AtMost(MAX_AGENTS), Dim::Exact(T_OBS), Dim::Exact(2)];
@@ -215,6 +246,7 @@ impl PyPlanner {
             }
             let history = History::new(hist, n).map_err(predictor_err)?;
             let sizes: Vec<[f64; 2]> = sz.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+            let layout = lane_layout(lane_bounds, lane_extents, lane_extent_real)?;
             let problem = PlanningProblem {
                 ego: EgoState {
                     x: e[0],
@@ -230,6 +262,9 @@ impl PyPlanner {
                 v_ref,
                 road: [road.0, road.1],
                 y_retreat,
+                lanes: layout
+                    .as_ref()
+                    .map(|(bounds, extents)| Lanes { bounds, extents }),
             };
             self.run(py, &problem)
         })
@@ -277,4 +312,70 @@ impl PyPlanner {
     fn __repr__(&self) -> String {
         format!("Planner(predictor={:?})", self.predictor.name())
     }
+}
+
+/// The lane layout of `Planner.plan` (`lane_bounds` `[L + 1]`, `lane_extents` `[L, 2]`,
+/// `lane_extent_real` `[L, 2]` of bools or 0/1, default all true); `None` without one. Values
+/// are checked by `PlanningProblem::check` (a `BadLane` error naming the lane and field).
+fn lane_layout(
+    bounds: Option<&Bound<'_, PyAny>>,
+    extents: Option<&Bound<'_, PyAny>>,
+    real: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Option<(Vec<f64>, Vec<LaneExtent>)>> {
+    let (bounds, extents) = match (bounds, extents) {
+        (None, None) => {
+            return if real.is_some() {
+                Err(InputError::new_err(
+                    "lane_extent_real: given without lane_bounds and lane_extents",
+                ))
+            } else {
+                Ok(None)
+            };
+        }
+        (Some(b), Some(e)) => (b, e),
+        _ => {
+            return Err(InputError::new_err(
+                "lane_bounds, lane_extents: give both or neither",
+            ));
+        }
+    };
+    let (ext, eshape) = to_f64(
+        "lane_extents",
+        extents,
+        &[Dim::AtMost(MAX_LANES), Dim::Exact(2)],
+    )?;
+    let nl = eshape[0];
+    let (b, _) = to_f64("lane_bounds", bounds, &[Dim::Exact(nl + 1)])?;
+    let flags: Vec<bool> = match real {
+        None => vec![true; 2 * nl],
+        Some(r) => {
+            // A bool or integer array is read as numbers; every value must be exactly 0 or 1.
+            let np = r.py().import("numpy")?;
+            let arr = np.call_method1("asarray", (r,))?;
+            let kind: String = arr.getattr("dtype")?.getattr("kind")?.extract()?;
+            let arr = if matches!(kind.as_str(), "b" | "i" | "u") {
+                arr.call_method1("astype", ("float64",))?
+            } else {
+                r.clone()
+            };
+            let (v, _) = to_f64("lane_extent_real", &arr, &[Dim::Exact(nl), Dim::Exact(2)])?;
+            if let Some(i) = v.iter().position(|&f| f != 0.0 && f != 1.0) {
+                return Err(InputError::new_err(format!(
+                    "lane_extent_real: lane {} has flag {} (0 or 1, or a bool, expected)",
+                    i / 2,
+                    v[i]
+                )));
+            }
+            v.iter().map(|&f| f == 1.0).collect()
+        }
+    };
+    let extents = (0..nl)
+        .map(|k| LaneExtent {
+            begin: ext[2 * k],
+            end: ext[2 * k + 1],
+            begins: flags[2 * k],
+            ends: flags[2 * k + 1],
+        })
+        .collect();
+    Ok(Some((b, extents)))
 }

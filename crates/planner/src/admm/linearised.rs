@@ -3,6 +3,7 @@
 //! shifted previous plan, or constant velocity on a cold start), the linearised dynamics
 //! around it, the input and state bounds, and the cost J = Φ1 + Φ2 + Φ3.
 
+use crate::extents::{LaneTable, deadline_factor};
 use crate::model::{Bicycle, Linearisation, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
@@ -58,7 +59,8 @@ pub(crate) struct LinearisedProblem {
     pub nominal_rollout: Vec<State>,
     /// Duals μ to start from `[T]` (the shifted previous ones, or zeros).
     pub warm_duals: Vec<State>,
-    /// Per-step weights (0, w_y, w_ψ, w_v) on (x, y, ψ, v).
+    /// Per-step weights (0, w_y, w_ψ, w_v) on (x, y, ψ, v); w_y includes the deadline term
+    /// of a merge out of a lane that ends ([`lateral_weight`]).
     pub weights: State,
     /// Reference state (x ignored): (0, y_target, 0, v_ref) in this frame.
     pub reference: State,
@@ -78,6 +80,9 @@ pub(crate) struct LinearisedProblem {
     pub edges: [f64; 2],
     /// The ego's (length, width) (m).
     pub ego_size: [f64; 2],
+    /// The problem's lane layout ([`PlanningProblem::lanes`]): states in a lane outside its
+    /// extent count as outside the bounds.
+    pub lanes: Option<LaneTable>,
     /// Box and rate bounds of the steering.
     pub delta_box: RateBox,
     /// Box and rate bounds of the acceleration.
@@ -132,7 +137,8 @@ impl LinearisedProblem {
             &nominal_accel,
             s.v_lin_min,
         );
-        let (lower, upper) = state_bounds(s, p, origin[1], p.y_target);
+        let y_goal = held_goal(s, p);
+        let (lower, upper) = state_bounds(s, p, origin[1], y_goal);
         Self {
             horizon: t,
             origin,
@@ -142,8 +148,8 @@ impl LinearisedProblem {
             nominal_accel,
             nominal_rollout,
             warm_duals,
-            weights: State::new(0.0, s.w_y, s.w_psi, s.w_v),
-            reference: State::new(0.0, p.y_target - origin[1], 0.0, p.v_ref),
+            weights: State::new(0.0, lateral_weight(s, p), s.w_psi, s.w_v),
+            reference: State::new(0.0, y_goal - origin[1], 0.0, p.v_ref),
             retreat: p.y_retreat.map(|y| {
                 let (lower, upper) = state_bounds(s, p, origin[1], y);
                 Retreat {
@@ -160,6 +166,7 @@ impl LinearisedProblem {
                 [f64::NEG_INFINITY, f64::INFINITY]
             },
             ego_size: p.sizes[0],
+            lanes: p.lanes.as_ref().map(LaneTable::new),
             delta_box,
             accel_box,
         }
@@ -202,8 +209,9 @@ impl LinearisedProblem {
     }
 
     /// How far the states `z` (`[T]`) lie outside their bounds: Σ over steps of the excess of
-    /// y, ψ and v over their bounds (m, rad, m/s) and of the box's corners over the road's
-    /// [`LinearisedProblem::edges`] (m); 0 when every state is within them.
+    /// y, ψ and v over their bounds (m, rad, m/s), of the box's corners over the road's
+    /// [`LinearisedProblem::edges`] (m) and of the centre outside its lane's extent
+    /// ([`crate::Lanes::excess`], m); 0 when every state is within them.
     pub(crate) fn bound_excess(&self, z: &[State]) -> f64 {
         self.bound_excess_within(&self.lower, &self.upper, z)
     }
@@ -218,11 +226,26 @@ impl LinearisedProblem {
                     .map(|j| (lower[k][j] - zk[j]).max(0.0) + (zk[j] - upper[k][j]).max(0.0))
                     .sum();
                 let e = half_extent_at(self.ego_size, zk[2]);
-                bounds
+                let road = bounds
                     + (self.edges[0] - (zk[1] - e)).max(0.0)
-                    + ((zk[1] + e) - self.edges[1]).max(0.0)
+                    + ((zk[1] + e) - self.edges[1]).max(0.0);
+                match &self.lanes {
+                    Some(lanes) => {
+                        let (x, y) = (zk[0] + self.origin[0], zk[1] + self.origin[1]);
+                        road + lanes.view().excess(x, y)
+                    }
+                    None => road,
+                }
             })
             .sum()
+    }
+
+    /// The first of the states `z` (`[T]`, this frame) whose centre lies in a lane outside
+    /// its extent.
+    pub(crate) fn lane_violation(&self, z: &[State]) -> Option<crate::LaneViolation> {
+        self.lanes
+            .as_ref()
+            .and_then(|lanes| lanes.view().first_violation(&self.to_world(z)))
     }
 
     /// Z⁺ = Π(Z − η·d) into `out`, Π clamping into the state bounds.
@@ -236,6 +259,42 @@ impl LinearisedProblem {
         for (k, ((o, zk), dk)) in out.iter_mut().zip(z).zip(direction).enumerate() {
             *o = self.clamp(k, &(zk - eta * dk));
         }
+    }
+}
+
+/// The weight of the lateral tracking error (1/m²): `w_y`, plus the deadline term
+/// `w_deadline` · φ(d) while the ego's centre is in a lane that really ends d m ahead (d < 0
+/// past it) and the target lies outside that lane ([`crate::extents`]). Exactly `w_y` without
+/// a lane layout or farther than `deadline_distance` from the end.
+pub(crate) fn lateral_weight(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
+    let factor = p
+        .lanes
+        .and_then(|lanes| lanes.merge_deadline(p.ego.x, p.ego.y, p.y_target))
+        .map_or(0.0, |d| deadline_factor(d, s.deadline_distance));
+    if factor > 0.0 {
+        s.w_y + s.w_deadline * factor
+    } else {
+        s.w_y
+    }
+}
+
+/// The lateral goal of the call (m): `y_target`, except while `y_target` lies in a lane that
+/// really begins beyond the reach of the horizon (x_0 + v_0 · T · dt < begin) and the ego is
+/// in another lane: then the centre of the ego's own lane, so that the ego does not press
+/// against the line of a lane it may not enter yet.
+fn held_goal(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
+    let Some(lanes) = p.lanes else {
+        return p.y_target;
+    };
+    let (Some(target), Some(own)) = (lanes.lane_at(p.y_target), lanes.lane_at(p.ego.y)) else {
+        return p.y_target;
+    };
+    let e = lanes.extents[target];
+    let reach = p.ego.x + p.ego.v * s.horizon as f64 * s.dt;
+    if target != own && e.begins && reach < e.begin {
+        0.5 * (lanes.bounds[own] + lanes.bounds[own + 1])
+    } else {
+        p.y_target
     }
 }
 

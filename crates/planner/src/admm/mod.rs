@@ -228,6 +228,7 @@ impl Planner {
     ///     v_ref: 12.0,
     ///     road: [-1.85, 5.55],
     ///     y_retreat: None,
+    ///     lanes: None,
     /// };
     /// let mut planner = Planner::new(PlannerSettings::default())?;
     /// let plan = planner.plan(&problem, &mut ConstantVelocity::new(6)?)?;
@@ -507,6 +508,7 @@ impl Finished {
             min_safety: self.min_b,
             rollout_min_safety: self.rollout_min_b,
             checked: counts.1,
+            lane_violation: lp.lane_violation(&self.z),
             timings,
             status: self.status,
         };

@@ -5,6 +5,7 @@ use nudge_predictor::{History, T_OBS};
 use serde::{Deserialize, Serialize};
 
 use crate::error::PlannerError;
+use crate::extents::{LaneViolation, Lanes};
 use crate::qp::{QpName, QpStatus};
 use crate::scenario::Scenario;
 
@@ -46,13 +47,19 @@ pub struct PlanningProblem<'a> {
     /// it, and when no admissible plan exists the fallbacks also steer towards it, so the
     /// least-violating plan may cancel the change instead of holding the ego across the line.
     pub y_retreat: Option<f64>,
+    /// The lane layout with where each lane begins and ends ([`Lanes`]; a
+    /// "nudge.scenario/2" scene's): a planned state whose centre lies in a lane that has
+    /// not begun or has ended is inadmissible, and a merge out of a lane that ends gets a
+    /// deadline term ([`crate::extents`]). `None`: every lane runs through (the plan is
+    /// the same, bit for bit, as with lanes whose extents are never reached).
+    pub lanes: Option<Lanes<'a>>,
 }
 
 impl<'a> PlanningProblem<'a> {
     /// The problem at the last observed step of scenario `sc` (the closed loop's first step):
     /// the ego's observed position, heading and speed (the speed also the reference), no
     /// previous inputs, `history` (the scenario's, `[n, T_OBS, 2]`), lateral target
-    /// `y_target` (m).
+    /// `y_target` (m), the scenario's lane layout when it has extents.
     #[must_use]
     pub fn at_scenario_start(sc: &'a Scenario, history: &'a History, y_target: f64) -> Self {
         let p = sc.position(0, T_OBS - 1);
@@ -71,6 +78,7 @@ impl<'a> PlanningProblem<'a> {
             v_ref: sc.speed[0],
             road: sc.road(),
             y_retreat: None,
+            lanes: sc.lanes(),
         }
     }
 }
@@ -97,10 +105,12 @@ impl PlanningProblem<'_> {
     /// within ±[`Self::MAX_LAST_DELTA`] rad and ±[`Self::MAX_LAST_ACCEL`] m/s²; an ordered road
     /// at most [`Self::MAX_ROAD_WIDTH`] m wide whose edges lie within the same coordinate
     /// range; `y_target` and `y_retreat` (when given) on the road (edges included); `v_ref` in 0..=[`Self::MAX_V_REF`]
-    /// m/s; one positive size per agent.
+    /// m/s; one positive size per agent; a lane layout (when given) as [`Lanes::check`]
+    /// requires.
     ///
     /// # Errors
-    /// [`PlannerError::BadProblem`] naming the first offending field.
+    /// [`PlannerError::BadProblem`] naming the first offending field,
+    /// [`PlannerError::BadLane`] naming the lane and field of a bad lane layout.
     pub fn check(&self) -> Result<(), PlannerError> {
         use crate::settings::show;
         use nudge_predictor::limits::MAX_ABS_POSITION;
@@ -221,6 +231,9 @@ impl PlanningProblem<'_> {
             if !(s[0].is_finite() && s[1].is_finite() && s[0] > 0.0 && s[1] > 0.0) {
                 return bad("sizes", format!("agent {i} has size {s:?}"));
             }
+        }
+        if let Some(lanes) = &self.lanes {
+            lanes.check()?;
         }
         Ok(())
     }
@@ -414,6 +427,12 @@ pub struct Plan {
     pub rollout_min_safety: Option<f64>,
     /// Number of vehicles checked (within `check_range`).
     pub checked: usize,
+    /// The first planned state whose centre lies in a lane that has not begun or has ended
+    /// ([`PlanningProblem::lanes`]); such a plan is never admissible (its status is
+    /// [`PlanStatus::Unsafe`]). `None` when every state is inside its lane's extent or the
+    /// problem has no lane layout.
+    #[serde(default)]
+    pub lane_violation: Option<LaneViolation>,
     /// Phase timings.
     pub timings: PhaseTimings,
     /// How the call ended.

@@ -47,6 +47,7 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem
         v_ref: v,
         road: [-1.85, 5.55],
         y_retreat: None,
+        lanes: None,
     }
 }
 
@@ -1050,4 +1051,91 @@ fn binding_vehicle_is_the_planners_minimum_over_the_plan() {
         },
     );
     assert_eq!(far.binding(&plan.states, &prediction), None);
+}
+
+/// The deadline term of a merge out of a lane that ends: the lateral weight of the call is
+/// w_y + w_deadline · φ(d) with d the distance to the end, and the Z-update's gradient of the
+/// augmented Lagrangian with it agrees with central finite differences of its value.
+#[test]
+fn deadline_weight_and_its_gradient_against_finite_differences() {
+    use crate::extents::{Lanes, deadline_factor};
+    use crate::scenario::LaneExtent;
+    let s = PlannerSettings::default();
+    let (h, sizes) = scene(20.0, 0.0, &[]);
+    let bounds = [-1.85, 1.85, 5.55];
+    let extents = [
+        LaneExtent {
+            begin: -500.0,
+            end: 40.0,
+            begins: false,
+            ends: true,
+        },
+        LaneExtent {
+            begin: -500.0,
+            end: 2000.0,
+            begins: false,
+            ends: false,
+        },
+    ];
+    let p = PlanningProblem {
+        lanes: Some(Lanes {
+            bounds: &bounds,
+            extents: &extents,
+        }),
+        ..problem(&h, &sizes, 20.0)
+    };
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let w = s.w_y + s.w_deadline * deadline_factor(40.0, s.deadline_distance);
+    assert_eq!(lp.weights[1], w);
+    assert!(
+        w > 2.0 * s.w_y,
+        "the end 40 m ahead at least doubles the weight: {w}"
+    );
+    // Without the layout, or aiming at the own lane, the weight is w_y.
+    let plain = LinearisedProblem::new(&s, &model(&s), None, &problem(&h, &sizes, 20.0));
+    assert_eq!(plain.weights[1], s.w_y);
+    let own = PlanningProblem { y_target: 0.0, ..p };
+    assert_eq!(
+        LinearisedProblem::new(&s, &model(&s), None, &own).weights[1],
+        s.w_y
+    );
+    // The gradient at an arbitrary Z with arbitrary inputs and duals.
+    let t = s.horizon;
+    let delta: Vec<f64> = (0..t).map(|k| 0.01 * k as f64 - 0.02).collect();
+    let accel: Vec<f64> = (0..t).map(|k| 0.3 - 0.1 * k as f64).collect();
+    let duals: Vec<State> = (0..t)
+        .map(|k| State::new(0.1 * k as f64, -0.2, 0.05, 0.3))
+        .collect();
+    let z: Vec<State> = (0..t)
+        .map(|k| {
+            let k = k as f64 + 1.0;
+            State::new(6.0 * k, 0.4 * k, 0.02 * k, 20.0 + 0.1 * k)
+        })
+        .collect();
+    let g = Lagrangian {
+        s: &s,
+        lp: &lp,
+        delta: &delta,
+        accel: &accel,
+        duals: &duals,
+    };
+    let mut residual = vec![State::zeros(); t];
+    let mut weighted = vec![State::zeros(); t];
+    let mut gradient = vec![State::zeros(); t];
+    g.value(&z, &mut residual);
+    g.gradient(&z, &residual, &mut weighted, &mut gradient);
+    let h_fd = 1e-6;
+    for k in 0..t {
+        for j in 0..4 {
+            let (mut zp, mut zm) = (z.clone(), z.clone());
+            zp[k][j] += h_fd;
+            zm[k][j] -= h_fd;
+            let fd = (g.value(&zp, &mut residual) - g.value(&zm, &mut residual)) / (2.0 * h_fd);
+            let an = gradient[k][j];
+            assert!(
+                (fd - an).abs() <= 1e-4 * (1.0 + an.abs()),
+                "step {k} component {j}: finite differences {fd}, gradient {an}"
+            );
+        }
+    }
 }

@@ -9,11 +9,11 @@ use crate::scenario::Scenario;
 
 use super::batch::RunOutput;
 use super::metrics::{Collision, RunMetrics};
-use super::records::{RunRecord, StepRecord, StepStatus};
+use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus};
 
 /// Run columns, in order (one row per run, failed runs included). The metric columns are
 /// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
-pub const RUN_COLUMNS: [&str; 39] = [
+pub const RUN_COLUMNS: [&str; 40] = [
     "scenario",
     "scene_index",
     "seed",
@@ -52,6 +52,7 @@ pub const RUN_COLUMNS: [&str; 39] = [
     "max_overshoot",
     "free_gap",
     "score",
+    "outcome",
     "error",
 ];
 
@@ -327,6 +328,7 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
         float("max_overshoot", |m| m.max_overshoot),
         float("free_gap", |m| m.free_gap),
         float("score", |m| m.score),
+        ("outcome", text(|r| r.outcome.as_str().to_string())),
         (
             "error",
             Column::OptText(
@@ -506,6 +508,9 @@ pub struct Summary {
     pub steps_to_target: (f64, f64),
     /// Runs with a collision.
     pub collisions: usize,
+    /// Runs that ended because the ego's centre was in a lane past its end (outcome
+    /// `LaneEnded`), and before its begin (`LaneNotBegun`).
+    pub lane_out: (usize, usize),
     /// Collision events with the ego at fault, and runs with at least one.
     pub at_fault: (usize, usize),
     /// Collision events with the ego not at fault, and runs with at least one.
@@ -587,6 +592,16 @@ impl Summary {
                 .fold(f64::INFINITY, f64::min),
             comfortable: metrics().filter(|m| m.comfort.comfortable).count(),
             score: mean_std(&metrics().map(|m| m.score).collect::<Vec<_>>()).0,
+            lane_out: (
+                records
+                    .iter()
+                    .filter(|r| r.outcome == RunOutcome::LaneEnded)
+                    .count(),
+                records
+                    .iter()
+                    .filter(|r| r.outcome == RunOutcome::LaneNotBegun)
+                    .count(),
+            ),
             aborts: records.iter().map(|r| r.aborts).sum(),
             aborted_runs: records.iter().filter(|r| r.aborts > 0).count(),
             mpc_s: (quantile(&mut mpc, 0.5), quantile(&mut mpc, 0.9)),
@@ -624,6 +639,13 @@ impl fmt::Display for Summary {
             self.not_at_fault.0,
             self.not_at_fault.1
         )?;
+        if self.lane_out != (0, 0) {
+            writeln!(
+                f,
+                "runs ended in a lane past its end (LaneEnded): {}; before its begin (LaneNotBegun): {}",
+                self.lane_out.0, self.lane_out.1
+            )?;
+        }
         writeln!(
             f,
             "off-road steps {} (in {} runs; {} egos start over the road's edge); steps straddling a lane line {}",

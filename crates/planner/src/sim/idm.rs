@@ -1,7 +1,9 @@
 //! The `idm` world: reactive traffic with a known model, fitted to real car-following.
 //!
 //! Every other vehicle keeps its lane and its lateral position (its last observed y; no lane
-//! changes) and moves along the road by the Intelligent Driver Model (Treiber, Hennecke &
+//! changes; on a scene with lane extents a vehicle whose lane ends drives on along that lane's
+//! line past the end, and nothing leads it at the end: the lane-end rules of
+//! [`crate::extents`] bind the ego only) and moves along the road by the Intelligent Driver Model (Treiber, Hennecke &
 //! Helbing 2000) with δ from the file (4):
 //!
 //! ```text

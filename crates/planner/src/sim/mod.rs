@@ -45,7 +45,7 @@ pub use columns::{
 pub use config::{SimConfig, World};
 pub use idm::{IdmPopulation, IdmTraffic, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
-pub use records::{RunRecord, StepRecord, StepStatus, StepTrace};
+pub use records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
 pub use run::{RunControl, simulate, simulate_with, target_lane};
 pub use world::WorldModel;

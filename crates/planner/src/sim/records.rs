@@ -73,6 +73,53 @@ pub struct StepTrace {
     pub agents: Vec<[f64; 2]>,
 }
 
+/// How a closed-loop run ended (the run column `outcome`, by [`RunOutcome::as_str`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[non_exhaustive]
+pub enum RunOutcome {
+    /// Settled in the target lane without any collision.
+    Success,
+    /// A step with a bounding-box collision (the run went on, and was not a success).
+    Collision,
+    /// The ego's centre was in a lane past its real end (scenes with lane extents); the run
+    /// stopped at that step.
+    LaneEnded,
+    /// The ego's centre was in a lane before its real begin; the run stopped at that step.
+    LaneNotBegun,
+    /// None of the above by `max_steps` (or the ego turned across the road).
+    #[default]
+    Unfinished,
+}
+
+impl RunOutcome {
+    /// Every outcome, in declaration order.
+    pub const ALL: [Self; 5] = [
+        Self::Success,
+        Self::Collision,
+        Self::LaneEnded,
+        Self::LaneNotBegun,
+        Self::Unfinished,
+    ];
+
+    /// The name, as in records and tables.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Success => "Success",
+            Self::Collision => "Collision",
+            Self::LaneEnded => "LaneEnded",
+            Self::LaneNotBegun => "LaneNotBegun",
+            Self::Unfinished => "Unfinished",
+        }
+    }
+}
+
+impl std::fmt::Display for RunOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// One closed-loop run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunRecord {
@@ -103,6 +150,10 @@ pub struct RunRecord {
     pub metrics: RunMetrics,
     /// Lane-change aborts ([`crate::SimConfig::abort_after`]).
     pub aborts: usize,
+    /// How the run ended: a collision first, then a lane that ended (or had not begun) under
+    /// the ego, then success.
+    #[serde(default)]
+    pub outcome: RunOutcome,
     /// Per-step records.
     pub steps: Vec<StepRecord>,
 }

@@ -10,6 +10,7 @@ use nudge_predictor::{Checked, History, Predictor, T_OBS};
 
 use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
 use crate::error::{PlannerError, SimError};
+use crate::extents::LaneViolationKind;
 use crate::lane::LaneChange;
 use crate::model::State;
 use crate::scenario::Scenario;
@@ -18,7 +19,7 @@ use crate::settings::PlannerSettings;
 use super::batch::Cancel;
 use super::config::SimConfig;
 use super::metrics::{RunObserver, others_from_history};
-use super::records::{RunRecord, StepRecord, StepStatus, StepTrace};
+use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 use super::world::{Mover, WorldModel};
 
 /// SplitMix64: a tiny deterministic generator for the target-lane draw.
@@ -29,10 +30,13 @@ fn splitmix(seed: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The target lane drawn from `seed`: an adjacent lane of the ego's that exists.
+/// The target lane drawn from `seed`: an adjacent lane of the ego's that exists. On a scene
+/// with lane extents the adjacent lane must be open where the ego is (not before its real
+/// begin nor past its real end at the ego's x), and when the ego's own lane really ends, still
+/// run at that end: the ego merges out of a lane that ends, never into one that ends before it.
 ///
 /// # Errors
-/// [`SimError::NoAdjacentLane`] on a one-lane road.
+/// [`SimError::NoAdjacentLane`] on a one-lane road, or when no adjacent lane is open.
 pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
     let mut options = Vec::new();
     if sc.ego_lane > 0 {
@@ -40,6 +44,19 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
     }
     if sc.ego_lane + 1 < sc.lane_centres.len() {
         options.push(sc.ego_lane + 1);
+    }
+    if let Some(ext) = &sc.lane_extents
+        && let Some(&own) = ext.get(sc.ego_lane)
+    {
+        let x = sc.position(0, T_OBS - 1)[0];
+        options.retain(|&j| {
+            let Some(&e) = ext.get(j) else {
+                return false;
+            };
+            let closed = (e.begins && x < e.begin) || (e.ends && x > e.end);
+            let outlasts = !own.ends || !e.ends || e.end >= own.end;
+            !closed && outlasts
+        });
     }
     if options.is_empty() {
         return Err(SimError::NoAdjacentLane {
@@ -160,6 +177,7 @@ impl ClosedLoop<'_> {
             v_ref: self.v_ref,
             road: sc.road(),
             y_retreat: self.lane.retreat(self.ego[1]),
+            lanes: sc.lanes(),
         };
         let t0 = Instant::now();
         let plan: Plan =
@@ -356,8 +374,10 @@ pub fn simulate_with(
         collisions: Vec::new(),
         metrics: super::metrics::RunMetrics::default(),
         aborts: 0,
+        outcome: RunOutcome::Unfinished,
         steps: Vec::new(),
     };
+    let mut lane_out = None;
     let mut settled = 0;
     for step in 0..cfg.max_steps {
         if cancel.is_cancelled() {
@@ -375,6 +395,11 @@ pub fn simulate_with(
         rec.collision |= record.collision;
         rec.steps.push(record);
         let ego = run.ego;
+        // A lane that ended (or has not begun) under the ego's centre ends the run as failed.
+        lane_out = sc.lanes().and_then(|l| l.outside(ego[0], ego[1]));
+        if lane_out.is_some() {
+            break;
+        }
         if (ego[1] - y_target).abs() <= cfg.settle_y && ego[2].abs() <= cfg.settle_psi {
             settled += 1;
         } else {
@@ -390,6 +415,16 @@ pub fn simulate_with(
         rec.steps_to_target = None;
     }
     rec.success = rec.steps_to_target.is_some();
+    rec.outcome = if rec.collision {
+        RunOutcome::Collision
+    } else {
+        match lane_out {
+            Some((_, LaneViolationKind::Ended)) => RunOutcome::LaneEnded,
+            Some((_, LaneViolationKind::NotBegun)) => RunOutcome::LaneNotBegun,
+            None if rec.success => RunOutcome::Success,
+            None => RunOutcome::Unfinished,
+        }
+    };
     rec.aborts = run.lane.aborts();
     (rec.collisions, rec.metrics) = run.observer.finish(rec.success);
     Ok(rec)

@@ -6,7 +6,8 @@ Imports only numpy, matplotlib (and the ``nudge`` extension to read scenario fil
 * :func:`plot_runs` draws runs written by ``nudge simulate --out DIR`` as one PNG. For each of the
   first ``--max-runs`` runs: the road (lane boundaries from the scenario file), the other
   vehicles' observed history and logged future (grey), and the ego's executed path (coloured,
-  one dot per 0.3 s planning step; red crosses where a step reported a collision).
+  one dot per 0.3 s planning step; red crosses where a step reported a collision); on scenes with
+  lane extents, where a lane really has not begun or has ended (shaded, a red bar at the line).
 
       nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
 
@@ -66,6 +67,7 @@ def plot_runs(*, records_dir: Path, scenes: Path, png: Path | None, max_runs: in
         x_hi = max(float(ego[:, 0].max()) if len(ego) else 0.0, float(hist[0, -1, 0])) + 20
         for yb in scene.lane_bounds:
             ax.axhline(yb, color="0.6", lw=0.8, ls="--")
+        x_hi = max(x_hi, _draw_lane_extents(ax, scene))
         ax.axhline(run["y_target"], color="tab:green", lw=0.8, alpha=0.5)
         for a in range(1, hist.shape[0]):
             ax.plot(hist[a, :, 0], hist[a, :, 1], color="0.5", lw=1)
@@ -80,7 +82,7 @@ def plot_runs(*, records_dir: Path, scenes: Path, png: Path | None, max_runs: in
         ax.set_xlim(x_lo, x_hi)
         ax.set_title(
             f"{run['scenario']}  {run['predictor']}  target lane {run['target_lane']}  "
-            f"{'success' if run['success'] else 'no success'} in {len(steps)} steps",
+            f"{run.get('outcome') or ('success' if run['success'] else 'no success')} in {len(steps)} steps",
             fontsize=8,
         )
         ax.set_xlabel("x along road (m)")
@@ -94,6 +96,23 @@ def plot_runs(*, records_dir: Path, scenes: Path, png: Path | None, max_runs: in
     fig.savefig(png, dpi=110)
     print(f"wrote {png}")
     return 0
+
+
+def _draw_lane_extents(ax: Any, scene: Any) -> float:
+    """Shades where a lane of ``scene`` ("nudge.scenario/2") has really not begun or has ended,
+    a red bar at its begin / end; returns the x (m) the plot should reach to show the ego lane's
+    end (-inf when there is none)."""
+    ext, real = scene.lane_extents, scene.lane_extent_real
+    if ext is None:
+        return -math.inf
+    b = scene.lane_bounds
+    for k in range(len(ext)):
+        for side, (x0, x1) in ((0, (ext[k, 0] - 1e4, ext[k, 0])), (1, (ext[k, 1], ext[k, 1] + 1e4))):
+            if real[k, side]:
+                ax.fill_between([x0, x1], b[k], b[k + 1], color="0.9", lw=0)
+                ax.plot([ext[k, side]] * 2, [b[k], b[k + 1]], color="tab:red", lw=2)
+    e = scene.ego_lane
+    return float(ext[e, 1]) + 10.0 if real[e, 1] else -math.inf
 
 
 def plot_curves(runs: dict[str, Path], path: Path, title: str, loss_label: str, val_label: str) -> None:

@@ -1,0 +1,422 @@
+//! Lanes that begin and end ("nudge.scenario/2" extents) in the planner and the simulator, on
+//! synthetic scenes whose truth is known by construction: an ego in an acceleration lane that
+//! ends at x = 120 m beside a main lane that is free (it merges before the end) or blocked by a
+//! dense platoon for the whole run (the run fails as `LaneEnded`, without a collision); an
+//! on-ramp that begins ahead is never entered before it begins (proptest over random
+//! extents); and the shipped scenes plan bit for bit the same with lanes that span the scene.
+#![allow(clippy::unwrap_used)]
+
+use std::collections::HashMap;
+
+use nudge_planner::scenario::LaneExtent;
+use nudge_planner::{
+    EgoState, LaneViolationKind, Lanes, PlanStatus, Planner, PlannerError, PlannerSettings,
+    PlanningProblem, RunOutcome, Scenario, SimConfig, World, WorldModel, simulate,
+};
+use nudge_predictor::{ConstantVelocity, History, T_OBS};
+use proptest::prelude::*;
+
+const DT: f64 = 0.3;
+/// Lane boundaries: acceleration lane 0 (y in [-1.85, 1.85]), main lane 1 ([1.85, 5.55]).
+const BOUNDS: [f64; 3] = [-1.85, 1.85, 5.55];
+/// Where the acceleration lane ends (m).
+const END: f64 = 120.0;
+
+fn extent(begin: f64, end: f64, begins: bool, ends: bool) -> LaneExtent {
+    LaneExtent {
+        begin,
+        end,
+        begins,
+        ends,
+    }
+}
+
+/// A scene of vehicles `(x, y, v)` at the last observed step (agent 0 = the ego), each driving
+/// at constant speed along +x for its history and `n_future` logged steps, on `BOUNDS` with the
+/// lane extents `extents` (`None`: schema 1).
+fn scene(agents: &[(f64, f64, f64)], extents: Option<Vec<LaneExtent>>) -> Scenario {
+    let n = agents.len();
+    let n_future = 45;
+    let mut history = Vec::new();
+    let mut future = Vec::new();
+    for &(x, y, v) in agents {
+        for t in 0..T_OBS {
+            history.extend([x - v * DT * (T_OBS - 1 - t) as f64, y]);
+        }
+        for k in 1..=n_future {
+            future.extend([x + v * DT * k as f64, y]);
+        }
+    }
+    Scenario {
+        name: "synthetic-merge".to_string(),
+        n_agents: n,
+        history,
+        heading: vec![0.0; n],
+        speed: agents.iter().map(|a| a.2).collect(),
+        size: vec![[4.5, 1.9]; n],
+        n_future,
+        future,
+        future_valid: vec![true; n * n_future],
+        lane_centres: vec![0.0, 3.7],
+        lane_bounds: BOUNDS.to_vec(),
+        ego_lane: 0,
+        agent_ids: (0..n as i64).collect(),
+        lane_extents: extents,
+        metadata: HashMap::new(),
+    }
+}
+
+/// The acceleration lane ends for real at [`END`]; the main lane runs through.
+fn merge_extents() -> Vec<LaneExtent> {
+    vec![
+        extent(-500.0, END, false, true),
+        extent(-500.0, 2000.0, false, false),
+    ]
+}
+
+fn log_replay(max_steps: usize) -> SimConfig {
+    SimConfig {
+        world: World::LogReplay,
+        max_steps,
+        ..SimConfig::default()
+    }
+}
+
+#[test]
+fn a_free_main_lane_is_merged_into_before_the_end() {
+    let sc = scene(&[(0.0, 0.0, 20.0)], Some(merge_extents()));
+    let cfg = log_replay(30);
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(
+        &sc,
+        &PlannerSettings::default(),
+        &cfg,
+        0,
+        &mut cv,
+        WorldModel::LogReplay,
+    )
+    .unwrap();
+    assert_eq!(run.target_lane, 1);
+    assert_eq!(run.outcome, RunOutcome::Success, "{run:?}");
+    assert!(run.success && !run.collision);
+    // Every executed position in the acceleration lane lies before its end.
+    let lanes = sc.lanes().unwrap();
+    for s in &run.steps {
+        assert_eq!(lanes.outside(s.ego[0], s.ego[1]), None, "step {}", s.step);
+    }
+    let crossed = run.steps.iter().find(|s| s.ego[1] > BOUNDS[1]).unwrap();
+    assert!(
+        crossed.ego[0] < END,
+        "crossed the lane line at x = {}",
+        crossed.ego[0]
+    );
+}
+
+/// A platoon in the main lane at the ego's speed, 9 m apart (4.5 m gaps between 4.5 m cars),
+/// from 200 m behind to 60 m ahead of the ego: no gap for the whole run.
+fn blocked() -> Scenario {
+    let mut agents = vec![(0.0, 0.0, 20.0)];
+    let mut x = -200.0 + 4.0;
+    while x <= 60.0 {
+        agents.push((x, 3.7, 20.0));
+        x += 9.0;
+    }
+    assert!(agents.len() <= nudge_predictor::MAX_AGENTS);
+    scene(&agents, Some(merge_extents()))
+}
+
+#[test]
+fn a_blocked_main_lane_ends_the_run_as_lane_ended() {
+    let sc = blocked();
+    let cfg = log_replay(40);
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(
+        &sc,
+        &PlannerSettings::default(),
+        &cfg,
+        0,
+        &mut cv,
+        WorldModel::LogReplay,
+    )
+    .unwrap();
+    assert_eq!(run.outcome, RunOutcome::LaneEnded, "{:?}", run.outcome);
+    assert!(!run.success && !run.collision);
+    // The run stopped at the first step whose centre was past the end, in the ended lane.
+    let last = run.steps.last().unwrap();
+    assert!(
+        last.ego[0] > END && last.ego[1] < BOUNDS[1],
+        "{:?}",
+        last.ego
+    );
+    for s in &run.steps[..run.steps.len() - 1] {
+        assert!(s.ego[0] <= END || s.ego[1] >= BOUNDS[1]);
+    }
+    // The columns carry the outcome.
+    let spec = nudge_planner::RunSpec { scene: 0, seed: 0 };
+    let out = nudge_planner::RunOutput {
+        spec,
+        result: Ok(run),
+        examples: None,
+    };
+    let table =
+        nudge_planner::sim::run_table(std::slice::from_ref(&sc), std::slice::from_ref(&out));
+    let mut csv = Vec::new();
+    table.write_csv(&mut csv).unwrap();
+    let csv = String::from_utf8(csv).unwrap();
+    let (head, row) = csv.split_once('\n').unwrap();
+    let i = head.split(',').position(|c| c == "outcome").unwrap();
+    assert_eq!(row.trim().split(',').nth(i), Some("LaneEnded"), "{csv}");
+    // And the summary both front ends print counts it.
+    let summary = nudge_planner::Summary::of(std::slice::from_ref(&out));
+    assert_eq!(summary.lane_out, (1, 0));
+    assert!(summary.to_string().contains("(LaneEnded): 1;"), "{summary}");
+}
+
+#[test]
+fn the_same_scene_without_extents_drives_on() {
+    // Schema 1: the acceleration lane runs on; the blocked ego stays in it and never fails
+    // for it.
+    let sc = Scenario {
+        lane_extents: None,
+        ..blocked()
+    };
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(
+        &sc,
+        &PlannerSettings::default(),
+        &log_replay(40),
+        0,
+        &mut cv,
+        WorldModel::LogReplay,
+    )
+    .unwrap();
+    assert_ne!(run.outcome, RunOutcome::LaneEnded);
+    assert!(run.steps.last().unwrap().ego[0] > END);
+}
+
+/// The problem at the start of `sc` towards `y_target`.
+fn start<'a>(sc: &'a Scenario, h: &'a History, y_target: f64) -> PlanningProblem<'a> {
+    PlanningProblem::at_scenario_start(sc, h, y_target)
+}
+
+#[test]
+fn plans_past_the_end_are_inadmissible_and_named() {
+    // The ego 5 m before the end at 20 m/s, blocked: every plan that stays in the lane passes
+    // the end within the horizon; those that do not are unsafe (the platoon).
+    let mut sc = blocked();
+    for t in 0..T_OBS {
+        sc.history[t * 2] += END - 5.0;
+    }
+    let h = History::new(sc.history.clone(), sc.n_agents).unwrap();
+    let p = start(&sc, &h, 3.7);
+    let mut planner = Planner::new(PlannerSettings::default()).unwrap();
+    let plan = planner.plan(&p, &mut ConstantVelocity::default()).unwrap();
+    assert_eq!(plan.status, PlanStatus::Unsafe);
+    if let Some(v) = plan.lane_violation {
+        assert_eq!((v.lane, v.kind), (0, LaneViolationKind::Ended));
+        assert!(v.x > END);
+    } else {
+        // The least-violating plan left the ended lane sideways: then it is unsafe by the
+        // prediction.
+        assert!(plan.min_safety.is_some_and(|b| b <= 0.0), "{plan:?}");
+    }
+}
+
+#[test]
+fn bad_lane_layouts_are_typed_errors_naming_lane_and_field() {
+    let sc = scene(&[(0.0, 0.0, 20.0)], Some(merge_extents()));
+    let h = History::new(sc.history.clone(), 1).unwrap();
+    let mut planner = Planner::new(PlannerSettings::default()).unwrap();
+    let mut cv = ConstantVelocity::default();
+    let mut ext = merge_extents();
+    ext[1].begin = f64::NAN;
+    let p = PlanningProblem {
+        lanes: Some(Lanes {
+            bounds: &BOUNDS,
+            extents: &ext,
+        }),
+        ..start(&sc, &h, 3.7)
+    };
+    match planner.plan(&p, &mut cv) {
+        Err(
+            e @ PlannerError::BadLane {
+                lane: 1,
+                field: "begin",
+                ..
+            },
+        ) => {
+            assert!(e.to_string().contains("lane 1 begin"), "{e}");
+        }
+        other => panic!("{other:?}"),
+    }
+    let p = PlanningProblem {
+        lanes: Some(Lanes {
+            bounds: &BOUNDS[..2],
+            extents: &merge_extents(),
+        }),
+        ..start(&sc, &h, 3.7)
+    };
+    assert!(matches!(
+        planner.plan(&p, &mut cv),
+        Err(PlannerError::BadLane {
+            field: "bounds",
+            ..
+        })
+    ));
+}
+
+/// The road of the property test: main lane 0 (y in [-1.85, 1.85], the ego's) and an on-ramp
+/// lane 1 ([1.85, 5.55]) that really begins at `begin` (m) ahead of the ego.
+fn ramp_ahead(begin: f64) -> Vec<LaneExtent> {
+    vec![
+        extent(-500.0, 2000.0, false, false),
+        extent(begin, 2000.0, true, false),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 8, .. ProptestConfig::default() })]
+
+    /// Planning towards a lane that begins ahead, step after step in closed loop (the first
+    /// input applied to the bicycle model): the ego's centre is never in that lane before it
+    /// begins, and no admissible plan puts a state there.
+    #[test]
+    fn the_ego_never_enters_a_lane_before_it_begins(
+        begin in 5.0f64..150.0,
+        v in 10.0f64..28.0,
+    ) {
+        let ext = ramp_ahead(begin);
+        let sc = scene(&[(0.0, 0.0, v)], Some(ext.clone()));
+        let lanes = sc.lanes().unwrap();
+        let s = PlannerSettings::default();
+        let mut planner = Planner::new(s.clone()).unwrap();
+        let mut cv = ConstantVelocity::default();
+        let mut ego = [0.0, 0.0, 0.0, v];
+        let (mut last_delta, mut last_accel) = (0.0, 0.0);
+        let mut entered = false;
+        for _ in 0..20 {
+            let pos: Vec<f64> = (0..T_OBS)
+                .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
+                .collect();
+            let h = History::new(pos, 1).unwrap();
+            let p = PlanningProblem {
+                ego: EgoState { x: ego[0], y: ego[1], psi: ego[2], v: ego[3] },
+                last_delta,
+                last_accel,
+                history: &h,
+                sizes: &sc.size,
+                y_target: 3.7,
+                v_ref: v,
+                road: sc.road(),
+                y_retreat: None,
+                lanes: sc.lanes(),
+            };
+            let plan = planner.plan(&p, &mut cv).unwrap();
+            if plan.status != PlanStatus::Unsafe {
+                prop_assert!(plan.lane_violation.is_none());
+                for z in &plan.states {
+                    prop_assert!(lanes.outside(z[0], z[1]).is_none(), "{z:?} begin {begin}");
+                }
+            }
+            let m = planner.model();
+            let next = m.advance(
+                &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
+                plan.delta[0],
+                plan.accel[0],
+            );
+            ego = [next[0], next[1], next[2], next[3]];
+            (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+            prop_assert!(
+                lanes.outside(ego[0], ego[1]).is_none(),
+                "ego at {ego:?} in the ramp before it begins at {begin}"
+            );
+            entered |= ego[1] > BOUNDS[1];
+        }
+        // Once the ramp has begun the ego does enter it (the rule does not freeze it).
+        prop_assert!(entered || begin > 20.0 * DT * v * 0.8);
+    }
+}
+
+#[test]
+fn shipped_scenes_plan_bit_for_bit_the_same_with_lanes_that_span_the_scene() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes");
+    let (scenes, bad) = Scenario::load_dir(&dir).unwrap();
+    assert!(bad.is_empty() && !scenes.is_empty());
+    let cfg = SimConfig {
+        world: World::LogReplay,
+        max_steps: 12,
+        ..SimConfig::default()
+    };
+    let s = PlannerSettings::default();
+    for sc in &scenes {
+        assert!(sc.lane_extents.is_none(), "shipped scenes are schema 1");
+        // Lanes that span everything, their ends marked real: never reached, never used.
+        let full = Scenario {
+            lane_extents: Some(vec![extent(-1e5, 1e5, true, true); sc.lane_centres.len()]),
+            ..sc.clone()
+        };
+        let strip = |mut r: nudge_planner::RunRecord| {
+            for st in &mut r.steps {
+                st.mpc_s = 0.0;
+                st.z_updates_s.clear();
+            }
+            r
+        };
+        let mut cv = ConstantVelocity::default();
+        let a = simulate(sc, &s, &cfg, 3, &mut cv, WorldModel::LogReplay).unwrap();
+        let b = simulate(&full, &s, &cfg, 3, &mut cv, WorldModel::LogReplay).unwrap();
+        assert_eq!(strip(a), strip(b), "{}", sc.name);
+        // And one planning call, plan for plan (timings aside).
+        let h = History::new(sc.history.clone(), sc.n_agents).unwrap();
+        let y = sc.lane_centres[nudge_planner::target_lane(sc, 3).unwrap()];
+        let p = PlanningProblem::at_scenario_start(sc, &h, y);
+        let q = PlanningProblem::at_scenario_start(&full, &h, y);
+        assert!(p.lanes.is_none() && q.lanes.is_some());
+        let mut pa = Planner::new(s.clone()).unwrap();
+        let mut pb = Planner::new(s.clone()).unwrap();
+        let mut x = pa.plan(&p, &mut cv).unwrap();
+        let mut y = pb.plan(&q, &mut cv).unwrap();
+        x.timings = Default::default();
+        y.timings = Default::default();
+        assert_eq!(x, y, "{}", sc.name);
+    }
+}
+
+/// The shipped real merges (`assets/scenes/merge`, US-101 vehicle 434 in the auxiliary lane):
+/// schema 2 with the ego's lane really ending ahead; in closed loop (constant-velocity planning,
+/// the others replaying the log) every run merges before the end without a collision.
+#[test]
+fn shipped_real_merges_complete_before_the_end() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes/merge");
+    let (scenes, bad) = Scenario::load_dir(&dir).unwrap();
+    assert!(bad.is_empty(), "{bad:?}");
+    assert_eq!(scenes.len(), 7);
+    let cfg = log_replay(30);
+    for sc in &scenes {
+        let lanes = sc.lanes().unwrap();
+        let own = lanes.extents[sc.ego_lane];
+        let x0 = sc.position(0, T_OBS - 1)[0];
+        assert!(
+            own.ends && own.end > x0,
+            "{}: the ego's lane ends ahead",
+            sc.name
+        );
+        let mut cv = ConstantVelocity::default();
+        let run = simulate(
+            sc,
+            &PlannerSettings::default(),
+            &cfg,
+            0,
+            &mut cv,
+            WorldModel::LogReplay,
+        )
+        .unwrap();
+        assert_eq!(run.outcome, RunOutcome::Success, "{}", sc.name);
+        let line = sc.lane_bounds[sc.ego_lane + 1];
+        let crossed = run.steps.iter().find(|s| s.ego[1] > line).unwrap();
+        assert!(crossed.ego[0] < own.end, "{}", sc.name);
+        for s in &run.steps {
+            assert_eq!(lanes.outside(s.ego[0], s.ego[1]), None);
+        }
+    }
+}
