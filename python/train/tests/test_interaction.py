@@ -82,6 +82,8 @@ def test_paired_by_hand() -> None:
     # Success 1/3 -> 3/3: +66.7 pp; time to lane (s1,1) 3.0 -> 3.0, (s1,2) 9.0 -> 6.0, (s2,5) 9.0 -> 2.4.
     assert p["d_success_pp"][0] == pytest.approx(200.0 / 3.0)
     assert p["d_ttl"][0] == pytest.approx((0.0 - 3.0 - 6.6) / 3.0)
+    # Reaching the lane at all: (s1,2) and (s2,5) only in b.
+    assert (p["lane_only_a"], p["lane_only_b"]) == (0, 2)
 
 
 def test_paired_refuses_pairs_with_different_lanes() -> None:

@@ -350,10 +350,13 @@ def paired(a: dict[str, list], b: dict[str, list], budget: int, n_boot: int) -> 
     ttl = (_time(a, "steps_to_lane", budget)[ra], _time(b, "steps_to_lane", budget)[rb])
     ttt = (_time(a, "steps_to_target", budget)[ra], _time(b, "steps_to_target", budget)[rb])
     d_succ = paired_bootstrap(sa.astype(np.float64), sb.astype(np.float64), scen, n_boot)
+    la = np.asarray(a["steps_to_lane"], dtype=np.int64)[ra] >= 0
+    lb = np.asarray(b["steps_to_lane"], dtype=np.int64)[rb] >= 0
     return {"pairs": len(common), "scenes": len(set(scen.tolist())), "both": int((sa & sb).sum()),
             "only_a": only_a, "only_b": only_b, "neither": int((~sa & ~sb).sum()),
             "p": mcnemar_exact(only_a, only_b), "d_success_pp": tuple(100.0 * x for x in d_succ),
             "d_ttl": paired_bootstrap(*ttl, scen, n_boot, seed=1), "d_ttt": paired_bootstrap(*ttt, scen, n_boot, seed=2),
+            "lane_only_a": int((la & ~lb).sum()), "lane_only_b": int((~la & lb).sum()),
             "ttl_diff": (ttl[1] - ttl[0]), "keys": common}
 
 
@@ -576,14 +579,16 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
             numbers["pairs"][lines_key]["ttl_faster"] = int((d < -1e-9).sum())
             numbers["pairs"][lines_key]["ttl_slower"] = int((d > 1e-9).sum())
     # How often the two arms of one model differ at all.
-    lines += ["", "Pairs whose time to lane differs at all (aware faster / ablated faster / equal):", ""]
+    lines += ["", "Pairs whose time to lane differs at all (aware faster / ablated faster / equal), and pairs in which "
+              "only one arm ever reaches the target lane (only aware / only ablated):", ""]
     for world in cfg.worlds:
         for label, _ in cfg.planners():
             key = f"{world}/{label} vs {label} (ablated)"
             q = numbers["pairs"].get(key)
             if q and "ttl_faster" in q:
                 lines.append(f"- {world}, {label}: {q['ttl_faster']} / {q['ttl_slower']} / "
-                             f"{q['pairs'] - q['ttl_faster'] - q['ttl_slower']}")
+                             f"{q['pairs'] - q['ttl_faster'] - q['ttl_slower']}; reaching the lane: "
+                             f"{q['lane_only_b']} / {q['lane_only_a']}")
     return lines, numbers
 
 
