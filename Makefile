@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -29,6 +29,7 @@ help:
 	@echo "make student  generate the distillation set with the planner + teacher, distil the student"
 	@echo "make paper    the paper's Tables I-II and Figures 7-10 into docs/paper (resumable, hours: Table II)"
 	@echo "make reaction the teacher's and the students' reaction to the ego vs real cut-ins (docs/results/reaction.md)"
+	@echo "make interaction  each planner vs its reaction ablated on dense scenes (docs/results/interaction.md)"
 
 # ---- set-up ---------------------------------------------------------------------------------
 $(STAMP): python/train/pyproject.toml
@@ -223,6 +224,14 @@ paper: develop
 
 paper-quick: develop
 	$(TRAIN) paper --quick --no-progress
+
+# Each planner against the same model with its predicted reaction ablated (planner setting
+# ablate_reaction), on dense scenes of the validation and test splits, in the idm, teacher and
+# log_replay worlds: docs/results/interaction.md (~35 min on 2 threads of a loaded 2-core machine;
+# resumable, runs cached under runs/interaction). The reaction-distilled student joins as a
+# candidate when make student-react has made it.
+interaction: develop
+	nice -n 5 $(TRAIN) interaction --threads 2 $(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
 # planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the

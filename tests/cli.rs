@@ -407,3 +407,67 @@ fn cli_animates_traced_runs_into_the_output_directory() {
     assert!(!records.contains("\"trace\""));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--ablate-reaction` runs the library's runs with `ablate_reaction` on (over the settings
+/// file): the same columns, and the planner calls its predictor at most once per step (the
+/// keep-lane path), while the aware planner calls it for every candidate.
+#[test]
+fn cli_ablate_reaction_is_the_setting() {
+    let dir = two_scenes("ablate");
+    let scenes = dir.join("scenes");
+    let calls = |ablate: bool| {
+        let out = dir.join(if ablate { "ablated" } else { "aware" });
+        let mut args = vec![
+            "simulate",
+            "--scenes",
+            scenes.to_str().unwrap(),
+            "--predictor",
+            "student",
+            "--max-steps",
+            "3",
+            "--threads",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if ablate {
+            args.push("--ablate-reaction");
+        }
+        let o = nudge(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let steps = std::fs::read_to_string(out.join("steps.csv")).unwrap();
+        let rows = without_timing(&steps);
+        let col = rows[0].iter().position(|c| c == "predictor_calls").unwrap();
+        let calls: Vec<usize> = rows[1..].iter().map(|r| r[col].parse().unwrap()).collect();
+        (rows, calls)
+    };
+    let (ablated, ablated_calls) = calls(true);
+    let (_, aware_calls) = calls(false);
+    assert!(ablated_calls.iter().all(|&c| c <= 1), "{ablated_calls:?}");
+    assert!(aware_calls.iter().any(|&c| c > 1), "{aware_calls:?}");
+
+    let (loaded, bad) = Scenario::load_dir(&scenes).unwrap();
+    assert!(bad.is_empty());
+    let settings = PlannerSettings {
+        ablate_reaction: true,
+        ..PlannerSettings::default()
+    };
+    let cfg = SimConfig {
+        max_steps: 3,
+        ..SimConfig::default()
+    };
+    let specs = run_specs(loaded.len(), 1, 0, None).unwrap();
+    let predictors =
+        Predictors::resolve("student", cfg.world, None, None, &repo().join("assets"), 6).unwrap();
+    let outputs = simulate_many(
+        &loaded,
+        &specs,
+        &settings,
+        &cfg,
+        &predictors,
+        Keep::default(),
+        &Cancel::new(),
+    );
+    assert_eq!(ablated, without_timing(&csv(&step_table(&outputs))));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -49,6 +49,11 @@ pub struct SimulateArgs {
     /// Planner settings JSON (missing fields default).
     #[arg(long)]
     pub settings: Option<PathBuf>,
+    /// Ablate the predicted reaction (planner setting `ablate_reaction` = true, over
+    /// --settings): the planner's predictor sees the ego's keep-lane path instead of each
+    /// candidate, so the predicted traffic cannot depend on the ego's plan.
+    #[arg(long)]
+    pub ablate_reaction: bool,
     /// Closed-loop settings JSON (`SimConfig`; missing fields default).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -127,12 +132,16 @@ impl SimulateArgs {
         Ok(c)
     }
 
-    /// The planner settings: `--settings` or the defaults.
+    /// The planner settings: `--settings` or the defaults, with `--ablate-reaction` applied.
     fn planner_settings(&self) -> Result<PlannerSettings, String> {
-        match &self.settings {
-            Some(p) => PlannerSettings::from_file(p).map_err(|e| format!("{}: {e}", p.display())),
-            None => Ok(PlannerSettings::default()),
-        }
+        let mut s = match &self.settings {
+            Some(p) => {
+                PlannerSettings::from_file(p).map_err(|e| format!("{}: {e}", p.display()))?
+            }
+            None => PlannerSettings::default(),
+        };
+        s.ablate_reaction |= self.ablate_reaction;
+        Ok(s)
     }
 }
 

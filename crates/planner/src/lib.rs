@@ -15,6 +15,7 @@
 //! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
 //! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.
 
+mod ablation;
 mod admm;
 pub mod describe;
 mod error;
@@ -28,6 +29,7 @@ pub mod scenario;
 pub mod settings;
 pub mod sim;
 
+pub use ablation::keep_lane_path;
 pub use admm::{
     BindingVehicle, CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus,
     Planner, PlanningProblem, SafetyConstraint, StepStatus,

@@ -128,6 +128,14 @@ pub struct PlannerSettings {
     pub rollout_check: bool,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
+    /// Ablate the predicted reaction: the predictor sees the ego's keep-lane path
+    /// ([`crate::keep_lane_path`]: the measured ego at its measured speed along the road on
+    /// its measured lateral position, x_k = x_0 + k·dt·v_0, y_k = y_0 for k = 1..T) instead of
+    /// each candidate, so the predicted traffic cannot depend on the ego's plan; the cost, the
+    /// safety rule and the fallbacks are unchanged. The prediction is made once per MPC call
+    /// (the predictor is called at most once; `budget_calls` counts that call). For the
+    /// experiment "interaction-aware planner vs the same model without its reaction".
+    pub ablate_reaction: bool,
 
     /// Heading bound relative to the road (rad): every returned state has |ψ_k| ≤ heading_max
     /// (an ego that starts beyond it gets a bound that returns to it by `heading_recovery`
@@ -199,6 +207,7 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             restore_step: 1.0,
+            ablate_reaction: false,
             heading_max: 0.2,
             heading_recovery: 0.05,
             overshoot_max: 0.3,

@@ -9,6 +9,7 @@
     nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
     nudge-train paper [--quick]            the paper's Tables I-II and Figures 7-10 into docs/paper
+    nudge-train interaction                aware planner vs its reaction ablated on dense scenes, docs/results/interaction.md
     nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
@@ -338,6 +339,9 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
                    help="closed-loop settings JSON (SimConfig; the world is set per arm)")
     p.add_argument("--compare", type=Path, nargs=2, default=None, metavar=("SETTINGS_A", "SETTINGS_B"),
                    help="run every planner x world with two planner settings and compare B with A")
+    p.add_argument("--ablate-reaction", action="store_true",
+                   help="every arm with the planner setting ablate_reaction on: the planner's predictor sees the "
+                        "ego's keep-lane path instead of each candidate")
     p.add_argument("--reference", default=None,
                    help="planner the others are compared with (default: the first of --planners)")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene draw, the scene seeds and the teacher subset")
@@ -362,7 +366,7 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
                          worlds=tuple(a.worlds), teacher_n=a.teacher_n, settings=a.settings, config=a.config,
                          compare=tuple(a.compare) if a.compare else None, reference=a.reference, seed=a.seed,
                          threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap,
-                         progress=not a.no_progress)
+                         progress=not a.no_progress, ablate_reaction=a.ablate_reaction)
         cfg.validate()
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -415,6 +419,44 @@ def _run_paper(a: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+
+
+def _add_interaction(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "interaction",
+                 "each planner aware vs the same model with its reaction ablated, on dense scenes, idm / teacher / "
+                 "log_replay worlds, paired: docs/results/interaction.md", _run_interaction)
+    p.add_argument("--splits", nargs="+", choices=SPLITS, default=["val", "test"], help="splits, in this order")
+    p.add_argument("--n", type=int, nargs="+", default=[30, 60],
+                   help="dense scenes drawn (seeded): one count for every split or one per split")
+    p.add_argument("--teacher-n", type=int, nargs="+", default=[15, 30],
+                   help="of these, scenes of the aware teacher planner: one count or one per split")
+    p.add_argument("--seeds", type=int, default=3, help="runs (seeds drawing a blocked target lane) per scene")
+    p.add_argument("--margin", type=float, default=2.0,
+                   help="blocked: a target-lane vehicle overlaps the ego's longitudinal extent +- this (m)")
+    p.add_argument("--candidate", type=Path, default=None,
+                   help="weights of a candidate student, run aware and ablated as planner student_react")
+    p.add_argument("--worlds", nargs="+", choices=("idm", "teacher", "log_replay"),
+                   default=["idm", "teacher", "log_replay"], help="worlds")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scene seeds and the draws")
+    p.add_argument("--threads", type=int, default=2, help="runs side by side")
+    p.add_argument("--batch", type=int, default=10, help="scenes per cached part")
+    p.add_argument("--cache", type=Path, default=paths.runs() / "interaction", help="cache of the runs")
+    p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples of every interval")
+    p.add_argument("--out", type=Path, default=paths.results() / "interaction.md", help="the report")
+    p.add_argument("--json", type=Path, default=paths.runs() / "interaction" / "interaction.json", dest="json_path",
+                   metavar="JSON", help="the numbers of the report")
+    p.add_argument("--no-figure", action="store_true", help="no figure or animations of a pair")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _run_interaction(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.interaction import InteractionConfig, command_line, run
+
+    cfg = InteractionConfig(splits=tuple(a.splits), n=tuple(a.n), teacher_n=tuple(a.teacher_n), seeds=a.seeds,
+                            margin=a.margin, candidate=a.candidate, worlds=tuple(a.worlds), seed=a.seed,
+                            threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap, progress=not a.no_progress,
+                            animate=not a.no_figure)
+    return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []))
 
 
 # ---- benches, goldens, figures -----------------------------------------------------------------
@@ -616,6 +658,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="cmd", required=True,
                                 metavar="{data,train,teacher,student,distill,closed-loop,paper,bench,goldens,figures,idm}")
+                                metavar="{data,train,teacher,student,distill,closed-loop,interaction,bench,goldens,figures,idm}")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
@@ -625,6 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_distill(sub)
     _add_closed_loop(sub)
     _add_paper(sub)
+    _add_interaction(sub)
     _add_bench(sub)
     _add_goldens(sub)
     _add_figures(sub)

@@ -295,6 +295,16 @@ pub(crate) struct SafetyEval<'c> {
     pub rows: Vec<SafetyRow>,
     /// The call's work budget.
     pub budget: Budget,
+    /// With `PlannerSettings::ablate_reaction`: the path the predictor sees instead of every
+    /// candidate.
+    keep_lane: Option<KeepLane>,
+}
+
+/// The keep-lane path `[T, 2]` (road frame, m) the predictor sees when the reaction is
+/// ablated, and whether `SafetyEval::prediction` already holds its prediction.
+struct KeepLane {
+    path: Vec<f64>,
+    predicted: bool,
 }
 
 /// The work budget of one MPC call: a wall-clock deadline and/or a number of predictor calls
@@ -399,7 +409,43 @@ impl<'c> SafetyEval<'c> {
             calls: 0,
             rows: Vec::new(),
             budget: Budget::unlimited(),
+            keep_lane: None,
         }
+    }
+
+    /// Ablates the reaction: from now on the predictor sees `path` (`[T, 2]`, road frame, m;
+    /// [`crate::keep_lane_path`]) instead of each candidate, predicted once and reused, so
+    /// every evaluation checks its candidate against the same prediction.
+    pub(crate) fn ablate_reaction(&mut self, path: Vec<f64>) {
+        debug_assert_eq!(path.len(), self.horizon * 2);
+        self.keep_lane = Some(KeepLane {
+            path,
+            predicted: false,
+        });
+    }
+
+    /// The prediction `[n − 1, T, 2]` (m) of the last evaluation.
+    #[cfg(test)]
+    pub(crate) fn prediction(&self) -> &[f64] {
+        &self.prediction
+    }
+
+    /// Fills `prediction` for the current candidate: the predictor on the candidate, or with
+    /// the reaction ablated on the keep-lane path (only at the first evaluation).
+    fn predict(&mut self, predictor: &mut dyn Predictor) -> Result<(), PlannerError> {
+        let seen = match &self.keep_lane {
+            Some(k) if k.predicted => return Ok(()),
+            Some(k) => &k.path,
+            None => &self.candidate,
+        };
+        let t0 = Instant::now();
+        predictor.predict(seen, &mut self.prediction)?;
+        self.budget.predictor_time += t0.elapsed();
+        self.calls += 1;
+        if let Some(k) = &mut self.keep_lane {
+            k.predicted = true;
+        }
+        Ok(())
     }
 
     /// The threshold of the violation (b_min).
@@ -437,10 +483,7 @@ impl<'c> SafetyEval<'c> {
                 violation: f64::INFINITY,
             });
         }
-        let t0 = Instant::now();
-        predictor.predict(&self.candidate, &mut self.prediction)?;
-        self.budget.predictor_time += t0.elapsed();
-        self.calls += 1;
+        self.predict(predictor)?;
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;
         self.rows.clear();

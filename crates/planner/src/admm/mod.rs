@@ -27,6 +27,8 @@ mod workspace;
 mod z_update;
 
 #[cfg(test)]
+mod ablation_tests;
+#[cfg(test)]
 mod tests;
 
 use std::time::Instant;
@@ -258,6 +260,9 @@ impl Planner {
         let threshold = s.safety_min + s.plan_buffer;
         let mut safety = SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, threshold);
         safety.budget = Budget::new(s, start);
+        if s.ablate_reaction {
+            safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.dt));
+        }
         let mut timings = PhaseTimings::default();
         let iterates = Iterates::start(&lp);
         let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);

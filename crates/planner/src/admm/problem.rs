@@ -410,7 +410,7 @@ pub struct Plan {
     pub cost: f64,
     /// ADMM iterations run (the failed one included after a QP failure).
     pub iterations: usize,
-    /// Predictor calls (one candidate each).
+    /// Predictor calls (one candidate each; at most one with `ablate_reaction`).
     pub predictor_calls: usize,
     /// Clarabel solves (retries included).
     pub qp_solves: usize,

@@ -113,7 +113,7 @@ impl ClosedLoop<'_> {
 
     /// The trace of a step planned from `history` with the ego at `ego` (the measured state):
     /// the plan from `ego`, the planning predictor's prediction of the others given the plan
-    /// (checked finite and plausible), the binding vehicle under that prediction, and the
+    /// (given the keep-lane path when the reaction is ablated; checked finite and plausible), the binding vehicle under that prediction, and the
     /// agents' positions `moved` after the step.
     fn trace(
         &self,
@@ -128,7 +128,18 @@ impl ClosedLoop<'_> {
         let t = plan.states.len();
         let mut prediction = vec![0.0; n_others * t * 2];
         if n_others > 0 {
-            let candidate: Vec<f64> = plan.states.iter().flat_map(|z| [z[0], z[1]]).collect();
+            // With the reaction ablated the planner's safety check saw the keep-lane path.
+            let candidate: Vec<f64> = if self.settings.ablate_reaction {
+                let e = EgoState {
+                    x: ego[0],
+                    y: ego[1],
+                    psi: ego[2],
+                    v: ego[3],
+                };
+                crate::keep_lane_path(&e, t, self.settings.dt)
+            } else {
+                plan.states.iter().flat_map(|z| [z[0], z[1]]).collect()
+            };
             let mut checked = Checked::new(planner_pred);
             checked
                 .set_scene(history)

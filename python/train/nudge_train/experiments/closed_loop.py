@@ -81,6 +81,9 @@ class EvalConfig:
     cache: Path = field(default_factory=lambda: paths.runs() / "closed_loop")
     bootstrap: int = BOOTSTRAP
     progress: bool = True
+    ablate_reaction: bool = False
+    """Every settings arm with ``ablate_reaction`` on (the planner's predictor sees the ego's
+    keep-lane path instead of each candidate)."""
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad argument."""
@@ -138,7 +141,15 @@ def _jsonable(table: dict) -> dict[str, list]:
 
 
 def _settings_arms(cfg: EvalConfig) -> list[tuple[str, nudge.PlannerSettings]]:
-    """(label, settings) of every settings arm."""
+    """(label, settings) of every settings arm (``ablate_reaction`` applied, labelled)."""
+    arms = _loaded_settings_arms(cfg)
+    if cfg.ablate_reaction:
+        arms = [(f"{label}, reaction ablated", s.replace(ablate_reaction=True)) for label, s in arms]
+    return arms
+
+
+def _loaded_settings_arms(cfg: EvalConfig) -> list[tuple[str, nudge.PlannerSettings]]:
+    """(label, settings) of every settings arm as given."""
     def load(p: Path) -> nudge.PlannerSettings:
         return nudge.PlannerSettings.from_json(Path(p).read_text())
     if cfg.compare is not None:

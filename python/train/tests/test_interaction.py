@@ -1,0 +1,116 @@
+"""The interaction experiment's pieces on hand-made cases: the blocked-lane rule, the dense-scene
+selection on the shipped scenes, the paired statistics and the issue's bar."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import nudge
+from nudge_train.experiments.interaction import SEED_TRIES, blocked, dense_runs, paired, start_geometry, verdict
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _scene(others: list[tuple[float, float, float]], ego_length: float = 4.5) -> SimpleNamespace:
+    """The ego at (0, 0) in lane 1 ([-1.85, 1.85]); lane 2 is [1.85, 5.55]; others (x, y, length)."""
+    pos = [(0.0, 0.0)] + [(x, y) for x, y, _ in others]
+    history = np.zeros((len(pos), 8, 2))
+    history[:, -1, :] = pos
+    size = np.array([[ego_length, 1.9]] + [[length, 1.9] for _, _, length in others])
+    return SimpleNamespace(history=history, size=size, lane_bounds=np.array([-5.55, -1.85, 1.85, 5.55]))
+
+
+@pytest.mark.parametrize(("others", "lane", "margin", "want"), [
+    ([(0.0, 3.7, 4.5)], 2, 0.0, True),            # alongside
+    ([(6.4, 3.7, 4.5)], 2, 2.0, True),            # centre distance 6.4 < 4.5 + 2
+    ([(6.6, 3.7, 4.5)], 2, 2.0, False),           # 6.6 > 6.5: a 2.1 m bumper gap
+    ([(-6.4, 3.7, 4.5)], 2, 2.0, True),           # behind as well
+    ([(-6.4, 3.7, 4.5)], 2, 1.0, False),          # a smaller margin
+    ([(0.0, 3.7, 4.5)], 0, 2.0, False),           # another lane
+    ([(0.0, 1.85, 4.5)], 2, 2.0, True),           # on the lower bound: in the lane
+    ([(0.0, 5.55, 4.5)], 2, 2.0, False),          # on the upper bound: the next lane
+    ([(8.0, 3.7, 12.0)], 2, 0.0, True),           # a long truck reaching back over the ego (rear at 2.0)
+    ([(9.0, 3.7, 12.0)], 2, 0.0, False),          # its rear at 3.0, the ego's front at 2.25
+    ([], 2, 2.0, False),
+])
+def test_blocked_by_hand(others: list, lane: int, margin: float, want: bool) -> None:
+    assert blocked(_scene(others), lane, margin) is want
+
+
+def test_dense_runs_keep_only_seeds_that_draw_a_blocked_lane() -> None:
+    files = sorted((REPO / "assets" / "scenes").glob("*.safetensors"))
+    runs = dense_runs(files, 3, 2.0, 0)
+    bases = np.random.default_rng([0, 2]).integers(0, 2**31, size=len(files)).tolist()
+    by_name = {p: b for p, b in zip(files, bases, strict=True)}
+    assert runs, "some shipped scene is dense"
+    for path, seeds in runs:
+        sc = nudge.Scenario.load(path)
+        tried = [by_name[path] + r for r in range(SEED_TRIES)]
+        # Independently: the first three seeds whose lane has a vehicle within the ego's extent + 2 m.
+        pos, length, bounds = sc.history[:, -1, :], sc.size[:, 0], sc.lane_bounds
+        want = []
+        for s in tried:
+            lane = sc.target_lane(s)
+            hit = any(bounds[lane] <= pos[j, 1] < bounds[lane + 1]
+                      and abs(pos[j, 0] - pos[0, 0]) < (length[0] + length[j]) / 2 + 2.0
+                      for j in range(1, sc.n_agents))
+            if hit:
+                want.append(s)
+        assert seeds == want[:3]
+    assert len(runs) < len(files) or all(len(s) == 3 for _, s in runs)
+
+
+def _cols(scenes: list[str], seeds: list[int], success: list[bool], lane_steps: list[int],
+          lanes: list[int] | None = None) -> dict[str, list]:
+    n = len(scenes)
+    return {"scenario": scenes, "seed": seeds, "success": success, "steps_to_lane": lane_steps,
+            "steps_to_target": lane_steps, "target_lane": lanes or [1] * n, "error": [None] * n}
+
+
+def test_paired_by_hand() -> None:
+    a = _cols(["s1", "s1", "s2", "s3"], [1, 2, 5, 7], [True, False, False, True], [10, -1, -1, 4])
+    # b lacks (s3, 7), has an extra run, in another order.
+    b = _cols(["s2", "s1", "s1", "s4"], [5, 2, 1, 9], [True, True, True, True], [8, 20, 10, 3])
+    p = paired(a, b, budget=30, n_boot=200)
+    assert p["pairs"] == 3 and p["scenes"] == 2
+    assert (p["both"], p["only_a"], p["only_b"], p["neither"]) == (1, 0, 2, 0)
+    assert p["p"] == pytest.approx(0.5)
+    # Success 1/3 -> 3/3: +66.7 pp; time to lane (s1,1) 3.0 -> 3.0, (s1,2) 9.0 -> 6.0, (s2,5) 9.0 -> 2.4.
+    assert p["d_success_pp"][0] == pytest.approx(200.0 / 3.0)
+    assert p["d_ttl"][0] == pytest.approx((0.0 - 3.0 - 6.6) / 3.0)
+    # Reaching the lane at all: (s1,2) and (s2,5) only in b.
+    assert (p["lane_only_a"], p["lane_only_b"]) == (0, 2)
+
+
+def test_paired_refuses_pairs_with_different_lanes() -> None:
+    a = _cols(["s1"], [1], [True], [3], lanes=[0])
+    b = _cols(["s1"], [1], [True], [3], lanes=[2])
+    with pytest.raises(ValueError, match="target lanes"):
+        paired(a, b, budget=30, n_boot=10)
+
+
+def test_verdict_needs_the_size_and_an_interval_excluding_zero() -> None:
+    base = {"pairs": 10, "d_success_pp": (0.0, -5.0, 5.0), "d_ttl": (0.0, -0.1, 0.1)}
+    assert verdict(base) == "not met"
+    assert verdict({**base, "d_success_pp": (12.0, 1.0, 20.0)}) == "**met**"
+    assert verdict({**base, "d_success_pp": (12.0, -1.0, 20.0)}) == "not met"
+    assert verdict({**base, "d_ttl": (-0.6, -1.0, -0.2)}) == "**met**"
+    assert verdict({**base, "d_ttl": (-0.4, -1.0, -0.2)}) == "not met"
+    assert verdict({**base, "d_ttl": (-0.6, -1.0, 0.1)}) == "not met"
+    assert verdict({"pairs": 0}) == "–"
+
+
+def test_start_geometry_by_hand() -> None:
+    # Ego (4.5 x 1.9) at y = 0, lanes [-1.85, 1.85] and [1.85, 5.55]; a 4.5 x 1.9 car at (5.5, 3.7).
+    sc = _scene([(5.5, 3.7, 4.5), (40.0, 3.7, 4.5)])
+    s = nudge.PlannerSettings.default()
+    gap, need, depth = start_geometry(sc, 2, s)
+    assert gap == pytest.approx(1.0)  # 5.5 - 4.5
+    assert need == pytest.approx(np.sqrt(2.0) * 4.5 + 1.5 - 4.5)
+    # Level with it, the ego's centre stays sqrt(2) * 1.9 + 0.3 below 3.7; its edge 0.95 above that.
+    assert depth == pytest.approx((3.7 - 1.85) - (np.sqrt(2.0) * 1.9 + 0.3) + 0.95)
+    assert start_geometry(sc, 0, s) is None
