@@ -11,7 +11,12 @@
 //!   side of the line between the two lanes: aim at the own lane's centre for `abort_hold`
 //!   steps, then try again;
 //! * **commit** once the centre has crossed that line: from then on the change is finished,
-//!   never aborted (going back would cross the line a second time).
+//!   never aborted (going back would cross the line a second time);
+//! * **retreat when stuck**: the own lane stays on offer to the planner's fallbacks
+//!   ([`LaneChange::retreat`]) before the crossing, and after it only while the ego is stuck
+//!   across the line (`abort_after` consecutive steps without an admissible plan, not yet
+//!   wholly inside the target lane). The goal stays the target lane; the fallbacks pick
+//!   going back only when it violates the predicted safety least.
 //!
 //! The simulator ([`crate::sim`]) applies it in every closed loop; a user embedding the planner
 //! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
@@ -193,9 +198,21 @@ mod tests {
         c.after_plan(StepStatus::Unsafe, 2.0);
         assert_eq!(c.retreat(2.0), None, "one step without a plan is not stuck");
         c.after_plan(StepStatus::Fallback, 2.0);
-        assert_eq!(c.retreat(2.0), Some(0.0), "stuck after abort_after = 2 steps");
-        assert_eq!(c.retreat(3.0), None, "never once wholly inside the target lane");
-        assert_eq!((c.goal(), c.aborts()), (3.7, 0), "still committed: no abort");
+        assert_eq!(
+            c.retreat(2.0),
+            Some(0.0),
+            "stuck after abort_after = 2 steps"
+        );
+        assert_eq!(
+            c.retreat(3.0),
+            None,
+            "never once wholly inside the target lane"
+        );
+        assert_eq!(
+            (c.goal(), c.aborts()),
+            (3.7, 0),
+            "still committed: no abort"
+        );
         c.after_plan(StepStatus::Converged, 2.1);
         assert_eq!(c.retreat(2.1), None, "an admissible plan ends being stuck");
         // Steps without a plan inside the target lane do not count.
