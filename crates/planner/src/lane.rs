@@ -11,7 +11,12 @@
 //!   side of the line between the two lanes: aim at the own lane's centre for `abort_hold`
 //!   steps, then try again;
 //! * **commit** once the centre has crossed that line: from then on the change is finished,
-//!   never aborted (going back would cross the line a second time).
+//!   never aborted (going back would cross the line a second time);
+//! * **retreat when stuck**: the own lane stays on offer to the planner's fallbacks
+//!   ([`LaneChange::retreat`]) before the crossing, and after it only while the ego is stuck
+//!   across the line (`abort_after` consecutive steps without an admissible plan, not yet
+//!   wholly inside the target lane). The goal stays the target lane; the fallbacks pick
+//!   going back only when it violates the predicted safety least.
 //!
 //! The simulator ([`crate::sim`]) applies it in every closed loop; a user embedding the planner
 //! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
@@ -30,6 +35,8 @@ pub struct LaneChange {
     abort_after: usize,
     abort_hold: usize,
     unsafe_steps: usize,
+    /// Consecutive steps without an admissible plan after the crossing, not yet inside.
+    stuck_steps: usize,
     hold: usize,
     aborts: usize,
 }
@@ -56,6 +63,7 @@ impl LaneChange {
             abort_after,
             abort_hold,
             unsafe_steps: 0,
+            stuck_steps: 0,
             hold: 0,
             aborts: 0,
         }
@@ -74,11 +82,17 @@ impl LaneChange {
 
     /// The lane centre the planner may fall back to this step with the ego's centre at `y`
     /// (m, [`crate::PlanningProblem::y_retreat`]): the own lane's while the goal is the target
-    /// lane and the centre has not crossed the line; none while an abort holds (the goal is
-    /// the own lane then) or once committed (going back would cross the line a second time).
+    /// lane and the centre has not crossed the line; once committed only while the ego is
+    /// **stuck** across the line: not yet wholly inside the target lane after `abort_after`
+    /// consecutive steps without an admissible plan (an ego straddling the line in front of a
+    /// target-lane follower must be able to leave the straddle either way). None while an
+    /// abort holds (the goal is the own lane then).
     #[must_use]
     pub fn retreat(&self, y: f64) -> Option<f64> {
-        (self.hold == 0 && !self.committed(y)).then_some(self.y_own)
+        let stuck = self.abort_after > 0
+            && self.stuck_steps >= self.abort_after
+            && (y - self.y_target).abs() > self.inside;
+        (self.hold == 0 && (!self.committed(y) || stuck)).then_some(self.y_own)
     }
 
     /// Whether the ego's centre at `y` (m) has crossed the line between the two lanes.
@@ -96,6 +110,12 @@ impl LaneChange {
     /// Counts a planning step that ended in `status` with the ego's centre at `y` (m) when it
     /// was planned.
     pub fn after_plan(&mut self, status: StepStatus, y: f64) {
+        let straddling = (y - self.y_target).abs() > self.inside && self.committed(y);
+        if straddling && status.is_unsafe_plan() {
+            self.stuck_steps += 1;
+        } else {
+            self.stuck_steps = 0;
+        }
         if self.hold > 0 {
             self.hold -= 1;
         } else if self.abort_after > 0
@@ -168,6 +188,43 @@ mod tests {
         assert!(right.committed(1.0) && !right.committed(2.5));
         right.after_plan(StepStatus::Unsafe, 2.5);
         assert_eq!(right.aborts(), 1);
+    }
+
+    #[test]
+    fn offers_the_retreat_after_the_crossing_only_when_stuck_across_the_line() {
+        let mut c = change();
+        // Crossed (line at 1.85), not inside (inside: |y − 3.7| ≤ 0.9).
+        assert_eq!(c.retreat(2.0), None, "committed and not yet stuck");
+        c.after_plan(StepStatus::Unsafe, 2.0);
+        assert_eq!(c.retreat(2.0), None, "one step without a plan is not stuck");
+        c.after_plan(StepStatus::Fallback, 2.0);
+        assert_eq!(
+            c.retreat(2.0),
+            Some(0.0),
+            "stuck after abort_after = 2 steps"
+        );
+        assert_eq!(
+            c.retreat(3.0),
+            None,
+            "never once wholly inside the target lane"
+        );
+        assert_eq!(
+            (c.goal(), c.aborts()),
+            (3.7, 0),
+            "still committed: no abort"
+        );
+        c.after_plan(StepStatus::Converged, 2.1);
+        assert_eq!(c.retreat(2.1), None, "an admissible plan ends being stuck");
+        // Steps without a plan inside the target lane do not count.
+        c.after_plan(StepStatus::Unsafe, 3.5);
+        c.after_plan(StepStatus::Unsafe, 3.5);
+        assert_eq!(c.retreat(2.1), None);
+        // Disabled aborts disable it too.
+        let mut off = LaneChange::new(0.0, 3.7, 1.9, 0.3, 0, 3);
+        for _ in 0..5 {
+            off.after_plan(StepStatus::Unsafe, 2.0);
+        }
+        assert_eq!(off.retreat(2.0), None);
     }
 
     #[test]

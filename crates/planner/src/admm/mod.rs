@@ -89,15 +89,20 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// checked within the corridor of a plan aiming there, but only when the best plan towards the
 /// target is unsafe by the prediction: the minimum-risk choice between holding, finishing and
 /// cancelling a lane change is then the least-violating. The simulator offers the retreat
-/// only before the ego's centre crosses the line between the lanes (after it, going back would
-/// cross the line a second time; the lane-change decision in [`crate::lane`] commits there
-/// too). Measured on validation (269 scenes × 3 seeds, student): at-fault collisions in the
-/// IDM world 5 → 3 and planned slow steps in 15–46 → 8–34 runs, success unchanged in every
-/// world; offering it after the crossing too removed 4 of 5 log-replay at-fault collisions
-/// but cost 2.3 pp of success in the teacher's world (p = 0.007), so it is not done. With the
-/// teacher planning (60 validation scenes) log-replay at-fault events rose 4 → 9 (2 → 3
-/// situations: a follower that never yields hits the retreating, braking ego); on the test
-/// split they fell 21 → 15 (`docs/results/closed_loop.md`).
+/// before the ego's centre crosses the line between the lanes, and after it only while the
+/// ego is stuck across the line ([`crate::lane::LaneChange::retreat`]: `abort_after`
+/// consecutive steps without an admissible plan, not yet inside the target lane). Measured on
+/// validation (269 scenes × 3 seeds, student): the retreat before the crossing cut at-fault
+/// collisions in the IDM world 5 → 3 and planned slow steps in 15–46 → 8–34 runs, success
+/// unchanged in every world; offering it after every crossing removed 4 of 5 log-replay
+/// at-fault collisions but cost 2.3 pp of success in the teacher's world (p = 0.007), so it
+/// is not done. Offering it after the crossing only when stuck (an ego holding a straddle in
+/// front of a target-lane follower that never yields) cut log-replay at-fault events 5 → 2
+/// (student) and 9 → 6 (teacher planner, 60 scenes) with success unchanged in every world
+/// (2 of 807 pairs discordant, p = 0.5). The remaining validation cases: a follower that
+/// never yields hits an ego that slowed down during aborted attempts; lane changes begun with
+/// almost no margin (b < 0.02) next to a target-lane vehicle that the IDM world moves
+/// differently from the prediction. Test split: `docs/results/closed_loop.md`.
 ///
 /// **Bounded work.** `budget_s` (wall time) and `budget_calls` (predictor calls), when set,
 /// end the call with [`PlanStatus::BudgetExhausted`] and a checked plan: one predictor call is
