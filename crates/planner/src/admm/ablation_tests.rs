@@ -51,6 +51,7 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
         v_ref: V,
         road: [-1.85, 5.55],
         y_retreat: None,
+        lanes: None,
     }
 }
 
