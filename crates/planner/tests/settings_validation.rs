@@ -32,9 +32,10 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "v_max": 30.0, "edge_margin": 0.0, "v_lin_min": 1.0,
         "ellipse_scale": std::f64::consts::SQRT_2, "margin_x": 1.5, "margin_y": 0.3,
         "brake_decel": 4.0,
-        "check_range": 60.0, "safety_min": 0.0, "plan_buffer": 0.0,
+        "check_range": 60.0, "safety_min": 0.0, "plan_buffer": 0.03,
         "max_iter": 30, "eps_primal": 0.01, "eps_change": 0.01, "pgd_steps": 5,
         "pgd_halvings": 3, "hessian_scaled": true, "pin_weight": 10000.0,
+        "z_safe_step": true, "z_step_margin": 0.01, "z_rollout_trial": true, "relinearise": true,
         "warm_start_dual": false, "rollout_check": true, "restore_step": 1.0,
         "heading_max": 0.2, "heading_recovery": 0.05, "overshoot_max": 0.3,
         "refine_iters": 5, "refine_margin": 0.02, "refine_trust_delta": 0.05,
@@ -102,7 +103,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 43, "numeric settings");
+    assert_eq!(numeric, 44, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

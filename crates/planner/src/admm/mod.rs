@@ -23,9 +23,12 @@ mod reference;
 mod refine;
 mod repair;
 mod restoration;
+mod safe_step;
 mod workspace;
 mod z_update;
 
+#[cfg(test)]
+mod convergence_tests;
 #[cfg(test)]
 mod tests;
 
@@ -248,7 +251,7 @@ impl Planner {
         let predictor: &mut dyn Predictor = &mut checked;
         let s = &self.settings;
         // Set-up: the linearised problem, the checked vehicles, the workspace.
-        let lp = LinearisedProblem::new(s, &self.model, self.warm.as_ref(), problem);
+        let mut lp = LinearisedProblem::new(s, &self.model, self.warm.as_ref(), problem);
         let constraint = SafetyConstraint::new(problem, s);
         if !constraint.vehicles().is_empty() {
             predictor.set_scene(problem.history)?;
@@ -261,42 +264,17 @@ impl Planner {
         let iterates = Iterates::start(&lp);
         let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);
         let mut ws = Workspace::new(s, &lp, iterates, current);
-        let admm = match InputQps::new(s, &lp) {
-            // ADMM: loop {Δ-update; α-update; Z-update; dual update}.
-            Ok(mut qps) => {
-                let mut stop = Stop::MaxIterations;
-                let mut iterations = 0;
-                for iteration in 0..s.max_iter {
-                    if safety.budget.spent(safety.calls) {
-                        stop = Stop::Budget;
-                        break;
-                    }
-                    iterations = iteration + 1;
-                    let (delta_s, alpha_s) = (&mut timings.delta_s, &mut timings.alpha_s);
-                    let inputs = qps
-                        .update(Input::Steering, s, &lp, &mut ws, iteration, delta_s)
-                        .and_then(|()| {
-                            qps.update(Input::Acceleration, s, &lp, &mut ws, iteration, alpha_s)
-                        });
-                    if let Err(failure) = inputs {
-                        stop = Stop::SolverFailed(failure);
-                        break;
-                    }
-                    ws.update_z(s, &lp, &mut safety, predictor, &mut timings)?;
-                    let converged = ws.update_duals(s, &lp);
-                    if safety.budget.exhausted {
-                        stop = Stop::Budget;
-                        break;
-                    }
-                    if converged {
-                        stop = Stop::Converged;
-                        break;
-                    }
-                }
-                AdmmResult::new(ws, stop, iterations, qps.solves())
-            }
-            Err(failure) => AdmmResult::new(ws, Stop::SolverFailed(failure), 0, 0),
-        };
+        // ADMM: loop {(re-linearisation;) Δ-update; α-update; Z-update; dual update}.
+        let run = admm_loop(
+            s,
+            &self.model,
+            &mut lp,
+            &mut ws,
+            &mut safety,
+            predictor,
+            &mut timings,
+        )?;
+        let admm = AdmmResult::new(ws, run.stop, run.iterations, run.qp_solves);
         // Execution check: the roll-out of (Δ, α), repaired when unsafe; it may use the calls
         // the budget held back.
         safety.budget.reserve = 0;
@@ -346,6 +324,83 @@ impl Planner {
         let lp = LinearisedProblem::new(&self.settings, &self.model, self.warm.as_ref(), problem);
         reference::solve_joint(&self.settings, &lp)
     }
+}
+
+/// How the ADMM loop ended.
+struct AdmmRun {
+    stop: Stop,
+    iterations: usize,
+    qp_solves: usize,
+}
+
+/// The ADMM loop from the workspace's iterates until convergence, `max_iter` iterations, a QP
+/// failure or the budget: loop {re-linearisation (with `relinearise`, from the second
+/// iteration); Δ-update; α-update; the roll-out of the inputs for the Z-update's roll-out
+/// trial (with `z_rollout_trial`); Z-update; dual update}.
+fn admm_loop(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &mut LinearisedProblem,
+    ws: &mut Workspace,
+    safety: &mut SafetyEval<'_>,
+    predictor: &mut dyn Predictor,
+    timings: &mut PhaseTimings,
+) -> Result<AdmmRun, PlannerError> {
+    let failed = |failure, iterations, qp_solves| {
+        Ok(AdmmRun {
+            stop: Stop::SolverFailed(failure),
+            iterations,
+            qp_solves,
+        })
+    };
+    let mut qps = match InputQps::new(s, lp) {
+        Ok(qps) => qps,
+        Err(failure) => return failed(failure, 0, 0),
+    };
+    let mut earlier_solves = 0;
+    let mut stop = Stop::MaxIterations;
+    let mut iterations = 0;
+    for iteration in 0..s.max_iter {
+        if safety.budget.spent(safety.calls) {
+            stop = Stop::Budget;
+            break;
+        }
+        iterations = iteration + 1;
+        if s.relinearise && iteration > 0 {
+            ws.relinearise(s, model, lp);
+            earlier_solves += qps.solves();
+            qps = match InputQps::new(s, lp) {
+                Ok(qps) => qps,
+                Err(failure) => return failed(failure, iterations, earlier_solves),
+            };
+        }
+        let (delta_s, alpha_s) = (&mut timings.delta_s, &mut timings.alpha_s);
+        let inputs = qps
+            .update(Input::Steering, s, lp, ws, iteration, delta_s)
+            .and_then(|()| qps.update(Input::Acceleration, s, lp, ws, iteration, alpha_s));
+        if let Err(failure) = inputs {
+            stop = Stop::SolverFailed(failure);
+            break;
+        }
+        if s.z_rollout_trial {
+            ws.roll_out_inputs(model, lp);
+        }
+        ws.update_z(s, lp, safety, predictor, timings)?;
+        let converged = ws.update_duals(s, lp);
+        if safety.budget.exhausted {
+            stop = Stop::Budget;
+            break;
+        }
+        if converged {
+            stop = Stop::Converged;
+            break;
+        }
+    }
+    Ok(AdmmRun {
+        stop,
+        iterations,
+        qp_solves: earlier_solves + qps.solves(),
+    })
 }
 
 impl AdmmResult {
