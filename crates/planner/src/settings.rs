@@ -95,7 +95,9 @@ pub struct PlannerSettings {
     /// Constraint tightening (≥ 0, units of b): the Z-update accepts only states with every
     /// b_i > safety_min + plan_buffer, while the executed roll-out must only keep
     /// b_i > safety_min. Z otherwise settles on the constraint boundary and the roll-out of
-    /// the inputs, which deviates from Z by the primal residual, dips below it.
+    /// the inputs, which deviates from Z by the primal residual, dips below it. Default 0.03:
+    /// b of the roll-out of converged ADMM calls fell below Z's by up to 0.03 in 90 % of them
+    /// (validation scenes, student planner).
     pub plan_buffer: f64,
 
     /// Maximum ADMM iterations per MPC call.
