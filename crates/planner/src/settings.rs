@@ -95,9 +95,10 @@ pub struct PlannerSettings {
     /// Constraint tightening (≥ 0, units of b): the Z-update accepts only states with every
     /// b_i > safety_min + plan_buffer, while the executed roll-out must only keep
     /// b_i > safety_min. Z otherwise settles on the constraint boundary and the roll-out of
-    /// the inputs, which deviates from Z by the primal residual, dips below it. Default 0.03:
-    /// b of the roll-out of converged ADMM calls fell below Z's by up to 0.03 in 90 % of them
-    /// (validation scenes, student planner).
+    /// the inputs, which deviates from Z by the primal residual, dips below it. With the
+    /// convergence rules (`z_safe_step`, `z_rollout_trial`, `relinearise`) 0.03: b of the
+    /// roll-out of converged ADMM calls fell below Z's by up to 0.03 in 90 % of them
+    /// (validation scenes, student planner; see [`crate::Planner`]).
     pub plan_buffer: f64,
 
     /// Maximum ADMM iterations per MPC call.
@@ -121,7 +122,9 @@ pub struct PlannerSettings {
     /// pinned Newton step; first in a feasibility restoration; needs `hessian_scaled`): the
     /// minimiser of G subject to the safety rows of the current Z linearised in the ego's
     /// position, by a small active-set method on H⁻¹. Without it a Z on the constraint
-    /// boundary can only take steps that leave it, and the Z-update stalls there.
+    /// boundary can only take steps that leave it, and the Z-update stalls there. Off by
+    /// default, like `z_rollout_trial` and `relinearise` (see [`crate::Planner`], convergence
+    /// by design).
     pub z_safe_step: bool,
     /// Target of the linearised safety rows of the Z-update's safe step above the Z-update's
     /// threshold `safety_min + plan_buffer` (units of b, ≥ 0).
@@ -202,7 +205,7 @@ impl Default for PlannerSettings {
             brake_decel: 4.0,
             check_range: 60.0,
             safety_min: 0.0,
-            plan_buffer: 0.03,
+            plan_buffer: 0.0,
             max_iter: 30,
             eps_primal: 1e-2,
             eps_change: 1e-2,
@@ -210,10 +213,10 @@ impl Default for PlannerSettings {
             pgd_halvings: 3,
             hessian_scaled: true,
             pin_weight: 1e4,
-            z_safe_step: true,
+            z_safe_step: false,
             z_step_margin: 0.01,
-            z_rollout_trial: true,
-            relinearise: true,
+            z_rollout_trial: false,
+            relinearise: false,
             warm_start_dual: false,
             rollout_check: true,
             restore_step: 1.0,

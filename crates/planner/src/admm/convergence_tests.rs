@@ -272,8 +272,7 @@ fn rollout_trial_puts_z_on_the_rollout_of_the_inputs() {
 #[test]
 fn safe_step_moves_z_where_the_newton_trials_stall() {
     let base = PlannerSettings {
-        z_rollout_trial: false,
-        relinearise: false,
+        z_safe_step: true,
         ..PlannerSettings::default()
     };
     let off = PlannerSettings {

@@ -85,7 +85,7 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// every Newton trial crossed it, so the Z-update stalled while F stayed above `eps_primal`;
 /// (2) the nominal (shifted previous plan) was already unsafe in 28 %; (3) in 10 % ADMM
 /// converged but its roll-out, off Z by a median 0.07 m, left the safe set or the state
-/// bounds. The loop therefore has four rules, each a setting:
+/// bounds. The loop therefore has four rules, each a setting (off by default, see below):
 ///
 /// * `z_safe_step`: the Z-update tries G's minimiser under the safety rows of Z linearised in
 ///   the ego's position, so Z slides along the boundary instead of stalling on it;
@@ -97,16 +97,25 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// * `plan_buffer` = 0.03: Z is kept that far inside the safe set, the measured drop of b from
 ///   Z to the roll-out of converged calls (10th percentile −0.03).
 ///
-/// Together, on the same validation runs: `Converged` 23.1 % → 44.5 % of the steps, Fallback
+/// Together (`{"z_safe_step": true, "z_rollout_trial": true, "relinearise": true,
+/// "plan_buffer": 0.03}`), on the same validation runs: `Converged` 23.1 % → 44.5 % of the steps, Fallback
 /// 7.2 → 5.3 %, Unsafe 9.2 → 7.1 %, success 253 → 257 of 269, no collision (teacher planner,
 /// 80 scenes: 24.1 → 40.2 %, success 73 → 72; IDM and log-replay worlds alike,
 /// `docs/results/latency.md`); without one of them (the others on) 41.1 % (no re-linearisation),
-/// 37.6 % (no roll-out trial), 28.1 % (no safe step), 31.9 % (`plan_buffer` 0). What still
+/// 37.6 % (no roll-out trial), 39.4 % (no safe step), 31.9 % (`plan_buffer` 0). What still
 /// keeps the share below 90 %: the loop reaches `max_iter` in 44 % of the steps (82 % of those
 /// with Z frozen on the tightened boundary, and 44 % from an unsafe nominal), and the
 /// converged Z still differs from its roll-out by a median 0.07 m (F ≤ `eps_primal` per step
 /// compounds over the horizon). The steps cost more: student p50 10.9 → 16.1 ms, p99 37.8 →
 /// 59.3 ms on that machine (more predictor calls per Z-update).
+///
+/// **Why the rules are off by default.** With them the planner finds admissible plans where
+/// it found none before, and the lane-change abort of [`crate::lane`], which fires after
+/// consecutive steps *without* an admissible plan, no longer fires in front of a closed convoy
+/// in the log-replay world: the ego edges over the lane line (its centre 1.0 m from its own
+/// lane's, 0.6 m from the line) with admissible plans and idles there, the behaviour that
+/// abort exists to prevent (`blocked_target_lane_aborts_instead_of_idling_across_the_boundary`).
+/// Turning them on needs an abort that also sees a stalled lane change.
 ///
 /// **The refinement.** When the ADMM roll-out is not admissible, the refinement works on the
 /// nonlinear model directly: single shooting in the inputs with the roll-out's sensitivities,

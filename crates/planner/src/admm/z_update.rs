@@ -80,8 +80,9 @@ pub(crate) enum Trial {
 }
 
 impl Trial {
-    /// The kinds tried in order: the Newton pair with Hessian scaling, else the gradient; with
-    /// `z_safe_step` the safe step after the Newton step (after the gradient step).
+    /// The kinds tried in order: the roll-out trial (used only with `z_rollout_trial`, in a
+    /// Z-update's first step), then the Newton pair with Hessian scaling, else the gradient;
+    /// with `z_safe_step` the safe step after the Newton step (after the gradient step).
     fn sequence(s: &PlannerSettings, curvature: &Curvature) -> &'static [Trial] {
         match (curvature.newton.is_some(), s.z_safe_step) {
             (true, true) => &[
@@ -90,9 +91,9 @@ impl Trial {
                 Self::SafeStep,
                 Self::PinnedNewton,
             ],
-            (true, false) => &[Self::Newton, Self::PinnedNewton],
-            (false, true) => &[Self::Gradient, Self::SafeStep],
-            (false, false) => &[Self::Gradient],
+            (true, false) => &[Self::RollOut, Self::Newton, Self::PinnedNewton],
+            (false, true) => &[Self::RollOut, Self::Gradient, Self::SafeStep],
+            (false, false) => &[Self::RollOut, Self::Gradient],
         }
     }
 
