@@ -101,7 +101,10 @@ pub struct PlannerSettings {
     /// Constraint tightening (≥ 0, units of b): the Z-update accepts only states with every
     /// b_i > safety_min + plan_buffer, while the executed roll-out must only keep
     /// b_i > safety_min. Z otherwise settles on the constraint boundary and the roll-out of
-    /// the inputs, which deviates from Z by the primal residual, dips below it.
+    /// the inputs, which deviates from Z by the primal residual, dips below it. With the
+    /// convergence rules (`z_safe_step`, `z_rollout_trial`, `relinearise`) 0.03: b of the
+    /// roll-out of converged ADMM calls fell below Z's by up to 0.03 in 90 % of them
+    /// (validation scenes, student planner; see [`crate::Planner`]).
     pub plan_buffer: f64,
 
     /// Maximum ADMM iterations per MPC call.
@@ -121,6 +124,28 @@ pub struct PlannerSettings {
     /// Weight w_pin of the position pull in the pinned-Newton and restoration trials
     /// (minimise G + w_pin/2 Σ‖p_k − p*_k‖²); large values keep positions near the target.
     pub pin_weight: f64,
+    /// Try the linearised-safety step in each Z-update step (after the Newton step, before the
+    /// pinned Newton step; first in a feasibility restoration; needs `hessian_scaled`): the
+    /// minimiser of G subject to the safety rows of the current Z linearised in the ego's
+    /// position, by a small active-set method on H⁻¹. Without it a Z on the constraint
+    /// boundary can only take steps that leave it, and the Z-update stalls there. Off by
+    /// default, like `z_rollout_trial` and `relinearise` (see [`crate::Planner`], convergence
+    /// by design).
+    pub z_safe_step: bool,
+    /// Target of the linearised safety rows of the Z-update's safe step above the Z-update's
+    /// threshold `safety_min + plan_buffer` (units of b, ≥ 0).
+    pub z_step_margin: f64,
+    /// Try the nonlinear roll-out of the current (Δ, α), clamped into the state bounds, as the
+    /// first trial of each Z-update: accepted like any trial (safe and lowering G), it puts Z
+    /// where the inputs actually take the ego, so the primal residual there is the
+    /// linearisation error alone.
+    pub z_rollout_trial: bool,
+    /// Re-linearise the dynamics around the current inputs and their nonlinear roll-out at
+    /// every ADMM iteration after the first (a sequential-convex ADMM): F then measures the
+    /// distance of Z from the nonlinear roll-out, not from the roll-out of the dynamics
+    /// linearised around the shifted previous plan, so a converged Z is the roll-out of the
+    /// inputs up to `eps_primal` per step.
+    pub relinearise: bool,
     /// Warm-start the dual variable μ from the previous call (shifted); otherwise μ = 0.
     pub warm_start_dual: bool,
     /// Check the nonlinear roll-out of the returned inputs with the predictor and fall back to
@@ -204,6 +229,10 @@ impl Default for PlannerSettings {
             pgd_halvings: 3,
             hessian_scaled: true,
             pin_weight: 1e4,
+            z_safe_step: false,
+            z_step_margin: 0.01,
+            z_rollout_trial: false,
+            relinearise: false,
             warm_start_dual: false,
             rollout_check: true,
             restore_step: 1.0,
@@ -378,6 +407,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("pgd_steps", 1.0, 100.0, "steps"),
     closed("pgd_halvings", 0.0, 30.0, "halvings"),
     closed("pin_weight", 0.0, 1e8, "1/m²"),
+    closed("z_step_margin", 0.0, 10.0, "units of b"),
     open_min("restore_step", 0.0, 10.0, "m"),
     open_min("heading_max", 0.0, 10.0, "rad"),
     open_min("heading_recovery", 0.0, 1.5, "rad per step"),
@@ -435,6 +465,7 @@ impl PlannerSettings {
             "pgd_steps" => self.pgd_steps as f64,
             "pgd_halvings" => self.pgd_halvings as f64,
             "pin_weight" => self.pin_weight,
+            "z_step_margin" => self.z_step_margin,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,
             "heading_recovery" => self.heading_recovery,

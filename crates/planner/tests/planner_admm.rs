@@ -71,8 +71,10 @@ fn assert_bounds(s: &PlannerSettings, delta: &[f64], accel: &[f64], states: &[[f
     }
 }
 
-/// With no vehicle in range ADMM converges to the joint QP's solution; tolerance 1e-3 on
-/// every state component of Z (m, rad, m/s) and 1e-3 on the inputs. The heading and corridor
+/// With no vehicle in range ADMM on the dynamics linearised once (`relinearise` off) converges
+/// to the joint QP's solution; tolerance 1e-3 on every state component of Z (m, rad, m/s) and
+/// 1e-3 on the inputs (with `relinearise` on, the fixed point is the joint QP around ADMM's own
+/// roll-out: `relinearised_admm_is_the_joint_qp_around_its_own_rollout`). The heading and corridor
 /// bounds are left loose so that the nonlinear roll-out of the ADMM inputs is admissible as it
 /// is and the plan is ADMM's own answer; its states (that roll-out) differ from Z by the
 /// linearisation error only.
@@ -84,6 +86,7 @@ fn admm_matches_joint_qp_without_vehicles() {
         eps_change: 1e-7,
         heading_max: 3.0,
         overshoot_max: 100.0,
+        relinearise: false,
         ..PlannerSettings::default()
     };
     // One far vehicle, outside check_range: the safety constraint is inactive.

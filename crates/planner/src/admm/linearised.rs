@@ -172,6 +172,25 @@ impl LinearisedProblem {
         }
     }
 
+    /// Linearises the dynamics again around the inputs (`delta`, `accel`, `[T]`) and their
+    /// nonlinear roll-out `rollout` (z_1..z_T, `[T]`) from the measured state: the outer
+    /// sequential-convex step (`PlannerSettings::relinearise`). The nominal inputs (the
+    /// shifted previous plan) and every bound stay as set up.
+    pub(crate) fn relinearise(
+        &mut self,
+        model: &Bicycle,
+        delta: &[f64],
+        accel: &[f64],
+        rollout: &[State],
+        v_lin_min: f64,
+    ) {
+        let mut around = Vec::with_capacity(self.horizon);
+        around.push(self.start);
+        around.extend_from_slice(&rollout[..self.horizon - 1]);
+        self.linearisation =
+            Linearisation::new(model, &self.start, &around, delta, accel, v_lin_min);
+    }
+
     /// Φ3(Z) = Σ_k w_y e_y² + w_ψ e_ψ² + w_v e_v², e = z_k − reference.
     pub(crate) fn tracking_cost(&self, z: &[State]) -> f64 {
         let w = &self.weights;

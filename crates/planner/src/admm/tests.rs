@@ -253,8 +253,7 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
         }
         let before = iterates.z.clone();
         let moved = restore(
-            &s,
-            &lp,
+            &g,
             curvature,
             &mut iterates.z,
             scratch,

@@ -4,10 +4,10 @@
 
 use nalgebra::DMatrix;
 
-use crate::model::State;
+use crate::model::{Bicycle, State};
 use crate::settings::PlannerSettings;
 
-use super::constraint::{Evaluation, SafetyEval};
+use super::constraint::{Evaluation, SafetyEval, SafetyRow};
 use super::linearised::LinearisedProblem;
 
 /// The ADMM iterates (Δ, α, Z, μ) in the call's frame.
@@ -130,6 +130,14 @@ pub(crate) struct Scratch {
     pub pinned_step: Vec<State>,
     /// ∇G plus the pull of the positions towards a pushed target.
     pub pinned_rhs: Vec<State>,
+    /// The linearised-safety step ([`super::safe_step`]).
+    pub safe_step: Vec<State>,
+    /// The nonlinear roll-out of the current inputs (clamped for the roll-out trial).
+    pub input_rollout: Vec<State>,
+    /// Z minus the clamped roll-out: the roll-out trial's step.
+    pub rollout_step: Vec<State>,
+    /// The safety rows of `best`.
+    pub best_rows: Vec<SafetyRow>,
     /// A trial Z.
     pub trial: Vec<State>,
     /// The best trial of a restoration step.
@@ -154,6 +162,10 @@ impl Scratch {
             newton_step: states(),
             pinned_step: states(),
             pinned_rhs: states(),
+            safe_step: states(),
+            input_rollout: states(),
+            rollout_step: states(),
+            best_rows: Vec::new(),
             trial: states(),
             best: states(),
             best_violation_gradient: vec![[0.0; 2]; t],
@@ -195,6 +207,34 @@ impl Workspace {
         }
     }
 
+    /// The re-linearisation (`PlannerSettings::relinearise`): the dynamics linearised again
+    /// around the current inputs and their nonlinear roll-out ([`LinearisedProblem::relinearise`]),
+    /// and the Z-update's curvature of the new linearisation; the iterates and duals carry
+    /// over.
+    pub(crate) fn relinearise(
+        &mut self,
+        s: &PlannerSettings,
+        model: &Bicycle,
+        lp: &mut LinearisedProblem,
+    ) {
+        let it = &self.iterates;
+        let rollout = &mut self.scratch.input_rollout;
+        model.rollout(&lp.start, &it.delta, &it.accel, rollout);
+        lp.relinearise(model, &it.delta, &it.accel, rollout, s.v_lin_min);
+        self.curvature = Curvature::new(s, lp);
+    }
+
+    /// The nonlinear roll-out of the current inputs, clamped into the state bounds, into
+    /// `scratch.input_rollout`: the Z-update's roll-out trial point.
+    pub(crate) fn roll_out_inputs(&mut self, model: &Bicycle, lp: &LinearisedProblem) {
+        let it = &self.iterates;
+        let rollout = &mut self.scratch.input_rollout;
+        model.rollout(&lp.start, &it.delta, &it.accel, rollout);
+        for (k, r) in rollout.iter_mut().enumerate() {
+            *r = lp.clamp(k, r);
+        }
+    }
+
     /// The dual update μ ← μ + ρF(Δ, α, Z); returns whether ADMM converged
     /// (‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change).
     pub(crate) fn update_duals(&mut self, s: &PlannerSettings, lp: &LinearisedProblem) -> bool {
@@ -231,6 +271,8 @@ pub(crate) struct CurrentSafety {
     pub violation: f64,
     /// ∂(violation)/∂(x_k, y_k) `[T]`, prediction frozen.
     pub violation_gradient: Vec<[f64; 2]>,
+    /// The safety rows of Z (pairs with b below `ROW_B`, linearised in the ego's position).
+    pub rows: Vec<SafetyRow>,
 }
 
 impl CurrentSafety {
@@ -240,6 +282,7 @@ impl CurrentSafety {
             min_b: evaluation.min_b,
             violation: evaluation.violation,
             violation_gradient: safety.violation_gradient.clone(),
+            rows: safety.rows.clone(),
         }
     }
 

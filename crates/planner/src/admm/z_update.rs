@@ -15,6 +15,7 @@ use super::constraint::SafetyEval;
 use super::linearised::LinearisedProblem;
 use super::problem::PhaseTimings;
 use super::restoration::restore;
+use super::safe_step::linearised_step;
 use super::workspace::{CurrentSafety, Curvature, Scratch, Workspace, mat_vec, max_diff};
 
 /// The augmented Lagrangian as a function of Z, the inputs and duals fixed.
@@ -64,6 +65,13 @@ impl Lagrangian<'_> {
 pub(crate) enum Trial {
     /// d = H⁻¹∇G with η = 1, 1/2, ...: η = 1 is G's exact minimiser when no bound is active.
     Newton,
+    /// d = the linearised-safety step ([`super::safe_step`]) with η = 1, 1/2, ...: G's
+    /// minimiser subject to the safety rows of the current Z, so that Z slides along the
+    /// constraint boundary instead of stalling on it.
+    SafeStep,
+    /// d = Z − Π(roll-out of the current (Δ, α)) with η = 1 only: the nonlinear roll-out of
+    /// the inputs as a trial point (F there is the linearisation error alone).
+    RollOut,
     /// d = H_pin⁻¹∇G with η = 1 only: minimises G while holding the positions near the current
     /// (safe) ones, so that ψ and v become consistent with them.
     PinnedNewton,
@@ -72,19 +80,27 @@ pub(crate) enum Trial {
 }
 
 impl Trial {
-    /// The kinds tried in order: the Newton pair with Hessian scaling, else the gradient.
-    fn sequence(curvature: &Curvature) -> &'static [Trial] {
-        if curvature.newton.is_some() {
-            &[Self::Newton, Self::PinnedNewton]
-        } else {
-            &[Self::Gradient]
+    /// The kinds tried in order: the roll-out trial (used only with `z_rollout_trial`, in a
+    /// Z-update's first step), then the Newton pair with Hessian scaling, else the gradient;
+    /// with `z_safe_step` the safe step after the Newton step (after the gradient step).
+    fn sequence(s: &PlannerSettings, curvature: &Curvature) -> &'static [Trial] {
+        match (curvature.newton.is_some(), s.z_safe_step) {
+            (true, true) => &[
+                Self::RollOut,
+                Self::Newton,
+                Self::SafeStep,
+                Self::PinnedNewton,
+            ],
+            (true, false) => &[Self::RollOut, Self::Newton, Self::PinnedNewton],
+            (false, true) => &[Self::RollOut, Self::Gradient, Self::SafeStep],
+            (false, false) => &[Self::RollOut, Self::Gradient],
         }
     }
 
     /// The first step length η.
     fn first_step(self, curvature: &Curvature) -> f64 {
         match self {
-            Self::Newton | Self::PinnedNewton => 1.0,
+            Self::Newton | Self::PinnedNewton | Self::SafeStep | Self::RollOut => 1.0,
             Self::Gradient => 1.0 / curvature.lipschitz,
         }
     }
@@ -92,8 +108,8 @@ impl Trial {
     /// How many times η is halved after the first trial.
     fn halvings(self, s: &PlannerSettings) -> usize {
         match self {
-            Self::PinnedNewton => 0,
-            Self::Newton | Self::Gradient => s.pgd_halvings,
+            Self::PinnedNewton | Self::RollOut => 0,
+            Self::Newton | Self::Gradient | Self::SafeStep => s.pgd_halvings,
         }
     }
 }
@@ -111,17 +127,39 @@ fn descend(
     current: &mut CurrentSafety,
     safety: &mut SafetyEval<'_>,
     predictor: &mut dyn Predictor,
+    first: bool,
 ) -> Result<bool, PlannerError> {
-    for &trial in Trial::sequence(curvature) {
+    for &trial in Trial::sequence(g.s, curvature) {
+        if trial == Trial::SafeStep && !safe_direction(g, curvature, current, safety, scratch) {
+            continue;
+        }
+        if trial == Trial::RollOut {
+            if !g.s.z_rollout_trial || !first {
+                continue;
+            }
+            for ((d, zk), r) in scratch
+                .rollout_step
+                .iter_mut()
+                .zip(z.iter())
+                .zip(&scratch.input_rollout)
+            {
+                *d = zk - r;
+            }
+        }
         let direction = match trial {
             Trial::Newton => &scratch.newton_step,
             Trial::PinnedNewton => &scratch.pinned_step,
             Trial::Gradient => &scratch.gradient,
+            Trial::SafeStep => &scratch.safe_step,
+            Trial::RollOut => &scratch.rollout_step,
         };
         let mut eta = trial.first_step(curvature);
         for _ in 0..=trial.halvings(g.s) {
             g.lp.project_step(z, direction, eta, &mut scratch.trial);
             if max_diff(&scratch.trial, z) < 1e-12 {
+                if trial == Trial::RollOut {
+                    break;
+                }
                 return Ok(false);
             }
             if g.value(&scratch.trial, &mut scratch.weighted) < g_current {
@@ -130,6 +168,7 @@ fn descend(
                     z.copy_from_slice(&scratch.trial);
                     current.min_b = e.min_b;
                     current.violation = 0.0;
+                    current.rows.clone_from(&safety.rows);
                     return Ok(true);
                 }
             }
@@ -137,6 +176,28 @@ fn descend(
         }
     }
     Ok(false)
+}
+
+/// Writes the linearised-safety step ([`super::safe_step`]) from the current Z (whose safety,
+/// rows included, is `current`, and whose ∇G is in `scratch.gradient`) into
+/// `scratch.safe_step`; `false` without Hessian scaling or when no step is defined.
+pub(crate) fn safe_direction(
+    g: &Lagrangian<'_>,
+    curvature: &Curvature,
+    current: &CurrentSafety,
+    safety: &SafetyEval<'_>,
+    scratch: &mut Scratch,
+) -> bool {
+    let Some(inverse) = curvature.newton.as_ref() else {
+        return false;
+    };
+    linearised_step(
+        inverse,
+        &scratch.gradient,
+        &current.rows,
+        safety.threshold() + g.s.z_step_margin,
+        &mut scratch.safe_step,
+    )
 }
 
 impl Workspace {
@@ -168,7 +229,7 @@ impl Workspace {
         };
         let z = &mut iterates.z;
         let mut g_current = g.value(z, &mut scratch.residual);
-        for _ in 0..s.pgd_steps {
+        for step in 0..s.pgd_steps {
             g.gradient(
                 z,
                 &scratch.residual,
@@ -183,10 +244,18 @@ impl Workspace {
             }
             let moved = if current.is_safe(safety.threshold()) {
                 descend(
-                    &g, curvature, z, g_current, scratch, current, safety, predictor,
+                    &g,
+                    curvature,
+                    z,
+                    g_current,
+                    scratch,
+                    current,
+                    safety,
+                    predictor,
+                    step == 0,
                 )?
             } else {
-                restore(s, lp, curvature, z, scratch, current, safety, predictor)?
+                restore(&g, curvature, z, scratch, current, safety, predictor)?
             };
             if !moved {
                 break;
