@@ -638,15 +638,26 @@ impl Lstm {
         m * 4 * self.h
     }
 
-    /// One step of `m` rows. `xh` holds the rows `[d ; h]` (`[m, 2 + H]`, displacement in
-    /// metres); their `h` part is updated in place. `c` is the cell state `[m, H]`, updated in
-    /// place; `g` is scratch of at least [`Lstm::gates_len`].
-    pub(crate) fn step(&self, isa: Isa, xh: &mut [f32], c: &mut [f32], g: &mut [f32], m: usize) {
+    /// One step of `m` rows. Row `r` of `xh` starts at `r * ldx` (`ldx >= 2 + H`) with
+    /// `[d ; h]` (displacement in metres); its `h` part is updated in place, the rest of the
+    /// row is left as it is. `c` is the cell state `[m, H]`, updated in place; `g` is scratch
+    /// of at least [`Lstm::gates_len`].
+    pub(crate) fn step(
+        &self,
+        isa: Isa,
+        xh: &mut [f32],
+        ldx: usize,
+        c: &mut [f32],
+        g: &mut [f32],
+        m: usize,
+    ) {
+        debug_assert!(ldx >= self.row_len());
         match &self.cell {
             LstmCell::Dense(gates) => isa.run(LstmRows {
                 h: self.h,
                 gates,
                 xh,
+                ldx,
                 c,
                 g,
                 m,
@@ -656,6 +667,7 @@ impl Lstm {
                 w,
                 b,
                 xh,
+                ldx,
                 c,
                 hnew: g,
                 m,
@@ -669,6 +681,7 @@ struct LstmRows<'a> {
     h: usize,
     gates: &'a Dense,
     xh: &'a mut [f32],
+    ldx: usize,
     c: &'a mut [f32],
     g: &'a mut [f32],
     m: usize,
@@ -682,13 +695,14 @@ impl Kernel for LstmRows<'_> {
             h: n,
             gates,
             xh,
+            ldx,
             c,
             g,
             m,
         } = self;
         let rl = 2 + n;
         let g = &mut g[..m * 4 * n];
-        dense_rows(s, gates, xh, rl, m, g, 4 * n, false);
+        dense_rows(s, gates, xh, ldx, m, g, 4 * n, false);
         // The g̃ rows were scaled by 2 at load time (exact), so one sigmoid pass serves all
         // four gates: tanh(x) = 2 σ(2x) − 1.
         for v in g.iter_mut() {
@@ -698,7 +712,7 @@ impl Kernel for LstmRows<'_> {
             let (gi, rest) = gr.split_at(n);
             let (gf, rest) = rest.split_at(n);
             let (gg, go) = rest.split_at(n);
-            let h = &mut xh[r * rl + 2..r * rl + 2 + n];
+            let h = &mut xh[r * ldx + 2..r * ldx + rl];
             let c = &mut c[r * n..(r + 1) * n];
             for k in 0..n {
                 let gt = 2.0 * gg[k] - 1.0;
@@ -720,6 +734,7 @@ struct LstmFused<'a> {
     w: &'a [Block],
     b: &'a [Block],
     xh: &'a mut [f32],
+    ldx: usize,
     c: &'a mut [f32],
     hnew: &'a mut [f32],
     m: usize,
@@ -734,6 +749,7 @@ impl Kernel for LstmFused<'_> {
             w,
             b,
             xh,
+            ldx,
             c,
             hnew,
             m,
@@ -744,14 +760,14 @@ impl Kernel for LstmFused<'_> {
         while r < m {
             let mb = (m - r).min(S::LSTM_ROWS);
             match mb {
-                1 => lstm_tile::<S, 1>(s, h, w, b, xh, c, hnew, r),
-                2 => lstm_tile::<S, 2>(s, h, w, b, xh, c, hnew, r),
-                3 => lstm_tile::<S, 3>(s, h, w, b, xh, c, hnew, r),
-                4 => lstm_tile::<S, 4>(s, h, w, b, xh, c, hnew, r),
+                1 => lstm_tile::<S, 1>(s, h, w, b, xh, ldx, c, hnew, r),
+                2 => lstm_tile::<S, 2>(s, h, w, b, xh, ldx, c, hnew, r),
+                3 => lstm_tile::<S, 3>(s, h, w, b, xh, ldx, c, hnew, r),
+                4 => lstm_tile::<S, 4>(s, h, w, b, xh, ldx, c, hnew, r),
                 _ => unreachable!("fused LSTM tiles are at most 4 rows"),
             }
             for row in r..r + mb {
-                xh[row * rl + 2..(row + 1) * rl].copy_from_slice(&hnew[row * h..(row + 1) * h]);
+                xh[row * ldx + 2..row * ldx + rl].copy_from_slice(&hnew[row * h..(row + 1) * h]);
             }
             r += mb;
         }
@@ -793,6 +809,7 @@ fn lstm_tile<S: Simd, const MB: usize>(
     w: &[Block],
     b: &[Block],
     xh: &[f32],
+    ldx: usize,
     c: &mut [f32],
     hnew: &mut [f32],
     r0: usize,
@@ -804,7 +821,7 @@ fn lstm_tile<S: Simd, const MB: usize>(
         for (g, v) in init.iter_mut().enumerate() {
             *v = s.load(&b[4 * hb + g]);
         }
-        let acc = tile::<S, MB, 4>(s, w, rl, 4 * hb, xh, rl, r0, init);
+        let acc = tile::<S, MB, 4>(s, w, rl, 4 * hb, xh, ldx, r0, init);
         for (r, [gi, gf, gg, go]) in acc.into_iter().enumerate() {
             let row = r0 + r;
             let (i, f, g, o) = (
@@ -939,11 +956,13 @@ impl Pool {
         acc[rows.start * al..rows.end * al].fill(f32::NEG_INFINITY);
     }
 
-    /// Folds every pair into its query's running maximum:
+    /// Folds every pair into its query's running maximum (the list form of
+    /// [`Pool::fold_grid`], kept as its reference in the tests):
     /// `acc[q] = max(acc[q], W2 relu(t_j + (W1e W_e) d))` (second-layer bias and ReLU come in
     /// [`Pool::finish`]). `terms` rows have stride [`Pool::term_stride`], `acc` rows
     /// [`Pool::acc_len`]; `val` is scratch of [`Pool::val_len`]. The padding lanes of the
     /// referenced term rows must be finite (they are multiplied by zero weights).
+    #[cfg(test)]
     pub(crate) fn fold(
         &self,
         isa: Isa,
@@ -961,15 +980,36 @@ impl Pool {
         });
     }
 
+    /// [`Pool::fold`] of the pairs of `grid`, generated inside the kernel (same pairs, order
+    /// and tiles as a list built by the same loops, hence the same bits).
+    pub(crate) fn fold_grid(
+        &self,
+        isa: Isa,
+        grid: PairGrid<'_>,
+        terms: &[f32],
+        acc: &mut [f32],
+        val: &mut [f32],
+    ) {
+        isa.run(PoolGrid {
+            pool: self,
+            grid,
+            terms,
+            acc,
+            val,
+        });
+    }
+
     /// `out[..B] = relu(acc + b2)`: the pooled vector of one agent from its running max.
     #[inline]
     pub(crate) fn finish(&self, acc: &[f32], out: &mut [f32]) {
-        for k in 0..self.b {
-            out[k] = (acc[k] + self.b2[k]).max(0.0);
+        let b = self.b;
+        for ((o, a), c) in out[..b].iter_mut().zip(&acc[..b]).zip(&self.b2[..b]) {
+            *o = (a + c).max(0.0);
         }
     }
 }
 
+#[cfg(test)]
 struct PoolPairs<'a> {
     pool: &'a Pool,
     pairs: &'a [Pair],
@@ -978,6 +1018,7 @@ struct PoolPairs<'a> {
     val: &'a mut [f32],
 }
 
+#[cfg(test)]
 impl Kernel for PoolPairs<'_> {
     type Out = ();
     #[inline(always)]
@@ -989,34 +1030,105 @@ impl Kernel for PoolPairs<'_> {
             acc,
             val,
         } = self;
-        let (p, ts) = (pool.p, pool.term_stride());
-        count_macs(pairs.len() * (2 * p + p * pool.b));
-        let nblk = pool.w2.len() / p;
-        let zero = s.splat(0.0);
+        count_macs(pairs.len() * (2 * pool.p + pool.p * pool.b));
         for chunk in pairs.chunks(S::TILE_ROWS) {
-            // First layer, row by row: relu(t_j + wpx dx + wpy dy).
-            for (pr, v) in chunk.iter().zip(val.chunks_exact_mut(ts)) {
-                let t = blocks(&terms[pr.j as usize * ts..(pr.j as usize + 1) * ts]);
-                let (dx, dy) = (s.splat(pr.d[0]), s.splat(pr.d[1]));
-                for (((vb, tb), wx), wy) in blocks_mut(v)
-                    .iter_mut()
-                    .zip(t)
-                    .zip(&pool.wpx)
-                    .zip(&pool.wpy)
-                {
-                    let u = s.mul_add(dy, s.load(wy), s.mul_add(dx, s.load(wx), s.load(tb)));
-                    s.store(s.max(u, zero), vb);
+            fold_chunk(s, pool, chunk, terms, acc, val);
+        }
+    }
+}
+
+/// The pairs `(i, j)`, `i` in `queries` (outer), `j` in `js` (inner), of agents at `pos`
+/// (`[n, 2]`, metres): the pair list [`Pool::fold_grid`] generates inside its kernel, in the
+/// order a list built by the same loops would have.
+#[derive(Debug, Clone)]
+pub(crate) struct PairGrid<'a> {
+    /// Positions `[n, 2]`, metres.
+    pub(crate) pos: &'a [f64],
+    /// Query agents (running-max rows).
+    pub(crate) queries: std::ops::Range<usize>,
+    /// Neighbour agents (agent-term rows).
+    pub(crate) js: std::ops::Range<usize>,
+}
+
+struct PoolGrid<'a> {
+    pool: &'a Pool,
+    grid: PairGrid<'a>,
+    terms: &'a [f32],
+    acc: &'a mut [f32],
+    val: &'a mut [f32],
+}
+
+impl Kernel for PoolGrid<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            pool,
+            grid,
+            terms,
+            acc,
+            val,
+        } = self;
+        let PairGrid { pos, queries, js } = grid;
+        count_macs(queries.len() * js.len() * (2 * pool.p + pool.p * pool.b));
+        // Chunks of `S::TILE_ROWS` consecutive pairs, exactly as `pairs.chunks` cuts a list.
+        let mut chunk = [Pair::default(); MAX_TILE_ROWS];
+        let mut len = 0;
+        for i in queries {
+            let (xi, yi) = (pos[2 * i], pos[2 * i + 1]);
+            for j in js.clone() {
+                chunk[len] = Pair {
+                    q: i as u32,
+                    j: j as u32,
+                    d: [(pos[2 * j] - xi) as f32, (pos[2 * j + 1] - yi) as f32],
+                };
+                len += 1;
+                if len == S::TILE_ROWS {
+                    fold_chunk(s, pool, &chunk[..len], terms, acc, val);
+                    len = 0;
                 }
             }
-            // Second layer on the whole tile, then the max into each pair's query row.
-            let mb = chunk.len();
-            let mut blk = 0;
-            while blk < nblk {
-                let ob = (nblk - blk).min(S::TILE_BLOCKS);
-                by_tile!(mb, ob, pool_tile::<S>(s, pool, chunk, val, blk, acc));
-                blk += ob;
-            }
         }
+        if len > 0 {
+            fold_chunk(s, pool, &chunk[..len], terms, acc, val);
+        }
+    }
+}
+
+/// Folds one register tile of pairs (at most `S::TILE_ROWS`) into the running maxima.
+#[inline(always)]
+fn fold_chunk<S: Simd>(
+    s: S,
+    pool: &Pool,
+    chunk: &[Pair],
+    terms: &[f32],
+    acc: &mut [f32],
+    val: &mut [f32],
+) {
+    let (p, ts) = (pool.p, pool.term_stride());
+    let nblk = pool.w2.len() / p;
+    let zero = s.splat(0.0);
+    // First layer, row by row: relu(t_j + wpx dx + wpy dy).
+    for (pr, v) in chunk.iter().zip(val.chunks_exact_mut(ts)) {
+        let t = blocks(&terms[pr.j as usize * ts..(pr.j as usize + 1) * ts]);
+        let (dx, dy) = (s.splat(pr.d[0]), s.splat(pr.d[1]));
+        for (((vb, tb), wx), wy) in blocks_mut(v)
+            .iter_mut()
+            .zip(t)
+            .zip(&pool.wpx)
+            .zip(&pool.wpy)
+        {
+            let u = s.mul_add(dy, s.load(wy), s.mul_add(dx, s.load(wx), s.load(tb)));
+            s.store(s.max(u, zero), vb);
+        }
+    }
+    // Second layer on the whole tile, then the max into each pair's query row.
+    let mb = chunk.len();
+    let mut blk = 0;
+    while blk < nblk {
+        let ob = (nblk - blk).min(S::TILE_BLOCKS);
+        by_tile!(mb, ob, pool_tile::<S>(s, pool, chunk, val, blk, acc));
+        blk += ob;
     }
 }
 
@@ -1111,6 +1223,53 @@ impl Mlp2 {
             y,
             ldy,
         });
+    }
+
+    /// In place: row `r` of `xy` (`xy[r*ld..]`, `m` rows) is the input; its first `out`
+    /// lanes receive the mlp's output once every input of the layer has been read (the
+    /// first layer runs on all rows before the second writes). `hid` is scratch of
+    /// [`Mlp2::hidden_len`].
+    pub(crate) fn rows_in_place(
+        &self,
+        isa: Isa,
+        xy: &mut [f32],
+        ld: usize,
+        m: usize,
+        hid: &mut [f32],
+    ) {
+        isa.run(MlpInPlace {
+            mlp: self,
+            xy,
+            ld,
+            m,
+            hid,
+        });
+    }
+}
+
+/// [`Mlp2::rows_in_place`] as a kernel.
+struct MlpInPlace<'a> {
+    mlp: &'a Mlp2,
+    xy: &'a mut [f32],
+    ld: usize,
+    m: usize,
+    hid: &'a mut [f32],
+}
+
+impl Kernel for MlpInPlace<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            mlp,
+            xy,
+            ld,
+            m,
+            hid,
+        } = self;
+        let hd = mlp.l1.out_dim();
+        dense_rows(s, &mlp.l1, xy, ld, m, hid, hd, true);
+        dense_rows(s, &mlp.l2, hid, hd, m, xy, ld, true);
     }
 }
 
@@ -1357,9 +1516,14 @@ mod tests {
             assert!(matches!(fused.cell, LstmCell::Fused { .. }));
             assert!(matches!(two_pass.cell, LstmCell::Dense(_)));
             let rl = fused.row_len();
+            // Rows with 3 lanes of padding that the step must leave alone.
+            let ld = rl + 3;
             for isa in isas() {
                 for m in [1, 3, 4, 5, 8, 11] {
-                    let mut xh = values(27 + m as u32, m * rl);
+                    let mut xh = values(27 + m as u32, m * ld);
+                    let pad: Vec<f32> = (0..m)
+                        .flat_map(|r| xh[r * ld + rl..(r + 1) * ld].to_vec())
+                        .collect();
                     let mut c = values(40 + m as u32, m * h);
                     let (mut xh2, mut c2) = (xh.clone(), c.clone());
                     let mut g = vec![0.0f32; fused.gates_len(m)];
@@ -1368,7 +1532,7 @@ mod tests {
                         let mut want_h = vec![0.0f64; m * h];
                         let mut want_c = vec![0.0f64; m * h];
                         for r in 0..m {
-                            let x = &xh[r * rl..(r + 1) * rl];
+                            let x = &xh[r * ld..r * ld + rl];
                             let emb: Vec<f64> = (0..e)
                                 .map(|k| {
                                     f64::from(emb_w[2 * k]) * f64::from(x[0])
@@ -1392,14 +1556,18 @@ mod tests {
                                 want_h[r * h + u] = o * cn.tanh();
                             }
                         }
-                        fused.step(isa, &mut xh, &mut c, &mut g, m);
-                        two_pass.step(isa, &mut xh2, &mut c2, &mut g, m);
+                        fused.step(isa, &mut xh, ld, &mut c, &mut g, m);
+                        two_pass.step(isa, &mut xh2, ld, &mut c2, &mut g, m);
+                        let pad_now: Vec<f32> = (0..m)
+                            .flat_map(|r| xh[r * ld + rl..(r + 1) * ld].to_vec())
+                            .collect();
+                        assert_eq!(pad, pad_now, "the step wrote past the rows' [d ; h]");
                         let p = isa.path();
                         assert_eq!(xh, xh2, "{p}: h {h}, {m} rows, step {step}: h bits differ");
                         assert_eq!(c, c2, "{p}: h {h}, {m} rows, step {step}: c bits differ");
                         for r in 0..m {
                             for u in 0..h {
-                                let got = f64::from(xh[r * rl + 2 + u]);
+                                let got = f64::from(xh[r * ld + 2 + u]);
                                 assert!((got - want_h[r * h + u]).abs() < 1e-5, "{p}: h {got}");
                                 let got = f64::from(c[r * h + u]);
                                 assert!((got - want_c[r * h + u]).abs() < 1e-5, "{p}: c {got}");
@@ -1407,10 +1575,10 @@ mod tests {
                         }
                         // Next step: a new displacement, same states.
                         for r in 0..m {
-                            xh[r * rl] = 0.3 * (step + r) as f32;
-                            xh[r * rl + 1] = -0.2;
-                            xh2[r * rl] = xh[r * rl];
-                            xh2[r * rl + 1] = -0.2;
+                            xh[r * ld] = 0.3 * (step + r) as f32;
+                            xh[r * ld + 1] = -0.2;
+                            xh2[r * ld] = xh[r * ld];
+                            xh2[r * ld + 1] = -0.2;
                         }
                     }
                 }
@@ -1524,6 +1692,17 @@ mod tests {
                     "{}: pair order or grouping changed bits",
                     isa.path()
                 );
+                // Pairs generated inside the kernel from f64 positions: same bits.
+                let pos64: Vec<f64> = pos.iter().map(|&v| f64::from(v)).collect();
+                let mut acc3 = vec![0.0f32; n * al];
+                pool.reset(&mut acc3, 0..n);
+                let grid = PairGrid {
+                    pos: &pos64,
+                    queries: 0..n,
+                    js: 0..n,
+                };
+                pool.fold_grid(isa, grid, &terms, &mut acc3, &mut val);
+                assert_eq!(acc, acc3, "{}: generated pairs changed bits", isa.path());
                 // Literal evaluation in f64.
                 for i in 0..n {
                     let mut best = vec![f64::NEG_INFINITY; b];
