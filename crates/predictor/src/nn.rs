@@ -529,8 +529,15 @@ pub(crate) enum LstmCell {
     Dense(Dense),
     /// f32 sums, gate-aligned: for hidden block `hb` (16 units, `ceil(H/16)` blocks), the
     /// blocks `4 hb + g` (gate `g` = i, f, g, o) of `w` (`[4 ceil(H/16)][2 + H]`, input-major,
-    /// zero padded) and of `b` (`[4 ceil(H/16)]`).
-    Fused { w: Vec<Block>, b: Vec<Block> },
+    /// zero padded) and of `b` (`[4 ceil(H/16)]`). `dense` is the same product packed as
+    /// [`LstmCell::Dense`], for the portable path: there a 16-lane vector takes four SSE
+    /// registers, four gates of a row do not fit in the register file, and the two-pass form
+    /// is faster (same bits either way).
+    Fused {
+        w: Vec<Block>,
+        b: Vec<Block>,
+        dense: Dense,
+    },
 }
 
 /// Packs the gate matrix `w` (`[4H, in]`) and bias `b` (`[4H]`) gate-aligned (see
@@ -620,8 +627,9 @@ impl Lstm {
             }
         }
         let cell = if fused {
+            let dense = Dense::new(&w, &b, rows, in_dim, acc);
             let (w, b) = pack_gates(&w, &b, h, in_dim);
-            LstmCell::Fused { w, b }
+            LstmCell::Fused { w, b, dense }
         } else {
             LstmCell::Dense(Dense::new(&w, &b, rows, in_dim, acc))
         };
@@ -653,25 +661,29 @@ impl Lstm {
     ) {
         debug_assert!(ldx >= self.row_len());
         match &self.cell {
-            LstmCell::Dense(gates) => isa.run(LstmRows {
-                h: self.h,
-                gates,
-                xh,
-                ldx,
-                c,
-                g,
-                m,
-            }),
-            LstmCell::Fused { w, b } => isa.run(LstmFused {
-                h: self.h,
-                w,
-                b,
-                xh,
-                ldx,
-                c,
-                hnew: g,
-                m,
-            }),
+            LstmCell::Fused { w, b, .. } if isa.path() != SimdPath::Portable => {
+                isa.run(LstmFused {
+                    h: self.h,
+                    w,
+                    b,
+                    xh,
+                    ldx,
+                    c,
+                    hnew: g,
+                    m,
+                });
+            }
+            LstmCell::Dense(gates) | LstmCell::Fused { dense: gates, .. } => {
+                isa.run(LstmRows {
+                    h: self.h,
+                    gates,
+                    xh,
+                    ldx,
+                    c,
+                    g,
+                    m,
+                });
+            }
         }
     }
 }
