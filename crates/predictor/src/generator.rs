@@ -7,6 +7,10 @@
 //! `[n, acc_len]`. Positions stay in f64 and only differences (displacements, offsets between
 //! agents) enter the f32 networks: each is then rounded once, relative to its own small
 //! magnitude, and predicted positions accumulate without f32 rounding of absolute coordinates.
+//!
+//! The student's decoder keeps each agent's state in one row `[d ; h ; pooled]`
+//! ([`Generator::dec_row_len`] floats: input displacement, hidden state, pooled vector), which
+//! the LSTM, the pooling and the refinement mlp read and write in place.
 
 use std::ops::Range;
 

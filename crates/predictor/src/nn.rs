@@ -871,7 +871,7 @@ pub(crate) struct Pair {
 /// `W1 [W_e d + b_e ; h_j] + b1 = t_j + (W1e W_e) d` with the per-agent term
 /// `t_j = W1h h_j + (W1e b_e + b1)` computed once per agent ([`Pool::terms`]); per pair only
 /// two multiply-adds per hidden unit remain, then the second layer (the `O(n²)` part), which
-/// runs on register tiles of pairs ([`Pool::fold`]). Its bias and ReLU are applied after the
+/// runs on register tiles of pairs ([`Pool::fold_grid`]). Its bias and ReLU are applied after the
 /// max ([`Pool::finish`]; exact: rounding is monotonic).
 #[derive(Debug, Clone)]
 pub(crate) struct Pool {
@@ -950,7 +950,7 @@ impl Pool {
         self.b.div_ceil(LANES) * LANES
     }
 
-    /// Scratch length [`Pool::fold`] needs for its first-layer rows.
+    /// Scratch length [`Pool::fold_grid`] needs for its first-layer rows.
     pub(crate) fn val_len(&self) -> usize {
         MAX_TILE_ROWS * self.term_stride()
     }
@@ -992,8 +992,13 @@ impl Pool {
         });
     }
 
-    /// [`Pool::fold`] of the pairs of `grid`, generated inside the kernel (same pairs, order
-    /// and tiles as a list built by the same loops, hence the same bits).
+    /// Folds every pair of `grid` (generated inside the kernel, in its order, in register
+    /// tiles of consecutive pairs) into its query's running maximum:
+    /// `acc[q] = max(acc[q], W2 relu(t_j + (W1e W_e) d))` (second-layer bias and ReLU come in
+    /// [`Pool::finish`]). `terms` rows have stride [`Pool::term_stride`], `acc` rows
+    /// [`Pool::acc_len`]; `val` is scratch of [`Pool::val_len`]. The padding lanes of the
+    /// referenced term rows must be finite (they are multiplied by zero weights). The same
+    /// pairs given as a list in the same order give the same bits (tested).
     pub(crate) fn fold_grid(
         &self,
         isa: Isa,
