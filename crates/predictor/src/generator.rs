@@ -7,11 +7,15 @@
 //! `[n, acc_len]`. Positions stay in f64 and only differences (displacements, offsets between
 //! agents) enter the f32 networks: each is then rounded once, relative to its own small
 //! magnitude, and predicted positions accumulate without f32 rounding of absolute coordinates.
+//!
+//! The student's decoder keeps each agent's state in one row `[d ; h ; pooled]`
+//! ([`Generator::dec_row_len`] floats: input displacement, hidden state, pooled vector), which
+//! the LSTM, the pooling and the refinement mlp read and write in place.
 
 use std::ops::Range;
 
 use crate::T_OBS;
-use crate::nn::{Accumulate, Dense, Lstm, Mlp2, Pair, Pool};
+use crate::nn::{Accumulate, Dense, Lstm, Mlp2, PairGrid, Pool};
 use crate::simd::Isa;
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
 
@@ -51,14 +55,12 @@ pub(crate) struct Scratch {
     pub(crate) acc: Vec<f32>,
     /// Pooled vectors `[n, B]`.
     pub(crate) pooled: Vec<f32>,
-    /// Pair list and first-layer rows of one pooling.
-    pairs: Vec<Pair>,
+    /// First-layer rows of one pooling tile.
     val: Vec<f32>,
     /// mlp inputs `[n, H + B]` and hidden layers `[n, M]`.
     cat: Vec<f32>,
     hid: Vec<f32>,
-    /// Decoder states `[n, Hd]`.
-    pub(crate) h: Vec<f32>,
+    /// Decoder cell states `[n, Hd]` (the student's).
     pub(crate) cd: Vec<f32>,
     /// hidden2pos outputs `[n, 2]`.
     dp: Vec<f32>,
@@ -187,7 +189,8 @@ impl Generator {
         let mut xh = vec![0.0f32; self.enc.row_len()];
         let mut c = vec![0.0f32; he];
         let mut g = vec![0.0f32; self.enc.gates_len(1)];
-        self.enc.step(isa, &mut xh, &mut c, &mut g, 1);
+        self.enc
+            .step(isa, &mut xh, self.enc.row_len(), &mut c, &mut g, 1);
         self.enc_h1.copy_from_slice(&xh[2..]);
         self.enc_c1.copy_from_slice(&c);
     }
@@ -209,9 +212,6 @@ impl Generator {
             grow(&mut s.acc, n * pool.acc_len());
             grow(&mut s.val, pool.val_len());
         }
-        if s.pairs.capacity() < n * n {
-            s.pairs.reserve(n * n - s.pairs.len());
-        }
         grow(&mut s.pooled, n * b);
         grow(&mut s.cat, n * (he.max(hd) + b));
         let mut hid = self.ctx.hidden_len(n);
@@ -219,7 +219,6 @@ impl Generator {
             hid = hid.max(dm.hidden_len(n));
         }
         grow(&mut s.hid, hid);
-        grow(&mut s.h, n * hd);
         grow(&mut s.cd, n * hd);
         grow(&mut s.dp, 2 * n);
     }
@@ -247,7 +246,8 @@ impl Generator {
                 s.xh[r * rl] = (w[2 * t] - w[2 * t - 2]) as f32;
                 s.xh[r * rl + 1] = (w[2 * t + 1] - w[2 * t - 1]) as f32;
             }
-            self.enc.step(self.isa, &mut s.xh, &mut s.c, &mut s.g, m);
+            self.enc
+                .step(self.isa, &mut s.xh, rl, &mut s.c, &mut s.g, m);
         }
         for (r, a) in agents.enumerate() {
             h_enc[a * he..(a + 1) * he].copy_from_slice(&s.xh[r * rl + 2..(r + 1) * rl]);
@@ -288,29 +288,47 @@ impl Generator {
         js: Range<usize>,
         s: &mut Scratch,
     ) {
-        s.pairs.clear();
-        for i in queries {
-            let (xi, yi) = (pos[2 * i], pos[2 * i + 1]);
-            for j in js.clone() {
-                s.pairs.push(Pair {
-                    q: i as u32,
-                    j: j as u32,
-                    d: [(pos[2 * j] - xi) as f32, (pos[2 * j + 1] - yi) as f32],
-                });
-            }
-        }
-        pool.fold(self.isa, &s.pairs, terms, &mut s.acc, &mut s.val);
+        let grid = PairGrid { pos, queries, js };
+        pool.fold_grid(self.isa, grid, terms, &mut s.acc, &mut s.val);
     }
 
     /// `s.pooled[i] = relu(s.acc[i] + b2)` for `i` in `queries`.
     pub(crate) fn pool_finish(pool: &Pool, queries: Range<usize>, s: &mut Scratch) {
+        let b = pool.out_dim();
+        Self::pool_finish_into(pool, queries, &s.acc, &mut s.pooled, b);
+    }
+
+    /// `out[i * ld..][..B] = relu(acc[i] + b2)` for `i` in `queries` (`acc` rows of
+    /// `pool.acc_len()`).
+    pub(crate) fn pool_finish_into(
+        pool: &Pool,
+        queries: Range<usize>,
+        acc: &[f32],
+        out: &mut [f32],
+        ld: usize,
+    ) {
         let (al, b) = (pool.acc_len(), pool.out_dim());
         for i in queries {
-            pool.finish(
-                &s.acc[i * al..(i + 1) * al],
-                &mut s.pooled[i * b..(i + 1) * b],
-            );
+            pool.finish(&acc[i * al..(i + 1) * al], &mut out[i * ld..i * ld + b]);
         }
+    }
+
+    /// As [`Generator::pool_all`], the pooled vector of agent `i` to `out[i * ld..][..B]`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn pool_all_into(
+        &self,
+        pool: &Pool,
+        pos: &[f64],
+        terms: &[f32],
+        n: usize,
+        queries: Range<usize>,
+        s: &mut Scratch,
+        out: &mut [f32],
+        ld: usize,
+    ) {
+        pool.reset(&mut s.acc, queries.clone());
+        self.pool_fold(pool, pos, terms, queries.clone(), 0..n, s);
+        Self::pool_finish_into(pool, queries, &s.acc, out, ld);
     }
 
     /// Pooling over all `n` agents at positions `pos` (`[n, 2]`) with agent terms `terms`
@@ -356,41 +374,38 @@ impl Generator {
         }
     }
 
-    /// One decoder step of `agents` (states in their rows of `s.h`, `s.cd`) on their
-    /// displacements in `d` (`[n, 2]`, metres), which are replaced by the predicted
-    /// displacements Δp.
-    pub(crate) fn decode_steps(&self, agents: Range<usize>, d: &mut [f32], s: &mut Scratch) {
-        let (hd, rl, m) = (self.cfg.decoder_h_dim, self.dec.row_len(), agents.len());
+    /// Length of one row of the student's decoder state `[d ; h ; pooled]`: the input
+    /// displacement (2, metres), the hidden state (`Hd`) and the pooled vector (`B`), laid out
+    /// so that the LSTM reads `[d ; h]`, the refinement mlp `[h ; pooled]` and the pooling `h`
+    /// in place, without copies.
+    pub(crate) fn dec_row_len(&self) -> usize {
+        2 + self.cfg.decoder_h_dim + self.cfg.bottleneck_dim
+    }
+
+    /// One decoder step of `agents`: rows `rows[i * dec_row_len..]` (`[d ; h ; pooled]`),
+    /// cell states in their rows of `s.cd`. `h` is updated and `d` is replaced by the
+    /// predicted displacement Δp (metres).
+    pub(crate) fn decode_rows(&self, agents: Range<usize>, rows: &mut [f32], s: &mut Scratch) {
+        let (hd, ld, m) = (self.cfg.decoder_h_dim, self.dec_row_len(), agents.len());
         if m == 0 {
             return;
         }
-        for (r, i) in agents.clone().enumerate() {
-            let row = &mut s.xh[r * rl..(r + 1) * rl];
-            row[..2].copy_from_slice(&d[2 * i..2 * i + 2]);
-            row[2..].copy_from_slice(&s.h[i * hd..(i + 1) * hd]);
-        }
+        let rows = &mut rows[agents.start * ld..agents.end * ld];
         let cells = &mut s.cd[agents.start * hd..agents.end * hd];
-        self.dec.step(self.isa, &mut s.xh, cells, &mut s.g, m);
+        self.dec.step(self.isa, rows, ld, cells, &mut s.g, m);
         self.h2p
-            .rows(self.isa, &s.xh[2..], rl, m, &mut s.dp, 2, false);
-        for (r, i) in agents.enumerate() {
-            s.h[i * hd..(i + 1) * hd].copy_from_slice(&s.xh[r * rl + 2..(r + 1) * rl]);
-            d[2 * i..2 * i + 2].copy_from_slice(&s.dp[2 * r..2 * r + 2]);
+            .rows(self.isa, &rows[2..], ld, m, &mut s.dp, 2, false);
+        for (row, dp) in rows.chunks_exact_mut(ld).zip(s.dp.chunks_exact(2)) {
+            row[..2].copy_from_slice(dp);
         }
     }
 
-    /// Decoder refinement after a step: `h_i = dec_mlp([h_i ; pooled_i])` for every agent
-    /// (requires `pool_every_timestep`; `s.pooled` filled).
-    pub(crate) fn refine_all(&self, n: usize, s: &mut Scratch) {
+    /// Decoder refinement after a step, in place: `h_i = dec_mlp([h_i ; pooled_i])` for the
+    /// first `n` rows `[d ; h ; pooled]` (requires `pool_every_timestep`; pooled parts filled).
+    pub(crate) fn refine_rows(&self, n: usize, rows: &mut [f32], s: &mut Scratch) {
         let Some(mlp) = &self.dec_mlp else { return };
-        let (hd, b) = (self.cfg.decoder_h_dim, self.cfg.bottleneck_dim);
-        let cl = hd + b;
-        for i in 0..n {
-            let row = &mut s.cat[i * cl..(i + 1) * cl];
-            row[..hd].copy_from_slice(&s.h[i * hd..(i + 1) * hd]);
-            row[hd..].copy_from_slice(&s.pooled[i * b..(i + 1) * b]);
-        }
-        mlp.rows(self.isa, &s.cat, cl, n, &mut s.hid, &mut s.h, hd);
+        let ld = self.dec_row_len();
+        mlp.rows_in_place(self.isa, &mut rows[2..], ld, n, &mut s.hid);
     }
 
     /// The teacher's decoder (`pred_len = 1`) for agents `1..n` of window `win`
@@ -418,7 +433,7 @@ impl Generator {
             xh[r * rl + 1] = (win[k + 1] - win[k - 1]) as f32;
         }
         s.c[..m * hd].fill(0.0);
-        self.dec.step(self.isa, &mut xh, &mut s.c, &mut s.g, m);
+        self.dec.step(self.isa, &mut xh, rl, &mut s.c, &mut s.g, m);
         self.h2p
             .rows(self.isa, &xh[2..], rl, m, &mut s.dp, 2, false);
         s.xh = xh;

@@ -463,6 +463,45 @@ fn tanh_f32<S: Simd>(s: S, x: f32) -> f32 {
     2.0 * sigmoid_f32(s, 2.0 * x) - 1.0
 }
 
+/// [`exp_f32`] on 16 lanes: the same operations in the same order, so every lane has the bits
+/// of the scalar function (NaN stays NaN: the clamp keeps `x` when a comparison fails).
+#[inline(always)]
+fn exp_v<S: Simd>(s: S, x: S::V) -> S::V {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    const ROUND: f32 = 12_582_912.0;
+    let c = |v: f32| s.splat(v);
+    let x = s.min(c(88.0), s.max(c(-87.0), x));
+    let n = s.sub(s.add(s.mul(x, c(LOG2E)), c(ROUND)), c(ROUND));
+    // -n (exact) times the split ln 2.
+    let m = s.mul(n, c(-1.0));
+    let r = s.mul_add(m, c(LN2_LO), s.mul_add(m, c(LN2_HI), x));
+    let r2 = s.mul(r, r);
+    let mut p = s.mul_add(c(1.987_569_1e-4), r, c(1.398_199_9e-3));
+    p = s.mul_add(p, r, c(8.333_452e-3));
+    p = s.mul_add(p, r, c(4.166_579_6e-2));
+    p = s.mul_add(p, r, c(1.666_666_5e-1));
+    p = s.mul_add(p, r, c(0.5));
+    let p = s.add(s.mul_add(p, r2, r), c(1.0));
+    let scale = s.shl23(s.add(n, c(8_388_735.0)));
+    s.mul(p, scale)
+}
+
+/// [`sigmoid_f32`] on 16 lanes (same bits per lane).
+#[inline(always)]
+fn sigmoid_v<S: Simd>(s: S, x: S::V) -> S::V {
+    let one = s.splat(1.0);
+    s.div(one, s.add(one, exp_v(s, s.mul(x, s.splat(-1.0)))))
+}
+
+/// [`tanh_f32`] on 16 lanes (same bits per lane).
+#[inline(always)]
+fn tanh_v<S: Simd>(s: S, x: S::V) -> S::V {
+    let two = s.splat(2.0);
+    s.sub(s.mul(two, sigmoid_v(s, s.mul(two, x))), s.splat(1.0))
+}
+
 /// One-layer LSTM cell whose input is a 2-D displacement passed through a spatial embedding
 /// `Linear(2, E)`, folded into the input weights at load time:
 /// `W_ih (W_e d + b_e) + b_ih + b_hh = (W_ih W_e) d + (W_ih b_e + b_ih + b_hh)`.
@@ -470,11 +509,53 @@ fn tanh_f32<S: Simd>(s: S, x: f32) -> f32 {
 /// It steps many rows (agents) at once; a row is `[d_x, d_y, h_0 .. h_{H-1}]` (see
 /// [`Lstm::row_len`]), the gate product reading the displacement and the hidden state in one
 /// pass.
+///
+/// With f32 sums ([`Accumulate::F32`]) a step is one fused kernel per register tile of rows:
+/// the four gates of 16 hidden units stay in registers from the product through the
+/// activations to the cell update ([`LstmCell::Fused`]); with f64 sums the gates are a
+/// [`Dense`] layer followed by an element-wise pass ([`LstmCell::Dense`]). Both evaluate the
+/// same operations in the same order per output and give the same bits.
 #[derive(Debug, Clone)]
 pub(crate) struct Lstm {
     h: usize,
     /// `gates = W [d ; h] + b`, `W` `[4H, 2 + H]`, gate order i, f, g, o.
-    gates: Dense,
+    cell: LstmCell,
+}
+
+/// The packed gate product of an [`Lstm`].
+#[derive(Debug, Clone)]
+pub(crate) enum LstmCell {
+    /// One dense layer `[4H, 2 + H]` (any [`Accumulate`]); activations in a second pass.
+    Dense(Dense),
+    /// f32 sums, gate-aligned: for hidden block `hb` (16 units, `ceil(H/16)` blocks), the
+    /// blocks `4 hb + g` (gate `g` = i, f, g, o) of `w` (`[4 ceil(H/16)][2 + H]`, input-major,
+    /// zero padded) and of `b` (`[4 ceil(H/16)]`). `dense` is the same product packed as
+    /// [`LstmCell::Dense`], for the portable path: there a 16-lane vector takes four SSE
+    /// registers, four gates of a row do not fit in the register file, and the two-pass form
+    /// is faster (same bits either way).
+    Fused {
+        w: Vec<Block>,
+        b: Vec<Block>,
+        dense: Dense,
+    },
+}
+
+/// Packs the gate matrix `w` (`[4H, in]`) and bias `b` (`[4H]`) gate-aligned (see
+/// [`LstmCell::Fused`]).
+fn pack_gates(w: &[f32], b: &[f32], h: usize, in_dim: usize) -> (Vec<Block>, Vec<Block>) {
+    let nhb = h.div_ceil(LANES);
+    let mut pw = vec![[0.0f32; LANES]; 4 * nhb * in_dim];
+    let mut pb = vec![[0.0f32; LANES]; 4 * nhb];
+    for g in 0..4 {
+        for u in 0..h {
+            let (blk, l, row) = (4 * (u / LANES) + g, u % LANES, g * h + u);
+            pb[blk][l] = b[row];
+            for k in 0..in_dim {
+                pw[blk * in_dim + k][l] = w[row * in_dim + k];
+            }
+        }
+    }
+    (pw, pb)
 }
 
 impl Lstm {
@@ -491,6 +572,33 @@ impl Lstm {
         h: usize,
         acc: Accumulate,
     ) -> Self {
+        Self::with_cell(
+            emb_w,
+            emb_b,
+            w_ih,
+            w_hh,
+            b_ih,
+            b_hh,
+            h,
+            acc,
+            acc == Accumulate::F32,
+        )
+    }
+
+    /// As [`Lstm::new`]; `fused` selects [`LstmCell::Fused`] (f32 sums only).
+    #[allow(clippy::too_many_arguments)]
+    fn with_cell(
+        emb_w: &[f32],
+        emb_b: &[f32],
+        w_ih: &[f32],
+        w_hh: &[f32],
+        b_ih: &[f32],
+        b_hh: &[f32],
+        h: usize,
+        acc: Accumulate,
+        fused: bool,
+    ) -> Self {
+        debug_assert!(!fused || acc == Accumulate::F32);
         let e = emb_b.len();
         let rows = 4 * h;
         let in_dim = 2 + h;
@@ -518,10 +626,14 @@ impl Lstm {
                 b[r] *= 2.0;
             }
         }
-        Self {
-            h,
-            gates: Dense::new(&w, &b, rows, in_dim, acc),
-        }
+        let cell = if fused {
+            let dense = Dense::new(&w, &b, rows, in_dim, acc);
+            let (w, b) = pack_gates(&w, &b, h, in_dim);
+            LstmCell::Fused { w, b, dense }
+        } else {
+            LstmCell::Dense(Dense::new(&w, &b, rows, in_dim, acc))
+        };
+        Self { h, cell }
     }
 
     /// Length of one row `[d ; h]`: `2 + H`.
@@ -534,23 +646,54 @@ impl Lstm {
         m * 4 * self.h
     }
 
-    /// One step of `m` rows. `xh` holds the rows `[d ; h]` (`[m, 2 + H]`, displacement in
-    /// metres); their `h` part is updated in place. `c` is the cell state `[m, H]`, updated in
-    /// place; `g` is scratch of at least [`Lstm::gates_len`].
-    pub(crate) fn step(&self, isa: Isa, xh: &mut [f32], c: &mut [f32], g: &mut [f32], m: usize) {
-        isa.run(LstmRows {
-            l: self,
-            xh,
-            c,
-            g,
-            m,
-        });
+    /// One step of `m` rows. Row `r` of `xh` starts at `r * ldx` (`ldx >= 2 + H`) with
+    /// `[d ; h]` (displacement in metres); its `h` part is updated in place, the rest of the
+    /// row is left as it is. `c` is the cell state `[m, H]`, updated in place; `g` is scratch
+    /// of at least [`Lstm::gates_len`].
+    pub(crate) fn step(
+        &self,
+        isa: Isa,
+        xh: &mut [f32],
+        ldx: usize,
+        c: &mut [f32],
+        g: &mut [f32],
+        m: usize,
+    ) {
+        debug_assert!(ldx >= self.row_len());
+        match &self.cell {
+            LstmCell::Fused { w, b, .. } if isa.path() != SimdPath::Portable => {
+                isa.run(LstmFused {
+                    h: self.h,
+                    w,
+                    b,
+                    xh,
+                    ldx,
+                    c,
+                    hnew: g,
+                    m,
+                });
+            }
+            LstmCell::Dense(gates) | LstmCell::Fused { dense: gates, .. } => {
+                isa.run(LstmRows {
+                    h: self.h,
+                    gates,
+                    xh,
+                    ldx,
+                    c,
+                    g,
+                    m,
+                });
+            }
+        }
     }
 }
 
+/// An [`LstmCell::Dense`] step: the gate layer, then the activations and the cell update.
 struct LstmRows<'a> {
-    l: &'a Lstm,
+    h: usize,
+    gates: &'a Dense,
     xh: &'a mut [f32],
+    ldx: usize,
     c: &'a mut [f32],
     g: &'a mut [f32],
     m: usize,
@@ -560,10 +703,18 @@ impl Kernel for LstmRows<'_> {
     type Out = ();
     #[inline(always)]
     fn run<S: Simd>(self, s: S) {
-        let Self { l, xh, c, g, m } = self;
-        let (n, rl) = (l.h, l.row_len());
+        let Self {
+            h: n,
+            gates,
+            xh,
+            ldx,
+            c,
+            g,
+            m,
+        } = self;
+        let rl = 2 + n;
         let g = &mut g[..m * 4 * n];
-        dense_rows(s, &l.gates, xh, rl, m, g, 4 * n, false);
+        dense_rows(s, gates, xh, ldx, m, g, 4 * n, false);
         // The g̃ rows were scaled by 2 at load time (exact), so one sigmoid pass serves all
         // four gates: tanh(x) = 2 σ(2x) − 1.
         for v in g.iter_mut() {
@@ -573,7 +724,7 @@ impl Kernel for LstmRows<'_> {
             let (gi, rest) = gr.split_at(n);
             let (gf, rest) = rest.split_at(n);
             let (gg, go) = rest.split_at(n);
-            let h = &mut xh[r * rl + 2..r * rl + 2 + n];
+            let h = &mut xh[r * ldx + 2..r * ldx + rl];
             let c = &mut c[r * n..(r + 1) * n];
             for k in 0..n {
                 let gt = 2.0 * gg[k] - 1.0;
@@ -581,6 +732,123 @@ impl Kernel for LstmRows<'_> {
                 c[k] = cn;
                 h[k] = go[k] * tanh_f32(s, cn);
             }
+        }
+    }
+}
+
+/// An [`LstmCell::Fused`] step: per register tile of up to `S::LSTM_ROWS` rows and per block of
+/// 16 hidden units, the four gate sums in registers (each from its bias, inputs in order, as
+/// [`dense_rows`]), then the activations and the cell update on those registers with the
+/// operations of [`LstmRows`] in the same order (same bits). New hidden states go to `hnew`
+/// (`[m, H]` scratch) and are copied into the rows' `h` part once the tile has read them.
+struct LstmFused<'a> {
+    h: usize,
+    w: &'a [Block],
+    b: &'a [Block],
+    xh: &'a mut [f32],
+    ldx: usize,
+    c: &'a mut [f32],
+    hnew: &'a mut [f32],
+    m: usize,
+}
+
+impl Kernel for LstmFused<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            h,
+            w,
+            b,
+            xh,
+            ldx,
+            c,
+            hnew,
+            m,
+        } = self;
+        let rl = 2 + h;
+        count_macs(m * rl * 4 * h);
+        let mut r = 0;
+        while r < m {
+            let mb = (m - r).min(S::LSTM_ROWS);
+            match mb {
+                1 => lstm_tile::<S, 1>(s, h, w, b, xh, ldx, c, hnew, r),
+                2 => lstm_tile::<S, 2>(s, h, w, b, xh, ldx, c, hnew, r),
+                3 => lstm_tile::<S, 3>(s, h, w, b, xh, ldx, c, hnew, r),
+                4 => lstm_tile::<S, 4>(s, h, w, b, xh, ldx, c, hnew, r),
+                _ => unreachable!("fused LSTM tiles are at most 4 rows"),
+            }
+            for row in r..r + mb {
+                xh[row * ldx + 2..row * ldx + rl].copy_from_slice(&hnew[row * h..(row + 1) * h]);
+            }
+            r += mb;
+        }
+    }
+}
+
+/// Loads lanes `lane0..lane0 + 16` of `x` (zero beyond its end).
+#[inline(always)]
+fn load_part<S: Simd>(s: S, x: &[f32], lane0: usize) -> S::V {
+    let n = (x.len() - lane0).min(LANES);
+    if let Ok(full) = <&Block>::try_from(&x[lane0..lane0 + n]) {
+        s.load(full)
+    } else {
+        let mut t = [0.0f32; LANES];
+        t[..n].copy_from_slice(&x[lane0..lane0 + n]);
+        s.load(&t)
+    }
+}
+
+/// Stores the first `min(16, y.len() - lane0)` lanes of `v` at `y[lane0..]`.
+#[inline(always)]
+fn store_part<S: Simd>(s: S, v: S::V, y: &mut [f32], lane0: usize) {
+    let n = (y.len() - lane0).min(LANES);
+    let dst = &mut y[lane0..lane0 + n];
+    if let Ok(full) = <&mut Block>::try_from(&mut *dst) {
+        s.store(v, full);
+    } else {
+        let mut t = [0.0f32; LANES];
+        s.store(v, &mut t);
+        dst.copy_from_slice(&t[..n]);
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn lstm_tile<S: Simd, const MB: usize>(
+    s: S,
+    h: usize,
+    w: &[Block],
+    b: &[Block],
+    xh: &[f32],
+    ldx: usize,
+    c: &mut [f32],
+    hnew: &mut [f32],
+    r0: usize,
+) {
+    let rl = 2 + h;
+    let (one, two) = (s.splat(1.0), s.splat(2.0));
+    for hb in 0..h.div_ceil(LANES) {
+        let mut init = [s.splat(0.0); 4];
+        for (g, v) in init.iter_mut().enumerate() {
+            *v = s.load(&b[4 * hb + g]);
+        }
+        let acc = tile::<S, MB, 4>(s, w, rl, 4 * hb, xh, ldx, r0, init);
+        for (r, [gi, gf, gg, go]) in acc.into_iter().enumerate() {
+            let row = r0 + r;
+            let (i, f, g, o) = (
+                sigmoid_v(s, gi),
+                sigmoid_v(s, gf),
+                sigmoid_v(s, gg),
+                sigmoid_v(s, go),
+            );
+            // g̃ = tanh = 2 σ(2x) − 1 (its rows were pre-scaled by 2 at load time).
+            let gt = s.sub(s.mul(two, g), one);
+            let cr = &mut c[row * h..(row + 1) * h];
+            let cn = s.mul_add(f, load_part(s, cr, hb * LANES), s.mul(i, gt));
+            store_part(s, cn, cr, hb * LANES);
+            let hn = s.mul(o, tanh_v(s, cn));
+            store_part(s, hn, &mut hnew[row * h..(row + 1) * h], hb * LANES);
         }
     }
 }
@@ -603,7 +871,7 @@ pub(crate) struct Pair {
 /// `W1 [W_e d + b_e ; h_j] + b1 = t_j + (W1e W_e) d` with the per-agent term
 /// `t_j = W1h h_j + (W1e b_e + b1)` computed once per agent ([`Pool::terms`]); per pair only
 /// two multiply-adds per hidden unit remain, then the second layer (the `O(n²)` part), which
-/// runs on register tiles of pairs ([`Pool::fold`]). Its bias and ReLU are applied after the
+/// runs on register tiles of pairs ([`Pool::fold_grid`]). Its bias and ReLU are applied after the
 /// max ([`Pool::finish`]; exact: rounding is monotonic).
 #[derive(Debug, Clone)]
 pub(crate) struct Pool {
@@ -682,7 +950,7 @@ impl Pool {
         self.b.div_ceil(LANES) * LANES
     }
 
-    /// Scratch length [`Pool::fold`] needs for its first-layer rows.
+    /// Scratch length [`Pool::fold_grid`] needs for its first-layer rows.
     pub(crate) fn val_len(&self) -> usize {
         MAX_TILE_ROWS * self.term_stride()
     }
@@ -700,11 +968,13 @@ impl Pool {
         acc[rows.start * al..rows.end * al].fill(f32::NEG_INFINITY);
     }
 
-    /// Folds every pair into its query's running maximum:
+    /// Folds every pair into its query's running maximum (the list form of
+    /// [`Pool::fold_grid`], kept as its reference in the tests):
     /// `acc[q] = max(acc[q], W2 relu(t_j + (W1e W_e) d))` (second-layer bias and ReLU come in
     /// [`Pool::finish`]). `terms` rows have stride [`Pool::term_stride`], `acc` rows
     /// [`Pool::acc_len`]; `val` is scratch of [`Pool::val_len`]. The padding lanes of the
     /// referenced term rows must be finite (they are multiplied by zero weights).
+    #[cfg(test)]
     pub(crate) fn fold(
         &self,
         isa: Isa,
@@ -722,15 +992,41 @@ impl Pool {
         });
     }
 
+    /// Folds every pair of `grid` (generated inside the kernel, in its order, in register
+    /// tiles of consecutive pairs) into its query's running maximum:
+    /// `acc[q] = max(acc[q], W2 relu(t_j + (W1e W_e) d))` (second-layer bias and ReLU come in
+    /// [`Pool::finish`]). `terms` rows have stride [`Pool::term_stride`], `acc` rows
+    /// [`Pool::acc_len`]; `val` is scratch of [`Pool::val_len`]. The padding lanes of the
+    /// referenced term rows must be finite (they are multiplied by zero weights). The same
+    /// pairs given as a list in the same order give the same bits (tested).
+    pub(crate) fn fold_grid(
+        &self,
+        isa: Isa,
+        grid: PairGrid<'_>,
+        terms: &[f32],
+        acc: &mut [f32],
+        val: &mut [f32],
+    ) {
+        isa.run(PoolGrid {
+            pool: self,
+            grid,
+            terms,
+            acc,
+            val,
+        });
+    }
+
     /// `out[..B] = relu(acc + b2)`: the pooled vector of one agent from its running max.
     #[inline]
     pub(crate) fn finish(&self, acc: &[f32], out: &mut [f32]) {
-        for k in 0..self.b {
-            out[k] = (acc[k] + self.b2[k]).max(0.0);
+        let b = self.b;
+        for ((o, a), c) in out[..b].iter_mut().zip(&acc[..b]).zip(&self.b2[..b]) {
+            *o = (a + c).max(0.0);
         }
     }
 }
 
+#[cfg(test)]
 struct PoolPairs<'a> {
     pool: &'a Pool,
     pairs: &'a [Pair],
@@ -739,6 +1035,7 @@ struct PoolPairs<'a> {
     val: &'a mut [f32],
 }
 
+#[cfg(test)]
 impl Kernel for PoolPairs<'_> {
     type Out = ();
     #[inline(always)]
@@ -750,34 +1047,105 @@ impl Kernel for PoolPairs<'_> {
             acc,
             val,
         } = self;
-        let (p, ts) = (pool.p, pool.term_stride());
-        count_macs(pairs.len() * (2 * p + p * pool.b));
-        let nblk = pool.w2.len() / p;
-        let zero = s.splat(0.0);
+        count_macs(pairs.len() * (2 * pool.p + pool.p * pool.b));
         for chunk in pairs.chunks(S::TILE_ROWS) {
-            // First layer, row by row: relu(t_j + wpx dx + wpy dy).
-            for (pr, v) in chunk.iter().zip(val.chunks_exact_mut(ts)) {
-                let t = blocks(&terms[pr.j as usize * ts..(pr.j as usize + 1) * ts]);
-                let (dx, dy) = (s.splat(pr.d[0]), s.splat(pr.d[1]));
-                for (((vb, tb), wx), wy) in blocks_mut(v)
-                    .iter_mut()
-                    .zip(t)
-                    .zip(&pool.wpx)
-                    .zip(&pool.wpy)
-                {
-                    let u = s.mul_add(dy, s.load(wy), s.mul_add(dx, s.load(wx), s.load(tb)));
-                    s.store(s.max(u, zero), vb);
+            fold_chunk(s, pool, chunk, terms, acc, val);
+        }
+    }
+}
+
+/// The pairs `(i, j)`, `i` in `queries` (outer), `j` in `js` (inner), of agents at `pos`
+/// (`[n, 2]`, metres): the pair list [`Pool::fold_grid`] generates inside its kernel, in the
+/// order a list built by the same loops would have.
+#[derive(Debug, Clone)]
+pub(crate) struct PairGrid<'a> {
+    /// Positions `[n, 2]`, metres.
+    pub(crate) pos: &'a [f64],
+    /// Query agents (running-max rows).
+    pub(crate) queries: std::ops::Range<usize>,
+    /// Neighbour agents (agent-term rows).
+    pub(crate) js: std::ops::Range<usize>,
+}
+
+struct PoolGrid<'a> {
+    pool: &'a Pool,
+    grid: PairGrid<'a>,
+    terms: &'a [f32],
+    acc: &'a mut [f32],
+    val: &'a mut [f32],
+}
+
+impl Kernel for PoolGrid<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            pool,
+            grid,
+            terms,
+            acc,
+            val,
+        } = self;
+        let PairGrid { pos, queries, js } = grid;
+        count_macs(queries.len() * js.len() * (2 * pool.p + pool.p * pool.b));
+        // Chunks of `S::TILE_ROWS` consecutive pairs, exactly as `pairs.chunks` cuts a list.
+        let mut chunk = [Pair::default(); MAX_TILE_ROWS];
+        let mut len = 0;
+        for i in queries {
+            let (xi, yi) = (pos[2 * i], pos[2 * i + 1]);
+            for j in js.clone() {
+                chunk[len] = Pair {
+                    q: i as u32,
+                    j: j as u32,
+                    d: [(pos[2 * j] - xi) as f32, (pos[2 * j + 1] - yi) as f32],
+                };
+                len += 1;
+                if len == S::TILE_ROWS {
+                    fold_chunk(s, pool, &chunk[..len], terms, acc, val);
+                    len = 0;
                 }
             }
-            // Second layer on the whole tile, then the max into each pair's query row.
-            let mb = chunk.len();
-            let mut blk = 0;
-            while blk < nblk {
-                let ob = (nblk - blk).min(S::TILE_BLOCKS);
-                by_tile!(mb, ob, pool_tile::<S>(s, pool, chunk, val, blk, acc));
-                blk += ob;
-            }
         }
+        if len > 0 {
+            fold_chunk(s, pool, &chunk[..len], terms, acc, val);
+        }
+    }
+}
+
+/// Folds one register tile of pairs (at most `S::TILE_ROWS`) into the running maxima.
+#[inline(always)]
+fn fold_chunk<S: Simd>(
+    s: S,
+    pool: &Pool,
+    chunk: &[Pair],
+    terms: &[f32],
+    acc: &mut [f32],
+    val: &mut [f32],
+) {
+    let (p, ts) = (pool.p, pool.term_stride());
+    let nblk = pool.w2.len() / p;
+    let zero = s.splat(0.0);
+    // First layer, row by row: relu(t_j + wpx dx + wpy dy).
+    for (pr, v) in chunk.iter().zip(val.chunks_exact_mut(ts)) {
+        let t = blocks(&terms[pr.j as usize * ts..(pr.j as usize + 1) * ts]);
+        let (dx, dy) = (s.splat(pr.d[0]), s.splat(pr.d[1]));
+        for (((vb, tb), wx), wy) in blocks_mut(v)
+            .iter_mut()
+            .zip(t)
+            .zip(&pool.wpx)
+            .zip(&pool.wpy)
+        {
+            let u = s.mul_add(dy, s.load(wy), s.mul_add(dx, s.load(wx), s.load(tb)));
+            s.store(s.max(u, zero), vb);
+        }
+    }
+    // Second layer on the whole tile, then the max into each pair's query row.
+    let mb = chunk.len();
+    let mut blk = 0;
+    while blk < nblk {
+        let ob = (nblk - blk).min(S::TILE_BLOCKS);
+        by_tile!(mb, ob, pool_tile::<S>(s, pool, chunk, val, blk, acc));
+        blk += ob;
     }
 }
 
@@ -872,6 +1240,53 @@ impl Mlp2 {
             y,
             ldy,
         });
+    }
+
+    /// In place: row `r` of `xy` (`xy[r*ld..]`, `m` rows) is the input; its first `out`
+    /// lanes receive the mlp's output once every input of the layer has been read (the
+    /// first layer runs on all rows before the second writes). `hid` is scratch of
+    /// [`Mlp2::hidden_len`].
+    pub(crate) fn rows_in_place(
+        &self,
+        isa: Isa,
+        xy: &mut [f32],
+        ld: usize,
+        m: usize,
+        hid: &mut [f32],
+    ) {
+        isa.run(MlpInPlace {
+            mlp: self,
+            xy,
+            ld,
+            m,
+            hid,
+        });
+    }
+}
+
+/// [`Mlp2::rows_in_place`] as a kernel.
+struct MlpInPlace<'a> {
+    mlp: &'a Mlp2,
+    xy: &'a mut [f32],
+    ld: usize,
+    m: usize,
+    hid: &'a mut [f32],
+}
+
+impl Kernel for MlpInPlace<'_> {
+    type Out = ();
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let Self {
+            mlp,
+            xy,
+            ld,
+            m,
+            hid,
+        } = self;
+        let hd = mlp.l1.out_dim();
+        dense_rows(s, &mlp.l1, xy, ld, m, hid, hd, true);
+        dense_rows(s, &mlp.l2, hid, hd, m, xy, ld, true);
     }
 }
 
@@ -1087,6 +1502,166 @@ mod tests {
         }
     }
 
+    /// The fused f32 LSTM step gives the bits of the two-pass one (gate layer, then the
+    /// element-wise activations and cell update) on every path, for hidden sizes with full and
+    /// partial 16-lane blocks and row counts with full and partial register tiles, over
+    /// several steps; and it is close to an f64 evaluation of the LSTM equations.
+    #[test]
+    fn fused_lstm_step_matches_two_pass_bits() {
+        for h in [16, 9, 20, 32] {
+            let e = 5;
+            let emb_w = values(21, e * 2);
+            let emb_b = values(22, e);
+            let w_ih: Vec<f32> = values(23, 4 * h * e).iter().map(|v| v * 0.5).collect();
+            let w_hh: Vec<f32> = values(24, 4 * h * h).iter().map(|v| v * 0.5).collect();
+            let b_ih = values(25, 4 * h);
+            let b_hh = values(26, 4 * h);
+            let make = |fused| {
+                Lstm::with_cell(
+                    &emb_w,
+                    &emb_b,
+                    &w_ih,
+                    &w_hh,
+                    &b_ih,
+                    &b_hh,
+                    h,
+                    Accumulate::F32,
+                    fused,
+                )
+            };
+            let (fused, two_pass) = (make(true), make(false));
+            assert!(matches!(fused.cell, LstmCell::Fused { .. }));
+            assert!(matches!(two_pass.cell, LstmCell::Dense(_)));
+            let rl = fused.row_len();
+            // Rows with 3 lanes of padding that the step must leave alone.
+            let ld = rl + 3;
+            for isa in isas() {
+                for m in [1, 3, 4, 5, 8, 11] {
+                    let mut xh = values(27 + m as u32, m * ld);
+                    let pad: Vec<f32> = (0..m)
+                        .flat_map(|r| xh[r * ld + rl..(r + 1) * ld].to_vec())
+                        .collect();
+                    let mut c = values(40 + m as u32, m * h);
+                    let (mut xh2, mut c2) = (xh.clone(), c.clone());
+                    let mut g = vec![0.0f32; fused.gates_len(m)];
+                    for step in 0..3 {
+                        // f64 reference of this step from the current state.
+                        let mut want_h = vec![0.0f64; m * h];
+                        let mut want_c = vec![0.0f64; m * h];
+                        for r in 0..m {
+                            let x = &xh[r * ld..r * ld + rl];
+                            let emb: Vec<f64> = (0..e)
+                                .map(|k| {
+                                    f64::from(emb_w[2 * k]) * f64::from(x[0])
+                                        + f64::from(emb_w[2 * k + 1]) * f64::from(x[1])
+                                        + f64::from(emb_b[k])
+                                })
+                                .collect();
+                            let gate = |row: usize| {
+                                let mut v = f64::from(b_ih[row]) + f64::from(b_hh[row]);
+                                for k in 0..e {
+                                    v += f64::from(w_ih[row * e + k]) * emb[k];
+                                }
+                                v + dot(&w_hh[row * h..(row + 1) * h], &x[2..])
+                            };
+                            let sig = |v: f64| 1.0 / (1.0 + (-v).exp());
+                            for u in 0..h {
+                                let (i, f) = (sig(gate(u)), sig(gate(h + u)));
+                                let (gg, o) = (gate(2 * h + u).tanh(), sig(gate(3 * h + u)));
+                                let cn = f * f64::from(c[r * h + u]) + i * gg;
+                                want_c[r * h + u] = cn;
+                                want_h[r * h + u] = o * cn.tanh();
+                            }
+                        }
+                        fused.step(isa, &mut xh, ld, &mut c, &mut g, m);
+                        two_pass.step(isa, &mut xh2, ld, &mut c2, &mut g, m);
+                        let pad_now: Vec<f32> = (0..m)
+                            .flat_map(|r| xh[r * ld + rl..(r + 1) * ld].to_vec())
+                            .collect();
+                        assert_eq!(pad, pad_now, "the step wrote past the rows' [d ; h]");
+                        let p = isa.path();
+                        assert_eq!(xh, xh2, "{p}: h {h}, {m} rows, step {step}: h bits differ");
+                        assert_eq!(c, c2, "{p}: h {h}, {m} rows, step {step}: c bits differ");
+                        for r in 0..m {
+                            for u in 0..h {
+                                let got = f64::from(xh[r * ld + 2 + u]);
+                                assert!((got - want_h[r * h + u]).abs() < 1e-5, "{p}: h {got}");
+                                let got = f64::from(c[r * h + u]);
+                                assert!((got - want_c[r * h + u]).abs() < 1e-5, "{p}: c {got}");
+                            }
+                        }
+                        // Next step: a new displacement, same states.
+                        for r in 0..m {
+                            xh[r * ld] = 0.3 * (step + r) as f32;
+                            xh[r * ld + 1] = -0.2;
+                            xh2[r * ld] = xh[r * ld];
+                            xh2[r * ld + 1] = -0.2;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Vector activations give the bits of the scalar ones on every path.
+    #[test]
+    fn vector_activations_match_scalar_bits() {
+        struct Both<'a> {
+            xs: &'a [f32],
+        }
+        impl Kernel for Both<'_> {
+            type Out = Vec<(f32, [u32; 3], [u32; 3])>;
+            #[inline(always)]
+            fn run<S: Simd>(self, s: S) -> Self::Out {
+                let mut out = Vec::new();
+                for chunk in self.xs.chunks_exact(LANES) {
+                    let v = s.load(chunk.try_into().unwrap());
+                    let mut e = [0.0f32; LANES];
+                    let mut g = [0.0f32; LANES];
+                    let mut t = [0.0f32; LANES];
+                    s.store(exp_v(s, v), &mut e);
+                    s.store(sigmoid_v(s, v), &mut g);
+                    s.store(tanh_v(s, v), &mut t);
+                    for l in 0..LANES {
+                        let x = chunk[l];
+                        let scalar = [exp_f32(s, x), sigmoid_f32(s, x), tanh_f32(s, x)];
+                        out.push((
+                            x,
+                            scalar.map(f32::to_bits),
+                            [e[l], g[l], t[l]].map(f32::to_bits),
+                        ));
+                    }
+                }
+                out
+            }
+        }
+        let mut xs: Vec<f32> = (-200_000..200_000).map(|i| i as f32 * 1.3e-4).collect();
+        xs.extend([-100.0, -87.5, 88.5, 100.0, 1e-30, -1e-30, 0.0, -0.0]);
+        xs.extend([
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            1e-40,
+            -1e-40,
+            3.0,
+            -3.0,
+            0.5,
+        ]);
+        xs.truncate(xs.len() / LANES * LANES);
+        for isa in isas() {
+            for (x, scalar, vector) in isa.run(Both { xs: &xs }) {
+                if x.is_nan() {
+                    assert!(
+                        vector.iter().all(|b| f32::from_bits(*b).is_nan()),
+                        "NaN kept"
+                    );
+                } else {
+                    assert_eq!(scalar, vector, "{}: x = {x:e}", isa.path());
+                }
+            }
+        }
+    }
+
     /// The split pooling equals the literal one (embed, concatenate, two layers, max) to
     /// rounding on every path, whatever the order and grouping of the pairs.
     #[test]
@@ -1134,6 +1709,17 @@ mod tests {
                     "{}: pair order or grouping changed bits",
                     isa.path()
                 );
+                // Pairs generated inside the kernel from f64 positions: same bits.
+                let pos64: Vec<f64> = pos.iter().map(|&v| f64::from(v)).collect();
+                let mut acc3 = vec![0.0f32; n * al];
+                pool.reset(&mut acc3, 0..n);
+                let grid = PairGrid {
+                    pos: &pos64,
+                    queries: 0..n,
+                    js: 0..n,
+                };
+                pool.fold_grid(isa, grid, &terms, &mut acc3, &mut val);
+                assert_eq!(acc, acc3, "{}: generated pairs changed bits", isa.path());
                 // Literal evaluation in f64.
                 for i in 0..n {
                     let mut best = vec![f64::NEG_INFINITY; b];

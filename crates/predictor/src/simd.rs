@@ -213,6 +213,8 @@ pub(crate) trait Simd: Copy {
     const TILE_ROWS: usize;
     /// 16-lane output blocks per register tile (1 or 2).
     const TILE_BLOCKS: usize;
+    /// Rows per register tile of the fused LSTM cell (four gate blocks per row, see `nn`).
+    const LSTM_ROWS: usize;
 
     /// Every lane `x`.
     fn splat(self, x: f32) -> Self::V;
@@ -227,6 +229,19 @@ pub(crate) trait Simd: Copy {
     /// Scalar `a * b + c` with the same rounding as [`Simd::mul_add`] (for the
     /// auto-vectorised element-wise loops: activations).
     fn fma1(self, a: f32, b: f32, c: f32) -> f32;
+    /// `if a < b { a } else { b }` per lane (the x86 `min` rule).
+    fn min(self, a: Self::V, b: Self::V) -> Self::V;
+    /// `a + b` per lane (IEEE, one rounding).
+    fn add(self, a: Self::V, b: Self::V) -> Self::V;
+    /// `a - b` per lane (IEEE, one rounding).
+    fn sub(self, a: Self::V, b: Self::V) -> Self::V;
+    /// `a * b` per lane (IEEE, one rounding).
+    fn mul(self, a: Self::V, b: Self::V) -> Self::V;
+    /// `a / b` per lane (IEEE, correctly rounded).
+    fn div(self, a: Self::V, b: Self::V) -> Self::V;
+    /// Per lane, the bit pattern of `a` shifted left by 23 bits (`f32::from_bits(a.to_bits()
+    /// << 23)`: moves an integer held in the low mantissa bits into the exponent field).
+    fn shl23(self, a: Self::V) -> Self::V;
 
     /// 8 f64 lanes (the dense layers' accumulators).
     type D: Copy;
@@ -259,6 +274,7 @@ impl Simd for Portable {
     const PATH: SimdPath = SimdPath::Portable;
     const TILE_ROWS: usize = 2;
     const TILE_BLOCKS: usize = 1;
+    const LSTM_ROWS: usize = 1;
 
     #[inline(always)]
     fn splat(self, x: f32) -> Self::V {
@@ -290,6 +306,45 @@ impl Simd for Portable {
     fn fma1(self, a: f32, b: f32, c: f32) -> f32 {
         a * b + c
     }
+    #[inline(always)]
+    fn min(self, mut a: Self::V, b: Self::V) -> Self::V {
+        for l in 0..LANES {
+            a[l] = if a[l] < b[l] { a[l] } else { b[l] };
+        }
+        a
+    }
+    #[inline(always)]
+    fn add(self, mut a: Self::V, b: Self::V) -> Self::V {
+        for l in 0..LANES {
+            a[l] += b[l];
+        }
+        a
+    }
+    #[inline(always)]
+    fn sub(self, mut a: Self::V, b: Self::V) -> Self::V {
+        for l in 0..LANES {
+            a[l] -= b[l];
+        }
+        a
+    }
+    #[inline(always)]
+    fn mul(self, mut a: Self::V, b: Self::V) -> Self::V {
+        for l in 0..LANES {
+            a[l] *= b[l];
+        }
+        a
+    }
+    #[inline(always)]
+    fn div(self, mut a: Self::V, b: Self::V) -> Self::V {
+        for l in 0..LANES {
+            a[l] /= b[l];
+        }
+        a
+    }
+    #[inline(always)]
+    fn shl23(self, a: Self::V) -> Self::V {
+        a.map(|v| f32::from_bits(v.to_bits() << 23))
+    }
 
     type D = [f64; LANES_D];
     #[inline(always)]
@@ -319,11 +374,14 @@ pub(crate) use x86::{Avx2, Avx512};
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::{
-        __m256, __m256d, __m512, __m512d, _mm_storeu_ps, _mm256_cvtpd_ps, _mm256_fmadd_pd,
-        _mm256_fmadd_ps, _mm256_loadu_pd, _mm256_loadu_ps, _mm256_max_ps, _mm256_set1_pd,
-        _mm256_set1_ps, _mm256_storeu_ps, _mm512_cvtpd_ps, _mm512_fmadd_pd, _mm512_fmadd_ps,
-        _mm512_loadu_pd, _mm512_loadu_ps, _mm512_max_ps, _mm512_set1_pd, _mm512_set1_ps,
-        _mm512_storeu_ps,
+        __m256, __m256d, __m512, __m512d, _mm_storeu_ps, _mm256_add_ps, _mm256_castps_si256,
+        _mm256_castsi256_ps, _mm256_cvtpd_ps, _mm256_div_ps, _mm256_fmadd_pd, _mm256_fmadd_ps,
+        _mm256_loadu_pd, _mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps, _mm256_mul_ps,
+        _mm256_set1_pd, _mm256_set1_ps, _mm256_slli_epi32, _mm256_storeu_ps, _mm256_sub_ps,
+        _mm512_add_ps, _mm512_castps_si512, _mm512_castsi512_ps, _mm512_cvtpd_ps, _mm512_div_ps,
+        _mm512_fmadd_pd, _mm512_fmadd_ps, _mm512_loadu_pd, _mm512_loadu_ps, _mm512_max_ps,
+        _mm512_min_ps, _mm512_mul_ps, _mm512_set1_pd, _mm512_set1_ps, _mm512_slli_epi32,
+        _mm512_storeu_ps, _mm512_sub_ps,
     };
 
     use super::{LANES, LANES_D, Simd, SimdPath};
@@ -360,6 +418,7 @@ mod x86 {
         const PATH: SimdPath = SimdPath::Avx2;
         const TILE_ROWS: usize = 4;
         const TILE_BLOCKS: usize = 1;
+        const LSTM_ROWS: usize = 1;
 
         #[inline(always)]
         fn splat(self, x: f32) -> Self::V {
@@ -401,6 +460,38 @@ mod x86 {
         fn fma1(self, a: f32, b: f32, c: f32) -> f32 {
             a.mul_add(b, c)
         }
+        #[inline(always)]
+        fn min(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX is available (token); no memory access.
+            unsafe { [_mm256_min_ps(a[0], b[0]), _mm256_min_ps(a[1], b[1])] }
+        }
+        #[inline(always)]
+        fn add(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX is available (token); no memory access.
+            unsafe { [_mm256_add_ps(a[0], b[0]), _mm256_add_ps(a[1], b[1])] }
+        }
+        #[inline(always)]
+        fn sub(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX is available (token); no memory access.
+            unsafe { [_mm256_sub_ps(a[0], b[0]), _mm256_sub_ps(a[1], b[1])] }
+        }
+        #[inline(always)]
+        fn mul(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX is available (token); no memory access.
+            unsafe { [_mm256_mul_ps(a[0], b[0]), _mm256_mul_ps(a[1], b[1])] }
+        }
+        #[inline(always)]
+        fn div(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX is available (token); no memory access.
+            unsafe { [_mm256_div_ps(a[0], b[0]), _mm256_div_ps(a[1], b[1])] }
+        }
+        #[inline(always)]
+        fn shl23(self, a: Self::V) -> Self::V {
+            // SAFETY: AVX2 is available (token); no memory access (bit casts and a shift).
+            unsafe {
+                a.map(|v| _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_castps_si256(v))))
+            }
+        }
 
         type D = [__m256d; 2];
         #[inline(always)]
@@ -441,6 +532,7 @@ mod x86 {
         const PATH: SimdPath = SimdPath::Avx512;
         const TILE_ROWS: usize = 8;
         const TILE_BLOCKS: usize = 2;
+        const LSTM_ROWS: usize = 4;
 
         #[inline(always)]
         fn splat(self, x: f32) -> Self::V {
@@ -470,6 +562,36 @@ mod x86 {
         #[inline(always)]
         fn fma1(self, a: f32, b: f32, c: f32) -> f32 {
             a.mul_add(b, c)
+        }
+        #[inline(always)]
+        fn min(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX-512F is available (token); no memory access.
+            unsafe { _mm512_min_ps(a, b) }
+        }
+        #[inline(always)]
+        fn add(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX-512F is available (token); no memory access.
+            unsafe { _mm512_add_ps(a, b) }
+        }
+        #[inline(always)]
+        fn sub(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX-512F is available (token); no memory access.
+            unsafe { _mm512_sub_ps(a, b) }
+        }
+        #[inline(always)]
+        fn mul(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX-512F is available (token); no memory access.
+            unsafe { _mm512_mul_ps(a, b) }
+        }
+        #[inline(always)]
+        fn div(self, a: Self::V, b: Self::V) -> Self::V {
+            // SAFETY: AVX-512F is available (token); no memory access.
+            unsafe { _mm512_div_ps(a, b) }
+        }
+        #[inline(always)]
+        fn shl23(self, a: Self::V) -> Self::V {
+            // SAFETY: AVX-512F is available (token); no memory access (bit casts and a shift).
+            unsafe { _mm512_castsi512_ps(_mm512_slli_epi32::<23>(_mm512_castps_si512(a))) }
         }
 
         type D = __m512d;

@@ -32,17 +32,17 @@ pub struct Student {
     win0: Vec<f64>,
     /// Last observed positions `[n, 2]` (metres).
     last: Vec<f64>,
-    /// After the candidate-independent decoder step 1: states `[n, Hd]`, displacements
-    /// `[n, 2]` (f32, network outputs), positions `[n, 2]` (f64 metres).
-    h1: Vec<f32>,
+    /// Decoder state after the candidate-independent step 1: rows `[d ; h ; pooled]`
+    /// (`[n, dec_row_len]`, see `Generator::dec_row_len`; `d` the predicted displacement,
+    /// f32 network output), cell states `[n, Hd]`, positions `[n, 2]` (f64 metres).
+    rows1: Vec<f32>,
     c1: Vec<f32>,
-    d1: Vec<f32>,
     pos1: Vec<f64>,
     /// Pool terms of step 1 `[n, term_stride]` and running maxima over agents 1..n `[n, acc_len]`.
     terms1: Vec<f32>,
     max1: Vec<f32>,
-    /// Working displacements `[n, 2]` (f32) and positions `[n, 2]` (f64 metres).
-    d: Vec<f32>,
+    /// Working decoder rows `[n, dec_row_len]` and positions `[n, 2]` (f64 metres).
+    rows: Vec<f32>,
     pos: Vec<f64>,
 }
 
@@ -83,13 +83,12 @@ impl Student {
             n: 0,
             win0: Vec::new(),
             last: Vec::new(),
-            h1: Vec::new(),
+            rows1: Vec::new(),
             c1: Vec::new(),
-            d1: Vec::new(),
             pos1: Vec::new(),
             terms1: Vec::new(),
             max1: Vec::new(),
-            d: Vec::new(),
+            rows: Vec::new(),
             pos: Vec::new(),
         };
         limits::self_check(&mut student, weights.path())?;
@@ -174,33 +173,28 @@ impl Predictor for Student {
         g.pool_terms(&g.pool, &h_enc, he, 0..n, &mut terms);
         g.pool_all(&g.pool, &self.last, &terms, n, 0..n, s);
         s.terms = terms;
-        let mut h0 = std::mem::take(&mut s.h);
-        g.context(0..n, &h_enc, &self.noise, s, &mut h0, hd);
+        let ld = g.dec_row_len();
+        self.rows1.resize(n * ld, 0.0);
+        g.context(0..n, &h_enc, &self.noise, s, &mut self.rows1[2..], ld);
         s.h_enc = h_enc;
-        s.h = h0;
         s.cd[..n * hd].fill(0.0);
         // Decoder step 1: input is the last observed displacement, candidate-independent.
-        self.d1.clear();
-        for i in 0..n {
+        for (i, row) in self.rows1.chunks_exact_mut(ld).enumerate() {
             let k = (i * T_OBS + T_OBS - 1) * 2;
-            self.d1.extend_from_slice(&[
-                (self.win0[k] - self.win0[k - 2]) as f32,
-                (self.win0[k + 1] - self.win0[k - 1]) as f32,
-            ]);
+            row[0] = (self.win0[k] - self.win0[k - 2]) as f32;
+            row[1] = (self.win0[k + 1] - self.win0[k - 1]) as f32;
         }
-        g.decode_steps(0..n, &mut self.d1, s);
+        g.decode_rows(0..n, &mut self.rows1, s);
         self.pos1.clear();
-        for i in 0..n {
+        for (i, row) in self.rows1.chunks_exact(ld).enumerate() {
             self.pos1.extend_from_slice(&[
-                self.last[2 * i] + f64::from(self.d1[2 * i]),
-                self.last[2 * i + 1] + f64::from(self.d1[2 * i + 1]),
+                self.last[2 * i] + f64::from(row[0]),
+                self.last[2 * i + 1] + f64::from(row[1]),
             ]);
         }
-        self.h1.clear();
-        self.h1.extend_from_slice(&s.h[..n * hd]);
         self.c1.clear();
         self.c1.extend_from_slice(&s.cd[..n * hd]);
-        self.d.resize(2 * n, 0.0);
+        self.rows.resize(n * ld, 0.0);
         self.pos.resize(2 * n, 0.0);
         // Step-1 pooling among the non-ego agents is candidate-independent too.
         if let Some(pool) = &g.dec_pool
@@ -208,7 +202,7 @@ impl Predictor for Student {
         {
             let (ts, al) = (pool.term_stride(), pool.acc_len());
             self.terms1.resize(n * ts, 0.0);
-            g.pool_terms(pool, &self.h1, hd, 0..n, &mut self.terms1);
+            g.pool_terms(pool, &self.rows1[2..], ld, 0..n, &mut self.terms1);
             self.max1.resize(n * al, 0.0);
             pool.reset(&mut s.acc, 1..n);
             g.pool_fold(pool, &self.pos1, &self.terms1, 1..n, 1..n, s);
@@ -230,46 +224,48 @@ impl Predictor for Student {
         }
         let g = &self.generator;
         let s = &mut self.s;
-        let hd = g.cfg.decoder_h_dim;
+        let (hd, ld) = (g.cfg.decoder_h_dim, g.dec_row_len());
         let per = (n - 1) * t * 2;
         for b in 0..batch {
             let cand = &candidates[b * t * 2..(b + 1) * t * 2];
             let out = &mut out[b * per..(b + 1) * per];
-            s.h[..n * hd].copy_from_slice(&self.h1);
+            self.rows.copy_from_slice(&self.rows1);
             s.cd[..n * hd].copy_from_slice(&self.c1);
-            self.d.copy_from_slice(&self.d1);
             self.pos.copy_from_slice(&self.pos1);
             let mut prev_ego = [self.last[0], self.last[1]];
             for k in 0..t {
                 if k > 0 {
                     if let Some(pool) = &g.dec_pool {
                         let al = pool.acc_len();
+                        // Pooled vectors go to the rows' pooled part.
+                        let pooled = &mut self.rows[2 + hd..];
                         if k == 1 {
                             // Cached terms and maxima over the others; add the ego's pairs.
                             s.acc[al..n * al].copy_from_slice(&self.max1[al..n * al]);
                             g.pool_fold(pool, &self.pos, &self.terms1, 1..n, 0..1, s);
-                            Generator::pool_finish(pool, 1..n, s);
-                            g.pool_all(pool, &self.pos, &self.terms1, n, 0..1, s);
+                            Generator::pool_finish_into(pool, 1..n, &s.acc, pooled, ld);
+                            g.pool_all_into(pool, &self.pos, &self.terms1, n, 0..1, s, pooled, ld);
                         } else {
                             let mut terms = std::mem::take(&mut s.terms);
-                            g.pool_terms(pool, &s.h, hd, 0..n, &mut terms);
-                            g.pool_all(pool, &self.pos, &terms, n, 0..n, s);
+                            g.pool_terms(pool, &self.rows[2..], ld, 0..n, &mut terms);
+                            let pooled = &mut self.rows[2 + hd..];
+                            g.pool_all_into(pool, &self.pos, &terms, n, 0..n, s, pooled, ld);
                             s.terms = terms;
                         }
-                        g.refine_all(n, s);
+                        g.refine_rows(n, &mut self.rows, s);
                     }
                     // The ego's state is not needed after the last step.
                     let first = usize::from(k + 1 == t);
-                    g.decode_steps(first..n, &mut self.d, s);
+                    g.decode_rows(first..n, &mut self.rows, s);
                     for i in first..n {
-                        self.pos[2 * i] += f64::from(self.d[2 * i]);
-                        self.pos[2 * i + 1] += f64::from(self.d[2 * i + 1]);
+                        self.pos[2 * i] += f64::from(self.rows[i * ld]);
+                        self.pos[2 * i + 1] += f64::from(self.rows[i * ld + 1]);
                     }
                 }
                 // Ego override: displacement and position from the candidate.
                 let c = [cand[2 * k], cand[2 * k + 1]];
-                self.d[0] = (c[0] - prev_ego[0]) as f32;
-                self.d[1] = (c[1] - prev_ego[1]) as f32;
+                self.rows[0] = (c[0] - prev_ego[0]) as f32;
+                self.rows[1] = (c[1] - prev_ego[1]) as f32;
                 self.pos[..2].copy_from_slice(&c);
                 prev_ego = c;
                 for a in 1..n {
