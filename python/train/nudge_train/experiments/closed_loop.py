@@ -180,7 +180,9 @@ def choose(cfg: EvalConfig) -> tuple[list[Path], list[int], list[int]]:
     return chosen, [int(s) for s in scene_seeds], subset
 
 
-def _model_files(planner: str, world: str) -> list[Path]:
+def model_files(planner: str, world: str) -> list[Path]:
+    """The files a closed-loop arm depends on: the planning model (a weights file unless
+    constant velocity) and the world's model (the teacher, or the IDM driver population)."""
     files = []
     if planner in ("teacher", "student"):
         files.append(nudge.model_path(planner))
@@ -214,7 +216,7 @@ def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: AN
         config = sim_cfg.replace(world=world)
         inputs = dict(base, planner=planner, world=world, settings=json.loads(settings.to_json()),
                       config=json.loads(config.to_json()),
-                      models={str(paths.repo_relative(f)): _file_sha(f, memo) for f in _model_files(planner, world)})
+                      models={str(paths.repo_relative(f)): _file_sha(f, memo) for f in model_files(planner, world)})
         chunk_key = _sha(json.dumps(inputs, sort_keys=True).encode())
         folder = Path(cfg.cache) / chunk_key[:20]
         parts = [idx[i: i + cfg.batch] for i in range(0, len(idx), cfg.batch)]

@@ -46,6 +46,7 @@ from tqdm import tqdm
 import nudge
 
 from nudge_train import paths
+from nudge_train.experiments.closed_loop import model_files
 from nudge_train.experiments.stats import BOOTSTRAP, cluster_bootstrap, mcnemar_exact, paired_bootstrap
 
 __all__ = ["Arm", "InteractionConfig", "blocked", "dense_runs", "paired", "run", "start_geometry", "start_reactions",
@@ -188,19 +189,6 @@ class _Hasher:
         return self.memo[path]
 
 
-def _model_files(predictor: str, world: str) -> list[Path]:
-    files = []
-    if predictor in ("teacher", "student"):
-        files.append(nudge.model_path(predictor))
-    elif predictor != "constant_velocity":
-        files.append(Path(predictor))
-    if world == "teacher":
-        files.append(nudge.model_path("teacher"))
-    if world == "idm":
-        files.append(nudge.assets_dir() / "worlds" / "idm.json")
-    return files
-
-
 def _columns(res: dict) -> dict[str, list]:
     keep = ("scenario", "seed", "target_lane", "success", "steps_to_lane", "steps_to_target", "collisions_at_fault",
             "collisions_not_at_fault", "aborts", "n_steps", "free_gap", "error")
@@ -225,7 +213,7 @@ def _run_arm(arm: Arm, predictor: str, runs: list[tuple[Path, list[int]]], cfg: 
     config = nudge.SimConfig(world=arm.world)
     inputs = {"schema": CACHE_SCHEMA, "native": hasher(Path(nudge._native.__file__)), "predictor": predictor,
               "settings": json.loads(settings.to_json()), "config": json.loads(config.to_json()),
-              "models": {str(paths.repo_relative(f)): hasher(f) for f in _model_files(predictor, arm.world)}}
+              "models": {str(paths.repo_relative(f)): hasher(f) for f in model_files(predictor, arm.world)}}
     folder = Path(cfg.cache) / split / _sha(json.dumps(inputs, sort_keys=True).encode())[:20]
     merged: dict[str, list] = {}
     wall = computed = 0.0
