@@ -45,6 +45,7 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
         v_ref: 12.0,
         road: [-1.85, 5.55],
         y_retreat: None,
+        lanes: None,
     }
 }
 
