@@ -657,8 +657,7 @@ def build_parser() -> argparse.ArgumentParser:
                "override them.",
     )
     sub = parser.add_subparsers(dest="cmd", required=True,
-                                metavar="{data,train,teacher,student,distill,closed-loop,paper,bench,goldens,figures,idm}")
-                                metavar="{data,train,teacher,student,distill,closed-loop,interaction,bench,goldens,figures,idm}")
+                                metavar="{data,train,teacher,student,distill,closed-loop,interaction,paper,bench,goldens,figures,idm}")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
