@@ -35,24 +35,9 @@ fn dense() -> (History, Vec<[f64; 2]>) {
     )
 }
 
+/// A lane change from y = 0 to y = 3.7 at `V` on a two-lane road.
 fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
-    PlanningProblem {
-        ego: EgoState {
-            x: 0.0,
-            y: 0.0,
-            psi: 0.0,
-            v: V,
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: h,
-        sizes,
-        y_target: 3.7,
-        v_ref: V,
-        road: [-1.85, 5.55],
-        y_retreat: None,
-        lanes: None,
-    }
+    super::tests::problem(h, sizes, V)
 }
 
 fn teacher() -> Box<dyn Predictor> {

@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used)]
 
 use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
-use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
+use nudge_predictor::{ConstantVelocity, History, Predictor};
 
 use super::constraint::{SafetyEval, SafetyRow};
 use super::inputs::{Input, InputQps};
@@ -18,35 +18,12 @@ use crate::qp::{clarabel_settings, triplets_csc, upper_csc};
 
 /// Ego at (0, 0) with speed v; others `(x, y, speed)`; all driving along +x.
 fn scene(v: f64, others: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
-    let n = 1 + others.len();
-    let mut pos = Vec::with_capacity(n * T_OBS * 2);
-    for &(x, y, s) in std::iter::once(&(0.0, 0.0, v)).chain(others) {
-        for t in 0..T_OBS {
-            pos.extend([x - s * (T_OBS - 1 - t) as f64 * 0.3, y]);
-        }
-    }
-    (History::new(pos, n).unwrap(), vec![[4.5, 1.9]; n])
+    super::tests::scene(v, 0.0, others)
 }
 
 /// A lane change from y = 0 to y = 3.7 at 12 m/s on a two-lane road.
 fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
-    PlanningProblem {
-        ego: EgoState {
-            x: 0.0,
-            y: 0.0,
-            psi: 0.0,
-            v: 12.0,
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: h,
-        sizes,
-        y_target: 3.7,
-        v_ref: 12.0,
-        road: [-1.85, 5.55],
-        y_retreat: None,
-        lanes: None,
-    }
+    super::tests::problem(h, sizes, 12.0)
 }
 
 fn model(s: &PlannerSettings) -> Bicycle {

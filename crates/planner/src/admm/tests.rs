@@ -19,7 +19,7 @@ use crate::qp::{BoxRateQp, QpName, QpStatus, RateBox};
 type Inputs = (Vec<f64>, Vec<f64>);
 
 /// Ego at (0, y0) with speed v; others `(x, y, speed)`; all driving along +x.
-fn scene(v: f64, y0: f64, others: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
+pub(super) fn scene(v: f64, y0: f64, others: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
     let n = 1 + others.len();
     let mut pos = Vec::with_capacity(n * T_OBS * 2);
     for &(x, y, s) in std::iter::once(&(0.0, y0, v)).chain(others) {
@@ -31,7 +31,7 @@ fn scene(v: f64, y0: f64, others: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>
 }
 
 /// A lane change from y = 0 to y = 3.7 at `v` on a two-lane road.
-fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem<'a> {
+pub(super) fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> PlanningProblem<'a> {
     PlanningProblem {
         ego: EgoState {
             x: 0.0,
