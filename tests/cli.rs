@@ -184,6 +184,7 @@ fn cli_refuses_bad_arguments_by_name() {
             "/nonexistent/idm.json",
         ),
         (vec!["--fault-brake-limit", "0"], "fault_brake_limit"),
+        (vec!["--stall-progress", "2"], "stall_progress"),
     ] {
         let mut all = vec!["simulate", "--scenes", sc];
         all.extend(&args);

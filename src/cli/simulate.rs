@@ -86,6 +86,12 @@ pub struct SimulateArgs {
     #[arg(long, help = noted("Steps an aborted lane change keeps to the ego's own lane before retrying", DEFAULT.abort_hold))]
     pub abort_hold: Option<usize>,
     #[arg(long, help = noted(
+        "Also abort a lane change whose ego moved less than this (m) towards the target lane on \
+         each of abort_after steps while straddling the lane line before crossing it; 0 disables",
+        DEFAULT.stall_progress,
+    ))]
+    pub stall_progress: Option<f64>,
+    #[arg(long, help = noted(
         "At-fault rule: an ego hit from behind while inside one lane is not at fault only if it \
          braked no harder than this (m/s²)",
         DEFAULT.fault_brake_limit,
@@ -128,6 +134,7 @@ impl SimulateArgs {
         c.settle_steps = self.settle_steps.unwrap_or(c.settle_steps);
         c.abort_after = self.abort_after.unwrap_or(c.abort_after);
         c.abort_hold = self.abort_hold.unwrap_or(c.abort_hold);
+        c.stall_progress = self.stall_progress.unwrap_or(c.stall_progress);
         c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);
         Ok(c)
     }

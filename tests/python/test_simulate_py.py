@@ -133,6 +133,8 @@ def test_errors(scenes: list[Path], tmp_path: Path) -> None:
         nudge.simulate(scenes[:1], "constant_velocity", world="idm", idm=bad)
     with pytest.raises(nudge.SettingsError, match="fault_brake_limit"):
         nudge.simulate(scenes[:1], "constant_velocity", fault_brake_limit=-1.0)
+    with pytest.raises(nudge.SettingsError, match="stall_progress"):
+        nudge.simulate(scenes[:1], "constant_velocity", stall_progress=-0.1)
     with pytest.raises(nudge.InputError, match="threads"):
         nudge.simulate(scenes[:1], "constant_velocity", threads=0)
     with pytest.raises(nudge.InputError, match="runs"):

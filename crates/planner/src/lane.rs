@@ -10,6 +10,12 @@
 //!   (status `Fallback`, `Unsafe` or `SolverFailed`) while the ego's centre is still on its own
 //!   side of the line between the two lanes: aim at the own lane's centre for `abort_hold`
 //!   steps, then try again;
+//! * **abort a stalled change** (with a positive `stall_progress`): a step whose ego centre
+//!   moved less than `stall_progress` towards the target lane since the previous step, while
+//!   its box straddles the line and its centre is still on its own side, counts towards the
+//!   abort like a step without an admissible plan. A planner that finds admissible plans which
+//!   edge over the line and stop there (in front of a closed gap) would otherwise idle across
+//!   it for good;
 //! * **commit** once the centre has crossed that line: from then on the change is finished,
 //!   never aborted (going back would cross the line a second time);
 //! * **retreat when stuck**: the own lane stays on offer to the planner's fallbacks
@@ -34,6 +40,13 @@ pub struct LaneChange {
     inside: f64,
     abort_after: usize,
     abort_hold: usize,
+    /// Half the ego's width (m): its box straddles the line while |y − y_line| < this.
+    half_width: f64,
+    /// Least progress per step towards the target (m) of a change that is not stalled; 0: off.
+    stall_progress: f64,
+    /// The ego's centre at the previous planning step (m).
+    last_y: Option<f64>,
+    /// Consecutive steps without an admissible plan, or stalled, before the crossing.
     unsafe_steps: usize,
     /// Consecutive steps without an admissible plan after the crossing, not yet inside.
     stuck_steps: usize,
@@ -62,11 +75,23 @@ impl LaneChange {
             inside: (0.5 * (y_target - y_own).abs() - 0.5 * ego_width).max(settle_y),
             abort_after,
             abort_hold,
+            half_width: 0.5 * ego_width,
+            stall_progress: 0.0,
+            last_y: None,
             unsafe_steps: 0,
             stuck_steps: 0,
             hold: 0,
             aborts: 0,
         }
+    }
+
+    /// Turns on the stalled-change abort: a step with less than `stall_progress` (m) of
+    /// progress towards the target lane, the ego straddling the line before crossing it,
+    /// counts towards `abort_after` like a step without an admissible plan (0: off).
+    #[must_use]
+    pub fn with_stall_abort(mut self, stall_progress: f64) -> Self {
+        self.stall_progress = stall_progress;
+        self
     }
 
     /// The lateral goal of the next planning step (m): the target lane's centre, or the own
@@ -110,6 +135,8 @@ impl LaneChange {
     /// Counts a planning step that ended in `status` with the ego's centre at `y` (m) when it
     /// was planned.
     pub fn after_plan(&mut self, status: StepStatus, y: f64) {
+        let stalled = self.stalled(y);
+        self.last_y = Some(y);
         let straddling = (y - self.y_target).abs() > self.inside && self.committed(y);
         if straddling && status.is_unsafe_plan() {
             self.stuck_steps += 1;
@@ -119,7 +146,7 @@ impl LaneChange {
         if self.hold > 0 {
             self.hold -= 1;
         } else if self.abort_after > 0
-            && status.is_unsafe_plan()
+            && (status.is_unsafe_plan() || stalled)
             && (y - self.y_target).abs() > self.inside
             && !self.committed(y)
         {
@@ -132,6 +159,20 @@ impl LaneChange {
         } else {
             self.unsafe_steps = 0;
         }
+    }
+
+    /// Whether the step planned with the ego's centre at `y` (m) shows a stalled change: the
+    /// stall abort is on, the ego's box straddles the line with its centre on its own side,
+    /// and the centre moved less than `stall_progress` towards the target since the previous
+    /// step.
+    fn stalled(&self, y: f64) -> bool {
+        let towards = (self.y_target - self.y_own).signum();
+        self.stall_progress > 0.0
+            && !self.committed(y)
+            && (y - self.y_line).abs() < self.half_width
+            && self
+                .last_y
+                .is_some_and(|p| (y - p) * towards < self.stall_progress)
     }
 }
 
@@ -225,6 +266,61 @@ mod tests {
             off.after_plan(StepStatus::Unsafe, 2.0);
         }
         assert_eq!(off.retreat(2.0), None);
+    }
+
+    /// An ego that edges over the line (its box across it, its centre on its own side) with
+    /// admissible plans and stops there aborts after `abort_after` stalled steps; steady
+    /// progress, an ego wholly in its own lane, and a zero `stall_progress` never abort.
+    #[test]
+    fn aborts_a_change_stalled_across_the_line() {
+        // Line at 1.85, half width 0.95: the box straddles for 0.9 < y < 2.8.
+        let stalled = || change().with_stall_abort(0.05);
+        let mut c = stalled();
+        for y in [0.2, 0.6, 1.0, 1.02] {
+            c.after_plan(StepStatus::Converged, y);
+        }
+        assert_eq!((c.goal(), c.aborts()), (3.7, 0), "one stalled step");
+        c.after_plan(StepStatus::Converged, 1.03);
+        assert_eq!(
+            (c.goal(), c.aborts()),
+            (0.0, 1),
+            "two stalled steps straddling"
+        );
+        // Moving back counts as stalled; a stalled step and an unsafe one add up.
+        let mut c = stalled();
+        c.after_plan(StepStatus::Converged, 1.2);
+        c.after_plan(StepStatus::Converged, 1.1);
+        assert_eq!(c.aborts(), 0);
+        c.after_plan(StepStatus::Unsafe, 1.5);
+        assert_eq!(c.aborts(), 1);
+        // Steady progress of 0.1 m per step across the straddle: no abort.
+        let mut c = stalled();
+        for k in 0..10 {
+            c.after_plan(StepStatus::Converged, 0.9 + 0.1 * f64::from(k));
+        }
+        assert_eq!(c.aborts(), 0);
+        // Waiting in the own lane (box not across the line) is not stalling.
+        let mut c = stalled();
+        for _ in 0..6 {
+            c.after_plan(StepStatus::Converged, 0.5);
+        }
+        assert_eq!(c.aborts(), 0);
+        // After the crossing, and with the rule off, no stalled-change abort.
+        let mut c = stalled();
+        for _ in 0..6 {
+            c.after_plan(StepStatus::Converged, 2.0);
+        }
+        let mut off = change();
+        for _ in 0..6 {
+            off.after_plan(StepStatus::Converged, 1.2);
+        }
+        assert_eq!((c.aborts(), off.aborts()), (0, 0));
+        // A change to the right stalls the same way (line at 1.85 going down).
+        let mut right = LaneChange::new(3.7, 0.0, 1.9, 0.3, 2, 3).with_stall_abort(0.05);
+        for y in [2.6, 2.6, 2.62] {
+            right.after_plan(StepStatus::Converged, y);
+        }
+        assert_eq!(right.aborts(), 1);
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! starting from its bias, so the result of a row does not depend on the tiling, the number of
 //! rows, nor (between the fused paths) the vector width: see [`simd`](crate::simd).
 
-use crate::simd::{Isa, Kernel, LANES, LANES_D, Simd, SimdPath};
+use crate::simd::{Isa, Kernel, LANES, LANES_D, Simd, SimdPath, max_nan};
 
 /// 16 output lanes of one packed weight row.
 type Block = [f32; LANES];
@@ -415,11 +415,18 @@ fn dense_tile_d<S: Simd, const MB: usize, const OB: usize>(
             s.store_d_f32(v, &mut t);
             if relu {
                 // Rounding is monotonic: relu after rounding equals rounding after relu.
-                t = t.map(|v| if v > 0.0 { v } else { 0.0 });
+                t = t.map(relu_nan);
             }
             y[start..start + n].copy_from_slice(&t[..n]);
         }
     }
+}
+
+/// Scalar ReLU `max(x, 0)` that keeps NaN (see [`max_nan`](crate::simd::max_nan)): the
+/// same rule, and the same bits, as the vector ReLU `Simd::max(x, 0)` of the kernels.
+#[inline(always)]
+pub(crate) fn relu_nan(x: f32) -> f32 {
+    max_nan(x, 0.0)
 }
 
 /// `e^x` in f32 for the activations, branch-free so that loops over slices vectorise:
@@ -1021,7 +1028,7 @@ impl Pool {
     pub(crate) fn finish(&self, acc: &[f32], out: &mut [f32]) {
         let b = self.b;
         for ((o, a), c) in out[..b].iter_mut().zip(&acc[..b]).zip(&self.b2[..b]) {
-            *o = (a + c).max(0.0);
+            *o = relu_nan(a + c);
         }
     }
 }
@@ -1747,6 +1754,332 @@ mod tests {
                         assert!(
                             (got - m).abs() < 1e-4 * (1.0 + m.abs()),
                             "{}: {got} vs {m}",
+                            isa.path()
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// IEEE-754 `maximum`/`minimum` in f64, the scalar truth for NaN propagation: NaN when
+    /// either operand is NaN, else the larger (smaller) value.
+    fn ieee_max(a: f64, b: f64) -> f64 {
+        if a.is_nan() || b.is_nan() {
+            f64::NAN
+        } else {
+            a.max(b)
+        }
+    }
+    fn ieee_min(a: f64, b: f64) -> f64 {
+        if a.is_nan() || b.is_nan() {
+            f64::NAN
+        } else {
+            a.min(b)
+        }
+    }
+    fn ieee_relu(x: f64) -> f64 {
+        ieee_max(x, 0.0)
+    }
+
+    /// `got` agrees with the f64 truth `want`: NaN exactly where `want` is NaN, the same
+    /// infinity where it is infinite, else within `tol`.
+    fn agrees(got: f32, want: f64, tol: f64) -> bool {
+        if want.is_nan() {
+            got.is_nan()
+        } else if want.is_infinite() {
+            f64::from(got) == want
+        } else {
+            (f64::from(got) - want).abs() <= tol * (1.0 + want.abs())
+        }
+    }
+
+    /// Non-finite values propagate through every kernel on every path as in the scalar f64
+    /// truth (PyTorch's rule: `relu(NaN)`, `max(NaN, x)` and `max(x, NaN)` are NaN): the vector
+    /// max/min, the dense rows with and without ReLU in both accumulations, the pooling's
+    /// running maximum and `finish`, and the LSTM step. A NaN pair is put first, in the middle
+    /// and last in its query's pair list, since a running maximum that drops a NaN only keeps
+    /// it when it comes last. Every path gives the same bits.
+    #[test]
+    fn non_finite_values_propagate_through_every_kernel_on_every_path() {
+        // Vector max/min on every ordered pair of special values.
+        struct MaxMin<'a> {
+            a: &'a [f32],
+            b: &'a [f32],
+        }
+        impl Kernel for MaxMin<'_> {
+            type Out = Vec<[u32; 2]>;
+            #[inline(always)]
+            fn run<S: Simd>(self, s: S) -> Self::Out {
+                let mut out = Vec::new();
+                for (a, b) in self.a.chunks_exact(LANES).zip(self.b.chunks_exact(LANES)) {
+                    let (va, vb) = (s.load(a.try_into().unwrap()), s.load(b.try_into().unwrap()));
+                    let (mut mx, mut mn) = ([0.0f32; LANES], [0.0f32; LANES]);
+                    s.store(s.max(va, vb), &mut mx);
+                    s.store(s.min(va, vb), &mut mn);
+                    out.extend((0..LANES).map(|l| [mx[l].to_bits(), mn[l].to_bits()]));
+                }
+                out
+            }
+        }
+        let special = [
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            3e38,
+            -3e38,
+        ];
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for &x in &special {
+            for &y in &special {
+                a.push(x);
+                b.push(y);
+            }
+        }
+        while a.len() % LANES != 0 {
+            a.push(f32::NAN);
+            b.push(2.0);
+        }
+        let mut first: Option<Vec<[u32; 2]>> = None;
+        for isa in isas() {
+            let p = isa.path();
+            let got = isa.run(MaxMin { a: &a, b: &b });
+            for ((&x, &y), [mx, mn]) in a.iter().zip(&b).zip(&got) {
+                let (mx, mn) = (f32::from_bits(*mx), f32::from_bits(*mn));
+                let (x64, y64) = (f64::from(x), f64::from(y));
+                assert!(
+                    agrees(mx, ieee_max(x64, y64), 0.0),
+                    "{p}: max({x}, {y}) = {mx}"
+                );
+                assert!(
+                    agrees(mn, ieee_min(x64, y64), 0.0),
+                    "{p}: min({x}, {y}) = {mn}"
+                );
+                assert_eq!(
+                    max_nan(x, y).to_bits(),
+                    mx.to_bits(),
+                    "{p}: scalar max bits"
+                );
+            }
+            match &first {
+                None => first = Some(got),
+                Some(f) => assert_eq!(f, &got, "{p}: max/min bits differ between paths"),
+            }
+        }
+
+        // Dense rows: row 1 holds a NaN, row 3 +inf, row 5 -inf, the others are finite.
+        let (out, inp, m) = (20, 7, 7);
+        let w = values(31, out * inp);
+        let bias = values(32, out);
+        let mut x = values(33, m * inp);
+        x[inp + 4] = f32::NAN;
+        x[3 * inp] = f32::INFINITY;
+        x[5 * inp + 6] = f32::NEG_INFINITY;
+        for acc in [Accumulate::F32, Accumulate::F64] {
+            let d = Dense::new(&w, &bias, out, inp, acc);
+            let mut first: Option<Vec<u32>> = None;
+            for isa in isas() {
+                let mut bits = Vec::new();
+                for relu in [false, true] {
+                    let mut y = vec![0.0f32; m * out];
+                    d.rows(isa, &x, inp, m, &mut y, out, relu);
+                    for r in 0..m {
+                        for o in 0..out {
+                            let mut e = f64::from(bias[o]);
+                            for k in 0..inp {
+                                e += f64::from(w[o * inp + k]) * f64::from(x[r * inp + k]);
+                            }
+                            if relu {
+                                e = ieee_relu(e);
+                            }
+                            let g = y[r * out + o];
+                            assert!(agrees(g, e, 1e-5), "{} row {r}: {g} vs {e}", isa.path());
+                        }
+                    }
+                    assert!(y[out..2 * out].iter().all(|v| v.is_nan()), "the NaN row");
+                    bits.extend(y.iter().map(|v| v.to_bits()));
+                }
+                if isa.path().is_fused() {
+                    match &first {
+                        None => first = Some(bits),
+                        Some(f) => assert_eq!(f, &bits, "fused paths differ"),
+                    }
+                }
+            }
+        }
+
+        // Pooling: the pair (query 2, neighbour 3) has a NaN offset; its query's pooled vector
+        // is NaN wherever that pair comes in the list, every other query's is finite.
+        let (e, h, p, bd, n) = (6, 5, 24, 18, 5);
+        let emb_w = values(41, e * 2);
+        let emb_b = values(42, e);
+        let w1: Vec<f32> = values(43, p * (e + h)).iter().map(|v| v * 0.3).collect();
+        let b1 = values(44, p);
+        let w2: Vec<f32> = values(45, bd * p).iter().map(|v| v * 0.3).collect();
+        let b2 = values(46, bd);
+        let hs = values(47, n * h);
+        let pos: Vec<f32> = values(48, n * 2).iter().map(|v| v * 30.0).collect();
+        let offset = |i: usize, j: usize| {
+            if (i, j) == (2, 3) {
+                [f32::NAN, pos[2 * j + 1] - pos[2 * i + 1]]
+            } else {
+                [pos[2 * j] - pos[2 * i], pos[2 * j + 1] - pos[2 * i + 1]]
+            }
+        };
+        // The f64 truth, literal (embed, concatenate, two layers, max), NaN-propagating.
+        let want: Vec<f64> = (0..n)
+            .flat_map(|i| {
+                let mut best = vec![f64::NEG_INFINITY; bd];
+                for j in 0..n {
+                    let dd = offset(i, j);
+                    let mut xx: Vec<f64> = (0..e)
+                        .map(|k| {
+                            f64::from(emb_w[2 * k]) * f64::from(dd[0])
+                                + f64::from(emb_w[2 * k + 1]) * f64::from(dd[1])
+                                + f64::from(emb_b[k])
+                        })
+                        .collect();
+                    xx.extend(hs[j * h..(j + 1) * h].iter().map(|&v| f64::from(v)));
+                    let h1: Vec<f64> = (0..p)
+                        .map(|r| {
+                            let row = &w1[r * (e + h)..(r + 1) * (e + h)];
+                            let v: f64 = row.iter().zip(&xx).map(|(a, b)| f64::from(*a) * b).sum();
+                            ieee_relu(v + f64::from(b1[r]))
+                        })
+                        .collect();
+                    for (o, mx) in best.iter_mut().enumerate() {
+                        let row = &w2[o * p..(o + 1) * p];
+                        let v: f64 = row.iter().zip(&h1).map(|(a, b)| f64::from(*a) * b).sum();
+                        *mx = ieee_max(*mx, ieee_relu(v + f64::from(b2[o])));
+                    }
+                }
+                best
+            })
+            .collect();
+        assert!(want[2 * bd..3 * bd].iter().all(|v| v.is_nan()));
+        assert!(want.iter().filter(|v| v.is_finite()).count() == (n - 1) * bd);
+        for acc in [Accumulate::F32, Accumulate::F64] {
+            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let (ts, al) = (pool.term_stride(), pool.acc_len());
+            let mut val = vec![0.0f32; pool.val_len()];
+            let mut first: Option<Vec<u32>> = None;
+            for isa in isas() {
+                let mut terms = vec![0.0f32; n * ts];
+                pool.terms(isa, &hs, h, n, &mut terms);
+                // Query 2's NaN pair (j = 3) first, in the middle, last.
+                for order in [[3, 0, 1, 2, 4], [0, 1, 3, 2, 4], [0, 1, 2, 4, 3]] {
+                    let pairs: Vec<Pair> = (0..n)
+                        .flat_map(|i| order.iter().map(move |&j| (i, j)))
+                        .map(|(i, j)| Pair {
+                            q: i as u32,
+                            j: j as u32,
+                            d: offset(i, j),
+                        })
+                        .collect();
+                    let mut acc = vec![0.0f32; n * al];
+                    pool.reset(&mut acc, 0..n);
+                    pool.fold(isa, &pairs, &terms, &mut acc, &mut val);
+                    let mut got = vec![0.0f32; n * bd];
+                    for i in 0..n {
+                        pool.finish(&acc[i * al..], &mut got[i * bd..(i + 1) * bd]);
+                    }
+                    for (k, (&g, &wv)) in got.iter().zip(&want).enumerate() {
+                        assert!(
+                            agrees(g, wv, 1e-4),
+                            "{}: order {order:?}, query {}, output {}: {g} vs {wv}",
+                            isa.path(),
+                            k / bd,
+                            k % bd
+                        );
+                    }
+                    if order[0] == 3 {
+                        let bits: Vec<u32> = got.iter().map(|v| v.to_bits()).collect();
+                        if isa.path().is_fused() {
+                            match &first {
+                                None => first = Some(bits),
+                                Some(f) => assert_eq!(f, &bits, "fused paths differ"),
+                            }
+                        }
+                    }
+                }
+            }
+        }
+
+        // LSTM step: row 1's cell state and row 3's displacement are NaN, row 4's hidden
+        // state holds +inf; the f64 LSTM equations say which outputs are NaN.
+        let (h, e, m) = (20, 5, 6);
+        let emb_w = values(51, e * 2);
+        let emb_b = values(52, e);
+        let w_ih: Vec<f32> = values(53, 4 * h * e).iter().map(|v| v * 0.5).collect();
+        let w_hh: Vec<f32> = values(54, 4 * h * h).iter().map(|v| v * 0.5).collect();
+        let b_ih = values(55, 4 * h);
+        let b_hh = values(56, 4 * h);
+        for fused in [true, false] {
+            let lstm = Lstm::with_cell(
+                &emb_w,
+                &emb_b,
+                &w_ih,
+                &w_hh,
+                &b_ih,
+                &b_hh,
+                h,
+                Accumulate::F32,
+                fused,
+            );
+            let rl = lstm.row_len();
+            let mut xh0 = values(57, m * rl);
+            let mut c0 = values(58, m * h);
+            c0[h + 7] = f32::NAN;
+            xh0[3 * rl] = f32::NAN;
+            xh0[4 * rl + 2 + 5] = f32::INFINITY;
+            let sig = |v: f64| 1.0 / (1.0 + (-v).exp());
+            let mut want_h = vec![0.0f64; m * h];
+            for r in 0..m {
+                let xr: Vec<f64> = xh0[r * rl..(r + 1) * rl]
+                    .iter()
+                    .map(|&v| f64::from(v))
+                    .collect();
+                let emb: Vec<f64> = (0..e)
+                    .map(|k| {
+                        f64::from(emb_w[2 * k]) * xr[0]
+                            + f64::from(emb_w[2 * k + 1]) * xr[1]
+                            + f64::from(emb_b[k])
+                    })
+                    .collect();
+                let gate = |row: usize| {
+                    let mut v = f64::from(b_ih[row]) + f64::from(b_hh[row]);
+                    for k in 0..e {
+                        v += f64::from(w_ih[row * e + k]) * emb[k];
+                    }
+                    for k in 0..h {
+                        v += f64::from(w_hh[row * h + k]) * xr[2 + k];
+                    }
+                    v
+                };
+                for u in 0..h {
+                    let (i, f) = (sig(gate(u)), sig(gate(h + u)));
+                    let (gg, o) = (gate(2 * h + u).tanh(), sig(gate(3 * h + u)));
+                    let cn = f * f64::from(c0[r * h + u]) + i * gg;
+                    want_h[r * h + u] = o * cn.tanh();
+                }
+            }
+            assert!(want_h[3 * h..4 * h].iter().all(|v| v.is_nan()));
+            assert!(want_h[h + 7].is_nan() && want_h[h + 6].is_finite());
+            for isa in isas() {
+                let (mut xh, mut c) = (xh0.clone(), c0.clone());
+                let mut g = vec![0.0f32; lstm.gates_len(m)];
+                lstm.step(isa, &mut xh, rl, &mut c, &mut g, m);
+                for r in 0..m {
+                    for u in 0..h {
+                        let (got, wv) = (xh[r * rl + 2 + u], want_h[r * h + u]);
+                        assert!(
+                            agrees(got, wv, 1e-5),
+                            "{} fused {fused}: row {r} unit {u}: {got} vs {wv}",
                             isa.path()
                         );
                     }

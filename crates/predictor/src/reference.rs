@@ -27,11 +27,21 @@ fn linear(w: &[f32], b: &[f32], x: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+/// `max(x, 0)` per element, NaN kept (PyTorch's `relu`; [`f64::max`] would return 0).
 fn relu(mut v: Vec<f64>) -> Vec<f64> {
     for x in &mut v {
-        *x = x.max(0.0);
+        *x = nan_max(*x, 0.0);
     }
     v
+}
+
+/// The larger of `a` and `b`, NaN when either is NaN (PyTorch's `max`).
+fn nan_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
 }
 
 /// `relu(L2(relu(L1 x)))` for the `nn.Sequential` under `prefix` (`.0` and `.2`).
@@ -97,7 +107,7 @@ fn pool(w: &ModelWeights, prefix: &str, hs: &[Vec<f64>], pos: &[[f64; 2]]) -> Ve
                 let u = mlp(w, &format!("{prefix}.mlp_pre_pool"), &x);
                 best = Some(match best {
                     None => u,
-                    Some(m) => m.iter().zip(&u).map(|(a, b)| a.max(*b)).collect(),
+                    Some(m) => m.iter().zip(&u).map(|(a, b)| nan_max(*a, *b)).collect(),
                 });
             }
             best.unwrap_or_default()

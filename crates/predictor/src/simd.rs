@@ -30,6 +30,11 @@
 //! about 1e-6 m on predicted positions (all paths are within 1e-5 m of PyTorch; the tests check
 //! every path the machine supports).
 //!
+//! Non-finite values propagate alike on every path: `max` and `min` return NaN when either
+//! operand is NaN (`a` if `a` is, else `b`), so no ReLU (`max(x, 0)`), running maximum or clamp turns a NaN
+//! into a finite number, and an overflowing network is reported by the checked predictor
+//! whichever path it runs on (tested per kernel against an f64 reference).
+//!
 //! # Safety argument
 //!
 //! The instruction-set tokens `Avx2` and `Avx512` have a private field and are constructed
@@ -224,12 +229,14 @@ pub(crate) trait Simd: Copy {
     fn store(self, v: Self::V, y: &mut [f32; LANES]);
     /// `a * b + c` per lane: fused on the FMA paths, two roundings on the portable one.
     fn mul_add(self, a: Self::V, b: Self::V, c: Self::V) -> Self::V;
-    /// `if a > b { a } else { b }` per lane (the x86 `max` rule).
+    /// Per lane [`max_nan`]: the larger operand, NaN when either is NaN (`a` when `a` is
+    /// NaN, else `b`), the same bits on every path.
     fn max(self, a: Self::V, b: Self::V) -> Self::V;
     /// Scalar `a * b + c` with the same rounding as [`Simd::mul_add`] (for the
     /// auto-vectorised element-wise loops: activations).
     fn fma1(self, a: f32, b: f32, c: f32) -> f32;
-    /// `if a < b { a } else { b }` per lane (the x86 `min` rule).
+    /// Per lane [`min_nan`]: the smaller operand, NaN when either is NaN (`a` when `a` is
+    /// NaN, else `b`), the same bits on every path.
     fn min(self, a: Self::V, b: Self::V) -> Self::V;
     /// `a + b` per lane (IEEE, one rounding).
     fn add(self, a: Self::V, b: Self::V) -> Self::V;
@@ -253,6 +260,26 @@ pub(crate) trait Simd: Copy {
     fn mul_add_d(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D;
     /// The 8 lanes rounded to f32 (to nearest), written to `y`.
     fn store_d_f32(self, v: Self::D, y: &mut [f32; LANES_D]);
+}
+
+/// `max(a, b)` that propagates NaN: `a` when `a > b` or `a` is NaN, else `b` (so `b` when `b`
+/// is NaN). Unlike [`f32::max`], which returns the other operand, and the bare x86 `max`
+/// instruction (`if a > b { a } else { b }`), which drops a NaN in `a`, a non-finite value can
+/// never turn into a finite one here: the kernels' ReLUs (`max(x, 0)`) and running maxima
+/// (`max(acc, x)`) keep a NaN wherever it enters. For ordered operands the result is the bare
+/// x86 rule's (`max(-0.0, 0.0)` is `0.0`, `max(0.0, -0.0)` is `-0.0`).
+#[inline(always)]
+#[must_use]
+pub(crate) fn max_nan(a: f32, b: f32) -> f32 {
+    if a > b || a.is_nan() { a } else { b }
+}
+
+/// `min(a, b)` that propagates NaN: `a` when `a < b` or `a` is NaN, else `b` (see
+/// [`max_nan`]).
+#[inline(always)]
+#[must_use]
+pub(crate) fn min_nan(a: f32, b: f32) -> f32 {
+    if a < b || a.is_nan() { a } else { b }
 }
 
 /// A computation generic over the instruction set, run by [`Isa::run`] with the target
@@ -298,7 +325,7 @@ impl Simd for Portable {
     #[inline(always)]
     fn max(self, mut a: Self::V, b: Self::V) -> Self::V {
         for l in 0..LANES {
-            a[l] = if a[l] > b[l] { a[l] } else { b[l] };
+            a[l] = max_nan(a[l], b[l]);
         }
         a
     }
@@ -309,7 +336,7 @@ impl Simd for Portable {
     #[inline(always)]
     fn min(self, mut a: Self::V, b: Self::V) -> Self::V {
         for l in 0..LANES {
-            a[l] = if a[l] < b[l] { a[l] } else { b[l] };
+            a[l] = min_nan(a[l], b[l]);
         }
         a
     }
@@ -374,12 +401,13 @@ pub(crate) use x86::{Avx2, Avx512};
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::{
-        __m256, __m256d, __m512, __m512d, _mm_storeu_ps, _mm256_add_ps, _mm256_castps_si256,
-        _mm256_castsi256_ps, _mm256_cvtpd_ps, _mm256_div_ps, _mm256_fmadd_pd, _mm256_fmadd_ps,
-        _mm256_loadu_pd, _mm256_loadu_ps, _mm256_max_ps, _mm256_min_ps, _mm256_mul_ps,
-        _mm256_set1_pd, _mm256_set1_ps, _mm256_slli_epi32, _mm256_storeu_ps, _mm256_sub_ps,
-        _mm512_add_ps, _mm512_castps_si512, _mm512_castsi512_ps, _mm512_cvtpd_ps, _mm512_div_ps,
-        _mm512_fmadd_pd, _mm512_fmadd_ps, _mm512_loadu_pd, _mm512_loadu_ps, _mm512_max_ps,
+        __m256, __m256d, __m512, __m512d, _CMP_UNORD_Q, _mm_storeu_ps, _mm256_add_ps,
+        _mm256_blendv_ps, _mm256_castps_si256, _mm256_castsi256_ps, _mm256_cmp_ps, _mm256_cvtpd_ps,
+        _mm256_div_ps, _mm256_fmadd_pd, _mm256_fmadd_ps, _mm256_loadu_pd, _mm256_loadu_ps,
+        _mm256_max_ps, _mm256_min_ps, _mm256_mul_ps, _mm256_set1_pd, _mm256_set1_ps,
+        _mm256_slli_epi32, _mm256_storeu_ps, _mm256_sub_ps, _mm512_add_ps, _mm512_castps_si512,
+        _mm512_castsi512_ps, _mm512_cmp_ps_mask, _mm512_cvtpd_ps, _mm512_div_ps, _mm512_fmadd_pd,
+        _mm512_fmadd_ps, _mm512_loadu_pd, _mm512_loadu_ps, _mm512_mask_mov_ps, _mm512_max_ps,
         _mm512_min_ps, _mm512_mul_ps, _mm512_set1_pd, _mm512_set1_ps, _mm512_slli_epi32,
         _mm512_storeu_ps, _mm512_sub_ps,
     };
@@ -453,8 +481,15 @@ mod x86 {
         }
         #[inline(always)]
         fn max(self, a: Self::V, b: Self::V) -> Self::V {
+            // `maxps` gives `b` when either lane is NaN; lanes where `a` is NaN take `a`.
             // SAFETY: AVX is available (token); no memory access.
-            unsafe { [_mm256_max_ps(a[0], b[0]), _mm256_max_ps(a[1], b[1])] }
+            unsafe {
+                let one = |a, b| {
+                    let nan = _mm256_cmp_ps::<_CMP_UNORD_Q>(a, a);
+                    _mm256_blendv_ps(_mm256_max_ps(a, b), a, nan)
+                };
+                [one(a[0], b[0]), one(a[1], b[1])]
+            }
         }
         #[inline(always)]
         fn fma1(self, a: f32, b: f32, c: f32) -> f32 {
@@ -462,8 +497,15 @@ mod x86 {
         }
         #[inline(always)]
         fn min(self, a: Self::V, b: Self::V) -> Self::V {
+            // As `max`: `minps`, then `a` where `a` is NaN.
             // SAFETY: AVX is available (token); no memory access.
-            unsafe { [_mm256_min_ps(a[0], b[0]), _mm256_min_ps(a[1], b[1])] }
+            unsafe {
+                let one = |a, b| {
+                    let nan = _mm256_cmp_ps::<_CMP_UNORD_Q>(a, a);
+                    _mm256_blendv_ps(_mm256_min_ps(a, b), a, nan)
+                };
+                [one(a[0], b[0]), one(a[1], b[1])]
+            }
         }
         #[inline(always)]
         fn add(self, a: Self::V, b: Self::V) -> Self::V {
@@ -556,8 +598,12 @@ mod x86 {
         }
         #[inline(always)]
         fn max(self, a: Self::V, b: Self::V) -> Self::V {
+            // `vmaxps` gives `b` when either lane is NaN; lanes where `a` is NaN take `a`.
             // SAFETY: AVX-512F is available (token); no memory access.
-            unsafe { _mm512_max_ps(a, b) }
+            unsafe {
+                let nan = _mm512_cmp_ps_mask::<_CMP_UNORD_Q>(a, a);
+                _mm512_mask_mov_ps(_mm512_max_ps(a, b), nan, a)
+            }
         }
         #[inline(always)]
         fn fma1(self, a: f32, b: f32, c: f32) -> f32 {
@@ -565,8 +611,12 @@ mod x86 {
         }
         #[inline(always)]
         fn min(self, a: Self::V, b: Self::V) -> Self::V {
+            // As `max`: `vminps`, then `a` where `a` is NaN.
             // SAFETY: AVX-512F is available (token); no memory access.
-            unsafe { _mm512_min_ps(a, b) }
+            unsafe {
+                let nan = _mm512_cmp_ps_mask::<_CMP_UNORD_Q>(a, a);
+                _mm512_mask_mov_ps(_mm512_min_ps(a, b), nan, a)
+            }
         }
         #[inline(always)]
         fn add(self, a: Self::V, b: Self::V) -> Self::V {

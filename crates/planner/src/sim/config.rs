@@ -104,6 +104,12 @@ pub struct SimConfig {
     /// Steps an aborted ego keeps aiming at its own lane before it tries the lane change
     /// again.
     pub abort_hold: usize,
+    /// Stalled lane-change abort (m per step): a lane change whose ego centre moved less than
+    /// this towards the target lane on each of `abort_after` consecutive steps while the ego's
+    /// box straddles the line between the lanes, its centre not yet across, is aborted like
+    /// one without a safe plan (an ego that finds admissible plans that edge over the line
+    /// and stop there would otherwise idle across it). 0 disables it.
+    pub stall_progress: f64,
     /// Braking limit of the at-fault rule (m/s²): an ego hit from behind while wholly
     /// inside one lane is not at fault only if its applied acceleration at that step was
     /// ≥ −`fault_brake_limit` ([`crate::sim::metrics::classify_collision`]).
@@ -126,6 +132,7 @@ impl SimConfig {
         world: World::Teacher,
         abort_after: 4,
         abort_hold: 3,
+        stall_progress: 0.0,
         fault_brake_limit: 3.0,
     };
 
@@ -141,6 +148,7 @@ impl SimConfig {
         closed("settle_steps", 1.0, Self::MAX_STEPS as f64, "steps"),
         closed("abort_after", 0.0, Self::MAX_STEPS as f64, "steps"),
         closed("abort_hold", 0.0, Self::MAX_STEPS as f64, "steps"),
+        closed("stall_progress", 0.0, 1.0, "m"),
         positive("fault_brake_limit", "m/s²"),
     ];
 
@@ -154,6 +162,7 @@ impl SimConfig {
             "settle_steps" => self.settle_steps as f64,
             "abort_after" => self.abort_after as f64,
             "abort_hold" => self.abort_hold as f64,
+            "stall_progress" => self.stall_progress,
             "fault_brake_limit" => self.fault_brake_limit,
             _ => return None,
         })

@@ -367,7 +367,8 @@ pub fn simulate_with(
             cfg.settle_y,
             cfg.abort_after,
             cfg.abort_hold,
-        ),
+        )
+        .with_stall_abort(cfg.stall_progress),
         observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
         trace: control.trace,
     };
