@@ -426,7 +426,7 @@ def simulate(
       (rad/s), max_abs_yaw_accel f64 (rad/s^2), min_accel, max_accel f64 (m/s^2),
       comfortable bool, max_abs_heading f64 (rad), max_overshoot f64 (m, beyond the target lane's
       centre), free_gap f64 (m), score f64, outcome list[str] ("Success", "Collision",
-      "LaneEnded", "LaneNotBegun", "Unfinished"; "" on error), error list[str | None] (metric
+      "LaneEnded", "LaneNotBegun", "Waiting", "Unfinished"; "" on error), error list[str | None] (metric
       columns of a failed run: -1 / NaN / False);
     - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
       z_updates i64, z_s f64 (sum of the Z-update times), z_median_s f64, iterations i64,

@@ -511,6 +511,9 @@ pub struct Summary {
     /// Runs that ended because the ego's centre was in a lane past its end (outcome
     /// `LaneEnded`), and before its begin (`LaneNotBegun`).
     pub lane_out: (usize, usize),
+    /// Runs that reached the step limit waiting in a lane that ends ahead (outcome
+    /// `Waiting`).
+    pub waiting: usize,
     /// Collision events with the ego at fault, and runs with at least one.
     pub at_fault: (usize, usize),
     /// Collision events with the ego not at fault, and runs with at least one.
@@ -602,6 +605,10 @@ impl Summary {
                     .filter(|r| r.outcome == RunOutcome::LaneNotBegun)
                     .count(),
             ),
+            waiting: records
+                .iter()
+                .filter(|r| r.outcome == RunOutcome::Waiting)
+                .count(),
             aborts: records.iter().map(|r| r.aborts).sum(),
             aborted_runs: records.iter().filter(|r| r.aborts > 0).count(),
             mpc_s: (quantile(&mut mpc, 0.5), quantile(&mut mpc, 0.9)),
@@ -644,6 +651,13 @@ impl fmt::Display for Summary {
                 f,
                 "runs ended in a lane past its end (LaneEnded): {}; before its begin (LaneNotBegun): {}",
                 self.lane_out.0, self.lane_out.1
+            )?;
+        }
+        if self.waiting > 0 {
+            writeln!(
+                f,
+                "runs waiting before the end of their lane at the step limit (Waiting): {}",
+                self.waiting
             )?;
         }
         writeln!(

@@ -86,6 +86,11 @@ pub enum RunOutcome {
     LaneEnded,
     /// The ego's centre was in a lane before its real begin; the run stopped at that step.
     LaneNotBegun,
+    /// The step limit came with the ego's centre still in a lane that really ends ahead of
+    /// it, at most `deadline_distance` ahead, without a collision: the merge was not made and the end not passed (a blocked
+    /// merge waiting for a gap, held by the stopping rule of [`crate::extents`]; the last
+    /// step's speed says whether it stood).
+    Waiting,
     /// None of the above by `max_steps` (or the ego turned across the road).
     #[default]
     Unfinished,
@@ -93,11 +98,12 @@ pub enum RunOutcome {
 
 impl RunOutcome {
     /// Every outcome, in declaration order.
-    pub const ALL: [Self; 5] = [
+    pub const ALL: [Self; 6] = [
         Self::Success,
         Self::Collision,
         Self::LaneEnded,
         Self::LaneNotBegun,
+        Self::Waiting,
         Self::Unfinished,
     ];
 
@@ -109,6 +115,7 @@ impl RunOutcome {
             Self::Collision => "Collision",
             Self::LaneEnded => "LaneEnded",
             Self::LaneNotBegun => "LaneNotBegun",
+            Self::Waiting => "Waiting",
             Self::Unfinished => "Unfinished",
         }
     }
@@ -151,7 +158,7 @@ pub struct RunRecord {
     /// Lane-change aborts ([`crate::SimConfig::abort_after`]).
     pub aborts: usize,
     /// How the run ended: a collision first, then a lane that ended (or had not begun) under
-    /// the ego, then success.
+    /// the ego, then success, then waiting in a lane that ends ahead.
     #[serde(default)]
     pub outcome: RunOutcome,
     /// Per-step records.
