@@ -435,6 +435,8 @@ def simulate(
       ``PlanStatus`` name), delta f64, accel f64, x, y, psi, v f64 (the ego after the step),
       y_goal f64 (the lateral position aimed at: the target lane's centre, or the ego's own
       lane's during an abort), v_planned f64 (speed at the end of the applied plan),
+      lane_violation i64 (plan step 1..T of the applied plan's first state in a lane that has
+      not begun or has ended; -1 = none),
       road_excess f64 (m), off_road bool, straddle bool, in_target_lane bool, traffic_v f64
       (NaN = no traffic), slow bool, slow_planned bool, ttc f64 (inf = none), progress f64,
       jerk f64 (NaN at the first step), yaw_rate f64, lat_accel f64, yaw_accel f64;

@@ -178,6 +178,27 @@ fn a_blocked_main_lane_makes_the_ego_wait_before_the_end() {
     let (head, row) = csv.split_once('\n').unwrap();
     let i = head.split(',').position(|c| c == "outcome").unwrap();
     assert_eq!(row.trim().split(',').nth(i), Some("Waiting"), "{csv}");
+    // The step column `lane_violation` is the plan step of each record's violation, -1 none.
+    let mut r = out.result.as_ref().unwrap().clone();
+    assert!(r.steps.iter().all(|st| st.lane_violation.is_none()));
+    r.steps[3].lane_violation = Some(nudge_planner::LaneViolation {
+        step: 5,
+        lane: 0,
+        kind: LaneViolationKind::Ended,
+        x: END + 1.0,
+    });
+    let marked = nudge_planner::RunOutput {
+        spec,
+        result: Ok(r),
+        examples: None,
+    };
+    let steps = nudge_planner::sim::step_table(std::slice::from_ref(&marked));
+    let mut want = vec![-1_i64; 40];
+    want[3] = 5;
+    assert_eq!(
+        steps.column("lane_violation"),
+        Some(&nudge_planner::sim::Column::Int(want))
+    );
     // And the summary both front ends print counts it.
     let summary = nudge_planner::Summary::of(std::slice::from_ref(&out));
     assert_eq!((summary.lane_out, summary.waiting), ((0, 0), 1));

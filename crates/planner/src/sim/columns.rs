@@ -57,8 +57,10 @@ pub const RUN_COLUMNS: [&str; 40] = [
 ];
 
 /// Step columns, in order (one row per planning step of every run that ran). The metric
-/// columns are those of [`crate::sim::metrics::StepMetrics`].
-pub const STEP_COLUMNS: [&str; 34] = [
+/// columns are those of [`crate::sim::metrics::StepMetrics`]; `lane_violation` is the plan
+/// step (1..T) of the applied plan's first state in a lane that has not begun or has ended
+/// ([`crate::Plan::lane_violation`]), −1 when none.
+pub const STEP_COLUMNS: [&str; 35] = [
     "run",
     "step",
     "mpc_s",
@@ -80,6 +82,7 @@ pub const STEP_COLUMNS: [&str; 34] = [
     "v",
     "y_goal",
     "v_planned",
+    "lane_violation",
     "road_excess",
     "off_road",
     "straddle",
@@ -403,6 +406,15 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
         ("v", float(&|s| s.ego[3])),
         ("y_goal", float(&|s| s.y_goal)),
         ("v_planned", float(&|s| s.v_planned)),
+        (
+            "lane_violation",
+            Column::Int(
+                steps
+                    .iter()
+                    .map(|(_, s)| s.lane_violation.map_or(-1, |v| int(v.step)))
+                    .collect(),
+            ),
+        ),
         ("road_excess", float(&|s| s.metrics.road_excess)),
         ("off_road", flag(&|s| s.metrics.off_road)),
         ("straddle", flag(&|s| s.metrics.straddle)),

@@ -47,6 +47,11 @@ pub struct StepRecord {
     pub y_goal: f64,
     /// Speed at the end of the applied plan (its last planned state) (m/s).
     pub v_planned: f64,
+    /// The applied plan's first planned state whose centre lies in a lane that has not begun
+    /// or has ended ([`crate::Plan::lane_violation`]; such a plan is `Unsafe`); `None` when
+    /// there is none or the scene has no lane extents.
+    #[serde(default)]
+    pub lane_violation: Option<crate::extents::LaneViolation>,
     /// What the step is judged by ([`crate::sim::metrics`]).
     pub metrics: StepMetrics,
     /// The step's plan and the planning predictor's predicted reaction to it, kept only when

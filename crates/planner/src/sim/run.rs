@@ -265,6 +265,7 @@ impl ClosedLoop<'_> {
             nearest,
             y_goal,
             v_planned,
+            lane_violation: plan.lane_violation,
             metrics,
             trace,
         })
