@@ -66,8 +66,9 @@
 //! before the end would be judged against the wrong steps.
 //!
 //! The other vehicles are not subject to these rules: in the `idm` world every other vehicle
-//! keeps its lane and lateral position ([`crate::sim::idm`]), so one whose lane ends drives
-//! on along that lane's line past the end (the world has no lane changes); in the
+//! keeps its lane and lateral position, except that one whose lane really ends changes into
+//! the adjacent lane when a gap is acceptable by the world's safety criterion and otherwise
+//! stops before the end ([`crate::sim::LaneEndMerge`], [`crate::sim::idm`]); in the
 //! `log_replay` world vehicles follow the log, and in the `teacher` world the teacher's
 //! prediction.
 
