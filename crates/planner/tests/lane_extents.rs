@@ -203,6 +203,10 @@ fn a_blocked_main_lane_makes_the_ego_wait_before_the_end() {
     let summary = nudge_planner::Summary::of(std::slice::from_ref(&out));
     assert_eq!((summary.lane_out, summary.waiting), ((0, 0), 1));
     assert!(summary.to_string().contains("(Waiting): 1"), "{summary}");
+    assert!(
+        summary.to_string().contains("outcomes: Waiting 1\n"),
+        "{summary}"
+    );
 }
 
 /// A platoon at the ego's speed from 40 m behind to 60 m ahead of it, then an empty main

@@ -526,6 +526,8 @@ pub struct Summary {
     /// Runs that reached the step limit waiting in a lane that ends ahead (outcome
     /// `Waiting`).
     pub waiting: usize,
+    /// Runs per outcome, in [`RunOutcome::ALL`] order.
+    pub outcomes: [usize; RunOutcome::ALL.len()],
     /// Collision events with the ego at fault, and runs with at least one.
     pub at_fault: (usize, usize),
     /// Collision events with the ego not at fault, and runs with at least one.
@@ -621,6 +623,7 @@ impl Summary {
                 .iter()
                 .filter(|r| r.outcome == RunOutcome::Waiting)
                 .count(),
+            outcomes: RunOutcome::ALL.map(|o| records.iter().filter(|r| r.outcome == o).count()),
             aborts: records.iter().map(|r| r.aborts).sum(),
             aborted_runs: records.iter().filter(|r| r.aborts > 0).count(),
             mpc_s: (quantile(&mut mpc, 0.5), quantile(&mut mpc, 0.9)),
@@ -658,6 +661,13 @@ impl fmt::Display for Summary {
             self.not_at_fault.0,
             self.not_at_fault.1
         )?;
+        let outcomes: Vec<String> = RunOutcome::ALL
+            .iter()
+            .zip(self.outcomes)
+            .filter(|(_, n)| *n > 0)
+            .map(|(o, n)| format!("{o} {n}"))
+            .collect();
+        writeln!(f, "outcomes: {}", outcomes.join(", "))?;
         if self.lane_out != (0, 0) {
             writeln!(
                 f,
