@@ -34,9 +34,9 @@
 //!   inadmissible). A plan that leaves the lane within the horizon (its last state in the
 //!   target lane) is not held by it, only by safety; one that stays must keep the ego able
 //!   to stop. While the ego's lane ends ahead within the rule's reach the fallbacks also
-//!   offer **stopping sequences** ([`crate::admm`]'s repairs): braking at v² / (2 · (line −
-//!   x)) towards the line `end − stop_margin` (within the jerk bound), steered along the road,
-//!   to the own lane's centre, or to the goal. So a merging ego that finds no admissible plan
+//!   offer **stopping sequences** (among the repairs of [`crate::Planner`]): braking at
+//!   v² / (2 · (line − x)) towards the line `end − stop_margin` (within the jerk bound),
+//!   steered along the road, to the own lane's centre, or to the goal. So a merging ego that finds no admissible plan
 //!   into the target lane slows down and waits before the end instead of forcing its way in
 //!   or driving past the end, and merges when a gap appears (the closed loop ends
 //!   [`crate::sim::RunOutcome::Waiting`] when the step limit comes first).
