@@ -512,3 +512,54 @@ fn shipped_real_merges_complete_before_the_end() {
         }
     }
 }
+
+/// In the `idm` world another vehicle whose lane ends merges too: a car 40 m ahead of the ego
+/// in the acceleration lane, the main lane free, changes into the main lane (its centre moves
+/// towards the main lane's centre, across the line before the end), without a collision, and
+/// the ego merges as well.
+#[test]
+fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
+    let sc = scene(
+        &[(0.0, 0.0, 20.0), (40.0, 0.0, 15.0)],
+        Some(merge_extents()),
+    );
+    let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
+    let pop =
+        nudge_planner::IdmPopulation::from_file(nudge_planner::sim::idm_path(&assets)).unwrap();
+    let cfg = SimConfig {
+        world: World::Idm,
+        max_steps: 30,
+        ..SimConfig::default()
+    };
+    let never = nudge_planner::Cancel::new();
+    let control = nudge_planner::RunControl {
+        cancel: &never,
+        trace: true,
+    };
+    let mut cv = ConstantVelocity::default();
+    let s = PlannerSettings::default();
+    let run =
+        nudge_planner::simulate_with(&sc, &s, &cfg, 0, &mut cv, WorldModel::Idm(&pop), control)
+            .unwrap();
+    assert!(!run.collision, "{:?}", run.outcome);
+    let other: Vec<[f64; 2]> = run
+        .steps
+        .iter()
+        .map(|st| st.trace.as_ref().unwrap().agents[1])
+        .collect();
+    // It moves over from its lane towards the main lane's centre, never past the end in lane 0.
+    for p in &other {
+        assert!(p[0] <= END || p[1] > BOUNDS[1], "{p:?}");
+    }
+    let crossed = other.iter().find(|p| p[1] > BOUNDS[1]).expect("it merges");
+    assert!(crossed[0] < END, "crossed at {crossed:?}");
+    assert!(
+        other.windows(2).all(|w| w[1][1] >= w[0][1]),
+        "monotone lateral move"
+    );
+    assert!(
+        other.iter().all(|p| p[1] <= 3.7 + 1e-9),
+        "never beyond the centre"
+    );
+    assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
+}
