@@ -2,7 +2,8 @@
 //! synthetic scenes whose truth is known by construction: an ego in an acceleration lane that
 //! ends at x = 120 m beside a main lane that is free (it merges before the end), blocked by a
 //! dense platoon for the whole run (the ego waits before the end: the run ends `Waiting`,
-//! without a collision) or blocked until the platoon has passed (it waits, then merges); an
+//! without a collision) or blocked until the platoon has passed (it waits, then merges); in
+//! the `idm` world another car in the ending lane merges before the end too; an
 //! on-ramp that begins ahead is never entered before it begins (proptest over random
 //! extents); and the shipped scenes plan bit for bit the same with lanes that span the scene.
 #![allow(clippy::unwrap_used)]
