@@ -46,9 +46,9 @@ pub struct PlannerSettings {
     pub w_deadline: f64,
     /// Distance to the end of the ego's lane (m) from which the deadline weight counts.
     pub deadline_distance: f64,
-    /// Deceleration (m/s², > 0) of the lane-end stopping rule: a planned state whose centre
-    /// is in a lane that really ends must be able to stop, braking at this rate, `stop_margin`
-    /// before the end: x + v² / (2 · `stop_decel`) ≤ end − `stop_margin`
+    /// Deceleration (m/s², > 0) of the lane-end stopping rule: the last planned state, when
+    /// its centre is in a lane that really ends, must be able to stop, braking at this rate,
+    /// `stop_margin` before the end: x_T + v_T² / (2 · `stop_decel`) ≤ end − `stop_margin`
     /// ([`crate::extents`]).
     pub stop_decel: f64,
     /// Distance before the real end of a lane (m) by which the stopping rule must stop the
