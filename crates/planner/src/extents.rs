@@ -55,8 +55,8 @@
 //! `stop_decel` = 3 m/s², `stop_margin` = 8 m): `idm` 3 of 3 `Success` with the weight on or
 //! off (the ego slows down beside the platoon, a yielding follower opens a gap, the centre
 //! crosses at x = 114 m); `log_replay` 3 of 3 `Waiting` (stopped or crawling, at most
-//! 0.9 m/s, at x = 111–112 m after 40 steps; no collision, never past the end) with the weight on or off. `stop_decel` 4 or 5 m/s² left
-//! the `idm` runs waiting too (the ego reaches the end faster and slower traffic has no time
+//! 0.9 m/s, at x = 111–112 m after 40 steps; no collision, never past the end) with the
+//! weight on or off. `stop_decel` 4 or 5 m/s² left the `idm` runs waiting too (the ego reaches the end faster and slower traffic has no time
 //! to yield). Limitation: from a standstill at the line the ego cannot merge within the
 //! `stop_margin` left (a plan that starts the merge ends still in the lane, closer to the
 //! end than the rule allows); a gap that arrives while it is still rolling is taken (the
