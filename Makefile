@@ -244,6 +244,11 @@ demo: venv-demo build
 		--world teacher --seed 0 --runs 1 --threads 2 --out out/demo --verbose-run \
 		--animate --animate-runs 1
 	$(DEMO_VENV)/bin/nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
+	@echo "== the shipped real merges (assets/scenes/merge: the ego's lane ends) =="
+	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes/merge --predictor $(PREDICTOR) \
+		--world teacher --seed 0 --runs 1 --threads 2 --out out/demo/merge
+	$(DEMO_VENV)/bin/nudge-train figures runs out/demo/merge --scenes assets/scenes/merge \
+		--png out/demo/merge/runs.png
 
 ci: lint test
 

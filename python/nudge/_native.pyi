@@ -429,7 +429,7 @@ def simulate(
       (rad/s), max_abs_yaw_accel f64 (rad/s^2), min_accel, max_accel f64 (m/s^2),
       comfortable bool, max_abs_heading f64 (rad), max_overshoot f64 (m, beyond the target lane's
       centre), free_gap f64 (m), score f64, outcome list[str] ("Success", "Collision",
-      "LaneEnded", "LaneNotBegun", "Unfinished"; "" on error), error list[str | None] (metric
+      "LaneEnded", "LaneNotBegun", "Waiting", "Unfinished"; "" on error), error list[str | None] (metric
       columns of a failed run: -1 / NaN / False);
     - steps (one row per closed-loop step): run i64 (row of runs), step i64, mpc_s f64,
       z_updates i64, z_s f64 (sum of the Z-update times), z_median_s f64, iterations i64,
@@ -438,6 +438,8 @@ def simulate(
       ``PlanStatus`` name), delta f64, accel f64, x, y, psi, v f64 (the ego after the step),
       y_goal f64 (the lateral position aimed at: the target lane's centre, or the ego's own
       lane's during an abort), v_planned f64 (speed at the end of the applied plan),
+      lane_violation i64 (plan step 1..T of the applied plan's first state in a lane that has
+      not begun or has ended; -1 = none),
       road_excess f64 (m), off_road bool, straddle bool, in_target_lane bool, traffic_v f64
       (NaN = no traffic), slow bool, slow_planned bool, ttc f64 (inf = none), progress f64,
       jerk f64 (NaN at the first step), yaw_rate f64, lat_accel f64, yaw_accel f64;

@@ -40,6 +40,9 @@ def test_columns_and_lengths(scenes: list[Path]) -> None:
     np.testing.assert_array_equal(steps["ego"], np.stack([steps[k] for k in ("x", "y", "psi", "v")], axis=1))
     assert (steps["mpc_s"] > 0).all() and (runs["n_steps"] <= 4).all() and (runs["n_steps"] >= 1).all()
     assert set(steps["status"]) <= STATUSES
+    # Schema-1 scenes have no lane extents: no plan ever has a lane violation (-1 = none).
+    assert steps["lane_violation"].dtype == np.int64
+    np.testing.assert_array_equal(steps["lane_violation"], -1)
     # One Z-update per ADMM iteration (no QP failed here); z_s sums them.
     np.testing.assert_array_equal(steps["z_updates"], steps["iterations"])
     assert (steps["z_s"] >= steps["z_median_s"]).all() and (steps["z_median_s"] > 0).all()

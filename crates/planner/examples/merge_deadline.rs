@@ -1,10 +1,10 @@
-//! The measurement behind the default deadline weight of a merge (`w_deadline`, see
-//! `nudge_planner::extents`): an ego at 20 m/s in an acceleration lane that ends at x = 120 m,
+//! The measurement behind the default deadline weight of a merge (`w_deadline`) and the
+//! lane-end stopping rule (`stop_decel`, `stop_margin`, see `nudge_planner::extents`): an ego at 20 m/s in an acceleration lane that ends at x = 120 m,
 //! beside a main lane with a platoon at 25 m/s, 9 m apart, with one 30 m gap whose front starts
 //! 20, 60 or 100 m behind the ego; closed loop (constant-velocity planning predictor, 40 steps)
 //! in the `idm` world (the platoon reacts) and the `log_replay` world (it does not), with the
-//! deadline weight off and at its default. Prints the outcome and where the ego's centre
-//! crossed into the main lane.
+//! deadline weight off and at its default. Prints the outcome, where the ego's centre
+//! crossed into the main lane, and where the ego was at the end with its speed.
 //!
 //! `cargo run --release -p nudge-planner --example merge_deadline`
 #![allow(clippy::unwrap_used, clippy::print_stdout)]
@@ -91,12 +91,15 @@ fn main() {
                 let mut cv = ConstantVelocity::default();
                 let run = simulate(&sc, &s, &cfg, 0, &mut cv, model).unwrap();
                 let crossed = run.steps.iter().find(|s| s.ego[1] > 1.85).map(|s| s.ego[0]);
+                let last = run.steps.last().unwrap().ego;
                 println!(
-                    "world {:<10} w_deadline {w:>5}: gap {gap_back:>5} m behind: {} (crossed at x = {}, {} steps)",
+                    "world {:<10} w_deadline {w:>5}: gap {gap_back:>5} m behind: {} (crossed at x = {}, {} steps, last x = {:.0} m at {:.1} m/s)",
                     world.as_str(),
                     run.outcome,
                     crossed.map_or_else(|| "-".to_string(), |x| format!("{x:.0} m")),
-                    run.steps.len()
+                    run.steps.len(),
+                    last[0],
+                    last[3]
                 );
             }
         }

@@ -27,25 +27,48 @@
 //!   (and the joint reference QP) sees it as a larger w_y. Beyond `deadline_distance` from the
 //!   end the weight is w_y itself, bit for bit.
 //!
-//! Why both. The admissibility rule is what makes a lane's end binding: without it nothing
-//! stops a plan from driving on past the end. The deadline term is the urgency, chosen by
-//! measurement (`cargo run --release -p nudge-planner --example merge_deadline`): an ego at
-//! 20 m/s in an acceleration lane ending at x = 120 m beside a 25 m/s platoon with one 30 m
-//! gap (its front 20, 60 or 100 m behind the ego), 40 closed-loop steps, constant-velocity
-//! planning predictor. In the `idm` world (the platoon reacts) the default `w_deadline` = 60
-//! merges in 3 of 3 runs (`Success`, the centre crossing the lane line at x = 111 m) where
-//! `w_deadline` = 0 merges in none (3 `Collision`s while the ego hangs at the line, then the
-//! lane ends). In the `log_replay` world (the platoon does not react) the same 3 runs end
-//! `LaneEnded` with it off and `Collision` with it on (the ego forces its way in at x =
-//! 116–118 m and the replayed follower drives into it): the term trades a lane end for a
-//! forced merge, which reactive traffic absorbs and replayed traffic cannot. A hard lateral
+//! * **Stopping rule** (a terminal constraint): a plan whose last state's centre is in a lane
+//!   that really ends (before the end) must end able to stop `stop_margin` before the end,
+//!   braking at `stop_decel`: x_T + v_T² / (2 · `stop_decel`) ≤ end − `stop_margin`
+//!   ([`Lanes::stop_excess`], counted like the lane excess, so a plan that breaks it is
+//!   inadmissible). A plan that leaves the lane within the horizon (its last state in the
+//!   target lane) is not held by it, only by safety; one that stays must keep the ego able
+//!   to stop. While the ego's lane ends ahead within the rule's reach the fallbacks also
+//!   offer **stopping sequences** (among the repairs of [`crate::Planner`]): braking at
+//!   v² / (2 · (line − x)) towards the line `end − stop_margin` (within the jerk bound),
+//!   steered along the road, to the own lane's centre, or to the goal. So a merging ego that finds no admissible plan
+//!   into the target lane slows down and waits before the end instead of forcing its way in
+//!   or driving past the end, and merges when a gap appears (the closed loop ends
+//!   [`crate::sim::RunOutcome::Waiting`] when the step limit comes first).
+//!
+//! Why these. The admissibility rule is what makes a lane's end binding: without it nothing
+//! stops a plan from driving on past the end. The deadline term is the urgency; the stopping
+//! rule makes the end binding early enough to brake for it (the horizon, 1.8 s, is shorter
+//! than the braking from 20 m/s). Measured (`cargo run --release -p nudge-planner --example
+//! merge_deadline`): an ego at 20 m/s in an acceleration lane ending at x = 120 m beside a
+//! 25 m/s platoon with one 30 m gap (its front 20, 60 or 100 m behind the ego), 40 closed-loop
+//! steps, constant-velocity planning predictor. Without the stopping rule, in the `idm` world
+//! (the platoon reacts) the default `w_deadline` = 60 merged in 3 of 3 runs (crossing at x =
+//! 111 m) and `w_deadline` = 0 in none (3 `Collision`s); in the `log_replay` world (the
+//! platoon never yields) the runs ended `LaneEnded` with the weight off and `Collision` with
+//! it on (the ego forced its way in at x = 116–118 m). With the stopping rule (defaults
+//! `stop_decel` = 3 m/s², `stop_margin` = 8 m): `idm` 3 of 3 `Success` with the weight on or
+//! off (the ego slows down beside the platoon, a yielding follower opens a gap, the centre
+//! crosses at x = 114 m); `log_replay` 3 of 3 `Waiting` (stopped or crawling, at most
+//! 0.9 m/s, at x = 111–112 m after 40 steps; no collision, never past the end) with the
+//! weight on or off. `stop_decel` 4 or 5 m/s² left the `idm` runs waiting too (the ego reaches the end faster and slower traffic has no time
+//! to yield). Limitation: from a standstill at the line the ego cannot merge within the
+//! `stop_margin` left (a plan that starts the merge ends still in the lane, closer to the
+//! end than the rule allows); a gap that arrives while it is still rolling is taken (the
+//! closed-loop tests of `crates/planner/tests/lane_extents.rs`). A hard lateral
 //! bound tied to the end (y outside the ending lane from the step whose nominal x passes it)
 //! was not chosen: it depends on the nominal x, not the candidate's, so a plan that brakes
 //! before the end would be judged against the wrong steps.
 //!
 //! The other vehicles are not subject to these rules: in the `idm` world every other vehicle
-//! keeps its lane and lateral position ([`crate::sim::idm`]), so one whose lane ends drives
-//! on along that lane's line past the end (the world has no lane changes); in the
+//! keeps its lane and lateral position, except that one whose lane really ends changes into
+//! the adjacent lane when a gap is acceptable by the world's safety criterion and otherwise
+//! stops before the end ([`crate::sim::LaneEndMerge`], [`crate::sim::idm`]); in the
 //! `log_replay` world vehicles follow the log, and in the `teacher` world the teacher's
 //! prediction.
 
@@ -245,6 +268,33 @@ impl Lanes<'_> {
         })
     }
 
+    /// How far a centre at (`x`, `y`) moving at `v` (m/s) along the road breaks the stopping
+    /// rule (m): in a lane that really ends, before its end, the stopping point braking at
+    /// `decel` (m/s², > 0) must lie at least `margin` (m) before the end,
+    /// x + v² / (2 · `decel`) ≤ end − `margin`; the excess of the left side over the right,
+    /// 0 when it holds, elsewhere, or past the end (where [`Lanes::excess`] counts).
+    #[must_use]
+    pub fn stop_excess(&self, x: f64, y: f64, v: f64, decel: f64, margin: f64) -> f64 {
+        let Some(lane) = self.lane_at(y) else {
+            return 0.0;
+        };
+        let e = self.extents[lane];
+        if !e.ends || x > e.end {
+            return 0.0;
+        }
+        let v = v.max(0.0);
+        (x + v * v / (2.0 * decel) - (e.end - margin)).max(0.0)
+    }
+
+    /// The stopping line of a centre at (`x`, `y`) (m): `end − margin` (m) of its lane when
+    /// that lane really ends and `x` is not past the end; `None` otherwise.
+    #[must_use]
+    pub fn stop_line(&self, x: f64, y: f64, margin: f64) -> Option<f64> {
+        let lane = self.lane_at(y)?;
+        let e = self.extents[lane];
+        (e.ends && x <= e.end).then_some(e.end - margin)
+    }
+
     /// The remaining distance (m) from a centre at (`x`, `y`) to the real end of its lane,
     /// when that lane really ends and `y_target` (m) lies outside it (a merge is due); may be
     /// negative past the end. `None` otherwise.
@@ -338,6 +388,41 @@ mod tests {
         assert_eq!(l.merge_deadline(100.0, 0.0, 3.7), Some(20.0));
         assert_eq!(l.merge_deadline(100.0, 0.0, 0.0), None, "no merge");
         assert_eq!(l.merge_deadline(100.0, 3.7, 7.4), None, "lane 1 runs on");
+    }
+
+    #[test]
+    fn stopping_rule_before_the_end_of_an_ending_lane() {
+        let (b, x) = layout();
+        let l = Lanes {
+            bounds: &b,
+            extents: &x,
+        };
+        // Lane 0 ends at 120: stop line 120 − 8 = 112; at 20 m/s braking at 4 m/s² takes 50 m.
+        assert_eq!(l.stop_line(100.0, 0.0, 8.0), Some(112.0));
+        assert_eq!(l.stop_line(121.0, 0.0, 8.0), None, "past the end");
+        assert_eq!(l.stop_line(100.0, 3.7, 8.0), None, "lane 1 runs on");
+        assert_eq!(
+            l.stop_excess(62.0, 0.0, 20.0, 4.0, 8.0),
+            0.0,
+            "stops at 112 exactly"
+        );
+        assert!((l.stop_excess(70.0, 0.0, 20.0, 4.0, 8.0) - 8.0).abs() < 1e-12);
+        assert!((l.stop_excess(115.0, 0.0, 0.0, 4.0, 8.0) - 3.0).abs() < 1e-12);
+        assert_eq!(
+            l.stop_excess(70.0, 3.7, 20.0, 4.0, 8.0),
+            0.0,
+            "not an ending lane"
+        );
+        assert_eq!(
+            l.stop_excess(121.0, 0.0, 0.0, 4.0, 8.0),
+            0.0,
+            "past the end"
+        );
+        assert_eq!(
+            l.stop_excess(40.0, 7.0, 30.0, 4.0, 8.0),
+            0.0,
+            "lane 2 never ends"
+        );
     }
 
     #[test]

@@ -46,6 +46,14 @@ pub struct PlannerSettings {
     pub w_deadline: f64,
     /// Distance to the end of the ego's lane (m) from which the deadline weight counts.
     pub deadline_distance: f64,
+    /// Deceleration (m/s², > 0) of the lane-end stopping rule: the last planned state, when
+    /// its centre is in a lane that really ends, must be able to stop, braking at this rate,
+    /// `stop_margin` before the end: x_T + v_T² / (2 · `stop_decel`) ≤ end − `stop_margin`
+    /// ([`crate::extents`]).
+    pub stop_decel: f64,
+    /// Distance before the real end of a lane (m) by which the stopping rule must stop the
+    /// ego's centre, and where the fallback's stopping sequences stop it.
+    pub stop_margin: f64,
     /// Weight of (v − v_ref)² per step.
     pub w_v: f64,
     /// Weight of ψ² per step (heading relative to the road).
@@ -200,6 +208,8 @@ impl Default for PlannerSettings {
             w_y: 15.0,
             w_deadline: 60.0,
             deadline_distance: 100.0,
+            stop_decel: 3.0,
+            stop_margin: 8.0,
             w_v: 3.0,
             w_psi: 1.0,
             w_delta: 3.0,
@@ -355,6 +365,8 @@ pub const RANGES: &[FieldRange] = &[
     closed("w_y", 0.0, W_MAX, "1/m²"),
     closed("w_deadline", 0.0, W_MAX, "1/m²"),
     open_min("deadline_distance", 0.0, 1e4, "m"),
+    open_min("stop_decel", 0.0, 15.0, "m/s²"),
+    closed("stop_margin", 0.0, 1e3, "m"),
     closed("w_v", 0.0, W_MAX, "s²/m²"),
     closed("w_psi", 0.0, W_MAX, "1/rad²"),
     closed("w_delta", 0.0, W_MAX, "1/rad²"),
@@ -437,6 +449,8 @@ impl PlannerSettings {
             "w_y" => self.w_y,
             "w_deadline" => self.w_deadline,
             "deadline_distance" => self.deadline_distance,
+            "stop_decel" => self.stop_decel,
+            "stop_margin" => self.stop_margin,
             "w_v" => self.w_v,
             "w_psi" => self.w_psi,
             "w_delta" => self.w_delta,

@@ -1,7 +1,9 @@
 //! Lanes that begin and end ("nudge.scenario/2" extents) in the planner and the simulator, on
 //! synthetic scenes whose truth is known by construction: an ego in an acceleration lane that
-//! ends at x = 120 m beside a main lane that is free (it merges before the end) or blocked by a
-//! dense platoon for the whole run (the run fails as `LaneEnded`, without a collision); an
+//! ends at x = 120 m beside a main lane that is free (it merges before the end), blocked by a
+//! dense platoon for the whole run (the ego waits before the end: the run ends `Waiting`,
+//! without a collision) or blocked until the platoon has passed (it waits, then merges); in
+//! the `idm` world another car in the ending lane merges before the end too; an
 //! on-ramp that begins ahead is never entered before it begins (proptest over random
 //! extents); and the shipped scenes plan bit for bit the same with lanes that span the scene.
 #![allow(clippy::unwrap_used)]
@@ -125,32 +127,43 @@ fn blocked() -> Scenario {
     scene(&agents, Some(merge_extents()))
 }
 
+/// The ego of a blocked merge waits: it never enters the ended lane (every executed centre in
+/// the acceleration lane lies before the stopping line, `END − stop_margin`, up to what one
+/// step of rounding allows), it stays in its own lane, it has stopped by the last step, and
+/// the run ends `Waiting` without a collision.
 #[test]
-fn a_blocked_main_lane_ends_the_run_as_lane_ended() {
+fn a_blocked_main_lane_makes_the_ego_wait_before_the_end() {
     let sc = blocked();
     let cfg = log_replay(40);
+    let s = PlannerSettings::default();
     let mut cv = ConstantVelocity::default();
-    let run = simulate(
-        &sc,
-        &PlannerSettings::default(),
-        &cfg,
-        0,
-        &mut cv,
-        WorldModel::LogReplay,
-    )
-    .unwrap();
-    assert_eq!(run.outcome, RunOutcome::LaneEnded, "{:?}", run.outcome);
+    let run = simulate(&sc, &s, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap();
+    assert_eq!(run.outcome, RunOutcome::Waiting, "{:?}", run.outcome);
     assert!(!run.success && !run.collision);
-    // The run stopped at the first step whose centre was past the end, in the ended lane.
+    assert_eq!(run.steps.len(), 40, "the run goes on to the step limit");
+    let lanes = sc.lanes().unwrap();
+    for st in &run.steps {
+        assert_eq!(
+            lanes.outside(st.ego[0], st.ego[1]),
+            None,
+            "step {}",
+            st.step
+        );
+        assert!(st.ego[1] < BOUNDS[1], "step {}: {:?}", st.step, st.ego);
+        assert!(
+            st.ego[0] <= END - s.stop_margin + 0.5,
+            "step {}: {:?}",
+            st.step,
+            st.ego
+        );
+    }
     let last = run.steps.last().unwrap();
+    assert!(last.ego[3] < 0.5, "stopped at the end: {:?}", last.ego);
     assert!(
-        last.ego[0] > END && last.ego[1] < BOUNDS[1],
-        "{:?}",
+        last.ego[0] > END - 30.0,
+        "it waits at the end, not far before: {:?}",
         last.ego
     );
-    for s in &run.steps[..run.steps.len() - 1] {
-        assert!(s.ego[0] <= END || s.ego[1] >= BOUNDS[1]);
-    }
     // The columns carry the outcome.
     let spec = nudge_planner::RunSpec { scene: 0, seed: 0 };
     let out = nudge_planner::RunOutput {
@@ -165,11 +178,91 @@ fn a_blocked_main_lane_ends_the_run_as_lane_ended() {
     let csv = String::from_utf8(csv).unwrap();
     let (head, row) = csv.split_once('\n').unwrap();
     let i = head.split(',').position(|c| c == "outcome").unwrap();
-    assert_eq!(row.trim().split(',').nth(i), Some("LaneEnded"), "{csv}");
+    assert_eq!(row.trim().split(',').nth(i), Some("Waiting"), "{csv}");
+    // The step column `lane_violation` is the plan step of each record's violation, -1 none.
+    let mut r = out.result.as_ref().unwrap().clone();
+    assert!(r.steps.iter().all(|st| st.lane_violation.is_none()));
+    r.steps[3].lane_violation = Some(nudge_planner::LaneViolation {
+        step: 5,
+        lane: 0,
+        kind: LaneViolationKind::Ended,
+        x: END + 1.0,
+    });
+    let marked = nudge_planner::RunOutput {
+        spec,
+        result: Ok(r),
+        examples: None,
+    };
+    let steps = nudge_planner::sim::step_table(std::slice::from_ref(&marked));
+    let mut want = vec![-1_i64; 40];
+    want[3] = 5;
+    assert_eq!(
+        steps.column("lane_violation"),
+        Some(&nudge_planner::sim::Column::Int(want))
+    );
     // And the summary both front ends print counts it.
     let summary = nudge_planner::Summary::of(std::slice::from_ref(&out));
-    assert_eq!(summary.lane_out, (1, 0));
-    assert!(summary.to_string().contains("(LaneEnded): 1;"), "{summary}");
+    assert_eq!((summary.lane_out, summary.waiting), ((0, 0), 1));
+    assert!(summary.to_string().contains("(Waiting): 1"), "{summary}");
+    assert!(
+        summary.to_string().contains("outcomes: Waiting 1\n"),
+        "{summary}"
+    );
+}
+
+/// A platoon at the ego's speed from 40 m behind to 60 m ahead of it, then an empty main
+/// lane: the gap arrives when the platoon's tail has passed.
+fn gap_later() -> Scenario {
+    let mut agents = vec![(0.0, 0.0, 20.0)];
+    let mut x = -40.0 + 4.0;
+    while x <= 60.0 {
+        agents.push((x, 3.7, 20.0));
+        x += 9.0;
+    }
+    scene(&agents, Some(merge_extents()))
+}
+
+/// With a gap that arrives later the waiting ego merges into it: it slows down (the platoon
+/// passes it), then merges behind the platoon's tail before the end, without a collision.
+#[test]
+fn a_blocked_ego_merges_into_a_gap_that_arrives_later() {
+    let sc = gap_later();
+    let cfg = log_replay(45);
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(
+        &sc,
+        &PlannerSettings::default(),
+        &cfg,
+        0,
+        &mut cv,
+        WorldModel::LogReplay,
+    )
+    .unwrap();
+    assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
+    assert!(run.success && !run.collision);
+    let lanes = sc.lanes().unwrap();
+    for st in &run.steps {
+        assert_eq!(
+            lanes.outside(st.ego[0], st.ego[1]),
+            None,
+            "step {}",
+            st.step
+        );
+    }
+    let crossed = run.steps.iter().find(|st| st.ego[1] > BOUNDS[1]).unwrap();
+    assert!(crossed.ego[0] < END, "crossed at {:?}", crossed.ego);
+    // It waited for the gap: slower than the platoon before it crossed, and behind the tail.
+    let slowest = run.steps[..crossed.step]
+        .iter()
+        .map(|st| st.ego[3])
+        .fold(f64::INFINITY, f64::min);
+    assert!(slowest < 15.0, "slowest {slowest} m/s before the crossing");
+    let tail = sc.position(1, T_OBS - 1)[0] + 20.0 * DT * (crossed.step + 1) as f64;
+    assert!(
+        crossed.ego[0] < tail,
+        "crossed at {:?} ahead of the tail at {tail}",
+        crossed.ego
+    );
 }
 
 #[test]
@@ -419,4 +512,55 @@ fn shipped_real_merges_complete_before_the_end() {
             assert_eq!(lanes.outside(s.ego[0], s.ego[1]), None);
         }
     }
+}
+
+/// In the `idm` world another vehicle whose lane ends merges too: a car 40 m ahead of the ego
+/// in the acceleration lane, the main lane free, changes into the main lane (its centre moves
+/// towards the main lane's centre, across the line before the end), without a collision, and
+/// the ego merges as well.
+#[test]
+fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
+    let sc = scene(
+        &[(0.0, 0.0, 20.0), (40.0, 0.0, 15.0)],
+        Some(merge_extents()),
+    );
+    let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
+    let pop =
+        nudge_planner::IdmPopulation::from_file(nudge_planner::sim::idm_path(&assets)).unwrap();
+    let cfg = SimConfig {
+        world: World::Idm,
+        max_steps: 30,
+        ..SimConfig::default()
+    };
+    let never = nudge_planner::Cancel::new();
+    let control = nudge_planner::RunControl {
+        cancel: &never,
+        trace: true,
+    };
+    let mut cv = ConstantVelocity::default();
+    let s = PlannerSettings::default();
+    let run =
+        nudge_planner::simulate_with(&sc, &s, &cfg, 0, &mut cv, WorldModel::Idm(&pop), control)
+            .unwrap();
+    assert!(!run.collision, "{:?}", run.outcome);
+    let other: Vec<[f64; 2]> = run
+        .steps
+        .iter()
+        .map(|st| st.trace.as_ref().unwrap().agents[1])
+        .collect();
+    // It moves over from its lane towards the main lane's centre, never past the end in lane 0.
+    for p in &other {
+        assert!(p[0] <= END || p[1] > BOUNDS[1], "{p:?}");
+    }
+    let crossed = other.iter().find(|p| p[1] > BOUNDS[1]).expect("it merges");
+    assert!(crossed[0] < END, "crossed at {crossed:?}");
+    assert!(
+        other.windows(2).all(|w| w[1][1] >= w[0][1]),
+        "monotone lateral move"
+    );
+    assert!(
+        other.iter().all(|p| p[1] <= 3.7 + 1e-9),
+        "never beyond the centre"
+    );
+    assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
 }

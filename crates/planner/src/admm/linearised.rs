@@ -40,6 +40,16 @@ pub(crate) struct Retreat {
     pub upper: Vec<State>,
 }
 
+/// The stopping line of a lane that really ends ahead of the ego's start
+/// ([`crate::extents::Lanes::stop_line`]), in the call's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct StopLine {
+    /// x of the line: the lane's end less `stop_margin` (m).
+    pub x: f64,
+    /// The centre of the lane the ego starts in (m).
+    pub y_own: f64,
+}
+
 /// One MPC call's linearised problem, in a frame centred on the ego's position (x and y of
 /// every state here are relative to [`LinearisedProblem::origin`]).
 pub(crate) struct LinearisedProblem {
@@ -81,8 +91,14 @@ pub(crate) struct LinearisedProblem {
     /// The ego's (length, width) (m).
     pub ego_size: [f64; 2],
     /// The problem's lane layout ([`PlanningProblem::lanes`]): states in a lane outside its
-    /// extent count as outside the bounds.
+    /// extent, or breaking the stopping rule of a lane that ends, count as outside the
+    /// bounds.
     pub lanes: Option<LaneTable>,
+    /// The stopping rule's deceleration and margin (`stop_decel` (m/s²), `stop_margin` (m)).
+    pub stop_rule: (f64, f64),
+    /// Where the ego must stop when its lane really ends ahead of its start: the stopping
+    /// line's x and the own lane's centre y, in this frame (m); `None` otherwise.
+    pub stop_line: Option<StopLine>,
     /// Box and rate bounds of the steering.
     pub delta_box: RateBox,
     /// Box and rate bounds of the acceleration.
@@ -167,6 +183,8 @@ impl LinearisedProblem {
             },
             ego_size: p.sizes[0],
             lanes: p.lanes.as_ref().map(LaneTable::new),
+            stop_rule: (s.stop_decel, s.stop_margin),
+            stop_line: stop_line(s, p),
             delta_box,
             accel_box,
         }
@@ -256,7 +274,23 @@ impl LinearisedProblem {
                     None => road,
                 }
             })
-            .sum()
+            .sum::<f64>()
+            + self.stop_excess(z)
+    }
+
+    /// The stopping rule's excess of the plan `z` (`[T]`, this frame) (m): that of its last
+    /// state ([`crate::extents::Lanes::stop_excess`]), a terminal constraint: a plan that
+    /// ends in a lane that really ends must end able to stop `stop_margin` before the end,
+    /// braking at `stop_decel`; 0 without a lane layout.
+    pub(crate) fn stop_excess(&self, z: &[State]) -> f64 {
+        match (&self.lanes, z.last()) {
+            (Some(lanes), Some(zt)) => {
+                let (decel, margin) = self.stop_rule;
+                let (x, y) = (zt[0] + self.origin[0], zt[1] + self.origin[1]);
+                lanes.view().stop_excess(x, y, zt[3], decel, margin)
+            }
+            _ => 0.0,
+        }
     }
 
     /// The first of the states `z` (`[T]`, this frame) whose centre lies in a lane outside
@@ -295,6 +329,26 @@ pub(crate) fn lateral_weight(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f6
     } else {
         s.w_y
     }
+}
+
+/// Where the fallback's stopping sequences stop the ego: `stop_margin` before the end of the
+/// lane it starts in, when that lane really ends ahead within reach of the stopping rule (a
+/// plan accelerating at `a_max` over the horizon could break it), in the call's frame.
+fn stop_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<StopLine> {
+    let lanes = p.lanes?;
+    let x = lanes.stop_line(p.ego.x, p.ego.y, s.stop_margin)?;
+    // Out of reach: no plan (accelerating at a_max all along) could break the stopping rule.
+    let time = s.horizon as f64 * s.dt;
+    let v_far = p.ego.v + s.a_max.max(0.0) * time;
+    let reach = p.ego.x + 0.5 * (p.ego.v + v_far) * time + v_far * v_far / (2.0 * s.stop_decel);
+    if reach < x {
+        return None;
+    }
+    let own = lanes.lane_at(p.ego.y)?;
+    Some(StopLine {
+        x: x - p.ego.x,
+        y_own: 0.5 * (lanes.bounds[own] + lanes.bounds[own + 1]) - p.ego.y,
+    })
 }
 
 /// The lateral goal of the call (m): `y_target`, except while `y_target` lies in a lane that

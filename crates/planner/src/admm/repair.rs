@@ -9,7 +9,8 @@
 //!    plan) by θ = 3/4, 1/2, 1/4 and take the first admissible roll-out;
 //! 3. else [`Repairer::best_fallback`]: the cheapest admissible (else the least-violating) of
 //!    a few simple input sequences: the nominal, [`align_with_road`] with constant
-//!    accelerations, [`steer_towards`] the lateral goal with those accelerations, and
+//!    accelerations, [`steer_towards`] the lateral goal with those accelerations, the
+//!    [`stop_inputs`] that stop before the end of a lane that ends, and
 //!    when the best of these is unsafe by the prediction, [`steer_towards`] the retreat
 //!    lane's centre (checked within the bounds of a plan aiming there): with nothing
 //!    admissible, the least-violating of holding, finishing or cancelling a lane change.
@@ -222,7 +223,8 @@ fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> 
 
 /// The simple input sequences of the fallback besides the nominal, in order: for each
 /// constant acceleration 0, a_min/2, a_min, a_max/2 (within the jerk bound),
-/// [`align_with_road`], then [`steer_towards`] the lateral goal.
+/// [`align_with_road`], then [`steer_towards`] the lateral goal; then, when the ego's lane
+/// really ends ahead, the [`stop_inputs`].
 pub(crate) fn simple_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
@@ -248,7 +250,60 @@ pub(crate) fn simple_inputs(
         );
         inputs.push((d, a));
     }
+    inputs.extend(stop_inputs(s, model, lp));
     inputs
+}
+
+/// The stopping sequences of the fallback (none unless the ego's lane really ends ahead of
+/// its start, [`super::linearised::StopLine`]): the accelerations of [`stop_accels`] with
+/// [`align_with_road`], with [`steer_towards`] the own lane's centre and with
+/// [`steer_towards`] the lateral goal (waiting at the line for a gap).
+pub(crate) fn stop_inputs(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let Some(line) = lp.stop_line else {
+        return Vec::new();
+    };
+    let a = stop_accels(s, lp, line.x);
+    let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
+    let steer = |y| steer_towards(model, &lp.start, &a, y, max_heading, lp.delta_box);
+    vec![
+        (
+            align_with_road(model, &lp.start, &a, lp.delta_box),
+            a.clone(),
+        ),
+        (steer(line.y_own), a.clone()),
+        (steer(lp.reference[1]), a.clone()),
+    ]
+}
+
+/// Accelerations `[T]` (m/s²) that stop the ego at `line` (m along the road from its start,
+/// call frame): each step brakes at v² / (2 · (line − x)), the constant deceleration that
+/// stops exactly at the line (`a_min` once at or past it, 0 once stopped), within the box and
+/// jerk bounds; x and v advance along the road.
+pub(crate) fn stop_accels(s: &PlannerSettings, lp: &LinearisedProblem, line: f64) -> Vec<f64> {
+    let b = lp.accel_box;
+    let (mut x, mut v, mut prev) = (lp.start[0], lp.start[3].max(0.0), b.prev);
+    let mut out = Vec::with_capacity(lp.horizon);
+    for _ in 0..lp.horizon {
+        let gap = line - x;
+        let wanted = if v <= 0.0 {
+            0.0
+        } else if gap <= 0.0 {
+            s.a_min
+        } else {
+            -v * v / (2.0 * gap)
+        };
+        let a = wanted.clamp(b.lo.max(prev - b.rate), b.hi.min(prev + b.rate));
+        let v_next = (v + a * s.dt).max(0.0);
+        x += 0.5 * (v + v_next) * s.dt;
+        v = v_next;
+        prev = a;
+        out.push(a);
+    }
+    out
 }
 
 /// The retreat sequences of the fallback (none when the problem has no retreat lane): for

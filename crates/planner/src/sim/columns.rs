@@ -57,8 +57,10 @@ pub const RUN_COLUMNS: [&str; 40] = [
 ];
 
 /// Step columns, in order (one row per planning step of every run that ran). The metric
-/// columns are those of [`crate::sim::metrics::StepMetrics`].
-pub const STEP_COLUMNS: [&str; 34] = [
+/// columns are those of [`crate::sim::metrics::StepMetrics`]; `lane_violation` is the plan
+/// step (1..T) of the applied plan's first state in a lane that has not begun or has ended
+/// ([`crate::Plan::lane_violation`]), −1 when none.
+pub const STEP_COLUMNS: [&str; 35] = [
     "run",
     "step",
     "mpc_s",
@@ -80,6 +82,7 @@ pub const STEP_COLUMNS: [&str; 34] = [
     "v",
     "y_goal",
     "v_planned",
+    "lane_violation",
     "road_excess",
     "off_road",
     "straddle",
@@ -403,6 +406,15 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
         ("v", float(&|s| s.ego[3])),
         ("y_goal", float(&|s| s.y_goal)),
         ("v_planned", float(&|s| s.v_planned)),
+        (
+            "lane_violation",
+            Column::Int(
+                steps
+                    .iter()
+                    .map(|(_, s)| s.lane_violation.map_or(-1, |v| int(v.step)))
+                    .collect(),
+            ),
+        ),
         ("road_excess", float(&|s| s.metrics.road_excess)),
         ("off_road", flag(&|s| s.metrics.off_road)),
         ("straddle", flag(&|s| s.metrics.straddle)),
@@ -511,6 +523,11 @@ pub struct Summary {
     /// Runs that ended because the ego's centre was in a lane past its end (outcome
     /// `LaneEnded`), and before its begin (`LaneNotBegun`).
     pub lane_out: (usize, usize),
+    /// Runs that reached the step limit waiting in a lane that ends ahead (outcome
+    /// `Waiting`).
+    pub waiting: usize,
+    /// Runs per outcome, in [`RunOutcome::ALL`] order.
+    pub outcomes: [usize; RunOutcome::ALL.len()],
     /// Collision events with the ego at fault, and runs with at least one.
     pub at_fault: (usize, usize),
     /// Collision events with the ego not at fault, and runs with at least one.
@@ -602,6 +619,11 @@ impl Summary {
                     .filter(|r| r.outcome == RunOutcome::LaneNotBegun)
                     .count(),
             ),
+            waiting: records
+                .iter()
+                .filter(|r| r.outcome == RunOutcome::Waiting)
+                .count(),
+            outcomes: RunOutcome::ALL.map(|o| records.iter().filter(|r| r.outcome == o).count()),
             aborts: records.iter().map(|r| r.aborts).sum(),
             aborted_runs: records.iter().filter(|r| r.aborts > 0).count(),
             mpc_s: (quantile(&mut mpc, 0.5), quantile(&mut mpc, 0.9)),
@@ -639,11 +661,25 @@ impl fmt::Display for Summary {
             self.not_at_fault.0,
             self.not_at_fault.1
         )?;
+        let outcomes: Vec<String> = RunOutcome::ALL
+            .iter()
+            .zip(self.outcomes)
+            .filter(|(_, n)| *n > 0)
+            .map(|(o, n)| format!("{o} {n}"))
+            .collect();
+        writeln!(f, "outcomes: {}", outcomes.join(", "))?;
         if self.lane_out != (0, 0) {
             writeln!(
                 f,
                 "runs ended in a lane past its end (LaneEnded): {}; before its begin (LaneNotBegun): {}",
                 self.lane_out.0, self.lane_out.1
+            )?;
+        }
+        if self.waiting > 0 {
+            writeln!(
+                f,
+                "runs waiting before the end of their lane at the step limit (Waiting): {}",
+                self.waiting
             )?;
         }
         writeln!(

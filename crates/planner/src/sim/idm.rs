@@ -1,10 +1,9 @@
 //! The `idm` world: reactive traffic with a known model, fitted to real car-following.
 //!
-//! Every other vehicle keeps its lane and its lateral position (its last observed y; no lane
-//! changes; on a scene with lane extents a vehicle whose lane ends drives on along that lane's
-//! line past the end, and nothing leads it at the end: the lane-end rules of
-//! [`crate::extents`] bind the ego only) and moves along the road by the Intelligent Driver Model (Treiber, Hennecke &
-//! Helbing 2000) with δ from the file (4):
+//! Every other vehicle keeps its lane and its lateral position (its last observed y), except
+//! where its lane really ends (scenes with lane extents, [`LaneEndMerge`]), and moves along
+//! the road by the Intelligent Driver Model (Treiber, Hennecke & Helbing 2000) with δ from the
+//! file (4):
 //!
 //! ```text
 //! a = a_max · (1 − (v / v0)^δ − (s* / s)²),   s* = max(0, s0 + v·T + v·(v − v_lead) / (2·√(a_max·b)))
@@ -42,16 +41,31 @@
 //! within a 0.3 s step the ego moves linearly from its state before the step to its state
 //! after it.
 //!
+//! **Lanes that end** ([`LaneEndMerge`], the file's optional `lane_end` section): a vehicle
+//! whose lane really ends ahead of it changes into the adjacent lane that outlasts it once it
+//! is within `zone_m` of the end and the gap is acceptable by a MOBIL-style safety criterion
+//! (Kesting, Treiber & Helbing 2007): the new follower's IDM acceleration behind it after the
+//! change is at least −`b_safe_mps2`, and so is its own behind the new leader, with
+//! bumper-to-bumper gaps of at least `min_gap_m` to both (the ego counts as a leader or
+//! follower in the lane of its centre; as a follower it is judged with the merging vehicle's
+//! own driver). The change moves its centre to the new lane's centre at `lateral_speed_mps`,
+//! and it counts in the new lane from the decision on. Until it changes, its lane's end leads
+//! it as a standing vehicle `stop_margin_m` before the end, so without an acceptable gap it
+//! stops there and waits. Decisions are taken every sub-step, in vehicle order, from the
+//! states at its start.
+//!
 //! Deterministic: the same scene, population and seed give the same traffic, bit for bit.
 
 use std::path::{Path, PathBuf};
 
 use nudge_predictor::{DT, T_OBS};
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::error::WorldFileError;
+use crate::error::{SimConfigError, WorldFileError};
 use crate::model::State;
-use crate::scenario::Scenario;
+use crate::scenario::{LaneExtent, Scenario};
+use crate::settings::{FieldRange, closed};
 
 /// The schema string of the world file.
 pub const IDM_SCHEMA: &str = "nudge.idm/1";
@@ -203,6 +217,117 @@ impl IntrusionRule {
     }
 }
 
+/// How an IDM vehicle whose lane really ends merges (the world file's optional `lane_end`
+/// section; absent, the defaults). Units: m, m/s, m/s².
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LaneEndMerge {
+    /// Distance to the end of its lane (m) within which a vehicle looks for a gap.
+    pub zone_m: f64,
+    /// Safety criterion (m/s², > 0): the change is acceptable only if the new follower's IDM
+    /// acceleration behind the merging vehicle, and the merging vehicle's behind its new
+    /// leader, are both at least −`b_safe_mps2`.
+    pub b_safe_mps2: f64,
+    /// Smallest bumper-to-bumper gap (m) to the new leader and to the new follower.
+    pub min_gap_m: f64,
+    /// Lateral speed of the change (m/s, > 0).
+    pub lateral_speed_mps: f64,
+    /// Where a vehicle that finds no acceptable gap stops: this far before its lane's end
+    /// (m), the end leading it as a standing vehicle there.
+    pub stop_margin_m: f64,
+}
+
+impl Default for LaneEndMerge {
+    fn default() -> Self {
+        Self {
+            zone_m: 200.0,
+            b_safe_mps2: 4.0,
+            min_gap_m: 2.0,
+            lateral_speed_mps: 1.0,
+            stop_margin_m: 2.0,
+        }
+    }
+}
+
+/// The range (0, 1e3] of a positive lane-end setting in `unit`.
+const fn positive_bounded(field: &'static str, unit: &'static str) -> FieldRange {
+    FieldRange {
+        field,
+        min: 0.0,
+        min_open: true,
+        max: 1e3,
+        max_open: false,
+        unit,
+    }
+}
+
+impl LaneEndMerge {
+    /// Every field's admissible range.
+    pub const RANGES: [FieldRange; 5] = [
+        closed("zone_m", 0.0, 1e4, "m"),
+        positive_bounded("b_safe_mps2", "m/s²"),
+        closed("min_gap_m", 0.0, 1e3, "m"),
+        positive_bounded("lateral_speed_mps", "m/s"),
+        closed("stop_margin_m", 0.0, 1e3, "m"),
+    ];
+
+    /// The value of field `field` (`None` for an unknown name).
+    #[must_use]
+    pub fn numeric(&self, field: &str) -> Option<f64> {
+        Some(match field {
+            "zone_m" => self.zone_m,
+            "b_safe_mps2" => self.b_safe_mps2,
+            "min_gap_m" => self.min_gap_m,
+            "lateral_speed_mps" => self.lateral_speed_mps,
+            "stop_margin_m" => self.stop_margin_m,
+            _ => return None,
+        })
+    }
+
+    /// Checks every field against [`Self::RANGES`] (NaN and infinity never are in range).
+    ///
+    /// # Errors
+    /// [`SimConfigError::OutOfRange`] naming the first field out of its range.
+    pub fn validate(&self) -> Result<(), SimConfigError> {
+        for r in Self::RANGES {
+            let value = self.numeric(r.field).unwrap_or(f64::NAN);
+            if !r.contains(value) {
+                return Err(SimConfigError::OutOfRange {
+                    field: r.field,
+                    value,
+                    range: r,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The MOBIL-style safety criterion of a change: `follower` = (its driver, speed (m/s),
+    /// desired speed (m/s), bumper-to-bumper gap to the merging vehicle (m)) when the target
+    /// lane has a vehicle behind, `own` = (the merging vehicle's driver, speed, desired speed)
+    /// and `leader` = (gap (m), speed (m/s)) of the vehicle ahead in the target lane when there
+    /// is one: both gaps at least `min_gap_m` and both IDM accelerations after the change at
+    /// least −`b_safe_mps2`.
+    #[must_use]
+    pub fn acceptable(
+        &self,
+        model: &IdmModel,
+        own: (&IdmDriver, f64, f64),
+        follower: Option<(&IdmDriver, f64, f64, f64)>,
+        leader: Option<(f64, f64)>,
+    ) -> bool {
+        let (driver, v, v0) = own;
+        let follower_ok = follower.is_none_or(|(d, vf, vf0, gap)| {
+            gap >= self.min_gap_m && model.accel(d, vf, vf0, Some((gap, v))) >= -self.b_safe_mps2
+        });
+        let own_ok = leader.is_none_or(|(gap, vl)| {
+            gap >= self.min_gap_m
+                && model.accel(driver, v, v0, Some((gap, vl))) >= -self.b_safe_mps2
+        });
+        follower_ok && own_ok
+    }
+}
+
 /// The fitted driver population and model of the `idm` world, parsed once per batch from a
 /// "nudge.idm/1" file.
 #[derive(Debug, Clone, PartialEq)]
@@ -217,6 +342,8 @@ pub struct IdmPopulation {
     pub model: IdmModel,
     /// The intrusion rule.
     pub intrusion: IntrusionRule,
+    /// How vehicles whose lane ends merge.
+    pub lane_end: LaneEndMerge,
 }
 
 /// Field access with errors that name the file and the field.
@@ -457,6 +584,23 @@ impl Fields<'_> {
             p_yield,
         })
     }
+
+    /// `lane_end` (optional: absent, [`LaneEndMerge::default`]): an object of
+    /// [`LaneEndMerge`] fields (missing ones default, unknown ones refused), validated.
+    fn lane_end(&self, root: &Value) -> Result<LaneEndMerge, WorldFileError> {
+        let Some(section) = root.get("lane_end") else {
+            return Ok(LaneEndMerge::default());
+        };
+        let rule: LaneEndMerge = serde_json::from_value(section.clone())
+            .map_err(|e| self.err("lane_end", e.to_string()))?;
+        rule.validate().map_err(|e| match e {
+            SimConfigError::OutOfRange { field, .. } => {
+                self.err(format!("lane_end.{field}"), e.to_string())
+            }
+            other => self.err("lane_end", other.to_string()),
+        })?;
+        Ok(rule)
+    }
 }
 
 impl IdmPopulation {
@@ -481,7 +625,8 @@ impl IdmPopulation {
     /// `model.delta` > 0, `model.max_decel_mps2` > 0, `model.gap_floor_m` > 0 and
     /// `model.integration` naming the ballistic 0.1 s update; every `drivers` row (5 finite
     /// values within `bounds`); one `driver_sources` entry (`"i80"` or `"us101"`) per row;
-    /// `intrusion.threshold_m` finite and `intrusion.p_yield` in [0, 1].
+    /// `intrusion.threshold_m` finite and `intrusion.p_yield` in [0, 1]; the optional
+    /// `lane_end` section as [`LaneEndMerge::validate`] requires.
     ///
     /// # Errors
     /// [`WorldFileError::NotJson`] for text that is not JSON, [`WorldFileError::Field`]
@@ -499,12 +644,14 @@ impl IdmPopulation {
         let drivers = f.drivers(&root, &bounds)?;
         let sources = f.driver_sources(&root, drivers.len())?;
         let intrusion = f.intrusion(&root)?;
+        let lane_end = f.lane_end(&root)?;
         Ok(Self {
             path: path.to_path_buf(),
             drivers,
             sources,
             model,
             intrusion,
+            lane_end,
         })
     }
 
@@ -548,7 +695,7 @@ fn uniform(seed: u64, vehicle: usize, purpose: u64) -> f64 {
 pub struct IdmVehicle {
     /// Centre x (m).
     pub x: f64,
-    /// Centre y (m), fixed.
+    /// Centre y (m): fixed, except during a lane-end merge.
     pub y: f64,
     /// Speed along the road (m/s, ≥ 0).
     pub v: f64,
@@ -556,8 +703,11 @@ pub struct IdmVehicle {
     pub length: f64,
     /// Width (m).
     pub width: f64,
-    /// Lane index (of its centre), fixed.
+    /// Lane index (of its centre at the start; the new lane from a lane-end merge's decision
+    /// on).
     pub lane: usize,
+    /// The centre y (m) a lane-end merge moves it to; `None` while it has not changed.
+    pub merging_to: Option<f64>,
     /// Its driver.
     pub driver: IdmDriver,
     /// Desired speed v0 = v0_ratio · max(v_ref, [`V_REF_MIN`]) (m/s).
@@ -577,6 +727,10 @@ pub struct EgoView {
     pub extent: (f64, f64),
     /// Rear-most x of its box (m).
     pub rear: f64,
+    /// Front-most x of its box (m).
+    pub front: f64,
+    /// Centre y (m).
+    pub y: f64,
     /// Speed along the road (m/s).
     pub vx: f64,
 }
@@ -592,6 +746,8 @@ impl EgoView {
             x: state[0],
             extent: (state[1] - half_y, state[1] + half_y),
             rear: state[0] - half_x,
+            front: state[0] + half_x,
+            y: state[1],
             vx: state[3] * c,
         }
     }
@@ -619,6 +775,10 @@ pub struct IdmTraffic {
     pub rule: IntrusionRule,
     /// The ego's (length, width) (m).
     pub ego_size: [f64; 2],
+    /// Each lane's extent `[L]` (the scene's, `None` without extents).
+    pub extents: Option<Vec<LaneExtent>>,
+    /// How vehicles whose lane ends merge.
+    pub lane_end: LaneEndMerge,
 }
 
 /// The index of the lane holding `y` (m) among `bounds` `[L + 1]`; the nearest lane outside
@@ -677,6 +837,7 @@ impl IdmTraffic {
                     v0: driver.v0_ratio * highest_logged_speed(sc, i).max(V_REF_MIN),
                     yields: uniform(seed, i, 2) < population.intrusion.p_yield,
                     ego_in_lane: lane == ego_lane,
+                    merging_to: None,
                 }
             })
             .collect();
@@ -686,7 +847,117 @@ impl IdmTraffic {
             model: population.model,
             rule: population.intrusion,
             ego_size: sc.size[0],
+            extents: sc.lane_extents.clone(),
+            lane_end: population.lane_end,
         }
+    }
+
+    /// The real end (x, m) of vehicle `f`'s lane while it has not changed lanes and the lane
+    /// really ends; `None` otherwise.
+    fn lane_end_of(&self, f: usize) -> Option<f64> {
+        let v = &self.vehicles[f];
+        let e = self.extents.as_ref()?.get(v.lane)?;
+        (v.merging_to.is_none() && e.ends).then_some(e.end)
+    }
+
+    /// The lane vehicle `f` merges into: of the adjacent lanes, those open at its x (begun,
+    /// not ended) that do not end before its own lane, the one that runs on longest (the
+    /// lower index on ties); `None` when there is none.
+    fn merge_target(&self, f: usize, own_end: f64) -> Option<usize> {
+        let ext = self.extents.as_ref()?;
+        let v = &self.vehicles[f];
+        let runs_to = |e: &LaneExtent| if e.ends { e.end } else { f64::INFINITY };
+        let mut best: Option<(usize, f64)> = None;
+        for j in [v.lane.checked_sub(1), Some(v.lane + 1)]
+            .into_iter()
+            .flatten()
+        {
+            let Some(e) = ext.get(j) else { continue };
+            let open = !((e.begins && v.x < e.begin) || (e.ends && v.x > e.end));
+            let outlasts = !e.ends || e.end >= own_end;
+            if open && outlasts && best.is_none_or(|(_, run)| runs_to(e) > run) {
+                best = Some((j, runs_to(e)));
+            }
+        }
+        best.map(|(j, _)| j)
+    }
+
+    /// Whether vehicle `f` may change into lane `target` now with the ego seen as `ego`
+    /// ([`LaneEndMerge::acceptable`]): the nearest vehicle (or the ego, by the lane of its
+    /// centre) behind and ahead of it in that lane.
+    fn may_merge(&self, f: usize, target: usize, ego: &EgoView) -> bool {
+        let me = &self.vehicles[f];
+        let (rear, front) = (me.x - 0.5 * me.length, me.x + 0.5 * me.length);
+        let mut ahead: Option<(f64, f64)> = None;
+        let mut behind: Option<(&IdmDriver, f64, f64, f64)> = None;
+        for (j, o) in self.vehicles.iter().enumerate() {
+            if j == f || o.lane != target {
+                continue;
+            }
+            if o.x >= me.x {
+                let gap = o.x - 0.5 * o.length - front;
+                if ahead.is_none_or(|(g, _)| gap < g) {
+                    ahead = Some((gap, o.v));
+                }
+            } else {
+                let gap = rear - (o.x + 0.5 * o.length);
+                if behind.is_none_or(|(_, _, _, g)| gap < g) {
+                    behind = Some((&o.driver, o.v, o.v0, gap));
+                }
+            }
+        }
+        if lane_index(&self.lane_bounds, ego.y) == target {
+            if ego.x >= me.x {
+                let gap = ego.rear - front;
+                if ahead.is_none_or(|(g, _)| gap < g) {
+                    ahead = Some((gap, ego.vx));
+                }
+            } else {
+                // The ego as a follower, judged with the merging vehicle's own driver.
+                let gap = rear - ego.front;
+                if behind.is_none_or(|(_, _, _, g)| gap < g) {
+                    behind = Some((&me.driver, ego.vx.max(0.0), me.v0, gap));
+                }
+            }
+        }
+        self.lane_end
+            .acceptable(&self.model, (&me.driver, me.v, me.v0), behind, ahead)
+    }
+
+    /// The lane-end decisions of one sub-step, from the states at its start: every vehicle in
+    /// a lane that really ends, within `zone_m` of the end, with an acceptable gap in the lane
+    /// it merges into, changes into it (its lane and target y set).
+    fn decide_lane_end_merges(&mut self, ego: &EgoView) {
+        if self.extents.is_none() {
+            return;
+        }
+        let changes: Vec<(usize, usize)> = (0..self.vehicles.len())
+            .filter_map(|f| {
+                let end = self.lane_end_of(f)?;
+                if end - self.vehicles[f].x > self.lane_end.zone_m {
+                    return None;
+                }
+                let target = self.merge_target(f, end)?;
+                self.may_merge(f, target, ego).then_some((f, target))
+            })
+            .collect();
+        for (f, target) in changes {
+            let centre = 0.5 * (self.lane_bounds[target] + self.lane_bounds[target + 1]);
+            let v = &mut self.vehicles[f];
+            v.lane = target;
+            v.merging_to = Some(centre);
+        }
+    }
+
+    /// The standing leader a vehicle's lane end makes (gap (m), speed 0) while its lane really
+    /// ends ahead of its centre: `stop_margin_m` before the end.
+    fn lane_end_leader(&self, f: usize) -> Option<(f64, f64)> {
+        let end = self.lane_end_of(f)?;
+        let v = &self.vehicles[f];
+        (v.x <= end).then(|| {
+            let stop = end - self.lane_end.stop_margin_m;
+            (stop - (v.x + 0.5 * v.length), 0.0)
+        })
     }
 
     /// Updates whether each vehicle counts the ego, seen as `ego`, as being in its lane
@@ -723,21 +994,31 @@ impl IdmTraffic {
         best
     }
 
-    /// One sub-step of `dt` seconds with the ego seen as `ego`: whether each vehicle counts
-    /// the ego in its lane, every vehicle's acceleration from the current states, then the
-    /// ballistic update of all.
+    /// One sub-step of `dt` seconds with the ego seen as `ego`: the lane-end merges decided
+    /// ([`LaneEndMerge`]), whether each vehicle counts the ego in its lane, every vehicle's
+    /// acceleration from the current states (behind the nearer of its leader and its lane's
+    /// end), then the ballistic update of all (and the lateral move of a merging one).
     pub fn substep(&mut self, ego: &EgoView, dt: f64) {
+        self.decide_lane_end_merges(ego);
         self.observe_ego(ego);
-        let leaders: Vec<Option<(Leader, f64, f64)>> = (0..self.vehicles.len())
-            .map(|f| self.leader(f, ego))
+        let leaders: Vec<Option<(f64, f64)>> = (0..self.vehicles.len())
+            .map(|f| {
+                let lead = self.leader(f, ego).map(|(_, s, v)| (s, v));
+                match (lead, self.lane_end_leader(f)) {
+                    (Some(l), Some(end)) => Some(if end.0 < l.0 { end } else { l }),
+                    (l, end) => l.or(end),
+                }
+            })
             .collect();
+        let lateral = self.lane_end.lateral_speed_mps * dt;
         for (veh, lead) in self.vehicles.iter_mut().zip(leaders) {
-            let a = self
-                .model
-                .accel(&veh.driver, veh.v, veh.v0, lead.map(|(_, s, v)| (s, v)));
+            let a = self.model.accel(&veh.driver, veh.v, veh.v0, lead);
             let v_next = (veh.v + a * dt).max(0.0);
             veh.x += 0.5 * (veh.v + v_next) * dt;
             veh.v = v_next;
+            if let Some(y) = veh.merging_to {
+                veh.y += (y - veh.y).clamp(-lateral, lateral);
+            }
         }
     }
 
@@ -791,6 +1072,7 @@ mod tests {
             v0,
             yields,
             ego_in_lane: false,
+            merging_to: None,
         }
     }
 
@@ -804,6 +1086,8 @@ mod tests {
                 p_yield: 0.7,
             },
             ego_size: [4.0, 1.8],
+            extents: None,
+            lane_end: LaneEndMerge::default(),
         }
     }
 
@@ -886,6 +1170,7 @@ mod tests {
                         v0: num(&c["v0"]),
                         yields: true,
                         ego_in_lane: false,
+                        merging_to: None,
                     }
                 })
                 .collect(),
@@ -1086,5 +1371,175 @@ mod tests {
             IdmPopulation::from_file("/nonexistent/idm.json"),
             Err(WorldFileError::Io { .. })
         ));
+    }
+
+    /// Lane 0 (y in [-1.75, 1.75]) really ends at x = 300; lane 1 runs on.
+    fn ending(vehicles: Vec<IdmVehicle>) -> IdmTraffic {
+        let e = |end, ends| LaneExtent {
+            begin: -1000.0,
+            end,
+            begins: false,
+            ends,
+        };
+        IdmTraffic {
+            extents: Some(vec![e(300.0, true), e(5000.0, false)]),
+            ..traffic(vehicles)
+        }
+    }
+
+    #[test]
+    fn the_safety_criterion_is_the_new_followers_idm_deceleration() {
+        let (m, d, rule) = (model(), driver(), LaneEndMerge::default());
+        let own = (&d, 20.0, 25.0);
+        assert!(rule.acceptable(&m, own, None, None), "an empty lane");
+        // A follower at 25 m/s behind a merger at 20 m/s: its IDM acceleration decides.
+        let a = |gap: f64| m.accel(&d, 25.0, 25.0, Some((gap, 20.0)));
+        let (lo, hi) = (10.0_f64, 200.0_f64);
+        assert!(a(lo) < -rule.b_safe_mps2 && a(hi) > -rule.b_safe_mps2);
+        // The gap where it brakes at exactly b_safe, by bisection on the model itself.
+        let (mut l, mut h) = (lo, hi);
+        for _ in 0..100 {
+            let mid = 0.5 * (l + h);
+            if a(mid) < -rule.b_safe_mps2 {
+                l = mid
+            } else {
+                h = mid
+            }
+        }
+        let f = |gap| Some((&d, 25.0, 25.0, gap));
+        assert!(rule.acceptable(&m, own, f(h + 1e-6), None));
+        assert!(!rule.acceptable(&m, own, f(l - 1e-6), None));
+        // The merger's own braking behind a slow new leader counts too, and so does min_gap.
+        assert!(!rule.acceptable(&m, own, None, Some((3.0, 0.0))));
+        assert!(rule.acceptable(&m, own, None, Some((80.0, 20.0))));
+        assert!(
+            !rule.acceptable(&m, (&d, 0.0, 25.0), None, Some((1.0, 30.0))),
+            "min_gap"
+        );
+    }
+
+    #[test]
+    fn a_vehicle_whose_lane_ends_merges_into_a_free_lane() {
+        let mut t = ending(vec![vehicle(200.0, 0.0, 15.0, 0, 15.0, true)]);
+        let ego = far_ego();
+        let mut merged_at = None;
+        for k in 0..200 {
+            t.step(&ego, &ego);
+            let v = &t.vehicles[0];
+            if v.lane == 1 && merged_at.is_none() {
+                merged_at = Some((k, v.x));
+            }
+            // Never past the end in the ended lane (by its centre's y).
+            assert!(
+                v.x <= 300.0 || lane_index(&t.lane_bounds, v.y) == 1,
+                "{v:?}"
+            );
+        }
+        // Inside the zone from the start (100 m before the end), with a free lane: at once.
+        assert_eq!(merged_at.map(|(k, _)| k), Some(0));
+        // A vehicle farther back waits until it enters the zone (200 m before the end).
+        let mut far = ending(vec![vehicle(0.0, 0.0, 15.0, 0, 15.0, true)]);
+        let mut decided = None;
+        for _ in 0..40 {
+            let x = far.vehicles[0].x;
+            far.step(&ego, &ego);
+            if far.vehicles[0].lane == 1 && decided.is_none() {
+                decided = Some(x);
+            }
+        }
+        let x = decided.expect("merged");
+        assert!(
+            (95.0..=100.0).contains(&x),
+            "decided in the step from x = {x}"
+        );
+        let v = &t.vehicles[0];
+        assert!((v.y - 3.5).abs() < 1e-12 && v.x > 400.0, "{v:?}");
+    }
+
+    #[test]
+    fn a_vehicle_without_an_acceptable_gap_stops_at_its_lane_end() {
+        // A dense platoon in lane 1 at 15 m/s, 7 m apart, from x = -300 to 400: no gap.
+        let mut cars = vec![vehicle(200.0, 0.0, 15.0, 0, 15.0, true)];
+        let mut x = -300.0;
+        while x <= 400.0 {
+            cars.push(vehicle(x, 3.5, 15.0, 1, 15.0, true));
+            x += 7.0;
+        }
+        let mut t = ending(cars);
+        let ego = far_ego();
+        for _ in 0..60 {
+            t.step(&ego, &ego);
+            let v = &t.vehicles[0];
+            assert_eq!((v.lane, v.y), (0, 0.0), "no change without a gap");
+            assert!(v.x + 0.5 * v.length <= 300.0 - 2.0 + 1e-9, "{v:?}");
+        }
+        let v = &t.vehicles[0];
+        assert!(v.v < 0.1 && v.x > 280.0, "stopped at the end: {v:?}");
+    }
+
+    #[test]
+    fn lane_end_merges_are_deterministic_and_leave_other_scenes_alone() {
+        let cars = || {
+            let mut c = vec![vehicle(150.0, 0.0, 18.0, 0, 20.0, true)];
+            for k in 0..12 {
+                c.push(vehicle(
+                    -100.0 + 25.0 * f64::from(k),
+                    3.5,
+                    15.0,
+                    1,
+                    16.0,
+                    k % 2 == 0,
+                ));
+            }
+            c
+        };
+        let ego = far_ego();
+        let run = |mut t: IdmTraffic| (0..80).map(|_| t.step(&ego, &ego)).collect::<Vec<_>>();
+        assert_eq!(run(ending(cars())), run(ending(cars())));
+        // Without extents (or with ends that are not real) nothing changes lanes.
+        let mut open = ending(cars());
+        if let Some(e) = &mut open.extents {
+            e[0].ends = false;
+        }
+        assert_eq!(run(open), run(traffic(cars())));
+    }
+
+    #[test]
+    fn lane_end_settings_default_validate_and_parse() {
+        let d = LaneEndMerge::default();
+        d.validate().expect("ok");
+        let back: LaneEndMerge =
+            serde_json::from_str(&serde_json::to_string(&d).expect("ok")).expect("ok");
+        assert_eq!(back, d);
+        for (field, value) in [
+            ("b_safe_mps2", 0.0),
+            ("lateral_speed_mps", -1.0),
+            ("zone_m", f64::NAN),
+        ] {
+            let mut bad = d;
+            match field {
+                "b_safe_mps2" => bad.b_safe_mps2 = value,
+                "lateral_speed_mps" => bad.lateral_speed_mps = value,
+                _ => bad.zone_m = value,
+            }
+            let err = bad.validate().expect_err("refused").to_string();
+            assert!(err.contains(field), "{err}");
+        }
+        // In the world file: absent, the defaults; a bad value names the field.
+        let text = std::fs::read_to_string(idm_path(Path::new(ASSETS))).expect("ok");
+        let p = IdmPopulation::from_json(&text, Path::new("idm.json")).expect("ok");
+        assert_eq!(p.lane_end, d);
+        let mut v: Value = serde_json::from_str(&text).expect("ok");
+        v["lane_end"] = serde_json::json!({"b_safe_mps2": 3.0});
+        let p = IdmPopulation::from_json(&v.to_string(), Path::new("idm.json")).expect("ok");
+        assert_eq!(p.lane_end.b_safe_mps2, 3.0);
+        v["lane_end"] = serde_json::json!({"b_safe_mps2": -3.0});
+        let err =
+            IdmPopulation::from_json(&v.to_string(), Path::new("idm.json")).expect_err("refused");
+        assert!(err.to_string().contains("lane_end.b_safe_mps2"), "{err}");
+        v["lane_end"] = serde_json::json!({"bogus": 1.0});
+        let err =
+            IdmPopulation::from_json(&v.to_string(), Path::new("idm.json")).expect_err("refused");
+        assert!(err.to_string().contains("lane_end"), "{err}");
     }
 }

@@ -43,7 +43,7 @@ pub use columns::{
     run_table, step_listing, step_table,
 };
 pub use config::{SimConfig, World};
-pub use idm::{IdmPopulation, IdmTraffic, idm_path};
+pub use idm::{IdmPopulation, IdmTraffic, LaneEndMerge, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
 pub use records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};

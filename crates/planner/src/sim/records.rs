@@ -47,6 +47,11 @@ pub struct StepRecord {
     pub y_goal: f64,
     /// Speed at the end of the applied plan (its last planned state) (m/s).
     pub v_planned: f64,
+    /// The applied plan's first planned state whose centre lies in a lane that has not begun
+    /// or has ended ([`crate::Plan::lane_violation`]; such a plan is `Unsafe`); `None` when
+    /// there is none or the scene has no lane extents.
+    #[serde(default)]
+    pub lane_violation: Option<crate::extents::LaneViolation>,
     /// What the step is judged by ([`crate::sim::metrics`]).
     pub metrics: StepMetrics,
     /// The step's plan and the planning predictor's predicted reaction to it, kept only when
@@ -86,6 +91,11 @@ pub enum RunOutcome {
     LaneEnded,
     /// The ego's centre was in a lane before its real begin; the run stopped at that step.
     LaneNotBegun,
+    /// The step limit came with the ego's centre still in a lane that really ends ahead of
+    /// it, at most `deadline_distance` ahead, without a collision: the merge was not made and the end not passed (a blocked
+    /// merge waiting for a gap, held by the stopping rule of [`crate::extents`]; the last
+    /// step's speed says whether it stood).
+    Waiting,
     /// None of the above by `max_steps` (or the ego turned across the road).
     #[default]
     Unfinished,
@@ -93,11 +103,12 @@ pub enum RunOutcome {
 
 impl RunOutcome {
     /// Every outcome, in declaration order.
-    pub const ALL: [Self; 5] = [
+    pub const ALL: [Self; 6] = [
         Self::Success,
         Self::Collision,
         Self::LaneEnded,
         Self::LaneNotBegun,
+        Self::Waiting,
         Self::Unfinished,
     ];
 
@@ -109,6 +120,7 @@ impl RunOutcome {
             Self::Collision => "Collision",
             Self::LaneEnded => "LaneEnded",
             Self::LaneNotBegun => "LaneNotBegun",
+            Self::Waiting => "Waiting",
             Self::Unfinished => "Unfinished",
         }
     }
@@ -151,7 +163,7 @@ pub struct RunRecord {
     /// Lane-change aborts ([`crate::SimConfig::abort_after`]).
     pub aborts: usize,
     /// How the run ended: a collision first, then a lane that ended (or had not begun) under
-    /// the ego, then success.
+    /// the ego, then success, then waiting in a lane that ends ahead.
     #[serde(default)]
     pub outcome: RunOutcome,
     /// Per-step records.

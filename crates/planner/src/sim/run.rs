@@ -68,6 +68,14 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
     Ok(options[((splitmix(seed) >> 32) % options.len() as u64) as usize])
 }
 
+/// Whether the ego in `ego` (x, y, ψ, v) waits in a lane of `sc` that really ends ahead of
+/// its centre (not past the end), at most `within` (m) ahead.
+fn waiting(sc: &Scenario, ego: &State, within: f64) -> bool {
+    sc.lanes()
+        .and_then(|l| l.stop_line(ego[0], ego[1], 0.0))
+        .is_some_and(|end| end - ego[0] <= within)
+}
+
 /// The state of one run between steps.
 struct ClosedLoop<'a> {
     sc: &'a Scenario,
@@ -257,6 +265,7 @@ impl ClosedLoop<'_> {
             nearest,
             y_goal,
             v_planned,
+            lane_violation: plan.lane_violation,
             metrics,
             trace,
         })
@@ -434,6 +443,7 @@ pub fn simulate_with(
             Some((_, LaneViolationKind::Ended)) => RunOutcome::LaneEnded,
             Some((_, LaneViolationKind::NotBegun)) => RunOutcome::LaneNotBegun,
             None if rec.success => RunOutcome::Success,
+            None if waiting(sc, &run.ego, settings.deadline_distance) => RunOutcome::Waiting,
             None => RunOutcome::Unfinished,
         }
     };
