@@ -272,7 +272,7 @@ def _add_horizon(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cutins", type=Path, default=paths.assets() / "worlds" / "cutins.json", help="the real cut-ins")
     p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material (the cut-ins' tracks)")
     p.add_argument("--latency", type=Path, default=None,
-                   help="a `nudge-train bench latency --horizons ...` report whose horizon section is included")
+                   help="a report (docs/results/latency.md) holding a `nudge-train bench latency --horizons ...` section")
     p.add_argument("--report", type=Path, default=paths.results() / "horizon.md", help="the report (markdown)")
     p.add_argument("--json", type=Path, default=paths.runs() / "horizon" / "horizon.json",
                    help="every number of the report (JSON)")

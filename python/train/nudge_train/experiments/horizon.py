@@ -13,8 +13,8 @@ that roll-out is worth on real data, beside the 1.8 s the planner used so far:
    the teacher's predicted fall-back and reaction at 1.8 s and at 3.0 s after the prediction start
    (definitions: :mod:`nudge_train.experiments.reaction_cutins`), the cut-in vehicle's logged path
    over 3 s as the candidate; events whose intruder is not observed for those 3 s are left out.
-3. **Cost**: the planning-step latency table of ``nudge-train bench latency`` run with a config
-   that holds both horizons (``--latency JSON``), when given.
+3. **Cost**: the section of ``nudge-train bench latency --horizons 6 10`` in ``--latency``
+   (``docs/results/latency.md``), when given.
 
 Everything also goes to ``--json``. The report keeps whatever is written below its
 ``<!-- notes -->`` marker.
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 from pathlib import Path
 
@@ -170,18 +171,19 @@ def cutin_section(cutins: Path, data_root: Path, teacher: Path, n_boot: int, see
 
 
 def latency_section(latency: Path, res: dict) -> list[str]:
-    """The latency table of a ``nudge-train bench latency`` JSON whose config holds both horizons."""
-    data = json.loads(latency.read_text())
-    res["latency"] = data
-    md = latency.with_suffix(".md")
-    lines = ["## 3. The cost: planning-step latency at 6 and 10 steps", "",
-             f"From `{paths.repo_relative(latency)}` (`nudge-train bench latency`, its config and machine noted "
-             "there); every arm on one thread, side by side in one run.", ""]
-    if md.is_file():
-        body = md.read_text().split("\n")
-        table = [ln for ln in body if ln.startswith("|")]
-        lines += table + [""]
-    return lines
+    """The section of a ``nudge-train bench latency --horizons ...`` report (``docs/results/latency.md``)
+    whose arms ran at several horizons, included as it stands (its command, machine and load noted)."""
+    text = latency.read_text()
+    found = re.search(r"<!-- bench latency: (budget off, horizons [0-9 ]+) -->\n(.*?)<!-- /bench latency: \1 -->",
+                      text, re.DOTALL)
+    if found is None:
+        raise SystemExit(f"error: {latency}: no section of `nudge-train bench latency --horizons ...`")
+    body = [ln for ln in found.group(2).strip().split("\n") if not ln.startswith("### ")]
+    res["latency"] = {"file": paths.repo_relative(latency), "section": found.group(1)}
+    return (["## 3. The cost: planning-step latency at 6 and 10 steps", "",
+             f"The section `{found.group(1)}` of `{paths.repo_relative(latency)}`; every arm on one thread, "
+             "interleaved chunk by chunk on the same runs, so the arms share the machine's load alike.", ""]
+            + body + [""])
 
 
 def run(a: argparse.Namespace) -> int:
