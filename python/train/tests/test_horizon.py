@@ -107,3 +107,9 @@ def test_closed_loop_at_horizon_10_in_every_world() -> None:
                                threads=1)
             assert not any(r["runs"]["error"]), r["runs"]["error"]
             assert len(r["steps"]["step"]) >= 1
+
+
+@pytest.mark.parametrize("horizon", [0, 61, -1])
+def test_a_horizon_out_of_range_is_refused_naming_it(horizon: int) -> None:
+    with pytest.raises(nudge.InputError, match="horizon"):
+        nudge.Predictor.load(TEACHER, horizon=horizon)
