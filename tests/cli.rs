@@ -218,7 +218,7 @@ fn simulate_in(dir: &Path, args: &[&str]) -> (Option<i32>, String, String) {
     )
 }
 
-/// Settings that do not fit the predictors (a horizon other than the networks' 6 steps, a
+/// Settings that do not fit the predictors (a horizon other than the student's 6 steps, a
 /// time step other than the 0.3 s of the networks and scenes) are refused before any run
 /// starts, with exit code 1 and the setting named; nothing is printed as a summary.
 #[test]
@@ -226,7 +226,8 @@ fn cli_refuses_settings_that_do_not_fit_the_predictors_before_any_run() {
     let dir = two_scenes("fit");
     for (json, field, predictor) in [
         (r#"{"horizon": 7}"#, "horizon", "student"),
-        (r#"{"horizon": 5}"#, "horizon", "teacher"),
+        (r#"{"horizon": 10}"#, "horizon", "student"),
+        (r#"{"dt": 0.5}"#, "dt", "teacher"),
         (r#"{"dt": 0.5}"#, "dt", "student"),
         (r#"{"dt": 0.2}"#, "dt", "constant_velocity"),
     ] {

@@ -334,7 +334,8 @@ def test_huge_arrays_are_refused_before_copying() -> None:
 
 @pytest.mark.parametrize(("overrides", "field", "predictor"), [
     ({"horizon": 7}, "horizon", "student"),
-    ({"horizon": 5}, "horizon", "teacher"),
+    ({"horizon": 10}, "horizon", "student"),
+    ({"dt": 0.5}, "dt", "teacher"),
     ({"dt": 0.5}, "dt", "student"),
     ({"dt": 0.2}, "dt", "constant_velocity"),
 ])

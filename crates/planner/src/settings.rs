@@ -29,7 +29,8 @@ fn json_kind(v: &serde_json::Value) -> &'static str {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlannerSettings {
-    /// Planning horizon T (steps); must equal the predictor's horizon (6 for shipped models).
+    /// Planning horizon T (steps); must equal the predictor's horizon: any for the teacher (a longer
+    /// roll-out of its one-step network) and constant velocity, 6 for the shipped student.
     pub horizon: usize,
     /// Step length (s).
     pub dt: f64,

@@ -180,6 +180,17 @@ pub enum PredictorError {
         /// Largest supported horizon ([`crate::MAX_HORIZON`]).
         max: usize,
     },
+    /// A model asked for a horizon its network cannot predict: the student decodes a fixed
+    /// number of steps in one pass, so it can serve no other horizon (never truncated or padded).
+    #[error("the {predictor} predicts exactly {predicts} steps; horizon {got} steps was asked for")]
+    FixedHorizon {
+        /// Predictor name (`"student"`).
+        predictor: &'static str,
+        /// Horizon asked for (steps).
+        got: usize,
+        /// The only horizon the network predicts (steps, its file's `t_plan`).
+        predicts: usize,
+    },
     /// The network predicted NaN or infinity: its output cannot be used (never "safe").
     #[error(
         "{predictor} predicted a non-finite position ({value}) for agent {agent} at step \

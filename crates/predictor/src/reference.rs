@@ -219,7 +219,32 @@ pub fn predict(
     history: &History,
     candidates: &[f64],
 ) -> Result<Vec<f64>> {
+    predict_over(w, z, history, candidates, w.config().t_plan)
+}
+
+/// [`predict`] over `horizon` steps: a teacher's recursion rolled out `horizon` times
+/// (`candidates` `[batch, horizon, 2]` metres; returns `[batch, n_agents - 1, horizon, 2]`
+/// metres); a student only over its own `t_plan`.
+///
+/// # Errors
+/// As [`predict`]; [`PredictorError::Horizon`] outside `1..=MAX_HORIZON`;
+/// [`PredictorError::FixedHorizon`] for a student asked for another horizon.
+pub fn predict_over(
+    w: &ModelWeights,
+    z: &[f32],
+    history: &History,
+    candidates: &[f64],
+    horizon: usize,
+) -> Result<Vec<f64>> {
     let cfg = w.config();
+    crate::check_horizon(horizon)?;
+    if cfg.kind == ModelKind::Student && horizon != cfg.t_plan {
+        return Err(PredictorError::FixedHorizon {
+            predictor: "student",
+            got: horizon,
+            predicts: cfg.t_plan,
+        });
+    }
     if z.len() != cfg.noise_dim {
         return Err(PredictorError::InputShape {
             what: "noise",
@@ -229,7 +254,7 @@ pub fn predict(
         });
     }
     let n = history.n_agents();
-    let t = cfg.t_plan;
+    let t = horizon;
     let mut out = vec![0.0f64; (candidates.len() / (2 * t).max(1)) * (n - 1) * t * 2];
     let batch = check_batch(candidates, &out, t, n, history.at(0, T_OBS - 1))?;
     let win0 = window(history);

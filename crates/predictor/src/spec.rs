@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{PredictorError, Result};
 use crate::weights::{ModelKind, ModelWeights};
-use crate::{ConstantVelocity, Predictor, Student, Teacher};
+use crate::{ConstantVelocity, Predictor, Student, Teacher, check_horizon};
 
 /// Environment variable naming the assets directory (`<assets>/models/*.safetensors`).
 pub const ASSETS_ENV: &str = "NUDGE_ASSETS";
@@ -154,11 +154,15 @@ impl PredictorSpec {
 
     /// `name_or_path`: `"constant_velocity"` (with `horizon` steps), `"teacher"` or
     /// `"student"` (the shipped weights under `assets`, [`model_path`]), or the path of a
-    /// weights file.
+    /// weights file. A constant-velocity baseline or a teacher predicts `horizon` steps
+    /// (the teacher rolls its one-step network out `horizon` times, [`Teacher::set_horizon`]);
+    /// a student keeps its fixed horizon, which the planner's settings check
+    /// ([`PredictorSpec::with_horizon`] refuses any other).
     ///
     /// # Errors
     /// Any loading error; [`PredictorError::WrongModelKind`] when a named model's file holds
-    /// the other kind of network.
+    /// the other kind of network; [`PredictorError::Horizon`] for a horizon outside
+    /// `1..=MAX_HORIZON`.
     ///
     /// # Examples
     ///
@@ -192,10 +196,55 @@ impl PredictorSpec {
                         got: spec.kind().as_str(),
                     });
                 }
-                Ok(spec)
+                spec.with_teacher_horizon(horizon)
             }
-            None => Self::from_file(given),
+            None => Self::from_file(given)?.with_teacher_horizon(horizon),
         }
+    }
+
+    /// The same predictor for `horizon` steps: a constant-velocity baseline or a teacher
+    /// (a longer or shorter recursive roll-out of the same network) for any horizon, a
+    /// student only for its own.
+    ///
+    /// # Errors
+    /// [`PredictorError::Horizon`] outside `1..=MAX_HORIZON`; [`PredictorError::FixedHorizon`]
+    /// when a student is asked for a horizon other than the one its network decodes.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nudge_predictor::{PredictorError, PredictorSpec};
+    ///
+    /// let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
+    /// let teacher = PredictorSpec::resolve("teacher", &assets, 6)?.with_horizon(10)?;
+    /// assert_eq!(teacher.build().horizon(), 10);
+    /// let student = PredictorSpec::resolve("student", &assets, 6)?;
+    /// assert!(matches!(
+    ///     student.with_horizon(10),
+    ///     Err(PredictorError::FixedHorizon { predictor: "student", got: 10, predicts: 6 })
+    /// ));
+    /// # Ok::<(), nudge_predictor::PredictorError>(())
+    /// ```
+    pub fn with_horizon(self, horizon: usize) -> Result<Self> {
+        check_horizon(horizon)?;
+        match self {
+            Self::Student(s) if s.horizon() != horizon => Err(PredictorError::FixedHorizon {
+                predictor: "student",
+                got: horizon,
+                predicts: s.horizon(),
+            }),
+            Self::Student(_) => Ok(self),
+            other => other.with_teacher_horizon(horizon),
+        }
+    }
+
+    /// `horizon` for a constant-velocity baseline or a teacher; a student unchanged.
+    fn with_teacher_horizon(self, horizon: usize) -> Result<Self> {
+        Ok(match self {
+            Self::ConstantVelocity(_) => Self::ConstantVelocity(ConstantVelocity::new(horizon)?),
+            Self::Teacher(t) => Self::Teacher(Box::new(t.with_horizon(horizon)?)),
+            Self::Student(s) => Self::Student(s),
+        })
     }
 
     /// Which kind of predictor this builds.

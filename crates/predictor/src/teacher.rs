@@ -7,7 +7,7 @@ use crate::generator::{Generator, Scratch};
 use crate::history::check_finite;
 use crate::simd::{Isa, SimdPath, simd_path};
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
-use crate::{History, Predictor, T_OBS, check_batch, limits};
+use crate::{History, Predictor, T_OBS, check_batch, check_horizon, limits};
 
 /// The teacher predictor (Social-GAN generator, one step per call, `t_plan` calls).
 ///
@@ -134,6 +134,29 @@ impl Teacher {
         limits::check_noise(z)?;
         self.noise.clear();
         self.noise.extend(z.iter().map(|&v| v as f32));
+        self.n = 0;
+        Ok(())
+    }
+
+    /// Sets the horizon and returns the teacher (builder style). Clears the current scene.
+    ///
+    /// # Errors
+    /// See [`Teacher::set_horizon`].
+    pub fn with_horizon(mut self, horizon: usize) -> Result<Self> {
+        self.set_horizon(horizon)?;
+        Ok(self)
+    }
+
+    /// Sets the number of recursive one-step generator calls per candidate, the prediction
+    /// horizon (steps of [`DT`](crate::DT); the file's `t_plan` until changed). The network
+    /// predicts one step per call, so any horizon is a longer or shorter roll-out of the same
+    /// weights. Clears the current scene.
+    ///
+    /// # Errors
+    /// [`PredictorError::Horizon`] unless `1 <= horizon <= MAX_HORIZON`.
+    pub fn set_horizon(&mut self, horizon: usize) -> Result<()> {
+        check_horizon(horizon)?;
+        self.generator.cfg.t_plan = horizon;
         self.n = 0;
         Ok(())
     }

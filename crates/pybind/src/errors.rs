@@ -82,6 +82,7 @@ pub fn predictor_err(err: RsPredictorError) -> PyErr {
         | RsPredictorError::NonFiniteInput { .. }
         | RsPredictorError::InputOutOfRange { .. }
         | RsPredictorError::Horizon { .. }
+        | RsPredictorError::FixedHorizon { .. }
         | RsPredictorError::BatchTooLarge { .. }
         | RsPredictorError::NoScene => InputError::new_err(msg),
         RsPredictorError::Foreign { source, .. } => py_predictor::failure_err(msg, source),

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::sync::Mutex;
 
 use nudge_predictor::{
-    ConstantVelocity, History, MAX_AGENTS, MAX_BATCH, Predictor, T_OBS, load_predictor,
+    ConstantVelocity, History, MAX_AGENTS, MAX_BATCH, Predictor, PredictorSpec, T_OBS,
 };
 use numpy::{IntoPyArray, PyArray4, PyArrayMethods};
 use pyo3::prelude::*;
@@ -45,11 +45,26 @@ impl PyPredictor {
 #[pymethods]
 impl PyPredictor {
     /// Loads a teacher or student from `path` (raises `WeightsError` naming the problem).
+    /// `horizon` (steps, default the file's): a teacher rolls its one-step network out that
+    /// many times; a student predicts only its own horizon (`InputError` naming both
+    /// otherwise).
     #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+    #[pyo3(signature = (path, horizon = None), text_signature = "(path, horizon=None)")]
+    fn load(py: Python<'_>, path: PathBuf, horizon: Option<Int>) -> PyResult<Self> {
         guard(|| {
-            let p = py.detach(|| load_predictor(&path)).map_err(predictor_err)?;
-            Ok(Self::wrap(p))
+            let horizon = horizon
+                .map(|h| h.usize("horizon", nudge_predictor::MAX_HORIZON))
+                .transpose()?;
+            let spec = py
+                .detach(|| {
+                    let spec = PredictorSpec::from_file(&path)?;
+                    match horizon {
+                        Some(h) => spec.with_horizon(h),
+                        None => Ok(spec),
+                    }
+                })
+                .map_err(predictor_err)?;
+            Ok(Self::wrap(spec.build()))
         })
     }
 

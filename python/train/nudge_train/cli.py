@@ -7,6 +7,7 @@
     nudge-train student                    distil, evaluate and export the student
     nudge-train student-react              distil a student with a loss on its reaction to the ego
     nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
+    nudge-train horizon                    the teacher over 3 s (accuracy, cut-ins, latency), docs/results/horizon.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
     nudge-train paper [--quick]            the paper's Tables I-II and Figures 7-10 into docs/paper
     nudge-train interaction                aware planner vs its reaction ablated on dense scenes, docs/results/interaction.md
@@ -72,6 +73,8 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--no-i80", action="store_true", help="leave out the Coifman & Li I-80 set")
     b.add_argument("--frame", choices=ROAD_FRAMES, default=ROAD_FRAMES[0],
                    help="road frame of the US-101 scenes: straightened, or frenet (curvilinear)")
+    b.add_argument("--n-fut", type=int, default=None,
+                   help="future steps (0.3 s) per window (default 6; e.g. 10 for 3 s evaluations, into another --out)")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     r = _command(dsub, "report", "write docs/data.md and docs/figures/data_*.png from a build", _run_data_report)
@@ -115,9 +118,15 @@ def _run_data_build(a: argparse.Namespace) -> int:
 
     from nudge_train.data.sources import decision_lines
 
+    from nudge_train.data.windows import WindowConfig
+
     phases = tuple(int(p) for p in a.phases.split(",") if p.strip())
+    if a.n_fut is not None and a.n_fut < 1:
+        print(f"error: --n-fut must be >= 1, got {a.n_fut}", file=sys.stderr)
+        return 2
+    window = WindowConfig() if a.n_fut is None else WindowConfig(n_fut=a.n_fut)
     manifest = build(BuildConfig(data_root=a.data_root, out=a.out, raw=tuple(a.raw), seed=a.seed, phases=phases,
-                                 include_i80=not a.no_i80, frame=a.frame), progress=not a.no_progress)
+                                 include_i80=not a.no_i80, frame=a.frame, window=window), progress=not a.no_progress)
     print(f"wrote {a.out / 'manifest.json'}: {manifest['counts']['windows']} windows")
     for line in decision_lines([(s["split"], s.get("rule", ""), s.get("reason", "")) for s in manifest["sources"]]):
         print(f"  {line}")
@@ -247,6 +256,33 @@ def _add_reaction(sub: argparse._SubParsersAction) -> None:
 
 def _run_reaction(a: argparse.Namespace) -> int:
     from nudge_train.experiments.reaction_report import run
+
+    return run(a)
+
+
+def _add_horizon(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "horizon",
+                 "the teacher over a 3 s horizon: ADE/FDE at 1.8 s and 3.0 s, its reaction on real cut-ins, the "
+                 "latency of the longer horizon: docs/results/horizon.md", _run_horizon)
+    p.add_argument("--data", type=Path, default=paths.runs() / "processed_fut10",
+                   help="a build with 10-step futures (`nudge-train data build --n-fut 10 --out DIR`)")
+    p.add_argument("--teacher", type=Path, default=paths.model_weights("teacher"), help="teacher weights")
+    p.add_argument("--samples", type=int, default=20, help="z draws of the best-of-k rows")
+    p.add_argument("--best-of-n", type=int, default=200, help="test windows (seeded draw) of the best-of-k rows")
+    p.add_argument("--cutins", type=Path, default=paths.assets() / "worlds" / "cutins.json", help="the real cut-ins")
+    p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material (the cut-ins' tracks)")
+    p.add_argument("--latency", type=Path, default=None,
+                   help="a report (docs/results/latency.md) holding a `nudge-train bench latency --horizons ...` section")
+    p.add_argument("--report", type=Path, default=paths.results() / "horizon.md", help="the report (markdown)")
+    p.add_argument("--json", type=Path, default=paths.runs() / "horizon" / "horizon.json",
+                   help="every number of the report (JSON)")
+    p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+
+
+def _run_horizon(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.horizon import run
 
     return run(a)
 
@@ -445,6 +481,11 @@ def _add_interaction(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=paths.results() / "interaction.md", help="the report")
     p.add_argument("--json", type=Path, default=paths.runs() / "interaction" / "interaction.json", dest="json_path",
                    metavar="JSON", help="the numbers of the report")
+    p.add_argument("--horizon", type=int, default=None,
+                   help="planning and prediction horizon of every arm (steps of 0.3 s; default the planner's, 6); "
+                        "planners whose model cannot predict it (the 6-step students) are left out")
+    p.add_argument("--compare-horizon", type=int, default=None,
+                   help="also run every arm at this horizon on the same runs and pair the two in the report")
     p.add_argument("--no-figure", action="store_true", help="no figure or animations of a pair")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -455,7 +496,8 @@ def _run_interaction(a: argparse.Namespace) -> int:
     cfg = InteractionConfig(splits=tuple(a.splits), n=tuple(a.n), teacher_n=tuple(a.teacher_n), seeds=a.seeds,
                             margin=a.margin, candidate=a.candidate, worlds=tuple(a.worlds), seed=a.seed,
                             threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap, progress=not a.no_progress,
-                            animate=not a.no_figure)
+                            animate=not a.no_figure, compare_horizon=a.compare_horizon,
+                            **({} if a.horizon is None else {"horizon": a.horizon}))
     return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []))
 
 
@@ -521,6 +563,8 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--n-edges", type=int, nargs="+", default=list(N_EDGES),
                    help="upper bounds (inclusive) of the vehicle-count buckets")
     t.add_argument("--chunk", type=int, default=d.chunk, help="scenes per chunk (every arm runs a chunk in turn)")
+    t.add_argument("--horizons", type=int, nargs="+", default=[],
+                   help="run every predictor at each of these planning horizons (steps), side by side")
     t.add_argument("--out", type=Path, default=paths.results() / "latency.md",
                    help="the report (its section of this budget is replaced, the rest kept)")
     t.add_argument("--no-progress", action="store_true", help="no progress lines")
@@ -561,7 +605,8 @@ def _run_bench_latency(a: argparse.Namespace) -> int:
 
     cfg = LatencyConfig(scenes=a.scenes or paths.scenes(a.split), n=a.n, seed=a.seed, runs=a.runs,
                         predictors=tuple(a.predictors), world=a.world, budget_ms=a.budget_ms, teacher_n=a.teacher_n,
-                        n_edges=tuple(a.n_edges), chunk=a.chunk, progress=not a.no_progress)
+                        n_edges=tuple(a.n_edges), chunk=a.chunk, progress=not a.no_progress,
+                        horizons=tuple(a.horizons))
     try:
         cfg.validate()
     except ValueError as err:
@@ -664,6 +709,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_student(sub)
     _add_student_react(sub)
     _add_reaction(sub)
+    _add_horizon(sub)
     _add_distill(sub)
     _add_closed_loop(sub)
     _add_paper(sub)

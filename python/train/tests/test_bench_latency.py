@@ -211,3 +211,21 @@ def test_small_run_end_to_end(tmp_path: Path) -> None:
     # Runs rows: predictor, budget, runs, errors, success, ... (no run fails here: the same runs)
     success = {c[1]: c[4] for c in cells if len(c) == 9 and c[1] in ("off", "50 ms")}
     assert len(paired_rows) == 1 and paired_rows[0][4] == f"{success['off']} → {success['50 ms']}"
+
+
+def test_horizons_run_side_by_side(tmp_path: Path) -> None:
+    """``--horizons 6 10``: every predictor at both horizons on the same runs, in a section of its
+    own; a student asked for 10 steps is refused before any run (exit 2, naming the horizon)."""
+    out = tmp_path / "latency.md"
+    assert main(["bench", "latency", "--scenes", str(paths.shipped_scenes()), "--n", "2",
+                 "--predictors", "constant_velocity", "--horizons", "6", "10", "--no-progress",
+                 "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "<!-- bench latency: budget off, horizons 6 10 -->" in text
+    rows = [ln for ln in text.splitlines() if ln.startswith("| constant_velocity, h = ")]
+    assert {r.split(" | ")[0] for r in rows} == {"| constant_velocity, h = 6", "| constant_velocity, h = 10"}
+    with pytest.raises(ValueError, match="--horizons"):
+        LatencyConfig(scenes=Path("s"), horizons=(6, 6)).validate()
+    assert main(["bench", "latency", "--scenes", str(paths.shipped_scenes()), "--n", "1", "--predictors", "student",
+                 "--horizons", "10", "--no-progress", "--out", str(tmp_path / "y.md")]) == 2
+    assert not (tmp_path / "y.md").exists()

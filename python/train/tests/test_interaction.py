@@ -114,3 +114,25 @@ def test_start_geometry_by_hand() -> None:
     # Level with it, the ego's centre stays sqrt(2) * 1.9 + 0.3 below 3.7; its edge 0.95 above that.
     assert depth == pytest.approx((3.7 - 1.85) - (np.sqrt(2.0) * 1.9 + 0.3) + 0.95)
     assert start_geometry(sc, 0, s) is None
+
+
+def test_horizon_10_leaves_the_6_step_students_out(tmp_path: Path) -> None:
+    """At 10 steps only the teacher can plan among the models (the students decode 6 steps: the typed
+    refusal decides, not a list); every arm's settings carry the horizon; a bad horizon names itself."""
+    from nudge_train.experiments.interaction import InteractionConfig, serves, start_reactions
+
+    student = tmp_path / "s.safetensors"
+    student.write_bytes(nudge.model_path("student").read_bytes())
+    cfg = InteractionConfig(horizon=10, candidate=student)
+    assert cfg.planners() == [("teacher", "teacher")]
+    assert cfg.settings(True).horizon == 10 and cfg.settings(True).ablate_reaction
+    assert [p for p, _ in InteractionConfig(candidate=student).planners()] == ["teacher", "student", "student_react"]
+    assert [p for p, _ in InteractionConfig(horizon=6, compare_horizon=10).planners()] == ["teacher"]
+    assert serves("teacher", 10) and not serves("student", 10) and serves("student", 6)
+    with pytest.raises(ValueError, match="--horizon"):
+        InteractionConfig(horizon=0).validate()
+    # The reaction at the dense starts read at the last of 10 steps (3.0 s).
+    runs = dense_runs(nudge.scene_paths(), 1, 2.0, 0)[:2]
+    r6, r10 = start_reactions(runs, {"teacher": "teacher"}), start_reactions(runs, {"teacher": "teacher"}, 10)
+    assert r6["teacher"].shape == r10["teacher"].shape and r6["teacher"].size > 0
+    assert not np.array_equal(r6["teacher"], r10["teacher"])

@@ -177,6 +177,27 @@ def test_cutin_case_matches_the_synthetic_tracks() -> None:
     assert r["y"]["fall_back"][0] == pytest.approx(-0.2 * lat, abs=1e-3)  # constant speed otherwise
 
 
+def test_cutin_case_over_a_3_s_horizon() -> None:
+    """The same event over 10 steps: the candidate is the intruder's next 3 s; the real fall-back
+    is read at every step (1.8 s as the 6-step case, 3.0 s: 0.5 · 1.0 · 2.1² behind)."""
+    tr, e = _cutin_tracks(decel=1.0)
+    six, ten = cutin_case(tr, e, lead_s=0.9), cutin_case(tr, e, lead_s=0.9, steps=10)
+    assert six is not None and ten is not None
+    assert ten.candidate.shape == (1, 10, 2) and ten.real_fbs is not None and ten.real_fbs.shape == (10,)
+    np.testing.assert_array_equal(ten.candidate[:, :6], six.candidate)
+    assert ten.real_fbs[5] == pytest.approx(six.real_fb, abs=1e-9)
+    assert ten.real_fb == ten.real_fbs[9] == pytest.approx(-0.5 * 2.1**2, abs=1e-9)
+    # The predicted fall-back is read at the step asked for (a constant-speed predictor: 0 at 1.8 and 3.0 s).
+    def constant_speed(history: np.ndarray, cands: np.ndarray) -> np.ndarray:
+        v = history[1:, -1] - history[1:, -2]
+        k = np.arange(1, cands.shape[1] + 1)[None, :, None]
+        return np.broadcast_to(history[1:, -1][:, None] + k * v[:, None], (len(cands), len(history) - 1,
+                                                                            cands.shape[1], 2))
+    for step in (5, 9):
+        r = cutin_reactions([ten], {"cv": constant_speed}, step=step)["cv"]
+        assert r["fall_back"][0] == pytest.approx(0.0, abs=1e-3) and r["reaction"][0] == 0.0
+
+
 # ------------------------------------------------------------------ shipped models (collapse guard)
 
 SCENES = sorted((REPO / "assets" / "scenes").glob("*.safetensors"))

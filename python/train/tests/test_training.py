@@ -14,15 +14,20 @@ from nudge_train.data.loader import WindowSet
 from nudge_train.models.config import teacher_config
 from nudge_train.models.networks import build_model
 from nudge_train.training.config import TrainConfig, load_config
-from nudge_train.training.evaluate import evaluate_constant_velocity, evaluate_generator
+from nudge_train.training.evaluate import (
+    evaluate_constant_velocity,
+    evaluate_constant_velocity_at,
+    evaluate_generator,
+    evaluate_generator_at,
+)
 from nudge_train.training.loop import train, variety_loss
 
 
-def _windows(n_windows: int = 24, seed: int = 0) -> WindowSet:
+def _windows(n_windows: int = 24, seed: int = 0, pred_len: int = 6) -> WindowSet:
     """Highway-like windows: agents in lanes 3.7 m apart at 8–25 m/s, some drifting laterally."""
     rng = np.random.default_rng(seed)
     pos, offs, inter = [], [0], []
-    t = np.arange(14, dtype=np.float64) * 0.3
+    t = np.arange(8 + pred_len, dtype=np.float64) * 0.3
     for _ in range(n_windows):
         n = int(rng.integers(1, 7))
         x0 = rng.uniform(-40, 40, n)
@@ -34,7 +39,11 @@ def _windows(n_windows: int = 24, seed: int = 0) -> WindowSet:
         pos.append(p.astype(np.float32))
         offs.append(offs[-1] + n)
         inter.append(int(drift.any()))
-    return WindowSet(np.concatenate(pos), np.array(offs, np.int64), np.array(inter, np.uint8))
+    return WindowSet(np.concatenate(pos), np.array(offs, np.int64), np.array(inter, np.uint8), pred_len)
+
+
+def _truncated(data: WindowSet, pred_len: int) -> WindowSet:
+    return WindowSet(data.positions[:, : 8 + pred_len].copy(), data.offsets, data.interactive, pred_len)
 
 
 def test_variety_loss_matches_brute_force() -> None:
@@ -177,3 +186,28 @@ def test_samples_per_epoch_draws_a_seeded_subset(tmp_path: Path, monkeypatch: py
     assert seen[0] != seen[1]
     with pytest.raises(ValueError, match="samples_per_epoch"):
         TrainConfig(samples_per_epoch=-1).validate()
+
+
+def test_scores_at_several_horizons_match_the_shorter_windows() -> None:
+    """One 10-step roll-out scored at 6 and 10 steps: at 6 it is the 6-step evaluation of the same
+    windows cut to 6 future steps (fixed z and best of k, the same draws), at 10 the 10-step one."""
+    data = _windows(10, seed=3, pred_len=10)
+    six = _truncated(data, 6)
+    gen, _ = build_model(teacher_config().replace(pool_hidden_dim=16))
+    for samples in (1, 4):
+        at = evaluate_generator_at(gen, data, (6, 10), samples=samples, seed=2)
+        for h, windows in ((6, six), (10, data)):
+            want = evaluate_generator(gen, windows, mode="recursive", samples=samples, seed=2)
+            got = at[h]
+            assert (got.agents, got.scenes) == (want.agents, want.scenes)
+            for k in ("ade1", "ade6", "fde6"):
+                assert getattr(got, k) == pytest.approx(getattr(want, k), rel=1e-6, abs=1e-9), (samples, h, k)
+    assert at[10].fde6 != at[6].fde6
+    cv = evaluate_constant_velocity_at(data, (6, 10))
+    for h, windows in ((6, six), (10, data)):
+        want = evaluate_constant_velocity(windows, skip_ego=True)
+        assert (cv[h].ade6, cv[h].fde6, cv[h].agents) == pytest.approx((want.ade6, want.fde6, want.agents))
+    with pytest.raises(ValueError, match="10 future steps"):
+        evaluate_generator_at(gen, data, (12,))
+    with pytest.raises(ValueError, match=r"expected \[A, 14, 2\]"):
+        WindowSet(data.positions, data.offsets, data.interactive)

@@ -361,7 +361,8 @@ mod tests {
                 "the world model must be a teacher",
             ),
         ]);
-        // Constant velocity predicts any horizon it is asked for.
+        // Constant velocity predicts any horizon it is asked for, and so does the teacher (a
+        // longer roll-out of its one-step network), as planner and as world model.
         assert!(
             BatchRequest {
                 settings: &h7,
@@ -370,17 +371,32 @@ mod tests {
             .prepare()
             .is_ok()
         );
+        let batch = BatchRequest {
+            settings: &h7,
+            predictor: Path::new("teacher"),
+            config: &teacher,
+            ..base
+        }
+        .prepare()
+        .unwrap();
+        assert_eq!(batch.predictors.planning.horizon(), 7);
+        // A student decodes 6 steps in one pass: any other horizon is refused, naming it.
+        let h10 = PlannerSettings {
+            horizon: 10,
+            ..PlannerSettings::default()
+        };
         assert!(matches!(
             BatchRequest {
-                settings: &h7,
-                predictor: Path::new("teacher"),
+                settings: &h10,
+                predictor: Path::new("student"),
                 ..base
             }
             .prepare(),
             Err(SimError::Settings(SettingsError::Incompatible {
                 field: "horizon",
+                value,
                 ..
-            }))
+            })) if value == 10.0
         ));
     }
 

@@ -60,10 +60,13 @@ class WindowSet:
     positions: np.ndarray
     offsets: np.ndarray
     interactive: np.ndarray
+    pred_len: int = PRED_LEN
+    """Future steps per window (the build's ``window.n_fut``; 6 unless built longer)."""
 
     def __post_init__(self) -> None:
-        if self.positions.ndim != 3 or self.positions.shape[1:] != (OBS_LEN + PRED_LEN, 2):
-            raise ValueError(f"positions: expected [A, {OBS_LEN + PRED_LEN}, 2], got {list(self.positions.shape)}")
+        steps = OBS_LEN + self.pred_len
+        if self.pred_len < 1 or self.positions.ndim != 3 or self.positions.shape[1:] != (steps, 2):
+            raise ValueError(f"positions: expected [A, {steps}, 2], got {list(self.positions.shape)}")
         if self.offsets.ndim != 1 or self.offsets[0] != 0 or self.offsets[-1] != len(self.positions):
             raise ValueError("offsets: must start at 0 and end at the agent count")
         if np.any(np.diff(self.offsets) <= 0):
@@ -86,9 +89,10 @@ class WindowSet:
         parts = [self.positions[self.offsets[w] : self.offsets[w + 1]] for w in windows]
         sizes = np.array([len(p) for p in parts], dtype=np.int64)
         return WindowSet(
-            positions=np.concatenate(parts) if parts else np.zeros((0, OBS_LEN + PRED_LEN, 2), np.float32),
+            positions=np.concatenate(parts) if parts else np.zeros((0, OBS_LEN + self.pred_len, 2), np.float32),
             offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
             interactive=self.interactive[windows].copy(),
+            pred_len=self.pred_len,
         )
 
     def batch(self, windows: np.ndarray) -> Batch:
@@ -164,7 +168,9 @@ def load_split(manifest_path: Path, split: str, max_windows: int | None = None) 
         base += len(t["positions"])
     if not pos:
         raise ValueError(f"{manifest_path}: split {split!r} has no shards")
-    ws = WindowSet(np.concatenate(pos), np.concatenate(offs), np.concatenate(inter))
+    window = manifest.get("config", {}).get("window", {})
+    pred_len = int(window.get("n_fut", PRED_LEN)) if isinstance(window, dict) else PRED_LEN
+    ws = WindowSet(np.concatenate(pos), np.concatenate(offs), np.concatenate(inter), pred_len)
     if max_windows is not None and len(ws) > max_windows:
         ws = ws.subset(np.arange(max_windows))
     return ws

@@ -77,10 +77,17 @@ QUANTILES = (50, 90, 99)
 
 @dataclass(frozen=True)
 class Arm:
-    """One timed configuration: a planning predictor with or without a work budget (ms)."""
+    """One timed configuration: a planning predictor with or without a work budget (ms), at the
+    default horizon or at ``horizon`` steps."""
 
     predictor: str
     budget_ms: float | None
+    horizon: int | None = None
+
+    @property
+    def label(self) -> str:
+        """``predictor`` or ``predictor, h = N`` (an arm at a chosen horizon)."""
+        return self.predictor if self.horizon is None else f"{self.predictor}, h = {self.horizon}"
 
     def budget_label(self) -> str:
         """``off`` or ``X ms``."""
@@ -234,7 +241,7 @@ def latency_table(results: Sequence[ArmResult], edges: Sequence[int], budget_ms:
     lines = [head, rule]
     for res in results:
         for r in latency_rows(res, edges, over):
-            line = (f"| {res.arm.predictor} | {res.arm.budget_label()} | {r['bucket']} | {r['runs']} | {r['steps']} "
+            line = (f"| {res.arm.label} | {res.arm.budget_label()} | {r['bucket']} | {r['runs']} | {r['steps']} "
                     f"| {_ms(r['p50'])} | {_ms(r['p90'])} | {_ms(r['p99'])} | {_ms(r['max'])} |")
             if over is not None:
                 line += f" {r['over']} |"
@@ -249,7 +256,7 @@ def status_table(results: Sequence[ArmResult]) -> str:
     lines = ["| predictor | budget | steps | " + " | ".join(names) + " |", "|---|---|---|" + "---|" * len(names)]
     for res, sh in zip(results, shares, strict=True):
         cells = " | ".join(f"{100 * sh.get(s, 0.0):.1f} %" for s in names)
-        lines.append(f"| {res.arm.predictor} | {res.arm.budget_label()} | {len(res.steps['status'])} | {cells} |")
+        lines.append(f"| {res.arm.label} | {res.arm.budget_label()} | {len(res.steps['status'])} | {cells} |")
     return "\n".join(lines)
 
 
@@ -261,7 +268,7 @@ def outcome_table(results: Sequence[ArmResult]) -> str:
     for res in results:
         o = outcomes(res)
         share = f"{100 * res.cpu_s / res.wall_s:.0f} %" if res.wall_s > 0 else "–"
-        lines.append(f"| {res.arm.predictor} | {res.arm.budget_label()} | {o['runs']} | {o['errors']} "
+        lines.append(f"| {res.arm.label} | {res.arm.budget_label()} | {o['runs']} | {o['errors']} "
                      f"| {o['success']} | {o['collision_runs']} | {o['collisions']} | {res.wall_s:.0f} | {share} |")
     return "\n".join(lines)
 
@@ -273,7 +280,7 @@ def budget_table(results: Sequence[ArmResult], edges: Sequence[int], budget_ms: 
     over = budget_ms + 1.0
     by_pred: dict[str, dict[bool, ArmResult]] = {}
     for r in results:
-        by_pred.setdefault(r.arm.predictor, {})[r.arm.budget_ms is not None] = r
+        by_pred.setdefault(r.arm.label, {})[r.arm.budget_ms is not None] = r
     head = (f"| predictor | paired runs | steps > {over:g} ms (off → on) | max ms (off → on) "
             "| success (off → on) | successes lost / gained | runs with a collision (off → on) "
             "| collision runs new / gone |")
@@ -317,7 +324,8 @@ def _load(x: tuple[float, float, float] | None) -> str:
 # ---- running -----------------------------------------------------------------------------------------
 def _arms(cfg: LatencyConfig) -> list[Arm]:
     budgets: list[float | None] = [None] if cfg.budget_ms is None else [None, cfg.budget_ms]
-    return [Arm(p, b) for p in cfg.predictors for b in budgets]
+    horizons: tuple[int | None, ...] = cfg.horizons or (None,)
+    return [Arm(p, b, h) for p in cfg.predictors for h in horizons for b in budgets]
 
 
 def collect(cfg: LatencyConfig, log: Callable[[str], None] = print) -> tuple[list[ArmResult], dict]:
@@ -348,6 +356,8 @@ def collect(cfg: LatencyConfig, log: Callable[[str], None] = print) -> tuple[lis
             if not idx:
                 continue
             settings = base if arm.budget_ms is None else base.replace(budget_s=arm.budget_ms / 1e3)
+            if arm.horizon is not None:
+                settings = settings.replace(horizon=arm.horizon)
             t0, c0 = time.perf_counter(), time.process_time()
             out = nudge.simulate([scenes[i] for i in idx], arm.predictor, scene_seeds=[scene_seeds[i] for i in idx],
                                  runs=cfg.runs, threads=1, settings=settings, config=sim_cfg, on_error="skip")
@@ -369,9 +379,11 @@ def collect(cfg: LatencyConfig, log: Callable[[str], None] = print) -> tuple[lis
     return results, meta
 
 
-def section_key(budget_ms: float | None) -> str:
-    """The name of a report's section in the output file: ``budget off`` / ``budget X ms``."""
-    return "budget off" if budget_ms is None else f"budget {budget_ms:g} ms"
+def section_key(budget_ms: float | None, horizons: Sequence[int] = ()) -> str:
+    """The name of a report's section in the output file: ``budget off`` / ``budget X ms``, with
+    ``, horizons 6 10`` when the arms ran at chosen horizons."""
+    key = "budget off" if budget_ms is None else f"budget {budget_ms:g} ms"
+    return key + (f", horizons {' '.join(str(h) for h in horizons)}" if horizons else "")
 
 
 def report(results: Sequence[ArmResult], meta: dict, cfg: LatencyConfig, command: str) -> str:
@@ -380,12 +392,15 @@ def report(results: Sequence[ArmResult], meta: dict, cfg: LatencyConfig, command
     if "teacher" in cfg.predictors and meta["teacher_scenes"] < meta["scenes"]:
         teacher = f" (the teacher planner on a seeded subset of {meta['teacher_scenes']})"
     lines = [
-        f"### {section_key(cfg.budget_ms).capitalize()}",
+        f"### {section_key(cfg.budget_ms, cfg.horizons).capitalize()}",
         "",
         f"`{command}`",
         "",
         f"- scenes: {meta['scenes']} of `{paths.repo_relative(Path(cfg.scenes))}` (seed {cfg.seed}){teacher}, "
         f"{meta['runs']} run(s) per scene, world `{meta['world']}`, default planner settings"
+        + ("" if not cfg.horizons else
+           " at each horizon " + ", ".join(f"{h} steps ({h * 0.3:.1f} s)" for h in cfg.horizons)
+           + " (`horizon`, arms `predictor, h = N`; every arm on the same runs)")
         + ("" if cfg.budget_ms is None else f", and the same with `budget_s` = {cfg.budget_ms / 1e3:g}"),
         f"- machine: {meta['cpu']}, {meta['cpus']} logical CPUs, planner on 1 thread, niceness {meta['nice']}; "
         f"load average (1 / 5 / 15 min) {_load(meta['load_start'])} at the start, {_load(meta['load_end'])} "
@@ -410,7 +425,7 @@ def report(results: Sequence[ArmResult], meta: dict, cfg: LatencyConfig, command
                   ""]
         for res in results:
             counts = ", ".join(f"{k} {v}" for k, v in slow_statuses(res, over).items()) or "none"
-            lines.append(f"- {res.arm.predictor}, budget {res.arm.budget_label()}: {counts}")
+            lines.append(f"- {res.arm.label}, budget {res.arm.budget_label()}: {counts}")
     return "\n".join(lines) + "\n"
 
 
@@ -438,14 +453,16 @@ def command_line(argv: Sequence[str]) -> str:
 def run(cfg: LatencyConfig, out: Path | None, command: str) -> int:
     """``nudge-train bench latency``: runs, prints the section and writes it into ``out``.
     Returns the exit status (2 when an argument is invalid or the folder holds no scenario)."""
+    import nudge
+
     try:
         results, meta = collect(cfg, log=lambda s: print(s, flush=True))
-    except (ValueError, FileNotFoundError) as err:
+    except (ValueError, FileNotFoundError, nudge.SettingsError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     text = report(results, meta, cfg, command)
     print(text)
     if out is not None:
-        write_section(out, section_key(cfg.budget_ms), text)
+        write_section(out, section_key(cfg.budget_ms, cfg.horizons), text)
         print(f"wrote {paths.repo_relative(out)}")
     return 0

@@ -37,7 +37,7 @@ import shlex
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +64,8 @@ TARGET_PP = 10.0
 """Success gain (percentage points) the issue asks of the aware planner, interval above 0."""
 TARGET_S = 0.5
 """Time-to-lane gain (s) the issue asks of the aware planner, interval below 0."""
+DEFAULT_HORIZON = int(nudge.PlannerSettings.default().horizon)
+"""The planner's default horizon (steps): the shipped student's."""
 
 
 @dataclass(frozen=True)
@@ -100,9 +102,20 @@ class InteractionConfig:
     bootstrap: int = BOOTSTRAP
     progress: bool = True
     animate: bool = True
+    horizon: int = DEFAULT_HORIZON
+    """Planning and prediction horizon (steps of 0.3 s) of every arm."""
+    compare_horizon: int | None = None
+    """When set, every arm also runs at this horizon on the same runs, and the report pairs them."""
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad argument."""
+        for name in ("horizon", "compare_horizon"):
+            h = getattr(self, name)
+            if h is not None:
+                try:
+                    nudge.PlannerSettings(horizon=h)
+                except nudge.NudgeError as err:
+                    raise ValueError(f"--{name.replace('_', '-')}: {err}") from None
         for name in ("seeds", "threads", "batch"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -129,11 +142,34 @@ class InteractionConfig:
         return (self.n[i if len(self.n) > 1 else 0], self.teacher_n[i if len(self.teacher_n) > 1 else 0])
 
     def planners(self) -> list[tuple[str, str]]:
-        """(label, predictor) of every planner with an ablated arm, then constant velocity."""
+        """(label, predictor) of every planner with an ablated arm (constant velocity runs besides):
+        those whose model predicts ``horizon`` steps (and ``compare_horizon``, when set); a student
+        decodes a fixed 6 steps, so a longer horizon leaves the teacher."""
         out = [("teacher", "teacher"), ("student", "student")]
         if self.candidate is not None:
             out.append((CANDIDATE, str(self.candidate)))
-        return out
+        horizons = [h for h in (self.horizon, self.compare_horizon) if h is not None]
+        return [(label, p) for label, p in out if all(serves(p, h) for h in horizons)]
+
+    def settings(self, ablated: bool) -> nudge.PlannerSettings:
+        """The planner settings of an arm: the defaults at ``horizon``, ``ablate_reaction`` as given."""
+        return nudge.PlannerSettings(ablate_reaction=ablated, horizon=self.horizon)
+
+
+def load_predictor(predictor: str, horizon: int) -> nudge.Predictor:
+    """The model ``predictor`` (``teacher``, ``student`` or a weights file) for ``horizon`` steps;
+    raises ``nudge.InputError`` when it cannot predict that horizon (a student's fixed decoder)."""
+    path = nudge.model_path(predictor) if predictor in ("teacher", "student") else predictor
+    return nudge.Predictor.load(path, horizon=horizon)
+
+
+def serves(predictor: str, horizon: int) -> bool:
+    """Whether the model ``predictor`` predicts ``horizon`` steps (the typed refusal, not a guess)."""
+    try:
+        load_predictor(predictor, horizon)
+    except nudge.InputError:
+        return False
+    return True
 
 
 # ---- dense scenes ------------------------------------------------------------------------------
@@ -209,7 +245,7 @@ def _run_arm(arm: Arm, predictor: str, runs: list[tuple[Path, list[int]]], cfg: 
              hasher: _Hasher, bar: tqdm) -> tuple[dict[str, list], float, float]:
     """The runs of one arm (cached per part): its columns, the wall time of its parts (s, as
     measured when each ran) and the time computed now (s)."""
-    settings = nudge.PlannerSettings(ablate_reaction=arm.ablated)
+    settings = cfg.settings(arm.ablated)
     config = nudge.SimConfig(world=arm.world)
     inputs = {"schema": CACHE_SCHEMA, "native": hasher(Path(nudge._native.__file__)), "predictor": predictor,
               "settings": json.loads(settings.to_json()), "config": json.loads(config.to_json()),
@@ -402,16 +438,17 @@ def _lane(bounds: np.ndarray, lane: int) -> tuple[float, float]:
     return tuple(sorted((float(bounds[lane]), float(bounds[lane + 1]))))  # type: ignore[return-value]
 
 
-def start_reactions(runs: list[tuple[Path, list[int]]], predictors: dict[str, str]) -> dict[str, np.ndarray]:
+def start_reactions(runs: list[tuple[Path, list[int]]], predictors: dict[str, str],
+                    horizon: int = 6) -> dict[str, np.ndarray]:
     """Each model's reaction at every dense (scene, target lane) start: the target-lane
     follower's (nearest vehicle whose centre is in the target lane and behind the ego's) predicted
-    x at 1.8 s under a lane-change candidate minus under the keep-lane path (m; negative = it
-    falls back). Lane change: the ego at its last observed speed along the road, y from its last
-    observed position to the target lane's centre by a smoothstep over the 6 steps; keep-lane:
-    the same x at the ego's y. ``predictors``: label -> predictor name or weights file. Starts
-    without a follower are left out."""
-    models = {label: nudge.Predictor.load(nudge.model_path(p) if p in ("teacher", "student") else p)
-              for label, p in predictors.items()}
+    x at the last of ``horizon`` steps (1.8 s by default) under a lane-change candidate minus under
+    the keep-lane path (m; negative = it falls back). Lane change: the ego at its last observed
+    speed along the road, y from its last observed position to the target lane's centre by a
+    smoothstep over the first 6 steps (1.8 s), then on that centre; keep-lane: the same x at the
+    ego's y. ``predictors``: label -> predictor name or weights file, each loaded for ``horizon``
+    steps. Starts without a follower are left out."""
+    models = {label: load_predictor(p, horizon) for label, p in predictors.items()}
     out: dict[str, list[float]] = {label: [] for label in models}
     for path, seeds in runs:
         sc = nudge.Scenario.load(path)
@@ -423,14 +460,14 @@ def start_reactions(runs: list[tuple[Path, list[int]]], predictors: dict[str, st
             if not behind:
                 continue
             follower = max(behind, key=lambda j: pos[j, 0])
-            k = np.arange(1, 7, dtype=np.float64)
-            f = k / 6.0
+            k = np.arange(1, horizon + 1, dtype=np.float64)
+            f = np.minimum(k / 6.0, 1.0)
             x = pos[0, 0] + v * nudge.DT * k
             y = pos[0, 1] + ((lo + hi) / 2.0 - pos[0, 1]) * f * f * (3.0 - 2.0 * f)
-            cands = np.stack([np.stack([x, y], axis=1), np.stack([x, np.full(6, pos[0, 1])], axis=1)])
+            cands = np.stack([np.stack([x, y], axis=1), np.stack([x, np.full(horizon, pos[0, 1])], axis=1)])
             for label, model in models.items():
                 pred = model.predict(sc.history, cands)
-                out[label].append(float(pred[0, follower - 1, 5, 0] - pred[1, follower - 1, 5, 0]))
+                out[label].append(float(pred[0, follower - 1, -1, 0] - pred[1, follower - 1, -1, 0]))
     return {label: np.asarray(v) for label, v in out.items()}
 
 
@@ -461,7 +498,7 @@ def find_pair(data: dict, planners: Sequence[str]) -> tuple[str, str, str, int, 
 
 
 def draw_pair(split: str, pair: tuple[str, str, str, int, float], predictor: str, out_png: Path,
-              out_gif_dir: Path | None) -> list[Path]:
+              out_gif_dir: Path | None, horizon: int = 6) -> list[Path]:
     """Re-runs the pair with traces; draws the ego's lateral position over time for both arms
     with the target lane (PNG) and writes both animations (GIF) when ``out_gif_dir`` is given."""
     world, _, scenario, seed, _ = pair
@@ -469,7 +506,8 @@ def draw_pair(split: str, pair: tuple[str, str, str, int, float], predictor: str
     recs = {}
     for ablated in (False, True):
         recs[ablated] = nudge.simulate([path], predictor, scene_seeds=[seed], runs=1, threads=1,
-                                       settings=nudge.PlannerSettings(ablate_reaction=ablated), world=world, trace=True)
+                                       settings=nudge.PlannerSettings(ablate_reaction=ablated, horizon=horizon),
+                                       world=world, trace=True)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -587,12 +625,16 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
     budget = int(config.max_steps)
     idm = json.loads((nudge.assets_dir() / "worlds" / "idm.json").read_text())
     rule = idm["intrusion"]
-    lines = ["# Interaction: the aware planner against the same model with its reaction ablated", "",
+    title = "# Interaction: the aware planner against the same model with its reaction ablated"
+    if cfg.horizon != DEFAULT_HORIZON:
+        title += f", horizon {cfg.horizon} steps ({cfg.horizon * nudge.DT:.1f} s)"
+    lines = [title, "",
              f"Generated by `{command}` (python/train/nudge_train/experiments/interaction.py).", "",
              "**Question.** In dense traffic, does a planner whose predictor answers the ego's plan (aware) reach the "
              "target lane sooner, or more often, than the same planner whose predictor only ever sees the ego "
              "keeping its lane (ablated: planner setting `ablate_reaction`, `--ablate-reaction`: the predictor sees "
-             "the keep-lane path x_k = x_0 + k·0.3 s·v_0, y_k = y_0, k = 1..6, predicted once per planning step, "
+             f"the keep-lane path x_k = x_0 + k·0.3 s·v_0, y_k = y_0, k = 1..{cfg.horizon}, predicted once per "
+             "planning step, "
              "so the predicted traffic cannot depend on the plan; cost, safety rule and fallbacks unchanged)?", "",
              "**Set-up.**",
              f"- Dense scene: the target lane is blocked at the start, i.e. a vehicle whose centre lies in the "
@@ -604,18 +646,25 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
              + ", ".join(f"{cfg.sizes(sp)[0]} ({sp})" for sp in cfg.splits)
              + " of the qualifying ones; the aware teacher planner (about 10× slower than the others) on a seeded "
              + ", ".join(f"{cfg.sizes(sp)[1]} ({sp})" for sp in cfg.splits) + " of those.",
-             "- Planners: `teacher`, `student` (shipped), "
-             + (f"`{CANDIDATE}` (**candidate, not shipped**: `{paths.repo_relative(Path(cfg.candidate))}`, the "
-                "reaction-distilled student of docs/results/reaction.md), " if cfg.candidate else "")
+             "- Planners: " + ", ".join(f"`{label}`" for label, _ in cfg.planners()) + " "
+             + (f"(`{CANDIDATE}`: **candidate, not shipped**: `{paths.repo_relative(Path(cfg.candidate))}`, the "
+                "reaction-distilled student of docs/results/reaction.md) "
+                if cfg.candidate and CANDIDATE in dict(cfg.planners()) else "")
              + "each aware and ablated; `constant_velocity` as a third baseline (its prediction never depends on the "
              "ego, so its ablated planner is the same planner; tested in `crates/planner/tests/ablate_reaction.rs`).",
              f"- Worlds: `idm` as shipped (`assets/worlds/idm.json`, fitted in docs/results/idm_fit.md, not tuned "
              f"here): drivers drawn from the fitted population; a follower yields to the ego once the ego's nearest "
              f"edge is {rule['threshold_m']} m inside its lane with probability {rule['p_yield']}, otherwise only once "
              "the ego is wholly inside; `teacher` (the shipped teacher predicts the others given the ego's executed "
-             "plan); `log_replay` (the logged future, nobody reacts; for at-fault collisions only).",
+             "plan); `log_replay` (the logged future, nobody reacts; for at-fault collisions only)"
+             + ("." if "log_replay" in cfg.worlds else "; here: " + ", ".join(f"`{w}`" for w in cfg.worlds)
+                + " only."),
              f"- Closed loop: the default `SimConfig` (`{json.dumps(json.loads(config.to_json()), sort_keys=True)}`, "
-             "world set per arm), default planner settings (horizon 6 steps = 1.8 s).",
+             "world set per arm), default planner settings"
+             + (f" (horizon {cfg.horizon} steps = {cfg.horizon * nudge.DT:.1f} s)." if cfg.horizon == DEFAULT_HORIZON
+                else f" except the horizon: **{cfg.horizon} steps = {cfg.horizon * nudge.DT:.1f} s** (default "
+                     f"{DEFAULT_HORIZON} = {DEFAULT_HORIZON * nudge.DT:.1f} s); planners whose model cannot predict it "
+                     "(the students' fixed 6-step decoder) are left out."),
              "- Main metric: time to lane, the time until the ego's centre first lies inside the target lane, "
              f"failures (never) counted at the budget {budget * nudge.DT:.1f} s. Also success (settled in the target "
              "lane within the budget without any collision), time to target (settled), collisions at fault or not "
@@ -626,7 +675,8 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
              "draws the drivers.",
              f"- Machine: 2-core machine shared with other jobs, {cfg.threads} runs side by side, `nice -n 5`.",
              "- Fixed before any run: the blocked-lane margin, the seeds, the metrics and the bar; the sizes follow "
-             "the compute the machine allowed. Nothing was tuned on either split; the test split ran once.", ""]
+             "the compute the machine allowed. Nothing was tuned on either split; "
+             + ("the test split ran once." if "test" in cfg.splits else "the test split did not run."), ""]
     numbers = {}
     for data in results:
         sec, num = split_section(data, cfg, budget)
@@ -636,6 +686,52 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
     return "\n".join(lines) + "\n", numbers
 
 
+def horizon_section(results: list[dict], refs: list[dict], cfg: InteractionConfig) -> tuple[list[str], dict]:
+    """Every arm at ``cfg.horizon`` against the same arm at ``cfg.compare_horizon`` on the same runs
+    (paired by scene, seed and target lane), and each planner's aware − ablated difference at both."""
+    budget = int(nudge.SimConfig.default().max_steps)
+    h, h0 = cfg.horizon, cfg.compare_horizon
+    lines = [f"## Horizon {h} ({h * nudge.DT:.1f} s) against horizon {h0} ({h0 * nudge.DT:.1f} s)", "",
+             f"The same arms on the same runs at both horizons (`--compare-horizon {h0}`), paired by (scene, seed, "
+             f"target lane); differences horizon {h} − horizon {h0}, negative time = the longer horizon is faster.", "",
+             "| split | world | arm | pairs (scenes) | both / only h0 / only h / neither | McNemar p | success Δ pp | "
+             "time to lane Δ s | time to target Δ s |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    numbers: dict = {}
+    for data, ref in zip(results, refs, strict=True):
+        for arm, (cols, _, _) in data["arms"].items():
+            if arm not in ref["arms"]:
+                continue
+            p = paired(ref["arms"][arm][0], cols, budget, cfg.bootstrap)
+            numbers[f"{data['split']}/{arm.world}/{arm.label}"] = {k: v for k, v in p.items()
+                                                                  if k not in ("keys", "ttl_diff")}
+            if not p["pairs"]:
+                continue
+            lines.append(f"| {data['split']} | {arm.world} | {arm.label} | {p['pairs']} ({p['scenes']}) | "
+                         f"{p['both']} / {p['only_a']} / {p['only_b']} / {p['neither']} | {p['p']:.3g} | "
+                         f"{_ci(p['d_success_pp'], sign=True)} | {_ci(p['d_ttl'], digits=2, sign=True)} | "
+                         f"{_ci(p['d_ttt'], digits=2, sign=True)} |")
+    lines += ["", f"Aware − ablated (the same model) at horizon {h0} and at horizon {h} (pairs as above):", "",
+              f"| split | world | planner | success Δ pp, h = {h0} | success Δ pp, h = {h} | time to lane Δ s, "
+              f"h = {h0} | time to lane Δ s, h = {h} | bar at h = {h} |",
+              "|---|---|---|---|---|---|---|---|"]
+    for data, ref in zip(results, refs, strict=True):
+        for world in cfg.worlds:
+            for label, _ in cfg.planners():
+                a, b = Arm(label, True, world), Arm(label, False, world)
+                if not all(x in d["arms"] for x in (a, b) for d in (data, ref)):
+                    continue
+                p0 = paired(ref["arms"][a][0], ref["arms"][b][0], budget, cfg.bootstrap)
+                p1 = paired(data["arms"][a][0], data["arms"][b][0], budget, cfg.bootstrap)
+                if not (p0["pairs"] and p1["pairs"]):
+                    continue
+                bar = verdict(p1) if world in REACTIVE else "(not reactive)"
+                lines.append(f"| {data['split']} | {world} | {label} | {_ci(p0['d_success_pp'], sign=True)} | "
+                             f"{_ci(p1['d_success_pp'], sign=True)} | {_ci(p0['d_ttl'], digits=2, sign=True)} | "
+                             f"{_ci(p1['d_ttl'], digits=2, sign=True)} | {bar} |")
+    return lines + [""], numbers
+
+
 def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str) -> int:
     """``nudge-train interaction``: every split, the report (keeping its hand-written notes), the
     figure of one pair where the aware planner merges and its ablation does not. Returns the exit
@@ -643,10 +739,18 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
     try:
         cfg.validate()
         results = [collect(cfg, split, log=lambda s: print(s, flush=True)) for split in cfg.splits]
+        ref_cfg = (None if cfg.compare_horizon is None
+                   else replace(cfg, horizon=cfg.compare_horizon, compare_horizon=cfg.horizon))
+        refs = [] if ref_cfg is None else [collect(ref_cfg, split, log=lambda s: print(s, flush=True))
+                                           for split in cfg.splits]
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    extra = ["## What the safety rule asks of a dense start", ""]
+    extra = []
+    horizon_numbers: dict = {}
+    if refs:
+        extra, horizon_numbers = horizon_section(results, refs, cfg)
+    extra += ["## What the safety rule asks of a dense start", ""]
     rule_threshold = float(json.loads((nudge.assets_dir() / "worlds" / "idm.json").read_text())
                            ["intrusion"]["threshold_m"])
     settings = nudge.PlannerSettings.default()
@@ -663,20 +767,25 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
                          f"target lane (negative: short of the line); the idm world's yielding followers react "
                          f"only at +{rule_threshold:.1f} m ({100.0 * np.mean(g['depth'] > rule_threshold):.0f} % of "
                          "these starts allow that).")
+    react_horizons = sorted({DEFAULT_HORIZON, cfg.horizon})
     extra += ["", "## The predicted reaction at these starts", "",
-              "The target-lane follower's predicted x at 1.8 s under a lane change to the target lane's centre "
-              "(smoothstep over 1.8 s at the ego's speed) minus under the keep-lane path, at every dense (scene, "
-              "target lane) start with a follower (the vehicle the nudge should slow down); median [95 % bootstrap "
-              "interval over starts], the share below −1 cm and the most negative value.", "",
-              "| split | model | starts | reaction at 1.8 s (m) | share < −1 cm | most negative (m) |",
-              "|---|---|---|---|---|---|"]
+              "The target-lane follower's predicted x at "
+              + " and at ".join(f"{h * nudge.DT:.1f} s" for h in react_horizons)
+              + " under a lane change to the target lane's centre (smoothstep over 1.8 s at the ego's speed, then on "
+              "the centre) minus under the keep-lane path, at every dense (scene, target lane) start with a follower "
+              "(the vehicle the nudge should slow down); median [95 % bootstrap interval over starts], the share "
+              "below −1 cm and the most negative value.", "",
+              "| split | model | starts | at (s) | reaction (m) | share < −1 cm | most negative (m) |",
+              "|---|---|---|---|---|---|---|"]
     for data in results:
-        reactions = start_reactions(data["chosen"], dict(cfg.planners()))
-        for label, r in reactions.items():
-            if r.size:
-                ci = cluster_bootstrap(r, np.arange(r.size), np.median, n_boot=cfg.bootstrap)
-                extra.append(f"| {data['split']} | {label} | {r.size} | {_ci(ci, digits=3, sign=True)} | "
-                             f"{100.0 * np.mean(r < -0.01):.0f} % | {r.min():+.3f} |")
+        for h in react_horizons:
+            reactions = start_reactions(data["chosen"], dict(cfg.planners()), h)
+            for label, r in reactions.items():
+                if r.size:
+                    ci = cluster_bootstrap(r, np.arange(r.size), np.median, n_boot=cfg.bootstrap)
+                    extra.append(f"| {data['split']} | {label} | {r.size} | {h * nudge.DT:.1f} | "
+                                 f"{_ci(ci, digits=3, sign=True)} | {100.0 * np.mean(r < -0.01):.0f} % | "
+                                 f"{r.min():+.3f} |")
     extra.append("")
     # The models that react first (docs/results/reaction.md: the shipped student does not).
     planners = [label for label in ("teacher", CANDIDATE, "student") if label in dict(cfg.planners())]
@@ -691,10 +800,11 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
             continue
         world, planner, scenario, seed, diff = pair
         predictor = dict(cfg.planners())[planner]
-        png = paths.figures() / "interaction_pair.png"
+        tag = "" if cfg.horizon == DEFAULT_HORIZON else f"_h{cfg.horizon}"
+        png = paths.figures() / f"interaction_pair{tag}.png"
         written = []
         if cfg.animate:
-            written = draw_pair(data["split"], pair, predictor, png, paths.figures() / "interaction")
+            written = draw_pair(data["split"], pair, predictor, png, paths.figures() / f"interaction{tag}", cfg.horizon)
         fig_lines += [f"`{data['split']}` split, `{world}` world, planner `{planner}`: scene `{scenario}`, "
                       f"seed {seed}: "
                       f"the aware planner reaches the target lane, the ablated one does not within "
@@ -713,6 +823,8 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
     print(f"wrote {paths.repo_relative(out)}")
     if json_path is not None:
         json_path.parent.mkdir(parents=True, exist_ok=True)
+        if horizon_numbers:
+            numbers["horizon"] = horizon_numbers
         json_path.write_text(json.dumps(numbers, indent=1, default=float))
     return 0
 

@@ -30,6 +30,8 @@ class LatencyConfig:
     n_edges: tuple[int, ...] = N_EDGES
     chunk: int = 20
     progress: bool = True
+    horizons: tuple[int, ...] = ()
+    """When given, every predictor runs at each of these horizons (steps; settings ``horizon``)."""
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad argument."""
@@ -41,6 +43,8 @@ class LatencyConfig:
             raise ValueError(f"--teacher-n must be >= 1, got {self.teacher_n}")
         if self.chunk < 1:
             raise ValueError(f"--chunk must be >= 1, got {self.chunk}")
+        if any(h < 1 for h in self.horizons) or len(set(self.horizons)) != len(self.horizons):
+            raise ValueError(f"--horizons must be distinct positive step counts, got {list(self.horizons)}")
         if not self.predictors:
             raise ValueError("--predictors needs at least one entry")
         if len(set(self.predictors)) != len(self.predictors):

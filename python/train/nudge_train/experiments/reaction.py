@@ -106,14 +106,14 @@ def reaction(pred_candidate: np.ndarray, pred_keep: np.ndarray, follower: int, s
 
 def predict(gen: TrajectoryGenerator, history: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """The model's interactive prediction ``[B, N - 1, T, 2]`` (m) of a history ``[N, 8, 2]`` and
-    ego candidates ``[B, T, 2]``: the teacher's recursive one-step roll-out (its fixed z), the
-    student's one pass. Positions are shifted so the ego's last observed one is the origin (the
+    ego candidates ``[B, T, 2]``: the teacher's recursive one-step roll-out over T steps (its fixed
+    z), the student's one pass (T = its 6 steps). Positions are shifted so the ego's last observed one is the origin (the
     networks are translation invariant; float32 keeps more precision near 0)."""
     origin = history[0, -1].astype(np.float32)
     h = torch.from_numpy((history - origin).astype(np.float32))
     c = torch.from_numpy((candidates - origin).astype(np.float32))
     if gen.cfg.kind == "teacher":
-        out = teacher_interactive(gen, h, c)
+        out = teacher_interactive(gen, h, c, horizon=c.shape[1])
     else:
         out = student_interactive(gen, h, c)
     return out.cpu().numpy() + origin

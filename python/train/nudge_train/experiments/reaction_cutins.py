@@ -53,15 +53,18 @@ class CutInCase:
     x0: float
     v0: float
     real_fb: float
+    real_fbs: np.ndarray | None = None
+    """``[steps]`` the follower's real fall-back at every step 1..steps (m; NaN once its track ends)."""
 
 
-def cutin_case(tr: Tracks, e: CutIn, lead_s: float, radius: float = 60.0) -> CutInCase | None:
+def cutin_case(tr: Tracks, e: CutIn, lead_s: float, radius: float = 60.0, steps: int = PRED_LEN) -> CutInCase | None:
     """The prediction problem of event ``e`` on its tracks ``tr``, starting ``lead_s`` s before the
     centre crossing; None when the intruder's or the follower's history, or the intruder's next
-    1.8 s, are not all observed."""
+    ``steps`` steps (default 6: 1.8 s), are not all observed. ``real_fb`` is the follower's real
+    fall-back at ``steps`` · 0.3 s, ``real_fbs`` at every step 1..``steps``."""
     t_s = e.t_centre - lead_s
     t_obs = t_s + DT * np.arange(-(OBS_LEN - 1), 1)
-    t_fut = t_s + DT * np.arange(1, PRED_LEN + 1)
+    t_fut = t_s + DT * np.arange(1, steps + 1)
 
     def path(vid: int, t: np.ndarray) -> np.ndarray:
         return np.stack([tr.series(vid, "x", t), tr.series(vid, "y", t)], axis=-1)
@@ -80,25 +83,27 @@ def cutin_case(tr: Tracks, e: CutIn, lead_s: float, radius: float = 60.0) -> Cut
     history = np.stack(rows).astype(np.float64)
     x0 = float(fol_hist[-1, 0])
     v0 = float(tr.series(e.follower, "speed", np.array([t_s]))[0])
-    fb = fall_back(tr, e.follower, t_s, np.array([0.0, HORIZON_S]))[1]
+    fbs = fall_back(tr, e.follower, t_s, DT * np.arange(0, steps + 1))[1:]
     cand = ego_fut[None].astype(np.float64)
     return CutInCase(key=e.key, source=e.source, split=e.split, history=history, candidate=cand,
                      keep=keep_lane(cand, float(ego_hist[-1, 1])).astype(np.float64), follower=1,
-                     x0=x0, v0=v0, real_fb=float(fb))
+                     x0=x0, v0=v0, real_fb=float(fbs[-1]), real_fbs=fbs.astype(np.float64))
 
 
-def cutin_reactions(cases: list[CutInCase], predictors: dict[str, PredictFn]) -> dict[str, dict[str, np.ndarray]]:
-    """Per predictor: ``fall_back`` ``[E]`` (predicted follower x at 1.8 s under the real path
-    minus the constant-speed reference) and ``reaction`` ``[E]`` (under the real path minus under
-    the keep-lane counterfactual), metres, in the order of ``cases``."""
+def cutin_reactions(cases: list[CutInCase], predictors: dict[str, PredictFn],
+                    step: int = REACTION_STEP) -> dict[str, dict[str, np.ndarray]]:
+    """Per predictor: ``fall_back`` ``[E]`` (predicted follower x at step index ``step``, default
+    1.8 s, under the real path minus the constant-speed reference) and ``reaction`` ``[E]`` (under
+    the real path minus under the keep-lane counterfactual), metres, in the order of ``cases``."""
+    at_s = (step + 1) * DT
     out: dict[str, dict[str, np.ndarray]] = {}
     for name, fn in predictors.items():
         fb, re = [], []
         for c in cases:
             p = fn(c.history.astype(np.float32), np.concatenate([c.candidate, c.keep]).astype(np.float32))
-            x_c = float(p[0, c.follower - 1, REACTION_STEP, 0])
-            x_k = float(p[1, c.follower - 1, REACTION_STEP, 0])
-            fb.append(x_c - (c.x0 + c.v0 * HORIZON_S))
+            x_c = float(p[0, c.follower - 1, step, 0])
+            x_k = float(p[1, c.follower - 1, step, 0])
+            fb.append(x_c - (c.x0 + c.v0 * at_s))
             re.append(x_c - x_k)
         out[name] = {"fall_back": np.array(fb), "reaction": np.array(re)}
     return out

@@ -17,15 +17,18 @@ from nudge_train.models.networks import TrajectoryGenerator
 __all__ = ["batch_scenes", "student_interactive", "teacher_interactive"]
 
 
-def _check_inputs(gen: TrajectoryGenerator, history: Tensor, candidates: Tensor) -> tuple[int, int]:
+def _check_inputs(
+    gen: TrajectoryGenerator, history: Tensor, candidates: Tensor, horizon: int | None = None
+) -> tuple[int, int]:
     cfg = gen.cfg
+    t_plan = cfg.t_plan if horizon is None else horizon
     if history.dim() != 3 or history.shape[1] != cfg.obs_len or history.shape[2] != 2:
         raise ValueError(f"history: expected shape [N, {cfg.obs_len}, 2], got {list(history.shape)}")
     if history.shape[0] < 1:
         raise ValueError("history: needs at least the ego (N >= 1)")
-    if candidates.dim() != 3 or candidates.shape[1] != cfg.t_plan or candidates.shape[2] != 2:
+    if candidates.dim() != 3 or candidates.shape[1] != t_plan or candidates.shape[2] != 2:
         raise ValueError(
-            f"candidates: expected shape [B, {cfg.t_plan}, 2], got {list(candidates.shape)}"
+            f"candidates: expected shape [B, {t_plan}, 2], got {list(candidates.shape)}"
         )
     if candidates.shape[0] < 1:
         raise ValueError("candidates: needs at least one candidate (B >= 1)")
@@ -43,7 +46,11 @@ def batch_scenes(num_agents: int, num_scenes: int, device: torch.device | str) -
 
 
 def teacher_interactive(
-    gen: TrajectoryGenerator, history: Tensor, candidates: Tensor, z: Tensor | None = None
+    gen: TrajectoryGenerator,
+    history: Tensor,
+    candidates: Tensor,
+    z: Tensor | None = None,
+    horizon: int | None = None,
 ) -> Tensor:
     """Recursive teacher prediction: ``t_plan`` one-step generator calls per candidate.
 
@@ -58,12 +65,18 @@ def teacher_interactive(
         history: ``[N, obs_len, 2]`` positions (m), agent 0 = ego.
         candidates: ``[B, t_plan, 2]`` ego positions (m).
         z: ``[noise_dim]`` noise, or None for ``gen.fixed_noise``.
+        horizon: steps to roll out (``t_plan`` above), or None for ``gen.cfg.t_plan``; the
+            network predicts one step per call, so any horizon >= 1 is the same network rolled
+            out longer or shorter.
 
     Returns:
         ``[B, N − 1, t_plan, 2]`` predicted positions (m) of agents 1..N−1.
     """
-    n, b = _check_inputs(gen, history, candidates)
+    if horizon is not None and horizon < 1:
+        raise ValueError(f"horizon: expected >= 1 steps, got {horizon}")
+    n, b = _check_inputs(gen, history, candidates, horizon)
     cfg = gen.cfg
+    t_plan = cfg.t_plan if horizon is None else horizon
     device = gen.device
     dtype = gen.encoder.spatial_embedding.weight.dtype
     history = history.to(device=device, dtype=dtype)
@@ -92,7 +105,7 @@ def teacher_interactive(
             outputs = [step1[:, 1:]]
             sse = batch_scenes(n, b, device)
             noise = None if noise_one is None else noise_one.expand(b, -1)
-            for tau in range(1, cfg.t_plan):
+            for tau in range(1, t_plan):
                 obs = window.reshape(b * n, cfg.obs_len, 2).transpose(0, 1)  # [T, B·N, 2]
                 pred, _ = gen(obs, sse, noise=noise, steps=1)
                 step = pred[0].reshape(b, n, 2).clone()

@@ -7,7 +7,9 @@ Files (paths relative to the repository root):
 * crates/predictor/tests/golden/cases_{teacher,student}_random.safetensors: for N in {1, 2, 5, 17, 47},
   ``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [4, 6, 2], ``n{N}.expected`` [4, N−1, 6, 2].
 * with ``--trained``: crates/predictor/tests/golden/cases_{teacher,student}_trained.safetensors against
-  assets/models/{teacher,student}.safetensors (only for files whose metadata says trained="true").
+  assets/models/{teacher,student}.safetensors (only for files whose metadata says trained="true"), and
+  cases_teacher_trained_h10.safetensors: the trained teacher rolled out recursively over 10 steps (3 s),
+  candidates [4, 10, 2], expected [4, N−1, 10, 2], metadata ``horizon`` = "10".
 * crates/predictor/benches/data/scenes.safetensors: ``n{N}.history`` [N, 8, 2], ``n{N}.candidates`` [32, 6, 2]
   for N in {2, 4, 8, 16, 32}.
 * with ``--ship-random``: assets/models/{teacher,student}.safetensors, random (trained="false").
@@ -55,6 +57,8 @@ BENCH_CANDIDATES = 32
 GOLDEN_SCENE_SEED = 20_261_121
 BENCH_SCENE_SEED = 20_261_122
 KINDS = ("teacher", "student")
+LONG_HORIZON = 10
+"""Steps of the long-horizon teacher cases (10 × 0.3 s = 3 s)."""
 
 
 def config_for(kind: str) -> ModelConfig:
@@ -69,10 +73,17 @@ def interactive_for(kind: str) -> Callable[[TrajectoryGenerator, torch.Tensor, t
     return student_interactive
 
 
-def expected_output(gen: TrajectoryGenerator, history: torch.Tensor, candidates: torch.Tensor) -> torch.Tensor:
-    """Interactive prediction computed in float64 and rounded once to float32."""
+def expected_output(
+    gen: TrajectoryGenerator, history: torch.Tensor, candidates: torch.Tensor, horizon: int | None = None
+) -> torch.Tensor:
+    """Interactive prediction computed in float64 and rounded once to float32 (a teacher rolled
+    out ``horizon`` steps when given, else its ``t_plan``)."""
     gen64 = copy.deepcopy(gen).to(torch.float64)
-    out = interactive_for(gen.cfg.kind)(gen64, history.to(torch.float64), candidates.to(torch.float64))
+    h64, c64 = history.to(torch.float64), candidates.to(torch.float64)
+    if horizon is not None:
+        out = teacher_interactive(gen64, h64, c64, horizon=horizon)
+    else:
+        out = interactive_for(gen.cfg.kind)(gen64, h64, c64)
     return out.to(torch.float32)
 
 
@@ -81,18 +92,24 @@ def random_provenance(cfg: ModelConfig) -> dict[str, object]:
     return {"init": "random", "seed": cfg.seed, "noise_seed": cfg.noise_seed, "generator": GENERATOR}
 
 
-def write_cases(gen: TrajectoryGenerator, path: Path, weights_name: str, seed: int) -> None:
-    """Golden cases of one generator: N in GOLDEN_NS, GOLDEN_CANDIDATES candidates each."""
+def write_cases(
+    gen: TrajectoryGenerator, path: Path, weights_name: str, seed: int, horizon: int | None = None
+) -> None:
+    """Golden cases of one generator: N in GOLDEN_NS, GOLDEN_CANDIDATES candidates each, over its
+    ``t_plan`` steps, or (a teacher only) rolled out ``horizon`` steps, recorded in the metadata."""
+    if horizon is not None and gen.cfg.kind != "teacher":
+        raise ValueError(f"horizon: only a teacher rolls out to another horizon, got a {gen.cfg.kind}")
+    steps = gen.cfg.t_plan if horizon is None else horizon
     tensors: dict[str, torch.Tensor] = {}
     for n in GOLDEN_NS:
         rng = np.random.default_rng([seed, n])
         history = highway_history(rng, n, gen.cfg.obs_len, gen.cfg.dt)
-        candidates = highway_candidates(rng, history[0], GOLDEN_CANDIDATES, gen.cfg.t_plan, gen.cfg.dt)
+        candidates = highway_candidates(rng, history[0], GOLDEN_CANDIDATES, steps, gen.cfg.dt)
         h = torch.from_numpy(history)
         c = torch.from_numpy(candidates)
         tensors[f"n{n}.history"] = h
         tensors[f"n{n}.candidates"] = c
-        tensors[f"n{n}.expected"] = expected_output(gen, h, c).contiguous()
+        tensors[f"n{n}.expected"] = expected_output(gen, h, c, horizon).contiguous()
     metadata = {
         "weights": weights_name,
         "generator": GENERATOR,
@@ -100,6 +117,8 @@ def write_cases(gen: TrajectoryGenerator, path: Path, weights_name: str, seed: i
         "reference_precision": "float64 rounded to float32",
         "scene_seed": str(seed),
     }
+    if horizon is not None:
+        metadata["horizon"] = str(horizon)
     save_safetensors(tensors, path, metadata)
 
 
@@ -166,6 +185,12 @@ def generate(out_root: Path, src_root: Path, options: Options, log: Callable[[st
                     cases_rel = GOLDEN_DIR / f"cases_{kind}_trained.safetensors"
                     write_cases(trained_gen, out_root / cases_rel, (ASSETS_DIR / f"{kind}.safetensors").as_posix(), GOLDEN_SCENE_SEED)
                     written.append(cases_rel)
+                    if kind == "teacher":
+                        # The same network rolled out over the long horizon (3 s).
+                        cases_rel = GOLDEN_DIR / f"cases_teacher_trained_h{LONG_HORIZON}.safetensors"
+                        write_cases(trained_gen, out_root / cases_rel, (ASSETS_DIR / "teacher.safetensors").as_posix(),
+                                    GOLDEN_SCENE_SEED, horizon=LONG_HORIZON)
+                        written.append(cases_rel)
         write_bench_scenes(out_root / BENCH_SCENES)
         written.append(BENCH_SCENES)
     finally:

@@ -22,7 +22,8 @@ from torch import Tensor
 from nudge_train.data.loader import Batch, WindowSet
 from nudge_train.models.networks import TrajectoryGenerator
 
-__all__ = ["Metrics", "evaluate_generator", "evaluate_constant_velocity"]
+__all__ = ["Metrics", "evaluate_constant_velocity", "evaluate_constant_velocity_at", "evaluate_generator",
+           "evaluate_generator_at"]
 
 
 @dataclass
@@ -166,3 +167,74 @@ def evaluate_constant_velocity(
         keep = _keep_mask(batch, skip_ego)
         acc.add(err[:, keep], batch.seq_start_end.shape[0])
     return acc.result()
+
+
+@torch.inference_mode()
+def evaluate_generator_at(
+    gen: TrajectoryGenerator,
+    data: WindowSet,
+    horizons: tuple[int, ...],
+    samples: int = 1,
+    seed: int = 0,
+    subset: np.ndarray | None = None,
+    batch_size: int = 128,
+) -> dict[int, Metrics]:
+    """Recursive-mode metrics of ``gen`` at several horizons (steps) on the same windows: one
+    roll-out over the windows' whole future (``data.pred_len`` >= every horizon), scored per
+    horizon h as :func:`evaluate_generator` would score an h-step future (``ade6``/``fde6`` of the
+    returned :class:`Metrics` hold ADE/FDE at h); with ``samples`` > 1 each scene's best z draw is
+    chosen per horizon (lowest summed ADE over steps 1..h), the same draws for every horizon."""
+    if max(horizons) > data.pred_len or min(horizons) < 1:
+        raise ValueError(f"horizons {list(horizons)}: the windows hold {data.pred_len} future steps")
+    gen.eval()
+    device = gen.device
+    rng = torch.Generator().manual_seed(seed)
+    accs = {h: _Acc() for h in horizons}
+    windows = np.arange(len(data)) if subset is None else np.asarray(subset)
+    for i in range(0, len(windows), batch_size):
+        batch = data.batch(windows[i : i + batch_size])
+        dev = batch.to(device)
+        s = batch.seq_start_end.shape[0]
+        keep = _keep_mask(batch, skip_ego=True)
+        scene_of = _scene_of(batch)
+        best: dict[int, tuple[Tensor, Tensor]] = {}
+        for _ in range(samples):
+            noise = None
+            if gen.cfg.noise_dim > 0 and samples > 1:
+                noise = torch.randn(s, gen.cfg.noise_dim, generator=rng).to(device)
+            err = torch.linalg.norm(_recursive(gen, dev, noise).cpu() - batch.fut, dim=-1)  # [T, A]
+            err = torch.where(keep.unsqueeze(0), err, torch.zeros_like(err))
+            for h in horizons:
+                e = err[:h]
+                score = torch.zeros(s).index_add_(0, scene_of, e.mean(dim=0))
+                if h not in best:
+                    best[h] = (e, score)
+                else:
+                    better = score < best[h][1]
+                    take = better[scene_of]
+                    best[h] = (torch.where(take.unsqueeze(0), e, best[h][0]), torch.where(better, score, best[h][1]))
+            if gen.cfg.noise_dim == 0 or samples == 1:
+                break
+        for h in horizons:
+            accs[h].add(best[h][0][:, keep], s)
+    return {h: a.result() for h, a in accs.items()}
+
+
+def evaluate_constant_velocity_at(
+    data: WindowSet, horizons: tuple[int, ...], skip_ego: bool = True, subset: np.ndarray | None = None
+) -> dict[int, Metrics]:
+    """:func:`evaluate_constant_velocity` at several horizons (steps) on the same windows
+    (``ade6``/``fde6`` of the returned :class:`Metrics` hold ADE/FDE at h)."""
+    if max(horizons) > data.pred_len or min(horizons) < 1:
+        raise ValueError(f"horizons {list(horizons)}: the windows hold {data.pred_len} future steps")
+    accs = {h: _Acc() for h in horizons}
+    windows = np.arange(len(data)) if subset is None else np.asarray(subset)
+    for i in range(0, len(windows), 512):
+        batch = data.batch(windows[i : i + 512])
+        v = batch.obs[-1] - batch.obs[-2]
+        steps = torch.arange(1, batch.fut.shape[0] + 1, dtype=v.dtype).view(-1, 1, 1)
+        err = torch.linalg.norm(batch.obs[-1].unsqueeze(0) + steps * v.unsqueeze(0) - batch.fut, dim=-1)
+        keep = _keep_mask(batch, skip_ego)
+        for h in horizons:
+            accs[h].add(err[:h][:, keep], batch.seq_start_end.shape[0])
+    return {h: a.result() for h, a in accs.items()}
