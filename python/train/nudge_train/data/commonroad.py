@@ -199,9 +199,10 @@ class RoadCurve:
         x = pts[:, 0]
         ang = self.tangent_angle(x)
         dy = pts[:, 1] - np.polyval(self.coef, x)
-        # Perpendicular offset; foot point shifted back along the tangent.
+        # Perpendicular offset d = dy cos(a); the point is foot + d (-sin a, cos a), so the foot
+        # lies at x + d sin(a) (first order in the curvature).
         y_road = dy * np.cos(ang)
-        x_foot = x - dy * np.sin(ang) * np.cos(ang)
+        x_foot = x + dy * np.sin(ang) * np.cos(ang)
         return np.stack([np.interp(x_foot, g, arc), y_road], axis=1)
 
 
