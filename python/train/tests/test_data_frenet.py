@@ -162,7 +162,7 @@ def _straight_copy(src: Path, dst: Path) -> None:
     """``src`` with its road straightened: every lanelet boundary replaced by the line y = its
     mean lateral position in the straightened frame, every vehicle state by its straightened-frame
     position and heading. A real scene on a straight road."""
-    table = read_commonroad(src)
+    table = read_commonroad(src, frame="straightened")
     polys = table.lanes.polylines
     root = ET.fromstring(read_gz(src))
     lanelets = root.findall("lanelet")
@@ -226,7 +226,7 @@ def _assert_same(a_table, b_table, tol: float = 1e-3) -> tuple[int, int]:  # typ
 def test_straight_scene_same_windows_and_scenarios(tmp_path: Path, name: str) -> None:
     dst = tmp_path / name
     _straight_copy(FIX / name, dst)
-    a = read_commonroad(dst)
+    a = read_commonroad(dst, frame="straightened")
     b = read_commonroad(dst, frame="frenet")
     assert a.lanes.straightness_m < 1e-3 and b.lanes.straightness_m < 1e-3
     assert not any(ln.begins or ln.ends for ln in b.lanes.lanes)
@@ -244,7 +244,7 @@ def test_straight_shared_scene_same_windows_and_scenarios(tmp_path: Path, scene:
     _straight_copy(SHARED / US101_DIRS[0] / f"{scene}.xml.gz", dst)
     b = read_commonroad(dst, frame="frenet")
     assert not any(ln.begins or ln.ends for ln in b.lanes.lanes)  # a straight scene: no lane begins or ends
-    n_w, n_s = _assert_same(read_commonroad(dst), b)
+    n_w, n_s = _assert_same(read_commonroad(dst, frame="straightened"), b)
     assert n_w > 0 and n_s > 0
 
 
@@ -274,15 +274,15 @@ def test_frames_command_writes_the_per_scene_table(tmp_path: Path, capsys: pytes
     assert float(seven[3]) < float(seven[2])  # residual after < before
     # The straightened frame's counts are today's: the same as reading the file directly.
     from nudge_train.data.frame_cmd import frame_counts
-    t = read_commonroad(b / "USA_US101-7_1_T-1_cut.xml.gz")
+    t = read_commonroad(b / "USA_US101-7_1_T-1_cut.xml.gz", frame="straightened")
     fc = frame_counts(t, WindowConfig(), ScenarioConfig(), "test")
     assert int(seven[5]) == fc.windows and int(seven[8]) == fc.scenarios
 
 
 def test_build_in_the_curvilinear_frame_records_it(tmp_path: Path) -> None:
-    """data build --frame frenet: the same windows per source as the default frame on the fixture
-    scenes (the frames differ by centimetres in x, not in which vehicles are present), and the
-    frame recorded in the manifest; the default build does not record it."""
+    """data build (the curvilinear frame by default) against --frame straightened: the same
+    windows per source on the fixture scenes (the frames differ by centimetres in x, not in which
+    vehicles are present), and the frame recorded in the manifest's config either way."""
     import json
     import shutil
 
@@ -295,12 +295,12 @@ def test_build_in_the_curvilinear_frame_records_it(tmp_path: Path) -> None:
         shutil.copy(FIX / name, a)
     shutil.copy(FIX.parent / "commonroad_us101_scene_overlap_groups.csv", root / "us101")
     mans = {}
-    for frame in ("straightened", "frenet"):
+    for frame, extra in (("straightened", ["--frame", "straightened"]), ("frenet", [])):
         out = tmp_path / frame
         assert main(["data", "build", "--data-root", str(root), "--out", str(out), "--no-i80", "--no-progress",
-                     "--frame", frame]) == 0
+                     *extra]) == 0
         mans[frame] = json.loads((out / "manifest.json").read_text())
-    assert "road_frame" not in mans["straightened"]["config"]
+    assert mans["straightened"]["config"]["road_frame"] == "straightened"
     assert mans["frenet"]["config"]["road_frame"] == "frenet"
     for sa, sb in zip(mans["straightened"]["sources"], mans["frenet"]["sources"]):
         assert sa["name"] == sb["name"] and sa["split"] == sb["split"]

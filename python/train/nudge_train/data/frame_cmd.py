@@ -12,16 +12,15 @@ from pathlib import Path
 from tqdm import tqdm
 
 from nudge_train.artefacts import atomic_write_text
-from nudge_train.constants import OBS_LEN
 
 from .commonroad import read_commonroad
 from .errors import DataError
 from .grid import build_grid
-from .scenarios import ScenarioConfig, scene_scenarios
+from .scenarios import ScenarioConfig, is_merge_scenario, scene_scenarios
 from .sources import US101_DIRS, us101_sources
 from .splits import SplitConfig
 from .tracks import TrackTable
-from .windows import WindowConfig, extract_windows
+from .windows import WindowConfig, extract_windows, is_merge_window
 
 
 @dataclass
@@ -55,16 +54,10 @@ def frame_counts(table: TrackTable, wcfg: WindowConfig, scfg: ScenarioConfig, sp
     (always 0 in the straightened frame, which has no lane extents)."""
     grid = build_grid(table)
     ws = extract_windows(grid, wcfg)
-    merge_w = 0
-    for w in ws:
-        last = w.positions[:, wcfg.n_obs - 1] + w.origin
-        merge_w += int(table.lanes.ending_lane(last[:, 0], last[:, 1]).any())
+    merge_w = sum(is_merge_window(w, table.lanes, wcfg.n_obs) for w in ws)
     drops: Counter = Counter()
     scs = scene_scenarios(table, grid, scfg, split, drops, "")
-    merge_s = 0
-    for sc, _ in scs:
-        ego = sc.tensors["history"][0, OBS_LEN - 1]
-        merge_s += int(table.lanes.ending_lane(ego[:1], ego[1:])[0])
+    merge_s = sum(is_merge_scenario(sc.tensors) for sc, _ in scs)
     return FrameCounts(residual_m=table.lanes.straightness_m, windows=len(ws), merge_windows=merge_w,
                        scenarios=len(scs), merge_scenarios=merge_s, drops=drops,
                        lanes_beginning=int(sum(ln.begins for ln in table.lanes.lanes)),
@@ -75,7 +68,7 @@ def compare_frames(data_root: Path, split_cfg: SplitConfig, progress: bool = Tru
     """Both frames on every US-101 scene the build uses (one variant per scene, in build order)."""
     rows = []
     wcfg, scfg = WindowConfig(), ScenarioConfig()
-    entries = [e for e in us101_sources(data_root, split_cfg) if e.table is not None]
+    entries = [e for e in us101_sources(data_root, split_cfg, frame="straightened") if e.table is not None]
     for e in tqdm(entries, desc="frames", disable=not progress):
         assert e.table is not None
         before = frame_counts(e.table, wcfg, scfg, e.split)

@@ -53,6 +53,27 @@ class Scenario:
         return path
 
 
+def is_merge_scenario(tensors: dict[str, np.ndarray]) -> bool:
+    """Whether a scenario's tensors describe a *merge scenario*: the ego, at its last observed
+    step, is in a lane that really ends (``lane_extent_real[ego_lane, 1]`` = 1) ahead of it
+    (``lane_extent[ego_lane, 1]`` > its x): an on-ramp's acceleration lane or an auxiliary lane
+    that ends inside the scene. False without lane extents (``nudge.scenario/1``)."""
+    if "lane_extent" not in tensors:
+        return False
+    lane = int(tensors["ego_lane"][0])
+    x = float(tensors["history"][0, -1, 0])
+    return bool(tensors["lane_extent_real"][lane, 1]) and float(tensors["lane_extent"][lane, 1]) > x
+
+
+def is_ramp_scenario(tensors: dict[str, np.ndarray]) -> bool:
+    """Whether the ego, at its last observed step, is in a lane that really begins inside the
+    scene (``lane_extent_real[ego_lane, 0]`` = 1): an on-ramp lane joined from the ramp, which
+    here runs on as an auxiliary lane rather than ending. False without lane extents."""
+    if "lane_extent" not in tensors:
+        return False
+    return bool(tensors["lane_extent_real"][int(tensors["ego_lane"][0]), 0])
+
+
 def lane_extents_at(lanes: LaneMap, x: float, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """Extent of each lane of ``bounds`` [L+1] (the lanes at ``x``, m) in a curvilinear lane map:
     ``extent`` F64 [L, 2] (x where the lane begins and ends, m) and ``real`` U8 [L, 2] (1 where the
