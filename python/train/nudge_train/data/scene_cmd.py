@@ -59,7 +59,7 @@ def write_scenes(data_root: Path, out_dir: Path, cfg: ScenesConfig, split_cfg: S
                  progress: bool = True) -> ScenesResult:
     """Write the scenarios of ``cfg.split`` (or the shipped selection) into ``out_dir``, remove
     scenario files (``us101-*.safetensors``) of an earlier run that this one did not write, and
-    record the counts in ``out_dir/summary.json``. Merge scenarios:
+    record the counts in ``out_dir/summary.json`` (not for the shipped selection). Merge scenarios:
     :func:`~nudge_train.data.scenarios.is_merge_scenario`."""
     sources = us101_sources(data_root, split_cfg, frame=cfg.frame)
     notes = decision_lines([(e.split, e.rule, e.reason) for e in sources])
@@ -102,6 +102,9 @@ def write_scenes(data_root: Path, out_dir: Path, cfg: ScenesConfig, split_cfg: S
                "merge_scenarios": len(merges), "ramp_scenarios": sum(is_ramp_scenario(sc.tensors) for sc in chosen),
                "candidates_dropped": dict(sorted(drops.items())),
                "per_scene": per_scene}
+    if cfg.ship:  # the shipped selection's folder documents itself (PROVENANCE.md)
+        return ScenesResult(written=written, drops=drops, notes=notes, merges=merges, per_scene=per_scene,
+                            removed=removed)
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / SUMMARY, json.dumps(summary, indent=1, sort_keys=True) + "\n")
     return ScenesResult(written=written, drops=drops, notes=notes, merges=merges, per_scene=per_scene,
