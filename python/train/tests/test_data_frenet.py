@@ -358,3 +358,21 @@ def test_offsets_near_the_radius_of_curvature_are_refused() -> None:
                 check_offsets(path, u, d, cfg)
         else:
             check_offsets(path, u, d, cfg)
+
+
+def test_window_difference_matches_agents_by_id() -> None:
+    """The frames table's window Δ compares the same agent in both frames (whatever its row), and
+    counts windows whose agents differ instead of comparing them."""
+    from nudge_train.data.frame_cmd import FrameCounts, window_difference
+
+    rng = np.random.default_rng(1)
+    pos = rng.normal(size=(4, 14, 2))
+    ids = np.asarray([7, 3, 9, 1])
+    perm = np.asarray([0, 2, 3, 1])
+    moved = pos[perm].copy()
+    moved[2, 5, 1] += 0.25  # agent ids[perm][2] = 1 moves 0.25 m at one step
+    a = FrameCounts(window_positions={(1.2, 0, 7): (ids, pos), (1.5, 0, 7): (ids, pos)})
+    b = FrameCounts(window_positions={(1.2, 0, 7): (ids[perm], moved), (1.5, 0, 7): (ids[:3], pos[:3]),
+                                      (1.8, 0, 7): (ids, pos)})
+    worst, unmatched = window_difference(a, b)
+    assert abs(worst - 0.25) < 1e-12 and unmatched == 2
