@@ -228,3 +228,29 @@ def test_build_and_report_count_merge_windows_and_scenarios(tmp_path: Path) -> N
     srow = next(ln for ln in text.splitlines() if ln.startswith(f"| {nine['split']} | frenet |"))
     assert f"| {summary['scenarios']} | {summary['merge_scenarios']} | {summary['ramp_scenarios']} |" in srow
     assert summary["merge_scenarios"] > 0
+
+
+@pytest.mark.parametrize("frame", ["frenet", "straightened"])
+def test_candidate_with_an_agent_off_the_road_is_dropped(frame: str) -> None:
+    """A neighbour observed more than 2 m outside the road edges at the ego's x (the planner's
+    scenario loader refuses such a file) drops the candidate as agent_off_road; 1.5 m outside
+    (a shoulder) is kept."""
+    from collections import Counter
+
+    from nudge_train.data.scenarios import scenario_at
+
+    table = read_commonroad(FIX / "commonroad" / "USA_US101-26_1_T-1_cut.xml.gz", frame=frame)
+    grid = build_grid(table)
+    cfg = ScenarioConfig()
+    found = scene_scenarios(table, grid, cfg, "test", Counter(), "p")
+    sc, f_last = next((s, f) for s, f in found if s.n_agents >= 2)
+    ego_row = int(np.flatnonzero(grid.ids == sc.tensors["agent_ids"][0])[0])
+    nb_row = int(np.flatnonzero(grid.ids == sc.tensors["agent_ids"][1])[0])
+    left = float(sc.tensors["lane_bounds"][-1])
+    stride = int(round(cfg.step_s / grid.dt))
+    for beyond, kept in ((1.5, True), (2.5, False)):
+        g = build_grid(table)
+        g.pos[nb_row, f_last - 3 * stride, 1] = left + beyond
+        drops: Counter = Counter()
+        got = scenario_at(table, g, ego_row, f_last, cfg, "test", drops, "p")
+        assert (got is not None) == kept and drops["agent_off_road"] == (0 if kept else 1)

@@ -158,7 +158,9 @@ def scenes_table(scenes_root: Path) -> list[str]:
             "begins inside the scene (joined from an on-ramp; on US-101 it runs on as the auxiliary lane). "
             "Candidates dropped: `ego_history_incomplete` / "
             "`ego_future_short` (the ego lacks 8 observed or 6 future steps), `lanes_not_straight` (lanes off "
-            "d = const by more than 0.6 m within 100 m of the ego), `lanes_unmatched` (a lane at the ego "
+            "d = const by more than 0.6 m within 100 m of the ego), `agent_off_road` (an agent observed more "
+            "than 2 m outside the road edges at the ego's position: still on an on-ramp that joins ahead, or "
+            "already on an exit ramp; the planner's scenario loader refuses such a file), `lanes_unmatched` (a lane at the ego "
             "matches no lane extent).", "",
             "| split | road frame | scenarios | merge scenarios | on-ramp scenarios | candidates dropped (reason: n) |",
             "|---|---|---|---|---|---|", *rows]

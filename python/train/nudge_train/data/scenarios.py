@@ -32,6 +32,11 @@ class ScenarioConfig:
     max_agents: int = 47
     straight_tol_m: float = 0.6
     straight_half_range_m: float = 100.0
+    road_tolerance_m: float = 2.0
+    """How far (m) an agent's observed centre may lie outside the road edges at the ego's x: the
+    planner's scenario loader refuses a file beyond it (``ROAD_TOLERANCE`` in
+    ``crates/planner/src/scenario.rs``), so such a candidate is dropped as ``agent_off_road``
+    (a vehicle still on an on-ramp that joins ahead of the ego, or already on an exit ramp)."""
 
 
 @dataclass
@@ -99,8 +104,9 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
     """Scenario with ego = grid row ``ego_row`` and last observed frame ``f_last`` (grid index).
 
     Returns None (and counts the reason in ``drops``) when the ego lacks history or future, or
-    the straight-lane approximation fails near the ego, or (curvilinear frame) a lane at the ego
-    matches no lane extent. In the curvilinear frame the scenario carries the lane extents
+    the straight-lane approximation fails near the ego, or an agent's observed centre lies more
+    than ``cfg.road_tolerance_m`` outside the road at the ego's x, or (curvilinear frame) a lane
+    at the ego matches no lane extent. In the curvilinear frame the scenario carries the lane extents
     ("nudge.scenario/2").
     """
     stride = int(round(cfg.step_s / grid.dt))
@@ -131,6 +137,10 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
     fpres = grid.present[rows][:, fut]
     future = np.where(fpres[..., None], grid.pos[rows][:, fut], 0.0)
     bounds = table.lanes.bounds_at(float(ego_xy[0])).astype(np.float64)
+    outside = np.maximum(bounds[0] - history[..., 1], history[..., 1] - bounds[-1])
+    if np.any(outside > cfg.road_tolerance_m):
+        drops["agent_off_road"] += 1
+        return None
     centres = 0.5 * (bounds[:-1] + bounds[1:])
     ego_lane = int(np.clip(np.searchsorted(bounds, ego_xy[1], side="right") - 1, 0, centres.shape[0] - 1))
     extents = lane_extents_at(table.lanes, float(ego_xy[0]), bounds)
