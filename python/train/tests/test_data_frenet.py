@@ -98,8 +98,8 @@ def test_points_off_the_path_are_refused() -> None:
         path.project(far)
 
 
-def test_a_turning_road_is_refused_naming_the_scene(tmp_path: Path) -> None:
-    """A scene whose lanes turn by 90 degrees: the frame refuses it, naming the file and why."""
+def _turning_copy(f: Path) -> None:
+    """Fixture scene 1 with its lanes bent into a quarter circle and more (radius 60 m), as ``f``."""
     root = ET.fromstring(gzip.decompress((FIX / "USA_US101-1_1_T-1.xml.gz").read_bytes()))
     for ll in root.findall("lanelet"):
         for tag in ("leftBound", "rightBound"):
@@ -110,12 +110,38 @@ def test_a_turning_road_is_refused_naming_the_scene(tmp_path: Path) -> None:
                 r = 60.0 + (3.5 if tag == "leftBound" else 0.0) + 3.5 * int(ll.get("id", "0")) % 7
                 p.find("x").text = f"{r * math.sin(a):.4f}"  # type: ignore[union-attr]
                 p.find("y").text = f"{60.0 - r * math.cos(a):.4f}"  # type: ignore[union-attr]
-    f = tmp_path / "USA_US101-1_1_T-1.xml.gz"
     f.write_bytes(gzip.compress(ET.tostring(root)))
+
+
+def test_a_turning_road_is_refused_naming_the_scene(tmp_path: Path) -> None:
+    """A scene whose lanes turn by 90 degrees: the frame refuses it, naming the file and why."""
+    f = tmp_path / "USA_US101-1_1_T-1.xml.gz"
+    _turning_copy(f)
     with pytest.raises(DataError) as exc:
         read_commonroad(f, frame="frenet")
     msg = str(exc.value)
     assert str(f) in msg and "USA_US101-1_1_T-1 cannot be represented in the curvilinear road frame" in msg
+
+
+def test_data_build_refuses_the_turning_scene_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """data build and data scenes (curvilinear frame by default) stop with exit status 2 and the
+    DataError naming the file, the scene and why; no traceback."""
+    import shutil
+
+    from nudge_train.cli import main
+
+    root = tmp_path / "ngsim"
+    a = root / US101_DIRS[0]
+    a.mkdir(parents=True)
+    _turning_copy(a / "USA_US101-1_1_T-1.xml.gz")
+    shutil.copy(FIX / "USA_US101-26_1_T-1_cut.xml.gz", a)
+    shutil.copy(FIX.parent / "commonroad_us101_scene_overlap_groups.csv", root / "us101")
+    for argv in (["data", "build", "--out", str(tmp_path / "p"), "--no-i80"],
+                 ["data", "scenes", "--split", "test", "--out", str(tmp_path / "s")]):
+        assert main([*argv, "--data-root", str(root), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and str(a / "USA_US101-1_1_T-1.xml.gz") in err
+        assert "USA_US101-1_1_T-1 cannot be represented in the curvilinear road frame" in err and "turns by" in err
 
 
 def test_unknown_frame_is_rejected() -> None:
