@@ -266,7 +266,7 @@ impl RoadFrame {
         let ang = self.tangent_angle(q[0]);
         let dy = q[1] - polyval(&self.coef, q[0]);
         let (s, c) = ang.sin_cos();
-        let x_foot = q[0] - dy * s * c;
+        let x_foot = q[0] + dy * s * c;
         [interp(x_foot, &self.grid_x, &self.grid_arc), dy * c]
     }
 

@@ -38,9 +38,8 @@ def data_root(tmp_path: Path) -> Path:
 def _write_all(root: Path, out: Path, frame: str) -> list[Path]:
     paths = []
     for split in ("train", "val", "test"):
-        written, _, _ = write_scenes(root, out / split, ScenesConfig(split=split, frame=frame), SplitConfig(),
-                                     progress=False)
-        paths += written
+        paths += write_scenes(root, out / split, ScenesConfig(split=split, frame=frame), SplitConfig(),
+                              progress=False).written
     return paths
 
 

@@ -33,7 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from nudge_train import paths
-from nudge_train.constants import BENCH_NS, ROAD_FRAMES, SPLITS
+from nudge_train.constants import BENCH_NS, DEFAULT_ROAD_FRAME, ROAD_FRAMES, SPLITS
 
 __all__ = ["build_parser", "main"]
 
@@ -71,8 +71,9 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     b.add_argument("--phases", type=str, default="0,1,2", help="0.1 s phase offsets, e.g. 0 or 0,1,2")
     b.add_argument("--no-i80", action="store_true", help="leave out the Coifman & Li I-80 set")
-    b.add_argument("--frame", choices=ROAD_FRAMES, default=ROAD_FRAMES[0],
-                   help="road frame of the US-101 scenes: straightened, or frenet (curvilinear)")
+    b.add_argument("--frame", choices=ROAD_FRAMES, default=DEFAULT_ROAD_FRAME,
+                   help="road frame of the US-101 scenes: frenet (curvilinear, lanes that begin and end), or "
+                        "straightened (the older frame)")
     b.add_argument("--n-fut", type=int, default=None,
                    help="future steps (0.3 s) per window (default 6; e.g. 10 for 3 s evaluations, into another --out)")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -81,16 +82,19 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--processed", type=Path, default=paths.processed(), help="a processed build")
     r.add_argument("--doc", type=Path, default=paths.docs() / "data.md", help="the report")
     r.add_argument("--figures", type=Path, default=paths.figures(), help="folder of the report's figures")
+    r.add_argument("--scenes-root", type=Path, default=None,
+                   help="planner scenes per split, for their counts (default PROCESSED/scenes)")
 
-    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/1, or /2 with --frame frenet) of a split", _run_data_scenes)
+    s = _command(dsub, "scenes", "write planner scenarios (nudge.scenario/2 with lane extents, or /1 with "
+                 "--frame straightened) of a split", _run_data_scenes)
     s.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
     s.add_argument("--split", choices=SPLITS, default="test", help="the split written")
     s.add_argument("--out", type=Path, default=None,
                    help="output folder (default data/processed/scenes/<split>, or assets/scenes with --ship)")
     s.add_argument("--ship", action="store_true", help="write the small shipped selection (8-12 scenarios)")
-    s.add_argument("--frame", choices=ROAD_FRAMES, default=ROAD_FRAMES[0],
-                   help="road frame: straightened (nudge.scenario/1) or frenet (curvilinear, nudge.scenario/2 "
-                        "with lane extents)")
+    s.add_argument("--frame", choices=ROAD_FRAMES, default=DEFAULT_ROAD_FRAME,
+                   help="road frame: frenet (curvilinear, nudge.scenario/2 with lane extents) or straightened "
+                        "(nudge.scenario/1)")
     s.add_argument("--range", type=float, default=60.0, help="neighbour range (m)")
     s.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -127,7 +131,17 @@ def _run_data_build(a: argparse.Namespace) -> int:
     window = WindowConfig() if a.n_fut is None else WindowConfig(n_fut=a.n_fut)
     manifest = build(BuildConfig(data_root=a.data_root, out=a.out, raw=tuple(a.raw), seed=a.seed, phases=phases,
                                  include_i80=not a.no_i80, frame=a.frame, window=window), progress=not a.no_progress)
-    print(f"wrote {a.out / 'manifest.json'}: {manifest['counts']['windows']} windows")
+    print(f"wrote {a.out / 'manifest.json'}: {manifest['counts']['windows']} windows "
+          f"(road frame {manifest['config']['road_frame']})")
+    for split, sp in manifest["splits"].items():
+        print(f"  {split}: {sp['windows']} windows, {sp['merge_windows']} merge windows (an agent in a lane that "
+              "ends ahead)")
+    res = [(s["reader_notes"]["lane_straightness_cm"], s["name"]) for s in manifest["sources"]
+           if "lane_straightness_cm" in s.get("reader_notes", {})]
+    if res:
+        cm, name = max(res)
+        print(f"  mapping residual of the lane map: at most {cm / 100:.2f} m ({name}); per scene in the manifest "
+              "(reader_notes.lane_straightness_cm)")
     for line in decision_lines([(s["split"], s.get("rule", ""), s.get("reason", "")) for s in manifest["sources"]]):
         print(f"  {line}")
     return 0
@@ -136,7 +150,7 @@ def _run_data_build(a: argparse.Namespace) -> int:
 def _run_data_report(a: argparse.Namespace) -> int:
     from nudge_train.data.report import write_report
 
-    write_report(a.processed, a.doc, a.figures)
+    write_report(a.processed, a.doc, a.figures, a.scenes_root)
     print(f"wrote {a.doc}")
     return 0
 
@@ -146,13 +160,18 @@ def _run_data_scenes(a: argparse.Namespace) -> int:
     from nudge_train.data.splits import SplitConfig
 
     out = a.out or (paths.shipped_scenes() if a.ship else paths.scenes(a.split))
-    written, drops, notes = write_scenes(a.data_root, out, ScenesConfig(split=a.split, ship=a.ship,
-                                                                        dense_range_m=a.range, frame=a.frame),
-                                         SplitConfig(seed=a.seed), progress=not a.no_progress)
-    print(f"wrote {len(written)} scenarios to {out}")
-    for k, v in sorted(drops.items()):
+    res = write_scenes(a.data_root, out, ScenesConfig(split=a.split, ship=a.ship, dense_range_m=a.range,
+                                                      frame=a.frame),
+                       SplitConfig(seed=a.seed), progress=not a.no_progress)
+    ramps = sum(v.get("ramp_scenarios", 0) for v in res.per_scene.values()) if not a.ship else None
+    print(f"wrote {len(res.written)} scenarios to {out} (road frame {a.frame}): {len(res.merges)} merge scenarios "
+          "(ego in a lane that ends ahead)" + ("" if ramps is None else
+                                              f", {ramps} on-ramp scenarios (ego in a lane that begins in the scene)"))
+    for k, v in sorted(res.drops.items()):
         print(f"  dropped candidates ({k}): {v}")
-    for line in notes:
+    if res.removed:
+        print(f"  removed {res.removed} scenario file(s) of an earlier run")
+    for line in res.notes:
         print(f"  {line}")
     return 0
 

@@ -17,6 +17,7 @@ __all__ = [
     "SCENARIO_SCHEMA",
     "SCENARIO_SCHEMA_EXTENTS",
     "ROAD_FRAMES",
+    "DEFAULT_ROAD_FRAME",
     "SPLITS",
     "WEIGHTS_FORMAT",
     "WINDOWS_SCHEMA",
@@ -38,9 +39,13 @@ WINDOWS_SCHEMA = "nudge.windows/1"
 """One shard of training windows of a processed-data build."""
 SCENARIO_SCHEMA = "nudge.scenario/1"
 """One planner scenario file (``nudge-train data scenes``), read by the Rust scenario loader."""
-ROAD_FRAMES = ("straightened", "frenet")
-"""Road frames of the US-101 reader, the default first: ``straightened`` (what the shipped data
-use) and ``frenet`` (curvilinear: arclength and offset along a fitted reference path)."""
+ROAD_FRAMES = ("frenet", "straightened")
+"""Road frames of the US-101 reader, the default first: ``frenet`` (curvilinear: arclength and
+offset along a fitted reference path, lanes with extents) and ``straightened`` (one rotation and a
+first-order straightening along a fitted polynomial; the frame of builds before the curvilinear
+one became the default, and of the ten scenarios in ``assets/scenes``)."""
+DEFAULT_ROAD_FRAME = ROAD_FRAMES[0]
+"""The road frame of ``nudge-train data build`` and ``data scenes`` unless ``--frame`` says otherwise."""
 SCENARIO_SCHEMA_EXTENTS = "nudge.scenario/2"
 """A planner scenario with lane extents (where each lane begins and ends along x), written for
 the curvilinear road frame (``nudge-train data scenes --frame frenet``); the Rust loader reads

@@ -98,8 +98,8 @@ def test_points_off_the_path_are_refused() -> None:
         path.project(far)
 
 
-def test_a_turning_road_is_refused_naming_the_scene(tmp_path: Path) -> None:
-    """A scene whose lanes turn by 90 degrees: the frame refuses it, naming the file and why."""
+def _turning_copy(f: Path) -> None:
+    """Fixture scene 1 with its lanes bent into a quarter circle and more (radius 60 m), as ``f``."""
     root = ET.fromstring(gzip.decompress((FIX / "USA_US101-1_1_T-1.xml.gz").read_bytes()))
     for ll in root.findall("lanelet"):
         for tag in ("leftBound", "rightBound"):
@@ -110,12 +110,38 @@ def test_a_turning_road_is_refused_naming_the_scene(tmp_path: Path) -> None:
                 r = 60.0 + (3.5 if tag == "leftBound" else 0.0) + 3.5 * int(ll.get("id", "0")) % 7
                 p.find("x").text = f"{r * math.sin(a):.4f}"  # type: ignore[union-attr]
                 p.find("y").text = f"{60.0 - r * math.cos(a):.4f}"  # type: ignore[union-attr]
-    f = tmp_path / "USA_US101-1_1_T-1.xml.gz"
     f.write_bytes(gzip.compress(ET.tostring(root)))
+
+
+def test_a_turning_road_is_refused_naming_the_scene(tmp_path: Path) -> None:
+    """A scene whose lanes turn by 90 degrees: the frame refuses it, naming the file and why."""
+    f = tmp_path / "USA_US101-1_1_T-1.xml.gz"
+    _turning_copy(f)
     with pytest.raises(DataError) as exc:
         read_commonroad(f, frame="frenet")
     msg = str(exc.value)
     assert str(f) in msg and "USA_US101-1_1_T-1 cannot be represented in the curvilinear road frame" in msg
+
+
+def test_data_build_refuses_the_turning_scene_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """data build and data scenes (curvilinear frame by default) stop with exit status 2 and the
+    DataError naming the file, the scene and why; no traceback."""
+    import shutil
+
+    from nudge_train.cli import main
+
+    root = tmp_path / "ngsim"
+    a = root / US101_DIRS[0]
+    a.mkdir(parents=True)
+    _turning_copy(a / "USA_US101-1_1_T-1.xml.gz")
+    shutil.copy(FIX / "USA_US101-26_1_T-1_cut.xml.gz", a)
+    shutil.copy(FIX.parent / "commonroad_us101_scene_overlap_groups.csv", root / "us101")
+    for argv in (["data", "build", "--out", str(tmp_path / "p"), "--no-i80"],
+                 ["data", "scenes", "--split", "test", "--out", str(tmp_path / "s")]):
+        assert main([*argv, "--data-root", str(root), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and str(a / "USA_US101-1_1_T-1.xml.gz") in err
+        assert "USA_US101-1_1_T-1 cannot be represented in the curvilinear road frame" in err and "turns by" in err
 
 
 def test_unknown_frame_is_rejected() -> None:
@@ -162,7 +188,7 @@ def _straight_copy(src: Path, dst: Path) -> None:
     """``src`` with its road straightened: every lanelet boundary replaced by the line y = its
     mean lateral position in the straightened frame, every vehicle state by its straightened-frame
     position and heading. A real scene on a straight road."""
-    table = read_commonroad(src)
+    table = read_commonroad(src, frame="straightened")
     polys = table.lanes.polylines
     root = ET.fromstring(read_gz(src))
     lanelets = root.findall("lanelet")
@@ -226,7 +252,7 @@ def _assert_same(a_table, b_table, tol: float = 1e-3) -> tuple[int, int]:  # typ
 def test_straight_scene_same_windows_and_scenarios(tmp_path: Path, name: str) -> None:
     dst = tmp_path / name
     _straight_copy(FIX / name, dst)
-    a = read_commonroad(dst)
+    a = read_commonroad(dst, frame="straightened")
     b = read_commonroad(dst, frame="frenet")
     assert a.lanes.straightness_m < 1e-3 and b.lanes.straightness_m < 1e-3
     assert not any(ln.begins or ln.ends for ln in b.lanes.lanes)
@@ -244,7 +270,7 @@ def test_straight_shared_scene_same_windows_and_scenarios(tmp_path: Path, scene:
     _straight_copy(SHARED / US101_DIRS[0] / f"{scene}.xml.gz", dst)
     b = read_commonroad(dst, frame="frenet")
     assert not any(ln.begins or ln.ends for ln in b.lanes.lanes)  # a straight scene: no lane begins or ends
-    n_w, n_s = _assert_same(read_commonroad(dst), b)
+    n_w, n_s = _assert_same(read_commonroad(dst, frame="straightened"), b)
     assert n_w > 0 and n_s > 0
 
 
@@ -274,15 +300,15 @@ def test_frames_command_writes_the_per_scene_table(tmp_path: Path, capsys: pytes
     assert float(seven[3]) < float(seven[2])  # residual after < before
     # The straightened frame's counts are today's: the same as reading the file directly.
     from nudge_train.data.frame_cmd import frame_counts
-    t = read_commonroad(b / "USA_US101-7_1_T-1_cut.xml.gz")
+    t = read_commonroad(b / "USA_US101-7_1_T-1_cut.xml.gz", frame="straightened")
     fc = frame_counts(t, WindowConfig(), ScenarioConfig(), "test")
     assert int(seven[5]) == fc.windows and int(seven[8]) == fc.scenarios
 
 
 def test_build_in_the_curvilinear_frame_records_it(tmp_path: Path) -> None:
-    """data build --frame frenet: the same windows per source as the default frame on the fixture
-    scenes (the frames differ by centimetres in x, not in which vehicles are present), and the
-    frame recorded in the manifest; the default build does not record it."""
+    """data build (the curvilinear frame by default) against --frame straightened: the same
+    windows per source on the fixture scenes (the frames differ by centimetres in x, not in which
+    vehicles are present), and the frame recorded in the manifest's config either way."""
     import json
     import shutil
 
@@ -295,12 +321,12 @@ def test_build_in_the_curvilinear_frame_records_it(tmp_path: Path) -> None:
         shutil.copy(FIX / name, a)
     shutil.copy(FIX.parent / "commonroad_us101_scene_overlap_groups.csv", root / "us101")
     mans = {}
-    for frame in ("straightened", "frenet"):
+    for frame, extra in (("straightened", ["--frame", "straightened"]), ("frenet", [])):
         out = tmp_path / frame
         assert main(["data", "build", "--data-root", str(root), "--out", str(out), "--no-i80", "--no-progress",
-                     "--frame", frame]) == 0
+                     *extra]) == 0
         mans[frame] = json.loads((out / "manifest.json").read_text())
-    assert "road_frame" not in mans["straightened"]["config"]
+    assert mans["straightened"]["config"]["road_frame"] == "straightened"
     assert mans["frenet"]["config"]["road_frame"] == "frenet"
     for sa, sb in zip(mans["straightened"]["sources"], mans["frenet"]["sources"]):
         assert sa["name"] == sb["name"] and sa["split"] == sb["split"]
@@ -358,3 +384,21 @@ def test_offsets_near_the_radius_of_curvature_are_refused() -> None:
                 check_offsets(path, u, d, cfg)
         else:
             check_offsets(path, u, d, cfg)
+
+
+def test_window_difference_matches_agents_by_id() -> None:
+    """The frames table's window Δ compares the same agent in both frames (whatever its row), and
+    counts windows whose agents differ instead of comparing them."""
+    from nudge_train.data.frame_cmd import FrameCounts, window_difference
+
+    rng = np.random.default_rng(1)
+    pos = rng.normal(size=(4, 14, 2))
+    ids = np.asarray([7, 3, 9, 1])
+    perm = np.asarray([0, 2, 3, 1])
+    moved = pos[perm].copy()
+    moved[2, 5, 1] += 0.25  # agent ids[perm][2] = 1 moves 0.25 m at one step
+    a = FrameCounts(window_positions={(1.2, 0, 7): (ids, pos), (1.5, 0, 7): (ids, pos)})
+    b = FrameCounts(window_positions={(1.2, 0, 7): (ids[perm], moved), (1.5, 0, 7): (ids[:3], pos[:3]),
+                                      (1.8, 0, 7): (ids, pos)})
+    worst, unmatched = window_difference(a, b)
+    assert abs(worst - 0.25) < 1e-12 and unmatched == 2

@@ -119,6 +119,5 @@ def test_overlap_table_conflicts_and_garbage_are_data_errors(tmp_path: Path,
 
 def test_write_scenes_reports_source_decisions(tmp_path: Path) -> None:
     root = _root(tmp_path, ["USA_US101-1_1_T-1.xml.gz"])
-    written, drops, notes = write_scenes(root, tmp_path / "s", ScenesConfig(split="train"), SplitConfig(),
-                                         progress=False)
-    assert written == [] and any("only 1 US-101 overlap group" in n for n in notes)
+    res = write_scenes(root, tmp_path / "s", ScenesConfig(split="train"), SplitConfig(), progress=False)
+    assert res.written == [] and any("only 1 US-101 overlap group" in n for n in res.notes)

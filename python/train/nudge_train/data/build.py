@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from nudge_train.constants import DATASET_SCHEMA, SPLITS, WINDOWS_SCHEMA
+from nudge_train.constants import DATASET_SCHEMA, DEFAULT_ROAD_FRAME, SPLITS, WINDOWS_SCHEMA
 from nudge_train.artefacts import atomic_write_text, remove_stale_temps
 from nudge_train.provenance import sha256_file
 
@@ -27,7 +27,7 @@ from .st_io import write_safetensors
 from .sources import COIFMAN, SourceEntry, us101_sources
 from .splits import TOO_FEW_GROUPS, SplitConfig, assign_or_test
 from .tracks import TrackTable
-from .windows import Window, WindowConfig, WindowStats, extract_windows
+from .windows import Window, WindowConfig, WindowStats, extract_windows, is_merge_window
 
 
 @dataclass(frozen=True)
@@ -45,9 +45,9 @@ class BuildConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     coifman: CoifmanConfig = field(default_factory=CoifmanConfig)
     raw_cfg: RawConfig = field(default_factory=RawConfig)
-    frame: str = "straightened"
-    """Road frame of the US-101 scenes (``straightened`` or ``frenet``); recorded in the manifest's
-    config as ``road_frame`` when not the default."""
+    frame: str = DEFAULT_ROAD_FRAME
+    """Road frame of the US-101 scenes (``frenet`` or ``straightened``); recorded in the manifest's
+    config as ``road_frame`` (a manifest without it was built in the ``straightened`` frame)."""
 
 
 def time_blocks(table: TrackTable, block_s: float) -> list[tuple[int, int]]:
@@ -134,6 +134,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
     per_split: dict[str, list[tuple[Window, int]]] = {s: [] for s in SPLITS}
     per_source: dict[str, dict] = {}
     split_stats = {s: WindowStats() for s in SPLITS}
+    merge_per_split = {s: 0 for s in SPLITS}
     for u in tqdm(units, desc="windows", disable=not progress):
         e = u.entry
         assert e.table is not None
@@ -141,12 +142,15 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
         st = WindowStats()
         ws = extract_windows(grid, wcfg, stats=st)
         si = index_of[e.name]
+        n_merge = sum(is_merge_window(w, e.table.lanes, wcfg.n_obs) for w in ws)
+        merge_per_split[e.split] += n_merge
         per_split[e.split].extend((w, si) for w in ws)
         split_stats[e.split].merge(st)
         per_source[e.name] = {
             "windows": st.kept, "agents": st.agents_kept, "candidates": st.candidates,
             "interactive": int(sum(w.interactive for w in ws)),
             "lane_changing_agents": int(sum(int(w.lane_change.sum()) for w in ws)),
+            "merge_windows": int(n_merge),
             "windows_dropped": dict(sorted(st.windows_dropped.items())),
             "agents_dropped": dict(sorted(st.agents_dropped.items())),
         }
@@ -170,6 +174,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
         splits_out[s] = {
             "windows": len(ws), "agents": int(sum(w.positions.shape[0] for w, _ in ws)),
             "interactive": int(sum(w.interactive for w, _ in ws)),
+            "merge_windows": int(merge_per_split[s]),
             "candidates": st.candidates,
             "windows_dropped": dict(sorted(st.windows_dropped.items())),
             "agents_dropped": dict(sorted(st.agents_dropped.items())),
@@ -196,7 +201,7 @@ def build(cfg: BuildConfig, progress: bool = True) -> dict:
             "raw": [p.name for p in cfg.raw], "windows_per_shard": cfg.windows_per_shard,
             "window": asdict(wcfg), "split": asdict(cfg.split), "coifman": asdict(cfg.coifman),
             "raw_cleaning": asdict(cfg.raw_cfg),
-            **({"road_frame": cfg.frame} if cfg.frame != "straightened" else {}),
+            "road_frame": cfg.frame,
         }),
         "counts": {"windows": total_w, "agents": sum(v["agents"] for v in splits_out.values()),
                    "sources": len(sources)},

@@ -1,9 +1,9 @@
 """Reader for CommonRoad scenario XML (2020a ``dynamicObstacle`` and 2018b ``obstacle``/``role``).
 
 Produces a :class:`TrackTable` in a road frame: the scene is rotated so traffic runs along +x
-(direction fitted to the lanelet boundaries), y positive left, then either straightened along a
-fitted polynomial (frame ``straightened``, the default) or mapped to arclength and offset along a
-spline reference path (frame ``frenet``, :mod:`nudge_train.data.frenet`). Lanes come from the
+(direction fitted to the lanelet boundaries), y positive left, then either mapped to arclength and
+offset along a spline reference path (frame ``frenet``, the default, :mod:`nudge_train.data.frenet`)
+or straightened along a fitted polynomial (frame ``straightened``, the older frame). Lanes come from the
 lanelet boundaries (order by lateral position); lanelets that start or end inside the scene
 (on-ramps, lane drops) give per-x pieces of the lane map, and in the ``frenet`` frame every lane
 also carries its extent along s.
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nudge_train.constants import ROAD_FRAMES
+from nudge_train.constants import DEFAULT_ROAD_FRAME, ROAD_FRAMES
 
 from .errors import DataError, read_source
 from .frenet import FrameRefusal, FrenetConfig, ReferencePath, check_offsets, fit_reference, lane_extents
@@ -27,10 +27,10 @@ from .raw import FieldRule, number
 from .tracks import LaneMap, TrackTable, lane_index_from_left, sort_and_check
 
 FRAMES = ROAD_FRAMES
-"""Road frames of the reader (:data:`nudge_train.constants.ROAD_FRAMES`): ``straightened`` (one
-rotation and a first-order straightening along a fitted curve; the default, what the shipped data
-were built with) and ``frenet`` (the curvilinear frame of :mod:`nudge_train.data.frenet`: exact
-projection, lanes with extents)."""
+"""Road frames of the reader (:data:`nudge_train.constants.ROAD_FRAMES`): ``frenet`` (the default:
+the curvilinear frame of :mod:`nudge_train.data.frenet`, exact projection, lanes with extents) and
+``straightened`` (one rotation and a first-order straightening along a fitted curve; the frame of
+the ten scenarios in ``assets/scenes``)."""
 
 
 _LINE = "\x00line"
@@ -199,9 +199,10 @@ class RoadCurve:
         x = pts[:, 0]
         ang = self.tangent_angle(x)
         dy = pts[:, 1] - np.polyval(self.coef, x)
-        # Perpendicular offset; foot point shifted back along the tangent.
+        # Perpendicular offset d = dy cos(a); the point is foot + d (-sin a, cos a), so the foot
+        # lies at x + d sin(a) (first order in the curvature).
         y_road = dy * np.cos(ang)
-        x_foot = x - dy * np.sin(ang) * np.cos(ang)
+        x_foot = x + dy * np.sin(ang) * np.cos(ang)
         return np.stack([np.interp(x_foot, g, arc), y_road], axis=1)
 
 
@@ -352,7 +353,7 @@ def _frenet_lane_map(ref: ReferencePath, raw_lanelets: list[tuple[np.ndarray, np
     return replace(lanes, lanes=tuple(extents))
 
 
-def read_commonroad(path: Path | str, frame: str = "straightened", frenet: FrenetConfig | None = None) -> TrackTable:
+def read_commonroad(path: Path | str, frame: str = DEFAULT_ROAD_FRAME, frenet: FrenetConfig | None = None) -> TrackTable:
     """Read one CommonRoad scenario (.xml or .xml.gz, format 2020a or 2018b) into a TrackTable in
     the road frame ``frame`` (one of :data:`FRAMES`; ``frenet`` uses ``frenet`` or its defaults).
 

@@ -135,8 +135,40 @@ def _q(a: np.ndarray) -> str:
     return " / ".join(f"{v:.1f}" for v in q)
 
 
-def write_report(processed: Path, doc: Path, figures: Path) -> None:
-    """Write the dataset report for the build in ``processed``."""
+def scenes_table(scenes_root: Path) -> list[str]:
+    """Markdown lines: planner scenarios per split as ``nudge-train data scenes`` recorded them
+    (``<scenes_root>/<split>/summary.json``): scenarios, merge scenarios (ego in a lane that ends
+    ahead), candidates dropped per reason. Empty when no split's scenarios were written."""
+    rows = []
+    for s in SPLITS:
+        path = scenes_root / s / "summary.json"
+        if not path.exists():
+            continue
+        sm = load_json(path)
+        dropped = ", ".join(f"{k}: {v}" for k, v in sm.get("candidates_dropped", {}).items()) or "none"
+        rows.append(f"| {s} | {sm.get('road_frame', 'straightened')} | {sm['scenarios']} | {sm['merge_scenarios']} | "
+                    f"{sm.get('ramp_scenarios', 0)} | {dropped} |")
+    if not rows:
+        return []
+    return ["", "## Planner scenarios per split", "",
+            "Written by `nudge-train data scenes --split <split>` (one scenario per ego and last observed step "
+            "on the 0.3 s grid, neighbours within 60 m). A *merge scenario* has its ego, at the last observed "
+            "step, in a lane that ends ahead inside the scene (an on-ramp's acceleration lane or an auxiliary "
+            "lane; only the curvilinear frame knows lane ends); an *on-ramp scenario* has it in a lane that "
+            "begins inside the scene (joined from an on-ramp; on US-101 it runs on as the auxiliary lane). "
+            "Candidates dropped: `ego_history_incomplete` / "
+            "`ego_future_short` (the ego lacks 8 observed or 6 future steps), `lanes_not_straight` (lanes off "
+            "d = const by more than 0.6 m within 100 m of the ego), `agent_off_road` (an agent observed more "
+            "than 2 m outside the road edges at the ego's position: still on an on-ramp that joins ahead, or "
+            "already on an exit ramp; the planner's scenario loader refuses such a file), `lanes_unmatched` (a lane at the ego "
+            "matches no lane extent).", "",
+            "| split | road frame | scenarios | merge scenarios | on-ramp scenarios | candidates dropped (reason: n) |",
+            "|---|---|---|---|---|---|", *rows]
+
+
+def write_report(processed: Path, doc: Path, figures: Path, scenes_root: Path | None = None) -> None:
+    """Write the dataset report for the build in ``processed`` (planner scenario counts from
+    ``scenes_root``, default ``processed/scenes``, where written)."""
     mpath = processed / "manifest.json"
     if not mpath.exists():
         raise DataError(mpath, "no manifest.json: run `nudge-train data build` first")
@@ -165,15 +197,17 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
           f"{w['n_obs']} observed + {w['n_fut']} future steps of {w['step_s']} s, "
           f"at most {w['max_agents']} agents per window; {manifest['counts']['windows']} windows, "
           f"{manifest['counts']['agents']} agent tracks.", "",
-          "Reproduce (from the repository root; about 20 s on 2 cores, byte-identical on rerun, "
+          f"Road frame of the US-101 scenes: `{cfg.get('road_frame', 'straightened')}`.", "",
+          "Reproduce (from the repository root; about a minute on 2 cores, byte-identical on rerun, "
           "sha256 of every shard in the manifest):", "", "```sh",
-          "nudge-train data build                # ../shared/data/ngsim -> data/processed/",
-          "nudge-train data report               # -> docs/data.md, docs/figures/data_*.png",
-          "nudge-train data scenes --split test  # all test scenarios -> data/processed/scenes/test/",
-          "nudge-train data scenes --ship        # the shipped selection -> assets/scenes/",
+          "nudge-train data build                 # ../shared/data/ngsim -> data/processed/",
+          "nudge-train data scenes --split train  # all scenarios of a split -> data/processed/scenes/<split>/",
+          "nudge-train data scenes --split val",
+          "nudge-train data scenes --split test",
+          "nudge-train data report                # -> docs/data.md, docs/figures/data_*.png",
           "```", ""]
     # Windows per split and source kind.
-    agg: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0, 0])
+    agg: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0, 0, 0])
     for src in sources:
         if "windows" not in src:
             continue
@@ -183,18 +217,22 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
         a[2] += src["interactive"]
         a[3] += src["lane_changing_agents"]
         a[4] += 1
+        a[5] += src.get("merge_windows", 0)
     L += ["## Windows per split and source", "",
-          "| split | source | units | windows | agents | interactive windows | interactive share | lane-changing agents |",
-          "|---|---|---|---|---|---|---|---|"]
+          "| split | source | units | windows | agents | interactive windows | interactive share | lane-changing agents "
+          "| merge windows |",
+          "|---|---|---|---|---|---|---|---|---|"]
     for s in SPLITS:
-        tot = [0, 0, 0, 0, 0]
+        tot = [0, 0, 0, 0, 0, 0]
         for k in KIND_NAMES:
             if (s, k) not in agg:
                 continue
             a = agg[(s, k)]
             tot = [x + y for x, y in zip(tot, a)]
-            L.append(f"| {s} | {KIND_NAMES[k]} | {a[4]} | {a[0]} | {a[1]} | {a[2]} | {a[2] / max(a[0], 1):.1%} | {a[3]} |")
-        L.append(f"| **{s}** | all | {tot[4]} | **{tot[0]}** | {tot[1]} | {tot[2]} | **{tot[2] / max(tot[0], 1):.1%}** | {tot[3]} |")
+            L.append(f"| {s} | {KIND_NAMES[k]} | {a[4]} | {a[0]} | {a[1]} | {a[2]} | {a[2] / max(a[0], 1):.1%} | {a[3]} "
+                     f"| {a[5]} |")
+        L.append(f"| **{s}** | all | {tot[4]} | **{tot[0]}** | {tot[1]} | {tot[2]} | **{tot[2] / max(tot[0], 1):.1%}** "
+                 f"| {tot[3]} | **{tot[5]}** |")
     total_w = sum(a[0] for a in agg.values())
     i80_w = sum(a[0] for (s, k), a in agg.items() if k == "coifman_block")
     us_w = sum(a[0] for (s, k), a in agg.items() if k == "commonroad")
@@ -204,15 +242,22 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
           "first and last of the 14 steps and the agent moved at least "
           f"{w['lane_change_min_dy']} m laterally), which includes on-ramp merges. I-80 lateral motion is "
           "derived from lane numbers (lane changes interpolated over 4 s), so its lane changes are real "
-          "but their lateral shape is not.", ""]
+          "but their lateral shape is not. A *merge window* has an agent that, at the last observed step, is "
+          "in a lane that ends ahead inside the scene (an on-ramp's acceleration lane or an auxiliary lane; "
+          "only the curvilinear frame knows lane ends, so 0 in a straightened build and on I-80).", ""]
     # Splits.
     L += ["## Splits", "", "US-101 by `overlap_group` (scenes sharing vehicles stay together), I-80 by "
           "contiguous 60 s time blocks; seeded (seed in the build config), target 20 % test, then 10 % "
-          "of the rest for validation, measured in window starts. Every source file's fate:", "",
-          "| source | group | split | windows | interactive | note |", "|---|---|---|---|---|---|"]
+          "of the rest for validation, measured in window starts. Every source file's fate, with the "
+          "*residual* of the road frame's mapping (US-101: worst deviation of a lane boundary from a line of "
+          "constant lateral position, m, within each lane's extent in the curvilinear frame):", "",
+          "| source | group | split | windows | interactive | merge windows | residual (m) | note |",
+          "|---|---|---|---|---|---|---|---|"]
     for src in sources:
+        cm = (src.get("reader_notes") or {}).get("lane_straightness_cm")
+        res = "-" if cm is None else f"{cm / 100:.2f}"
         L.append(f"| {src['name']} | {src['group'] or '-'} | {src['split']} | {src.get('windows', '-')} | "
-                 f"{src.get('interactive', '-')} | {src.get('reason', '')} |")
+                 f"{src.get('interactive', '-')} | {src.get('merge_windows', '-')} | {res} | {src.get('reason', '')} |")
     # Filters.
     L += ["", "## What the filters dropped", "",
           f"Agents present in all 14 steps are kept unless a rule fires: speed > {w['max_speed']} m/s or "
@@ -228,6 +273,7 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
         ad = ", ".join(f"{k}: {v}" for k, v in sp["agents_dropped"].items()) or "none"
         L.append(f"| {s} | {sp['candidates']} | {sp['windows']} | {wd} | {ad} |")
     L += drop_table(manifest)
+    L += scenes_table(scenes_root if scenes_root is not None else processed / "scenes")
     # Distributions.
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     all_by_kind: dict[str, dict[str, list[np.ndarray]]] = defaultdict(lambda: defaultdict(list))
@@ -287,7 +333,13 @@ def write_report(processed: Path, doc: Path, figures: Path) -> None:
             continue
         seen.add(key)
         L.append(f"- {src['name'].split('#')[0]}: " + ", ".join(f"{k} = {v}" for k, v in notes.items()))
-    L.append("- US-101 CommonRoad: frame rotated and straightened per scene (rotation in reader_notes of "
-             "manifest.json as rotation_mrad).")
+    if cfg.get("road_frame", "straightened") == "frenet":
+        L.append("- US-101 CommonRoad: curvilinear road frame per scene (arclength and offset along a spline "
+                 "fitted to the lanelets, rotation in reader_notes of manifest.json as rotation_mrad, lanes that "
+                 "begin and end inside the scene as lanes_beginning / lanes_ending; see "
+                 "[results/road_frame.md](results/road_frame.md)).")
+    else:
+        L.append("- US-101 CommonRoad: frame rotated and straightened per scene (rotation in reader_notes of "
+                 "manifest.json as rotation_mrad).")
     L.append("")
     atomic_write_text(doc, "\n".join(L))

@@ -32,6 +32,11 @@ class ScenarioConfig:
     max_agents: int = 47
     straight_tol_m: float = 0.6
     straight_half_range_m: float = 100.0
+    road_tolerance_m: float = 2.0
+    """How far (m) an agent's observed centre may lie outside the road edges at the ego's x: the
+    planner's scenario loader refuses a file beyond it (``ROAD_TOLERANCE`` in
+    ``crates/planner/src/scenario.rs``), so such a candidate is dropped as ``agent_off_road``
+    (a vehicle still on an on-ramp that joins ahead of the ego, or already on an exit ramp)."""
 
 
 @dataclass
@@ -51,6 +56,27 @@ class Scenario:
         path = directory / f"{self.stem}.safetensors"
         write_safetensors(path, self.tensors, self.metadata)
         return path
+
+
+def is_merge_scenario(tensors: dict[str, np.ndarray]) -> bool:
+    """Whether a scenario's tensors describe a *merge scenario*: the ego, at its last observed
+    step, is in a lane that really ends (``lane_extent_real[ego_lane, 1]`` = 1) ahead of it
+    (``lane_extent[ego_lane, 1]`` > its x): an on-ramp's acceleration lane or an auxiliary lane
+    that ends inside the scene. False without lane extents (``nudge.scenario/1``)."""
+    if "lane_extent" not in tensors:
+        return False
+    lane = int(tensors["ego_lane"][0])
+    x = float(tensors["history"][0, -1, 0])
+    return bool(tensors["lane_extent_real"][lane, 1]) and float(tensors["lane_extent"][lane, 1]) > x
+
+
+def is_ramp_scenario(tensors: dict[str, np.ndarray]) -> bool:
+    """Whether the ego, at its last observed step, is in a lane that really begins inside the
+    scene (``lane_extent_real[ego_lane, 0]`` = 1): an on-ramp lane joined from the ramp, which
+    here runs on as an auxiliary lane rather than ending. False without lane extents."""
+    if "lane_extent" not in tensors:
+        return False
+    return bool(tensors["lane_extent_real"][int(tensors["ego_lane"][0]), 0])
 
 
 def lane_extents_at(lanes: LaneMap, x: float, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -78,8 +104,9 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
     """Scenario with ego = grid row ``ego_row`` and last observed frame ``f_last`` (grid index).
 
     Returns None (and counts the reason in ``drops``) when the ego lacks history or future, or
-    the straight-lane approximation fails near the ego, or (curvilinear frame) a lane at the ego
-    matches no lane extent. In the curvilinear frame the scenario carries the lane extents
+    the straight-lane approximation fails near the ego, or an agent's observed centre lies more
+    than ``cfg.road_tolerance_m`` outside the road at the ego's x, or (curvilinear frame) a lane
+    at the ego matches no lane extent. In the curvilinear frame the scenario carries the lane extents
     ("nudge.scenario/2").
     """
     stride = int(round(cfg.step_s / grid.dt))
@@ -110,6 +137,10 @@ def scenario_at(table: TrackTable, grid: Grid, ego_row: int, f_last: int, cfg: S
     fpres = grid.present[rows][:, fut]
     future = np.where(fpres[..., None], grid.pos[rows][:, fut], 0.0)
     bounds = table.lanes.bounds_at(float(ego_xy[0])).astype(np.float64)
+    outside = np.maximum(bounds[0] - history[..., 1], history[..., 1] - bounds[-1])
+    if np.any(outside > cfg.road_tolerance_m):
+        drops["agent_off_road"] += 1
+        return None
     centres = 0.5 * (bounds[:-1] + bounds[1:])
     ego_lane = int(np.clip(np.searchsorted(bounds, ego_xy[1], side="right") - 1, 0, centres.shape[0] - 1))
     extents = lane_extents_at(table.lanes, float(ego_xy[0]), bounds)

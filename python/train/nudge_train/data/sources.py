@@ -7,6 +7,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from nudge_train.constants import DEFAULT_ROAD_FRAME
+
 from .commonroad import read_commonroad
 from .errors import DataError
 from .splits import EXCLUDED_SCENES, SCENE_RE, TOO_FEW_GROUPS, SplitConfig, assign_or_test, read_overlap_groups
@@ -51,7 +53,7 @@ def decision_lines(sources: list[tuple[str, str, str]]) -> list[str]:
 
 
 def us101_sources(data_root: Path, cfg: SplitConfig, window_span_frames: int = 39,
-                  progress: bool = False, frame: str = "straightened") -> list[SourceEntry]:
+                  progress: bool = False, frame: str = DEFAULT_ROAD_FRAME) -> list[SourceEntry]:
     """Read every US-101 CommonRoad file; keep one variant per scene (variants repeat the same
     traffic, some with vehicles removed); exclude USA_US101-3_5_T-1; assign splits by overlap group
     weighted by the number of 0.1 s window starts.

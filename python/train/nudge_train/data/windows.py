@@ -12,6 +12,7 @@ import numpy as np
 from nudge_train.constants import DT, OBS_LEN, PRED_LEN
 
 from .grid import Grid
+from .tracks import LaneMap
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,17 @@ class Window:
     @property
     def interactive(self) -> bool:
         return bool(self.lane_change.any())
+
+
+def is_merge_window(window: Window, lanes: LaneMap, n_obs: int = OBS_LEN) -> bool:
+    """Whether a window of a table with lane map ``lanes`` is a *merge window*: at least one of
+    its agents is, at the last observed step (index ``n_obs - 1``), in a lane that ends ahead
+    inside the scene (:meth:`~nudge_train.data.tracks.LaneMap.ending_lane`). Always False in a
+    frame without lane extents (the straightened frame, I-80)."""
+    if not lanes.lanes:
+        return False
+    last = window.positions[:, n_obs - 1] + window.origin
+    return bool(lanes.ending_lane(last[:, 0], last[:, 1]).any())
 
 
 def kinematic_violations(pos: np.ndarray, dt: float, cfg: WindowConfig) -> dict[str, np.ndarray]:
