@@ -84,14 +84,22 @@ E2E_PROBLEM = 125
 
 
 def run_nudge(nudge: Path, run: SceneRun, out: Path) -> Path:
-    """Plans ``run`` with the ``nudge`` command (defaults: student planner, teacher world,
-    seed 0, one thread) and returns its solution file."""
+    """Plans ``run`` with the ``nudge`` command (student planner, ``log_replay`` world, seed 0,
+    one thread) and returns its solution file."""
     return _simulate(nudge, ["--ego", str(run.ego), "--t0", f"{run.t0:.1f}", "--neighbour-range",
                              f"{run.range_m:g}"], run.source, out)
 
 
+CHECK_WORLD = "log_replay"
+"""The closed-loop world of every checked solution: the checker judges a solution against the
+scenario's recorded obstacles, so the others must move as recorded while nudge plans (in the
+``teacher`` or ``idm`` world they react to the ego and a collision-free run there can collide
+with the recording)."""
+
+
 def _simulate_args(source: Path, ego_args: list[str], out: Path) -> list[str]:
-    return ["simulate", "--commonroad", str(source), *ego_args, "--out", str(out), "--threads", "1"]
+    return ["simulate", "--commonroad", str(source), *ego_args, "--world", CHECK_WORLD, "--out", str(out),
+            "--threads", "1"]
 
 
 def _simulate(nudge: Path, ego_args: list[str], source: Path, out: Path) -> Path:
@@ -201,7 +209,8 @@ def markdown(rows: list[tuple[SceneRun, Check | str, dict]], command: str) -> st
         "# CommonRoad solutions of the shipped scenes, checked by the drivability checker",
         "",
         "Each shipped scene planned in its CommonRoad source file by the `nudge` command (student",
-        "planner, teacher world, seed 0, one thread), the executed ego trajectory written as a",
+        "planner, `log_replay` world so that the others move as the checker's recorded obstacles do,",
+        "seed 0, one thread), the executed ego trajectory written as a",
         "CommonRoad KS solution (vehicle type 2, BMW 320i: wheelbase 2.58 m, nearest to nudge's",
         "2.8 m) and checked by `commonroad-drivability-checker` 2025.4.0 with its default",
         "tolerances (position 2 cm, orientation 0.03 rad per time step). Regenerate with",
