@@ -18,6 +18,7 @@
 //! linearised problem as one joint QP ([`reference`]).
 
 mod constraint;
+mod contingency;
 mod inputs;
 mod linearised;
 mod problem;
@@ -31,6 +32,8 @@ mod z_update;
 
 #[cfg(test)]
 mod ablation_tests;
+#[cfg(test)]
+mod contingency_tests;
 #[cfg(test)]
 mod convergence_tests;
 #[cfg(test)]
@@ -145,6 +148,36 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// never yields hits an ego that slowed down during aborted attempts; lane changes begun with
 /// almost no margin (b < 0.02) next to a target-lane vehicle that the IDM world moves
 /// differently from the prediction. Test split: `docs/results/closed_loop.md`.
+///
+/// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
+/// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
+/// angle, so while a target-lane vehicle is level with the ego it asks for 2.85 m between the
+/// centres across the road where the boxes need 1.8–1.9 m, and its bumper gap on the axis is
+/// 3.4–3.6 m; the ego's near edge stays about 0.4 m short of the lane line (median, dense
+/// starts) while the fitted idm followers yield only once it is 0.7 m inside their lane.
+/// `SafetyGeometry::Boxes` replaces it by the exact separating-axis distance of the two
+/// oriented boxes less the clearances `margin_x` (along the road) and `margin_y` (across),
+/// b in metres, with its (sub)gradient for the Z-update, the safe step and the refinement
+/// ([`crate::safety::box_separation`]; tested against an independent corner-projection
+/// separating-axis test, `OrientedBox::overlaps` and finite differences). The contingency rule
+/// (`PlannerSettings::contingency`) makes a plan that takes the ego's box across the line between its own
+/// lane and the target lane admissible only if a fixed retreat from the plan's first state
+/// across the line (no later than step T − `contingency_steps`) back towards the own lane's
+/// centre, braking at `contingency_accel` or else holding acceleration 0, is safe under the
+/// predictor's prediction for that retreat path; it is checked in the execution check, so the
+/// refinement, backtracking and fallbacks all respect it. Measured on validation (269 scenes ×
+/// 3 seeds, the teacher planner on 60; `nudge-train closed-loop --split val --settings
+/// docs/results/settings/boxes_contingency.json`), the two together lowered success in every
+/// world (student: teacher world 94.1 → 82.2 %, idm 94.5 → 87.4 %, log replay 93.2 → 85.5 %;
+/// teacher planner 93.9 → 88.9, 95.6 → 88.3, 89.4 → 86.7 %) and raised at-fault collisions
+/// (student 0 → 3, 3 → 4, 2 → 13): blocked by its retreat, a lane change falls back to the own
+/// lane and tries again, so the ego spends more steps near the line (a retreat that must leave
+/// the target lane within 3–5 steps at ≤ 0.08 rad of heading rarely does while a target-lane
+/// vehicle closes in), and with `margin_x` = 1.5 m the boxes let it follow vehicles it
+/// overtakes or joins at a 1.5 m bumper gap, where a replayed vehicle's braking or a
+/// prediction error at close range becomes a collision (most of the new at-fault events: "the
+/// ego ran into it" within the first steps). Neither is switched on; `docs/results/nudge_safety.md`
+/// has the numbers of each variant.
 ///
 /// **Bounded work.** `budget_s` (wall time) and `budget_calls` (predictor calls), when set,
 /// end the call with [`PlanStatus::BudgetExhausted`] and a checked plan: one predictor call is
@@ -334,6 +367,7 @@ impl Planner {
             lp: &lp,
             safety: &mut safety,
             predictor,
+            contingency: contingency::Contingency::new(s, &lp),
         };
         let finished = check_execution(&mut repairer, admm)?;
         let counts = (safety.calls, constraint.vehicles().len());

@@ -92,6 +92,9 @@ class InteractionConfig:
     seeds: int = 3
     margin: float = 2.0
     candidate: Path | None = None
+    settings: Path | None = None
+    """Planner settings JSON of every arm (missing fields default; ``ablate_reaction`` is set per
+    arm); ``None``: the defaults."""
     worlds: tuple[str, ...] = WORLDS
     seed: int = 0
     threads: int = 2
@@ -122,6 +125,19 @@ class InteractionConfig:
                 raise ValueError(f"--splits: unknown split {s!r} (train, val, test)")
         if self.candidate is not None and not Path(self.candidate).is_file():
             raise ValueError(f"--candidate {self.candidate}: no such file")
+        if self.settings is not None:
+            if not Path(self.settings).is_file():
+                raise ValueError(f"--settings {self.settings}: no such file")
+            self.base_settings()
+
+    def base_settings(self) -> nudge.PlannerSettings:
+        """The planner settings every arm starts from (``--settings``, else the defaults)."""
+        if self.settings is None:
+            return nudge.PlannerSettings.default()
+        try:
+            return nudge.PlannerSettings.from_json(Path(self.settings).read_text())
+        except Exception as err:  # the settings error names the field
+            raise ValueError(f"--settings {self.settings}: {err}") from err
 
     def sizes(self, split: str) -> tuple[int, int]:
         """(scenes drawn, aware-teacher scenes) of ``split``."""
@@ -209,7 +225,7 @@ def _run_arm(arm: Arm, predictor: str, runs: list[tuple[Path, list[int]]], cfg: 
              hasher: _Hasher, bar: tqdm) -> tuple[dict[str, list], float, float]:
     """The runs of one arm (cached per part): its columns, the wall time of its parts (s, as
     measured when each ran) and the time computed now (s)."""
-    settings = nudge.PlannerSettings(ablate_reaction=arm.ablated)
+    settings = cfg.base_settings().replace(ablate_reaction=arm.ablated)
     config = nudge.SimConfig(world=arm.world)
     inputs = {"schema": CACHE_SCHEMA, "native": hasher(Path(nudge._native.__file__)), "predictor": predictor,
               "settings": json.loads(settings.to_json()), "config": json.loads(config.to_json()),
@@ -615,7 +631,11 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
              "the ego is wholly inside; `teacher` (the shipped teacher predicts the others given the ego's executed "
              "plan); `log_replay` (the logged future, nobody reacts; for at-fault collisions only).",
              f"- Closed loop: the default `SimConfig` (`{json.dumps(json.loads(config.to_json()), sort_keys=True)}`, "
-             "world set per arm), default planner settings (horizon 6 steps = 1.8 s).",
+             "world set per arm), "
+             + (f"planner settings `{json.dumps(json.loads(Path(cfg.settings).read_text()), sort_keys=True)}` "
+                f"(`--settings {paths.repo_relative(Path(cfg.settings))}`, the rest default)"
+                if cfg.settings is not None else "default planner settings")
+             + " (horizon 6 steps = 1.8 s).",
              "- Main metric: time to lane, the time until the ego's centre first lies inside the target lane, "
              f"failures (never) counted at the budget {budget * nudge.DT:.1f} s. Also success (settled in the target "
              "lane within the budget without any collision), time to target (settled), collisions at fault or not "
