@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 
 import nudge
-from nudge_train.experiments.interaction import SEED_TRIES, blocked, dense_runs, paired, start_geometry, verdict
+from nudge_train.experiments.interaction import (
+    SEED_TRIES,
+    InteractionConfig,
+    blocked,
+    dense_runs,
+    paired,
+    start_geometry,
+    verdict,
+)
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -114,3 +122,21 @@ def test_start_geometry_by_hand() -> None:
     # Level with it, the ego's centre stays sqrt(2) * 1.9 + 0.3 below 3.7; its edge 0.95 above that.
     assert depth == pytest.approx((3.7 - 1.85) - (np.sqrt(2.0) * 1.9 + 0.3) + 0.95)
     assert start_geometry(sc, 0, s) is None
+
+
+def test_settings_file_is_the_base_of_every_arm(tmp_path: Path) -> None:
+    """``--settings``: every arm starts from the file (``ablate_reaction`` is set per arm); a
+    missing file or a bad field is refused naming it."""
+    assert InteractionConfig().base_settings() == nudge.PlannerSettings.default()
+    good = tmp_path / "boxes.json"
+    good.write_text('{"safety_geometry": "boxes", "contingency": true}')
+    cfg = InteractionConfig(settings=good)
+    cfg.validate()
+    s = cfg.base_settings()
+    assert s.safety_geometry == "boxes" and s.contingency and not s.ablate_reaction
+    with pytest.raises(ValueError, match="no such file"):
+        InteractionConfig(settings=tmp_path / "none.json").validate()
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"contingency_accel": 5.0}')
+    with pytest.raises(ValueError, match="contingency_accel"):
+        InteractionConfig(settings=bad).validate()
