@@ -92,7 +92,8 @@ pub struct PlannerSettings {
     /// The shape of the safety constraint b_i ([`SafetyGeometry`]): the inflated ellipse
     /// (default; b unitless) or the exact separation of the two oriented boxes with the
     /// margins `margin_x`, `margin_y` as clearances (b in metres; `safety_min`, `plan_buffer`,
-    /// `z_step_margin` and `refine_margin` are then in metres too).
+    /// `z_step_margin` and `refine_margin` are then in metres too). The ellipse stays the
+    /// default: on validation the boxes lowered success (`docs/results/nudge_safety.md`).
     pub safety_geometry: SafetyGeometry,
     /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
     /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
@@ -204,7 +205,8 @@ pub struct PlannerSettings {
     /// acceleration 0) is safe against the predictor's prediction for the retreat path.
     /// Checked on the nonlinear roll-out in the execution check (refinement, backtracking and
     /// fallbacks all respect it); one or two more predictor calls per checked plan that
-    /// crosses the line. Off by default: on validation it lowered success (see there).
+    /// crosses the line. Off by default: on validation it lowered success
+    /// (`docs/results/nudge_safety.md`).
     pub contingency: bool,
     /// Constant acceleration of the contingency retreat (m/s², within the acceleration and
     /// jerk bounds from the plan's acceleration at the branch state); when that retreat is

@@ -15,18 +15,22 @@
 //!   there brakes at the constant `contingency_accel` (within the acceleration box and jerk
 //!   bound from the plan's acceleration at the branch), or, when that retreat is not safe,
 //!   holds its acceleration at 0 (behind a slower own-lane leader braking is the safe way
-//!   back, in front of a closing target-lane follower holding the speed), while steering back towards the own
-//!   lane's centre with the fallbacks' `steer_towards` (heading aim 0.05 rad
-//!   per m of lateral error, at most 0.08 rad, within the steering box and rate bound from
+//!   back, in front of a closing target-lane follower holding the speed), while steering
+//!   back towards the own lane's centre with the fallbacks' `steer_towards` (heading aim
+//!   0.05 rad per m of lateral error, at most 0.08 rad, within the steering box and rate bound from
 //!   the plan's steering at the branch), rolled out on the nonlinear model. The path the
 //!   predictor sees is the plan up to the branch, then the retreat: `[T]` states, one
 //!   predictor call per retreat tried (counted in `predictor_calls` and the budget).
 //! * **The verdict**: one of the two retreat paths must be safe (every checked b >
 //!   `safety_min` at every step under its own prediction, the terminal closing-speed margin
-//!   included), else the plan is not admissible (ranked by the retreat's violation, and the fallbacks may steer
-//!   back). Retreat candidates of the fallbacks are not subject to it (they are the retreat).
+//!   included), else the plan is not admissible (ranked by the retreat's violation, and the
+//!   fallbacks may steer back). Retreat candidates of the fallbacks are not subject to it
+//!   (they are the retreat).
 //!
-//! Why a retreat rather than a wider constraint: replanning every 0.3 s, the ego commits only
+//! Measured on validation it costs success (see `crate::Planner`, "Safety geometry and
+//! contingency", and `docs/results/nudge_safety.md`); it is off by default.
+//!
+//! The idea (why a retreat rather than a wider constraint): replanning every 0.3 s, the ego commits only
 //! to the first step of each plan; a plan whose retreat is safe leaves the next call a way back
 //! when the traffic does not do what the prediction said, so the constraint on the plan itself
 //! may be tight (the box geometry, `SafetyGeometry::Boxes`) without betting the ego on the

@@ -159,25 +159,30 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// oriented boxes less the clearances `margin_x` (along the road) and `margin_y` (across),
 /// b in metres, with its (sub)gradient for the Z-update, the safe step and the refinement
 /// ([`crate::safety::box_separation`]; tested against an independent corner-projection
-/// separating-axis test, `OrientedBox::overlaps` and finite differences). The contingency rule
-/// (`PlannerSettings::contingency`) makes a plan that takes the ego's box across the line between its own
-/// lane and the target lane admissible only if a fixed retreat from the plan's first state
+/// separating-axis test, `OrientedBox::overlaps` and finite differences). The contingency
+/// rule (`PlannerSettings::contingency`) makes a plan that takes the ego's box across the line
+/// between its own lane and the target lane admissible only if a fixed retreat from the plan's first state
 /// across the line (no later than step T − `contingency_steps`) back towards the own lane's
 /// centre, braking at `contingency_accel` or else holding acceleration 0, is safe under the
 /// predictor's prediction for that retreat path; it is checked in the execution check, so the
 /// refinement, backtracking and fallbacks all respect it. Measured on validation (269 scenes ×
-/// 3 seeds, the teacher planner on 60; `nudge-train closed-loop --split val --settings
-/// docs/results/settings/boxes_contingency.json`), the two together lowered success in every
-/// world (student: teacher world 94.1 → 82.2 %, idm 94.5 → 87.4 %, log replay 93.2 → 85.5 %;
-/// teacher planner 93.9 → 88.9, 95.6 → 88.3, 89.4 → 86.7 %) and raised at-fault collisions
-/// (student 0 → 3, 3 → 4, 2 → 13): blocked by its retreat, a lane change falls back to the own
-/// lane and tries again, so the ego spends more steps near the line (a retreat that must leave
-/// the target lane within 3–5 steps at ≤ 0.08 rad of heading rarely does while a target-lane
-/// vehicle closes in), and with `margin_x` = 1.5 m the boxes let it follow vehicles it
-/// overtakes or joins at a 1.5 m bumper gap, where a replayed vehicle's braking or a
-/// prediction error at close range becomes a collision (most of the new at-fault events: "the
-/// ego ran into it" within the first steps). Neither is switched on; `docs/results/nudge_safety.md`
-/// has the numbers of each variant.
+/// 3 seeds, paired with the defaults; `docs/results/nudge_safety.md`), no variant passes the
+/// bar "at-fault collisions down, success not lower in any world", so both stay off:
+///
+/// * boxes with the default margins (1.5 m / 0.3 m): more calls converge (`Converged` 2701 →
+///   3566 steps, student, teacher world) but the ego drives closer (1.5 m bumper to bumper
+///   where the ellipse kept 3.4–3.6 m): student success 94.1 → 85.9, 94.5 → 90.2, 93.2 →
+///   88.1 % (teacher, idm, log-replay worlds), log-replay at-fault runs 2 → 18, mostly the ego
+///   running into a replayed vehicle it joins or passes;
+/// * boxes with `margin_x` 3.4 m (the ellipse's bumper gap): the clearance rectangle is
+///   projected on the yawed ego's axes, so it widens the lateral clearance by
+///   `margin_x`·|sin ψ| during the lane change: success 68–80 %, log-replay at-fault runs 25
+///   (a clearance in each box's own frame would not couple them; not measured);
+/// * boxes and the contingency: a further 2.6–3.7 pp of success lost, log-replay at-fault
+///   runs 13: a retreat that must leave the target lane within 3–5 steps is often unsafe
+///   while a target-lane vehicle closes in, so the change is refused, the fallbacks steer
+///   back and the ego spends more time across the line (straddle 2.5–2.8 s per run against
+///   1.9–2.0 s); and the rule only applies while the own lane is still offered as a retreat.
 ///
 /// **Bounded work.** `budget_s` (wall time) and `budget_calls` (predictor calls), when set,
 /// end the call with [`PlanStatus::BudgetExhausted`] and a checked plan: one predictor call is
