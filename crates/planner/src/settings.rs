@@ -230,8 +230,15 @@ pub enum SafetyGeometry {
     /// (`margin_x` along the road, `margin_y` across it, projected on the separating axis;
     /// m): [`crate::safety::box_separation`]. b > 0 exactly when the boxes grown by the
     /// margins do not overlap, so the ego may come as close sideways as `margin_y` while it
-    /// is level with another vehicle.
+    /// is level with another vehicle. The clearance is a road-aligned rectangle, so while the
+    /// ego is yawed by ψ it also widens the clearance across the ego by m_x·|sin ψ|.
     Boxes,
+    /// As `Boxes`, but the clearance grows the ego's box in its own frame (`margin_x` at each
+    /// end along its heading, `margin_y` at each side): b is the separating-axis distance of
+    /// that grown box and the other vehicle's box (m), exact for two rectangles. The clearance
+    /// follows the ego's heading: `margin_y` beside its sides, `margin_x` beyond its ends (so
+    /// a yawed ego's extended ends still reach `margin_x`·|sin ψ| further across the road).
+    GrownBoxes,
 }
 
 impl Default for PlannerSettings {

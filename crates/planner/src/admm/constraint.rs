@@ -167,7 +167,9 @@ impl SafetyConstraint {
         ellipse.a_x += closing;
         let b = match self.geometry {
             SafetyGeometry::Ellipse => ellipse.value([ego[0], ego[1]], other),
-            SafetyGeometry::Boxes => self.boxes(vehicle, ego, previous, other, closing).0,
+            SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
+                self.boxes(vehicle, ego, previous, other, closing).0
+            }
         };
         (b, ellipse)
     }
@@ -195,13 +197,16 @@ impl SafetyConstraint {
                 let p = [ego[0], ego[1]];
                 (e.value(p, other), e.gradient(p, other))
             }
-            SafetyGeometry::Boxes => self.boxes(vehicle, ego, previous, other, closing),
+            SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
+                self.boxes(vehicle, ego, previous, other, closing)
+            }
         }
     }
 
     /// The [`box_separation`] of the ego's box at `ego` (its heading ψ) and the vehicle's at
     /// `other` (the heading of its motion from `previous`), the margins as clearance with
-    /// `closing` (m) added to the longitudinal one.
+    /// `closing` (m) added to the longitudinal one: a road-aligned clearance rectangle
+    /// (`Boxes`), or the ego's box grown by the clearances in its own frame (`GrownBoxes`).
     fn boxes(
         &self,
         vehicle: &CheckedVehicle,
@@ -211,10 +216,19 @@ impl SafetyConstraint {
         closing: f64,
     ) -> (f64, [f64; 2]) {
         let (sn, cs) = ego[2].sin_cos();
-        let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
         let axis = motion_axis(previous, other, vehicle.axis);
         let b = OrientedBox::along(other, axis, vehicle.size);
-        box_separation(&a, &b, [self.margins[0] + closing, self.margins[1]])
+        let clearance = [self.margins[0] + closing, self.margins[1]];
+        if self.geometry == SafetyGeometry::GrownBoxes {
+            let grown = [
+                self.ego_size[0] + 2.0 * clearance[0],
+                self.ego_size[1] + 2.0 * clearance[1],
+            ];
+            let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], grown);
+            return box_separation(&a, &b, [0.0, 0.0]);
+        }
+        let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
+        box_separation(&a, &b, clearance)
     }
 
     /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the

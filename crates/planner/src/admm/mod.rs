@@ -176,8 +176,9 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 ///   running into a replayed vehicle it joins or passes;
 /// * boxes with `margin_x` 3.4 m (the ellipse's bumper gap): the clearance rectangle is
 ///   projected on the yawed ego's axes, so it widens the lateral clearance by
-///   `margin_x`·|sin ψ| during the lane change: success 68–80 %, log-replay at-fault runs 25
-///   (a clearance in each box's own frame would not couple them; not measured);
+///   `margin_x`·|sin ψ| during the lane change: success 68–80 %, log-replay at-fault runs 25;
+///   growing the ego's box in its own frame instead (`SafetyGeometry::GrownBoxes`) fares as
+///   badly (72–80 %, 18 at-fault runs): its longer ends still swing across the road;
 /// * boxes and the contingency: a further 2.6–3.7 pp of success lost, log-replay at-fault
 ///   runs 13: a retreat that must leave the target lane within 3–5 steps is often unsafe
 ///   while a target-lane vehicle closes in, so the change is refused, the fallbacks steer

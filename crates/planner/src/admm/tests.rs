@@ -755,6 +755,56 @@ fn the_box_geometry_is_the_oriented_box_separation() {
     assert_eq!(executed.to_bits(), planned.to_bits());
 }
 
+/// With `SafetyGeometry::GrownBoxes`, b > 0 exactly when the ego's box grown by the margins in
+/// its own frame (the closing-speed margin added at both ends at the terminal step) does not
+/// overlap the other vehicle's box (independent truth: `OrientedBox::overlaps`); level and
+/// parallel, b is the gap across the road less `margin_y` whatever `margin_x` is.
+#[test]
+fn grown_boxes_clear_the_ego_box_grown_in_its_own_frame() {
+    let s = PlannerSettings {
+        safety_geometry: crate::SafetyGeometry::GrownBoxes,
+        margin_x: 3.4,
+        ..PlannerSettings::default()
+    };
+    // A car level with the ego in the next lane, moving straight.
+    let (h, sizes) = scene(12.0, 0.0, &[(0.0, 3.7, 12.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let v = constraint.vehicles()[0];
+    let other = [3.6, 3.7];
+    for (y, psi) in [
+        (1.0, 0.0),
+        (1.0, 0.15),
+        (1.45, 0.0),
+        (1.55, 0.0),
+        (0.0, 0.2),
+        (1.3, 0.1),
+    ] {
+        let ego = [3.6, y, psi, 12.0];
+        let (b, g) = constraint.b_and_gradient(&v, ego, [0.0, 3.7], other, false);
+        let grown = crate::OrientedBox {
+            x: 3.6,
+            y,
+            heading: psi,
+            length: 4.5 + 2.0 * 3.4,
+            width: 1.9 + 2.0 * 0.3,
+        };
+        let theirs = crate::OrientedBox {
+            x: other[0],
+            y: other[1],
+            heading: 0.0,
+            length: 4.5,
+            width: 1.9,
+        };
+        assert_eq!(b > 0.0, !grown.overlaps(&theirs), "y {y} psi {psi}: b {b}");
+        if psi == 0.0 {
+            // Level and parallel: the gap across the road less margin_y.
+            assert!((b - (3.7 - y - 1.9 - 0.3)).abs() < 1e-12, "{b}");
+            assert!(g[0].abs() < 1e-12 && (g[1] + 1.0).abs() < 1e-12);
+        }
+    }
+}
+
 /// From call `from` on, predicts agent 1 moving to a fixed road position `at` at 29 m per step
 /// (a plausible prediction: the planner refuses motions beyond 30 m per step) and staying
 /// there; before that, and every other agent always, at constant velocity from its last
