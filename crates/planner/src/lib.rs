@@ -41,11 +41,11 @@ pub use extents::{LaneViolation, LaneViolationKind, Lanes};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
-    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
-    motion_direction, motion_heading,
+    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents, box_separation,
+    motion_axis, motion_direction, motion_heading,
 };
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
-pub use settings::PlannerSettings;
+pub use settings::{PlannerSettings, SafetyGeometry};
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
     RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,

@@ -1,4 +1,5 @@
-//! The ellipse safety constraint b_i and bounding-box collision tests.
+//! The safety constraint b_i (the ellipse, or the separation of the oriented boxes) and
+//! bounding-box collision tests.
 
 /// Largest heading (rad) read from a vehicle's motion; steeper motion is clamped to it.
 pub const MAX_MOTION_HEADING: f64 = 0.5;
@@ -31,6 +32,53 @@ pub fn motion_direction(from: [f64; 2], to: [f64; 2], fallback: [f64; 2]) -> [f6
     } else {
         fallback
     }
+}
+
+/// (cos ψ, sin ψ) of [`motion_heading`] (signed, unlike [`motion_direction`]) without
+/// trigonometry; `fallback` (a unit vector) when the forward displacement is at most
+/// [`MIN_MOTION_DX`].
+#[must_use]
+pub fn motion_axis(from: [f64; 2], to: [f64; 2], fallback: [f64; 2]) -> [f64; 2] {
+    let dx = to[0] - from[0];
+    if dx > MIN_MOTION_DX {
+        let lim = dx * MAX_MOTION_HEADING.tan();
+        let dy = (to[1] - from[1]).clamp(-lim, lim);
+        let d = dx.hypot(dy);
+        [dx / d, dy / d]
+    } else {
+        fallback
+    }
+}
+
+/// Separating-axis distance (m) between the ego's box `ego` and another box `other`, less a
+/// clearance, with its gradient with respect to the ego's centre (x, y) (the headings held
+/// fixed): the largest over the four box axes n (each box's long and short axis) of
+/// |d·n| − h_ego(n) − h_other(n) − c(n), where d is the offset of the centres, h(n) a box's
+/// half extent on n and c(n) = m_x·|n_x| + m_y·|n_y| the clearance `margin` = (m_x along the
+/// road, m_y across it) projected on n. With zero margins it is > 0 exactly when the boxes do
+/// not overlap (the separating-axis theorem, as [`OrientedBox::overlaps`]); margins only make
+/// it stricter. Piecewise linear in the ego's position: the gradient is that of the largest
+/// term (the first on ties), ±n.
+#[must_use]
+pub fn box_separation(ego: &OrientedBox, other: &OrientedBox, margin: [f64; 2]) -> (f64, [f64; 2]) {
+    let d = [ego.x - other.x, ego.y - other.y];
+    let [a0, a1] = ego.axes();
+    let [b0, b1] = other.axes();
+    let mut best = (f64::NEG_INFINITY, [0.0; 2]);
+    for n in [a0, a1, b0, b1] {
+        let proj = d[0] * n[0] + d[1] * n[1];
+        let clearance = margin[0] * n[0].abs() + margin[1] * n[1].abs();
+        let gap = proj.abs() - ego.half_extent_on(n) - other.half_extent_on(n) - clearance;
+        // NaN never wins a comparison, so a NaN offset leaves −∞ (never safe).
+        if gap > best.0 || gap.is_nan() {
+            let sign = if proj < 0.0 { -1.0 } else { 1.0 };
+            best = (gap, [sign * n[0], sign * n[1]]);
+            if gap.is_nan() {
+                return (f64::NAN, [0.0; 2]);
+            }
+        }
+    }
+    best
 }
 
 /// Half extents (along x, along y) in metres of the axis-aligned box that bounds a vehicle of
@@ -147,6 +195,19 @@ pub struct OrientedBox {
 }
 
 impl OrientedBox {
+    /// A box of `size` = (length, width) (m) centred at `centre` (m) whose long axis has the
+    /// direction `axis` = (cos ψ, sin ψ) (a unit vector).
+    #[must_use]
+    pub fn along(centre: [f64; 2], axis: [f64; 2], size: [f64; 2]) -> Self {
+        Self {
+            x: centre[0],
+            y: centre[1],
+            heading: axis[1].atan2(axis[0]),
+            length: size[0],
+            width: size[1],
+        }
+    }
+
     fn axes(&self) -> [[f64; 2]; 2] {
         let (s, c) = self.heading.sin_cos();
         [[c, s], [-s, c]]
@@ -264,6 +325,66 @@ mod tests {
         assert_eq!(motion_heading([0.0, 0.0], [0.1, 0.5], 0.25), 0.25);
     }
 
+    /// The four separating-axis terms of [`box_separation`] recomputed from the corners:
+    /// on each axis n, the gap between the two boxes' corner projections less the clearance.
+    fn terms(a: &OrientedBox, b: &OrientedBox, margin: [f64; 2]) -> Vec<f64> {
+        let corners = |o: &OrientedBox| {
+            let (sn, cs) = o.heading.sin_cos();
+            let (l, w) = (0.5 * o.length, 0.5 * o.width);
+            [(l, w), (l, -w), (-l, w), (-l, -w)]
+                .map(|(u, v)| [o.x + u * cs - v * sn, o.y + u * sn + v * cs])
+        };
+        let (ca, cb) = (corners(a), corners(b));
+        [a.heading, b.heading]
+            .iter()
+            .flat_map(|h| {
+                let (sn, cs) = h.sin_cos();
+                [[cs, sn], [-sn, cs]]
+            })
+            .map(|n| {
+                let proj = |c: &[[f64; 2]; 4]| {
+                    let p = c.map(|p| p[0] * n[0] + p[1] * n[1]);
+                    (
+                        p.iter().copied().fold(f64::INFINITY, f64::min),
+                        p.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                    )
+                };
+                let ((a0, a1), (b0, b1)) = (proj(&ca), proj(&cb));
+                (b0 - a1).max(a0 - b1) - margin[0] * n[0].abs() - margin[1] * n[1].abs()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn box_separation_of_aligned_boxes() {
+        let a = OrientedBox::along([0.0, 0.0], [1.0, 0.0], [4.5, 1.8]);
+        let b = OrientedBox::along([10.0, 3.0], [1.0, 0.0], [5.5, 2.0]);
+        // max(|dx| − 5 − m_x, |dy| − 1.9 − m_y) for road-aligned boxes.
+        let (sep, g) = box_separation(&a, &b, [1.5, 0.3]);
+        assert!((sep - (10.0 - 5.0 - 1.5)).abs() < 1e-12, "{sep}");
+        assert_eq!(g, [-1.0, 0.0], "moving the ego back opens the gap");
+        let b = OrientedBox::along([1.0, 2.5], [1.0, 0.0], [5.5, 2.0]);
+        let (sep, g) = box_separation(&a, &b, [1.5, 0.3]);
+        assert!((sep - (2.5 - 1.9 - 0.3)).abs() < 1e-12, "{sep}");
+        assert!(g[0].abs() < 1e-12 && (g[1] + 1.0).abs() < 1e-12);
+        // A NaN position is never safe.
+        let nan = OrientedBox::along([f64::NAN, 0.0], [1.0, 0.0], [4.5, 1.8]);
+        assert!(box_separation(&nan, &b, [0.0, 0.0]).0.is_nan());
+        // The signed motion axis keeps the side the heading ψ = atan2 gives.
+        let ax = motion_axis([0.0, 0.0], [4.0, -0.3], [1.0, 0.0]);
+        let h = motion_heading([0.0, 0.0], [4.0, -0.3], 0.0);
+        assert!((ax[0] - h.cos()).abs() < 1e-12 && (ax[1] - h.sin()).abs() < 1e-12);
+        let ax = motion_axis([0.0, 0.0], [1.0, -3.0], [1.0, 0.0]);
+        assert!(
+            (ax[1].atan2(ax[0]) + MAX_MOTION_HEADING).abs() < 1e-12,
+            "clamped"
+        );
+        assert_eq!(
+            motion_axis([0.0, 0.0], [0.1, 0.5], [0.6, -0.8]),
+            [0.6, -0.8]
+        );
+    }
+
     proptest::proptest! {
         /// With s = √2 and non-negative margins, b > 0 excludes overlap of the rotated boxes
         /// (independent truth: the separating-axis test).
@@ -282,6 +403,50 @@ mod tests {
             if e.value([0.0, 0.0], [dx, dy]) > 0.0 {
                 proptest::prop_assert!(!a.overlaps(&b));
             }
+        }
+            /// With zero margins the separation is > 0 exactly when the rotated boxes do not
+        /// overlap (independent truth: [`OrientedBox::overlaps`]); it equals the largest of the
+        /// axis terms recomputed from the corners; margins only lower it.
+        #[test]
+        fn box_separation_is_the_separating_axis_test(
+            l0 in 2.0f64..20.0, w0 in 1.0f64..3.0, h0 in -0.6f64..0.6,
+            l1 in 2.0f64..20.0, w1 in 1.0f64..3.0, h1 in -0.6f64..0.6,
+            dx in -25.0f64..25.0, dy in -6.0f64..6.0,
+            mx in 0.0f64..3.0, my in 0.0f64..1.0,
+        ) {
+            let a = OrientedBox { x: 0.0, y: 0.0, heading: h0, length: l0, width: w0 };
+            let b = OrientedBox { x: dx, y: dy, heading: h1, length: l1, width: w1 };
+            let (sep, _) = box_separation(&a, &b, [0.0, 0.0]);
+            if sep.abs() > 1e-9 {
+                proptest::prop_assert_eq!(sep > 0.0, !a.overlaps(&b));
+            }
+            let best = terms(&a, &b, [mx, my]).into_iter().fold(f64::NEG_INFINITY, f64::max);
+            let (with_margin, _) = box_separation(&a, &b, [mx, my]);
+            proptest::prop_assert!((with_margin - best).abs() < 1e-9, "{} vs {}", with_margin, best);
+            proptest::prop_assert!(with_margin <= sep + 1e-12);
+        }
+
+        /// The gradient with respect to the ego's centre against central finite differences,
+        /// away from the kinks (where two axis terms tie).
+        #[test]
+        fn box_separation_gradient_matches_finite_differences(
+            l0 in 2.0f64..20.0, w0 in 1.0f64..3.0, h0 in -0.6f64..0.6,
+            l1 in 2.0f64..20.0, w1 in 1.0f64..3.0, h1 in -0.6f64..0.6,
+            dx in -25.0f64..25.0, dy in -6.0f64..6.0,
+            mx in 0.0f64..3.0, my in 0.0f64..1.0,
+        ) {
+            let b = OrientedBox { x: dx, y: dy, heading: h1, length: l1, width: w1 };
+            let at = |x: f64, y: f64| OrientedBox { x, y, heading: h0, length: l0, width: w0 };
+            let mut t = terms(&at(0.0, 0.0), &b, [mx, my]);
+            t.sort_by(f64::total_cmp);
+            proptest::prop_assume!(t[3] - t[2] > 1e-3);
+            let (_, g) = box_separation(&at(0.0, 0.0), &b, [mx, my]);
+            let h = 1e-6;
+            let f = |x: f64, y: f64| box_separation(&at(x, y), &b, [mx, my]).0;
+            let fx = (f(h, 0.0) - f(-h, 0.0)) / (2.0 * h);
+            let fy = (f(0.0, h) - f(0.0, -h)) / (2.0 * h);
+            proptest::prop_assert!((fx - g[0]).abs() < 1e-6 && (fy - g[1]).abs() < 1e-6,
+                "fd ({}, {}) vs {:?}", fx, fy, g);
         }
     }
 }

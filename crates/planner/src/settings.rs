@@ -92,10 +92,18 @@ pub struct PlannerSettings {
     /// Scale s of the summed half sizes in the ellipse semi-axes (√2: the ellipse
     /// circumscribes the box-overlap rectangle; 1: PLANNER.md's inscribed ellipse).
     pub ellipse_scale: f64,
-    /// Longitudinal ellipse margin m_x added to the half lengths (m).
+    /// Longitudinal margin m_x (m): added to the ellipse's summed half lengths, or with
+    /// `safety_geometry` = `boxes` the clearance between the boxes along the road.
     pub margin_x: f64,
-    /// Lateral ellipse margin m_y added to the half widths (m).
+    /// Lateral margin m_y (m): added to the ellipse's summed half widths, or with
+    /// `safety_geometry` = `boxes` the clearance between the boxes across the road.
     pub margin_y: f64,
+    /// The shape of the safety constraint b_i ([`SafetyGeometry`]): the inflated ellipse
+    /// (default; b unitless) or the exact separation of the two oriented boxes with the
+    /// margins `margin_x`, `margin_y` as clearances (b in metres; `safety_min`, `plan_buffer`,
+    /// `z_step_margin` and `refine_margin` are then in metres too). The ellipse stays the
+    /// default: on validation the boxes lowered success (`docs/results/nudge_safety.md`).
+    pub safety_geometry: SafetyGeometry,
     /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
     /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
     /// when the rear one of the ego and the other vehicle is faster, so a plan never ends in a
@@ -197,6 +205,49 @@ pub struct PlannerSettings {
     /// Predictor-call budget of one MPC call (deterministic, for tests and reproducible
     /// runs); 0 means no budget.
     pub budget_calls: usize,
+
+    /// The contingency rule (see [`crate::Planner`], "Safety geometry and contingency"): while
+    /// the ego may still fall back to its own lane ([`crate::PlanningProblem::y_retreat`]), a
+    /// plan one of whose states puts the ego's box across the line between its own lane and
+    /// the target lane is admissible only if a retreat from that state (a fixed manoeuvre:
+    /// steer back towards the own lane's centre at `contingency_accel`, or else at
+    /// acceleration 0) is safe against the predictor's prediction for the retreat path.
+    /// Checked on the nonlinear roll-out in the execution check (refinement, backtracking and
+    /// fallbacks all respect it); one or two more predictor calls per checked plan that
+    /// crosses the line. Off by default: on validation it lowered success
+    /// (`docs/results/nudge_safety.md`).
+    pub contingency: bool,
+    /// Constant acceleration of the contingency retreat (m/s², within the acceleration and
+    /// jerk bounds from the plan's acceleration at the branch state); when that retreat is
+    /// not safe, the retreat holding acceleration 0 is tried too.
+    pub contingency_accel: f64,
+    /// Predicted steps the contingency retreat is checked for at least (steps): the retreat
+    /// branches off the plan at its first state across the line, but no later than step
+    /// T − `contingency_steps`.
+    pub contingency_steps: usize,
+}
+
+/// The shape of the safety constraint b_i between the ego and one other vehicle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SafetyGeometry {
+    /// b = ((Δx/a_x)² + (Δy/a_y)² − 1 with the semi-axes of [`crate::safety::Ellipse`]
+    /// (`ellipse_scale` × the summed half extents of the bounding boxes + margins; unitless).
+    #[default]
+    Ellipse,
+    /// b = the separating-axis distance of the two oriented boxes minus the clearance
+    /// (`margin_x` along the road, `margin_y` across it, projected on the separating axis;
+    /// m): [`crate::safety::box_separation`]. b > 0 exactly when the boxes grown by the
+    /// margins do not overlap, so the ego may come as close sideways as `margin_y` while it
+    /// is level with another vehicle. The clearance is a road-aligned rectangle, so while the
+    /// ego is yawed by ψ it also widens the clearance across the ego by m_x·|sin ψ|.
+    Boxes,
+    /// As `Boxes`, but the clearance grows the ego's box in its own frame (`margin_x` at each
+    /// end along its heading, `margin_y` at each side): b is the separating-axis distance of
+    /// that grown box and the other vehicle's box (m), exact for two rectangles. The clearance
+    /// follows the ego's heading: `margin_y` beside its sides, `margin_x` beyond its ends (so
+    /// a yawed ego's extended ends still reach `margin_x`·|sin ψ| further across the road).
+    GrownBoxes,
 }
 
 impl Default for PlannerSettings {
@@ -257,6 +308,10 @@ impl Default for PlannerSettings {
             refine_trust_accel: 2.0,
             budget_s: 0.0,
             budget_calls: 0,
+            safety_geometry: SafetyGeometry::Ellipse,
+            contingency: false,
+            contingency_accel: -2.0,
+            contingency_steps: 3,
         }
     }
 }
@@ -431,6 +486,13 @@ pub const RANGES: &[FieldRange] = &[
     open_min("refine_trust_accel", 0.0, 30.0, "m/s²"),
     closed("budget_s", 0.0, 3600.0, "s"),
     closed("budget_calls", 0.0, 1e9, "predictor calls"),
+    closed("contingency_accel", -15.0, 0.0, "m/s²"),
+    closed(
+        "contingency_steps",
+        1.0,
+        nudge_predictor::MAX_HORIZON as f64,
+        "steps",
+    ),
 ];
 
 impl PlannerSettings {
@@ -491,6 +553,8 @@ impl PlannerSettings {
             "refine_trust_accel" => self.refine_trust_accel,
             "budget_s" => self.budget_s,
             "budget_calls" => self.budget_calls as f64,
+            "contingency_accel" => self.contingency_accel,
+            "contingency_steps" => self.contingency_steps as f64,
             _ => return None,
         })
     }

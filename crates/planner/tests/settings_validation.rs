@@ -41,7 +41,9 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "ablate_reaction": false,
         "heading_max": 0.2, "heading_recovery": 0.05, "overshoot_max": 0.3,
         "refine_iters": 5, "refine_margin": 0.02, "refine_trust_delta": 0.05,
-        "refine_trust_accel": 2.0, "budget_s": 0.0, "budget_calls": 0
+        "refine_trust_accel": 2.0, "budget_s": 0.0, "budget_calls": 0,
+        "safety_geometry": "ellipse", "contingency": false, "contingency_accel": -2.0,
+        "contingency_steps": 3
     });
     assert_eq!(serde_json::to_value(&d).unwrap(), expected);
     assert_eq!(PlannerSettings::from_json("{}").unwrap(), d);
@@ -86,6 +88,14 @@ fn every_field_is_validated() {
     for (key, default) in defaults() {
         let absurd = match &default {
             Value::Bool(_) => continue, // every boolean value is valid
+            Value::String(_) => {
+                // An enumeration: its names only.
+                let err = PlannerSettings::from_json(&with(&key, json!("circle")))
+                    .err()
+                    .unwrap_or_else(|| panic!("{key} = circle accepted"));
+                assert!(err.to_string().contains("circle"), "{key}: {err}");
+                continue;
+            }
             Value::Number(n) if n.is_u64() => json!(u64::MAX),
             Value::Number(_) => json!(1e300),
             other => panic!("{key}: unexpected JSON type {other}"),
@@ -115,7 +125,7 @@ fn range_table_matches_the_fields_and_is_enforced() {
     use nudge_planner::settings::RANGES;
     let numeric: Vec<String> = defaults()
         .into_iter()
-        .filter(|(_, v)| !v.is_boolean())
+        .filter(|(_, v)| v.is_number())
         .map(|(k, _)| k)
         .collect();
     let table: Vec<&str> = RANGES.iter().map(|r| r.field).collect();

@@ -490,6 +490,8 @@ def _add_interaction(sub: argparse._SubParsersAction) -> None:
                    help="blocked: a target-lane vehicle overlaps the ego's longitudinal extent +- this (m)")
     p.add_argument("--candidate", type=Path, default=None,
                    help="weights of a candidate student, run aware and ablated as planner student_react")
+    p.add_argument("--settings", type=Path, default=None,
+                   help="planner settings JSON of every arm (missing fields default; ablate_reaction set per arm)")
     p.add_argument("--worlds", nargs="+", choices=("idm", "teacher", "log_replay"),
                    default=["idm", "teacher", "log_replay"], help="worlds")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene seeds and the draws")
@@ -513,7 +515,8 @@ def _run_interaction(a: argparse.Namespace) -> int:
     from nudge_train.experiments.interaction import InteractionConfig, command_line, run
 
     cfg = InteractionConfig(splits=tuple(a.splits), n=tuple(a.n), teacher_n=tuple(a.teacher_n), seeds=a.seeds,
-                            margin=a.margin, candidate=a.candidate, worlds=tuple(a.worlds), seed=a.seed,
+                            margin=a.margin, candidate=a.candidate, settings=a.settings, worlds=tuple(a.worlds),
+                            seed=a.seed,
                             threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap, progress=not a.no_progress,
                             animate=not a.no_figure, compare_horizon=a.compare_horizon,
                             **({} if a.horizon is None else {"horizon": a.horizon}))

@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 
 import nudge
-from nudge_train.experiments.interaction import SEED_TRIES, blocked, dense_runs, paired, start_geometry, verdict
+from nudge_train.experiments.interaction import (
+    SEED_TRIES,
+    InteractionConfig,
+    blocked,
+    dense_runs,
+    paired,
+    start_geometry,
+    verdict,
+)
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -125,7 +133,7 @@ def test_horizon_10_leaves_the_6_step_students_out(tmp_path: Path) -> None:
     student.write_bytes(nudge.model_path("student").read_bytes())
     cfg = InteractionConfig(horizon=10, candidate=student)
     assert cfg.planners() == [("teacher", "teacher")]
-    assert cfg.settings(True).horizon == 10 and cfg.settings(True).ablate_reaction
+    assert cfg.arm_settings(True).horizon == 10 and cfg.arm_settings(True).ablate_reaction
     assert [p for p, _ in InteractionConfig(candidate=student).planners()] == ["teacher", "student", "student_react"]
     assert [p for p, _ in InteractionConfig(horizon=6, compare_horizon=10).planners()] == ["teacher"]
     assert serves("teacher", 10) and not serves("student", 10) and serves("student", 6)
@@ -136,3 +144,24 @@ def test_horizon_10_leaves_the_6_step_students_out(tmp_path: Path) -> None:
     r6, r10 = start_reactions(runs, {"teacher": "teacher"}), start_reactions(runs, {"teacher": "teacher"}, 10)
     assert r6["teacher"].shape == r10["teacher"].shape and r6["teacher"].size > 0
     assert not np.array_equal(r6["teacher"], r10["teacher"])
+
+
+def test_settings_file_is_the_base_of_every_arm(tmp_path: Path) -> None:
+    """``--settings``: every arm starts from the file (``ablate_reaction`` is set per arm); a
+    missing file or a bad field is refused naming it."""
+    assert InteractionConfig().base_settings() == nudge.PlannerSettings.default()
+    good = tmp_path / "boxes.json"
+    good.write_text('{"safety_geometry": "boxes", "contingency": true}')
+    cfg = InteractionConfig(settings=good)
+    cfg.validate()
+    s = cfg.base_settings()
+    assert s.safety_geometry == "boxes" and s.contingency and not s.ablate_reaction
+    with pytest.raises(ValueError, match="no such file"):
+        InteractionConfig(settings=tmp_path / "none.json").validate()
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"contingency_accel": 5.0}')
+    with pytest.raises(ValueError, match="contingency_accel"):
+        InteractionConfig(settings=bad).validate()
+    # The arm's horizon overrides the file's; ablate_reaction is per arm.
+    arm = InteractionConfig(settings=good, horizon=10).arm_settings(True)
+    assert arm.safety_geometry == "boxes" and arm.horizon == 10 and arm.ablate_reaction

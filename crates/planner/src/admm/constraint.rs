@@ -10,8 +10,8 @@ use nudge_predictor::{Predictor, T_OBS};
 
 use crate::error::PlannerError;
 use crate::model::State;
-use crate::safety::{Ellipse, motion_direction};
-use crate::settings::PlannerSettings;
+use crate::safety::{Ellipse, OrientedBox, box_separation, motion_axis, motion_direction};
+use crate::settings::{PlannerSettings, SafetyGeometry};
 
 use super::problem::PlanningProblem;
 
@@ -27,6 +27,9 @@ pub struct CheckedVehicle {
     /// (|cos ψ|, |sin ψ|) of its last observed motion ([`motion_direction`], heading 0 when it
     /// barely moved): its heading wherever a later motion is too short to read one from.
     pub direction: [f64; 2],
+    /// (cos ψ, sin ψ) of its last observed motion ([`motion_axis`], heading 0 when it barely
+    /// moved): the signed direction the box geometry needs.
+    pub axis: [f64; 2],
 }
 
 /// The safety constraint of one MPC call: the vehicles within `check_range` of the ego's
@@ -39,6 +42,7 @@ pub struct SafetyConstraint {
     ego_size: [f64; 2],
     scale: f64,
     margins: [f64; 2],
+    geometry: SafetyGeometry,
     /// Step length (s), for the other vehicles' speeds from their predicted positions.
     dt: f64,
     /// Deceleration (m/s²) the closing-speed margin grants the rear vehicle; 0 disables it.
@@ -61,6 +65,7 @@ impl SafetyConstraint {
                     size: problem.sizes[i],
                     last: [p[0], p[1]],
                     direction: motion_direction([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
+                    axis: motion_axis([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
                 });
             }
         }
@@ -69,6 +74,7 @@ impl SafetyConstraint {
             ego_size: problem.sizes[0],
             scale: settings.ellipse_scale,
             margins: [settings.margin_x, settings.margin_y],
+            geometry: settings.safety_geometry,
             dt: settings.dt,
             brake_decel: settings.brake_decel,
         }
@@ -134,12 +140,15 @@ impl SafetyConstraint {
     }
 
     /// b of the ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) against `vehicle` at `other`
-    /// (m), which was at `previous` one step earlier: the [`SafetyConstraint::ellipse`], with
-    /// the [`SafetyConstraint::closing_margin`] added to its longitudinal semi-axis at the
+    /// (m), which was at `previous` one step earlier, in the settings' geometry
+    /// ([`SafetyGeometry`]): the [`SafetyConstraint::ellipse`], with the
+    /// [`SafetyConstraint::closing_margin`] added to its longitudinal semi-axis at the
     /// `terminal` step of the horizon (a terminal condition: the plan must end where the rear
     /// vehicle can still match the front one's speed; within the horizon the predictions
     /// themselves show the gap closing, and a margin there would forbid the very braking that
-    /// recovers from a short gap). The ellipse used is returned with it.
+    /// recovers from a short gap); or the [`box_separation`] of the two oriented boxes with
+    /// the margins as clearance, the closing margin added to the longitudinal one. The ellipse
+    /// (the drawn safety region, whatever the geometry) is returned with it.
     #[must_use]
     pub fn b(
         &self,
@@ -150,10 +159,76 @@ impl SafetyConstraint {
         terminal: bool,
     ) -> (f64, Ellipse) {
         let mut ellipse = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
-        if terminal {
-            ellipse.a_x += self.closing_margin([ego[0], ego[1]], ego[3], previous, other);
+        let closing = if terminal {
+            self.closing_margin([ego[0], ego[1]], ego[3], previous, other)
+        } else {
+            0.0
+        };
+        ellipse.a_x += closing;
+        let b = match self.geometry {
+            SafetyGeometry::Ellipse => ellipse.value([ego[0], ego[1]], other),
+            SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
+                self.boxes(vehicle, ego, previous, other, closing).0
+            }
+        };
+        (b, ellipse)
+    }
+
+    /// b as [`SafetyConstraint::b`] and its gradient ∂b/∂(x, y) of the ego's position (the
+    /// prediction, the headings and the sizes of the ellipse or boxes held fixed).
+    #[must_use]
+    pub fn b_and_gradient(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+        terminal: bool,
+    ) -> (f64, [f64; 2]) {
+        let closing = if terminal {
+            self.closing_margin([ego[0], ego[1]], ego[3], previous, other)
+        } else {
+            0.0
+        };
+        match self.geometry {
+            SafetyGeometry::Ellipse => {
+                let mut e = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
+                e.a_x += closing;
+                let p = [ego[0], ego[1]];
+                (e.value(p, other), e.gradient(p, other))
+            }
+            SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
+                self.boxes(vehicle, ego, previous, other, closing)
+            }
         }
-        (ellipse.value([ego[0], ego[1]], other), ellipse)
+    }
+
+    /// The [`box_separation`] of the ego's box at `ego` (its heading ψ) and the vehicle's at
+    /// `other` (the heading of its motion from `previous`), the margins as clearance with
+    /// `closing` (m) added to the longitudinal one: a road-aligned clearance rectangle
+    /// (`Boxes`), or the ego's box grown by the clearances in its own frame (`GrownBoxes`).
+    fn boxes(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+        closing: f64,
+    ) -> (f64, [f64; 2]) {
+        let (sn, cs) = ego[2].sin_cos();
+        let axis = motion_axis(previous, other, vehicle.axis);
+        let b = OrientedBox::along(other, axis, vehicle.size);
+        let clearance = [self.margins[0] + closing, self.margins[1]];
+        if self.geometry == SafetyGeometry::GrownBoxes {
+            let grown = [
+                self.ego_size[0] + 2.0 * clearance[0],
+                self.ego_size[1] + 2.0 * clearance[1],
+            ];
+            let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], grown);
+            return box_separation(&a, &b, [0.0, 0.0]);
+        }
+        let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
+        box_separation(&a, &b, clearance)
     }
 
     /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the
@@ -496,7 +571,7 @@ impl<'c> SafetyEval<'c> {
                     self.prediction[base + 2 * k],
                     self.prediction[base + 2 * k + 1],
                 ];
-                let (b, ellipse) = self.constraint.b(
+                let (b, g) = self.constraint.b_and_gradient(
                     v,
                     [ego[0], ego[1], self.ego_heading[k], self.ego_speed[k]],
                     previous,
@@ -509,12 +584,11 @@ impl<'c> SafetyEval<'c> {
                     self.rows.push(SafetyRow {
                         step: k,
                         b,
-                        gradient: ellipse.gradient(ego, other),
+                        gradient: g,
                     });
                 }
                 if b <= self.threshold {
                     violation += self.threshold - b;
-                    let g = ellipse.gradient(ego, other);
                     self.violation_gradient[k][0] -= g[0];
                     self.violation_gradient[k][1] -= g[1];
                 }

@@ -18,6 +18,7 @@
 //! linearised problem as one joint QP ([`reference`]).
 
 mod constraint;
+mod contingency;
 mod inputs;
 mod linearised;
 mod problem;
@@ -31,6 +32,8 @@ mod z_update;
 
 #[cfg(test)]
 mod ablation_tests;
+#[cfg(test)]
+mod contingency_tests;
 #[cfg(test)]
 mod convergence_tests;
 #[cfg(test)]
@@ -161,6 +164,42 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// never yields hits an ego that slowed down during aborted attempts; lane changes begun with
 /// almost no margin (b < 0.02) next to a target-lane vehicle that the IDM world moves
 /// differently from the prediction. Test split: `docs/results/closed_loop.md`.
+///
+/// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
+/// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
+/// angle, so while a target-lane vehicle is level with the ego it asks for 2.85 m between the
+/// centres across the road where the boxes need 1.8–1.9 m, and its bumper gap on the axis is
+/// 3.4–3.6 m; the ego's near edge stays about 0.4 m short of the lane line (median, dense
+/// starts) while the fitted idm followers yield only once it is 0.7 m inside their lane.
+/// `SafetyGeometry::Boxes` replaces it by the exact separating-axis distance of the two
+/// oriented boxes less the clearances `margin_x` (along the road) and `margin_y` (across),
+/// b in metres, with its (sub)gradient for the Z-update, the safe step and the refinement
+/// ([`crate::safety::box_separation`]; tested against an independent corner-projection
+/// separating-axis test, `OrientedBox::overlaps` and finite differences). The contingency
+/// rule (`PlannerSettings::contingency`) makes a plan that takes the ego's box across the line
+/// between its own lane and the target lane admissible only if a fixed retreat from the plan's first state
+/// across the line (no later than step T − `contingency_steps`) back towards the own lane's
+/// centre, braking at `contingency_accel` or else holding acceleration 0, is safe under the
+/// predictor's prediction for that retreat path; it is checked in the execution check, so the
+/// refinement, backtracking and fallbacks all respect it. Measured on validation (269 scenes ×
+/// 3 seeds, paired with the defaults; `docs/results/nudge_safety.md`), no variant passes the
+/// bar "at-fault collisions down, success not lower in any world", so both stay off:
+///
+/// * boxes with the default margins (1.5 m / 0.3 m): more calls converge (`Converged` 2701 →
+///   3566 steps, student, teacher world) but the ego drives closer (1.5 m bumper to bumper
+///   where the ellipse kept 3.4–3.6 m): student success 94.1 → 85.9, 94.5 → 90.2, 93.2 →
+///   88.1 % (teacher, idm, log-replay worlds), log-replay at-fault runs 2 → 18, mostly the ego
+///   running into a replayed vehicle it joins or passes;
+/// * boxes with `margin_x` 3.4 m (the ellipse's bumper gap): the clearance rectangle is
+///   projected on the yawed ego's axes, so it widens the lateral clearance by
+///   `margin_x`·|sin ψ| during the lane change: success 68–80 %, log-replay at-fault runs 25;
+///   growing the ego's box in its own frame instead (`SafetyGeometry::GrownBoxes`) fares as
+///   badly (72–80 %, 18 at-fault runs): its longer ends still swing across the road;
+/// * boxes and the contingency: a further 2.6–3.7 pp of success lost, log-replay at-fault
+///   runs 13: a retreat that must leave the target lane within 3–5 steps is often unsafe
+///   while a target-lane vehicle closes in, so the change is refused, the fallbacks steer
+///   back and the ego spends more time across the line (straddle 2.5–2.8 s per run against
+///   1.9–2.0 s); and the rule only applies while the own lane is still offered as a retreat.
 ///
 /// **Bounded work.** `budget_s` (wall time) and `budget_calls` (predictor calls), when set,
 /// end the call with [`PlanStatus::BudgetExhausted`] and a checked plan: one predictor call is
@@ -350,6 +389,7 @@ impl Planner {
             lp: &lp,
             safety: &mut safety,
             predictor,
+            contingency: contingency::Contingency::new(s, &lp),
         };
         let finished = check_execution(&mut repairer, admm)?;
         let counts = (safety.calls, constraint.vehicles().len());

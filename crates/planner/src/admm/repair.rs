@@ -15,6 +15,10 @@
 //!    lane's centre (checked within the bounds of a plan aiming there): with nothing
 //!    admissible, the least-violating of holding, finishing or cancelling a lane change.
 //!
+//! With `PlannerSettings::contingency`, a roll-out that is otherwise admissible and puts the
+//! ego across the line between its own lane and the target lane is admissible only when its
+//! retreat is safe (`super::contingency`); every candidate above is checked by that rule.
+//!
 //! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
 
 use nudge_predictor::Predictor;
@@ -25,6 +29,7 @@ use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
 
 use super::constraint::{SafetyEval, SafetyRow};
+use super::contingency::Contingency;
 use super::linearised::LinearisedProblem;
 use super::refine;
 
@@ -39,8 +44,12 @@ pub(crate) struct Candidate {
     pub rollout: Vec<State>,
     /// Minimum b of the roll-out (`None` when nothing is checked).
     pub min_b: Option<f64>,
-    /// The predictor's verdict: the roll-out is safe at `safety_min` (state bounds aside).
+    /// The predictor's verdict: the roll-out is safe at `safety_min` (state bounds aside),
+    /// its contingency retreat included when the rule applies.
     pub predicted_safe: bool,
+    /// The contingency rule refused the roll-out: otherwise admissible, its retreat is not
+    /// safe (`super::contingency`).
+    pub retreat_blocked: bool,
     /// How it ranks among fallbacks.
     pub rank: Rank,
     /// The safety rows of the roll-out's evaluation (for the refinement).
@@ -92,6 +101,8 @@ pub(crate) struct Repairer<'a, 'c> {
     pub lp: &'a LinearisedProblem,
     pub safety: &'a mut SafetyEval<'c>,
     pub predictor: &'a mut dyn Predictor,
+    /// The contingency rule of the call (`None` when it does not apply).
+    pub contingency: Option<Contingency>,
 }
 
 impl Repairer<'_, '_> {
@@ -119,8 +130,19 @@ impl Repairer<'_, '_> {
             (Goal::Retreat, Some(r)) => self.lp.bound_excess_within(&r.lower, &r.upper, &rollout),
             _ => self.lp.bound_excess(&rollout),
         };
-        let predicted_safe = e.is_safe(self.s.safety_min);
-        let rank = if predicted_safe && excess <= EXCESS_TOLERANCE {
+        let rows = self.safety.rows.clone();
+        let mut predicted_safe = e.is_safe(self.s.safety_min);
+        let mut retreat_violation = None;
+        if predicted_safe && excess <= EXCESS_TOLERANCE && goal == Goal::Target {
+            retreat_violation = self.check_retreat(&delta, &accel, &rollout)?;
+            predicted_safe = retreat_violation.is_none();
+        }
+        let rank = if let Some(v) = retreat_violation {
+            Rank {
+                safe: false,
+                value: v,
+            }
+        } else if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
@@ -138,9 +160,39 @@ impl Repairer<'_, '_> {
             rollout,
             min_b: e.min_b,
             predicted_safe,
+            retreat_blocked: retreat_violation.is_some(),
             rank,
-            rows: self.safety.rows.clone(),
+            rows,
         })
+    }
+
+    /// The contingency rule on a plan (`delta`, `accel` and their `rollout`): `None` when it
+    /// does not apply or one of its retreats is safe at `safety_min`, else the least violation
+    /// of the retreats (> 0, units of b).
+    fn check_retreat(
+        &mut self,
+        delta: &[f64],
+        accel: &[f64],
+        rollout: &[State],
+    ) -> Result<Option<f64>, PlannerError> {
+        let Some(c) = &self.contingency else {
+            return Ok(None);
+        };
+        let Some(k) = c.first_across(self.lp.ego_size, rollout) else {
+            return Ok(None);
+        };
+        let j = c.branch(k, self.lp.horizon);
+        let mut least = f64::INFINITY;
+        for &a in c.accels() {
+            let path = c.path(self.model, self.lp, (delta, accel, rollout), j, a);
+            let e = self.safety.eval(self.predictor, &path)?;
+            if e.is_safe(self.s.safety_min) {
+                return Ok(None);
+            }
+            let v = safety_violation(e.min_b, e.violation, self.s.safety_min);
+            least = least.min(v.max(f64::MIN_POSITIVE));
+        }
+        Ok(Some(least))
     }
 
     /// Up to `refine_iters` SQP steps ([`refine::step`]) from the inadmissible `from`; the

@@ -466,6 +466,7 @@ fn repairer_checks_every_candidate_on_its_rollout() {
         lp: &lp,
         safety: &mut safety,
         predictor: &mut gate,
+        contingency: None,
     };
     let c = r.check(steer.clone(), vec![0.0; 6]).unwrap();
     assert!(!c.rank.safe && c.min_b == Some(-1.0), "{:?}", c.min_b);
@@ -674,6 +675,134 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
         .executed_min_b(ego_next, &positions),
         None
     );
+}
+
+/// With `SafetyGeometry::Boxes`, b is the separating-axis distance of the ego's box (at its
+/// heading) and each vehicle's (at the signed heading of its motion, its last observed one
+/// when it stood still) less the margins, the closing-speed margin added to `margin_x` at the
+/// terminal step; the gradient the planner uses is that of b (finite differences); the
+/// simulator's `executed_min_b` and the planner's step-one evaluation agree bit for bit.
+#[test]
+fn the_box_geometry_is_the_oriented_box_separation() {
+    let s = PlannerSettings {
+        safety_geometry: crate::SafetyGeometry::Boxes,
+        ..PlannerSettings::default()
+    };
+    let (h, sizes) = scene(12.0, 0.0, &[(10.0, 3.5, 11.0), (-3.0, -3.6, 0.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let moved = vec![[13.4, 3.2], [-3.0, -3.6]];
+    let ego_next = [3.6, 0.05, 0.03, 12.0];
+    let ego_box = crate::OrientedBox {
+        x: 3.6,
+        y: 0.05,
+        heading: 0.03,
+        length: 4.5,
+        width: 1.9,
+    };
+    let other = |at: [f64; 2], heading: f64| crate::OrientedBox {
+        x: at[0],
+        y: at[1],
+        heading,
+        length: 4.5,
+        width: 1.9,
+    };
+    let ahead = other(moved[0], (-0.3f64).atan2(3.4));
+    let v = constraint.vehicles()[0];
+    for (terminal, closing) in [
+        (false, 0.0),
+        (
+            true,
+            (12.0f64.powi(2) - (3.4f64 / 0.3).powi(2)) / (2.0 * s.brake_decel),
+        ),
+    ] {
+        let (b, _) = constraint.b(&v, ego_next, [10.0, 3.5], moved[0], terminal);
+        let want = crate::box_separation(&ego_box, &ahead, [s.margin_x + closing, s.margin_y]).0;
+        assert!((b - want).abs() < 1e-12, "{b} vs {want}");
+        let (b2, g) = constraint.b_and_gradient(&v, ego_next, [10.0, 3.5], moved[0], terminal);
+        assert_eq!(b.to_bits(), b2.to_bits());
+        let f = |dx: f64, dy: f64| {
+            let e = [ego_next[0] + dx, ego_next[1] + dy, ego_next[2], ego_next[3]];
+            constraint.b(&v, e, [10.0, 3.5], moved[0], terminal).0
+        };
+        let eps = 1e-6;
+        let fd = [
+            (f(eps, 0.0) - f(-eps, 0.0)) / (2.0 * eps),
+            (f(0.0, eps) - f(0.0, -eps)) / (2.0 * eps),
+        ];
+        assert!(
+            (fd[0] - g[0]).abs() < 1e-6 && (fd[1] - g[1]).abs() < 1e-6,
+            "{fd:?} vs {g:?}"
+        );
+    }
+    // The stopped car keeps its last observed heading (0).
+    let behind = constraint.vehicles()[1];
+    let (b, _) = constraint.b(&behind, ego_next, [-3.0, -3.6], moved[1], false);
+    let want = crate::box_separation(&ego_box, &other(moved[1], 0.0), [s.margin_x, s.margin_y]).0;
+    assert!((b - want).abs() < 1e-12);
+    let mut positions = vec![[ego_next[0], ego_next[1]]];
+    positions.extend_from_slice(&moved);
+    let executed = constraint.executed_min_b(ego_next, &positions).unwrap();
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 3, s.safety_min);
+    let mut z = vec![State::new(-1000.0, 0.0, 0.0, 12.0); 6];
+    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], ego_next[3]);
+    let planned = safety
+        .eval(&mut StepOne(moved.clone()), &z)
+        .unwrap()
+        .min_b
+        .unwrap();
+    assert_eq!(executed.to_bits(), planned.to_bits());
+}
+
+/// With `SafetyGeometry::GrownBoxes`, b > 0 exactly when the ego's box grown by the margins in
+/// its own frame (the closing-speed margin added at both ends at the terminal step) does not
+/// overlap the other vehicle's box (independent truth: `OrientedBox::overlaps`); level and
+/// parallel, b is the gap across the road less `margin_y` whatever `margin_x` is.
+#[test]
+fn grown_boxes_clear_the_ego_box_grown_in_its_own_frame() {
+    let s = PlannerSettings {
+        safety_geometry: crate::SafetyGeometry::GrownBoxes,
+        margin_x: 3.4,
+        ..PlannerSettings::default()
+    };
+    // A car level with the ego in the next lane, moving straight.
+    let (h, sizes) = scene(12.0, 0.0, &[(0.0, 3.7, 12.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let v = constraint.vehicles()[0];
+    let other = [3.6, 3.7];
+    for (y, psi) in [
+        (1.0, 0.0),
+        (1.0, 0.15),
+        (1.45, 0.0),
+        (1.55, 0.0),
+        (0.0, 0.2),
+        (1.3, 0.1),
+    ] {
+        let ego = [3.6, y, psi, 12.0];
+        let (b, g) = constraint.b_and_gradient(&v, ego, [0.0, 3.7], other, false);
+        let grown = crate::OrientedBox {
+            x: 3.6,
+            y,
+            heading: psi,
+            length: 4.5 + 2.0 * 3.4,
+            width: 1.9 + 2.0 * 0.3,
+        };
+        let theirs = crate::OrientedBox {
+            x: other[0],
+            y: other[1],
+            heading: 0.0,
+            length: 4.5,
+            width: 1.9,
+        };
+        assert_eq!(b > 0.0, !grown.overlaps(&theirs), "y {y} psi {psi}: b {b}");
+        if psi == 0.0 {
+            // Level and parallel: the gap across the road less margin_y.
+            assert!((b - (3.7 - y - 1.9 - 0.3)).abs() < 1e-12, "{b}");
+            assert!(g[0].abs() < 1e-12 && (g[1] + 1.0).abs() < 1e-12);
+        }
+    }
 }
 
 /// From call `from` on, predicts agent 1 moving to a fixed road position `at` at 29 m per step

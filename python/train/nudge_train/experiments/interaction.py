@@ -94,6 +94,9 @@ class InteractionConfig:
     seeds: int = 3
     margin: float = 2.0
     candidate: Path | None = None
+    settings: Path | None = None
+    """Planner settings JSON of every arm (missing fields default; ``ablate_reaction`` is set per
+    arm); ``None``: the defaults."""
     worlds: tuple[str, ...] = WORLDS
     seed: int = 0
     threads: int = 2
@@ -135,6 +138,19 @@ class InteractionConfig:
                 raise ValueError(f"--splits: unknown split {s!r} (train, val, test)")
         if self.candidate is not None and not Path(self.candidate).is_file():
             raise ValueError(f"--candidate {self.candidate}: no such file")
+        if self.settings is not None:
+            if not Path(self.settings).is_file():
+                raise ValueError(f"--settings {self.settings}: no such file")
+            self.base_settings()
+
+    def base_settings(self) -> nudge.PlannerSettings:
+        """The planner settings every arm starts from (``--settings``, else the defaults)."""
+        if self.settings is None:
+            return nudge.PlannerSettings.default()
+        try:
+            return nudge.PlannerSettings.from_json(Path(self.settings).read_text())
+        except Exception as err:  # the settings error names the field
+            raise ValueError(f"--settings {self.settings}: {err}") from err
 
     def sizes(self, split: str) -> tuple[int, int]:
         """(scenes drawn, aware-teacher scenes) of ``split``."""
@@ -151,9 +167,12 @@ class InteractionConfig:
         horizons = [h for h in (self.horizon, self.compare_horizon) if h is not None]
         return [(label, p) for label, p in out if all(serves(p, h) for h in horizons)]
 
-    def settings(self, ablated: bool) -> nudge.PlannerSettings:
-        """The planner settings of an arm: the defaults at ``horizon``, ``ablate_reaction`` as given."""
-        return nudge.PlannerSettings(ablate_reaction=ablated, horizon=self.horizon)
+    def arm_settings(self, ablated: bool, horizon: int | None = None) -> nudge.PlannerSettings:
+        """The planner settings of an arm: the base settings (``--settings``, else the defaults) at
+        ``horizon`` (default: ``self.horizon``, which overrides a horizon in the file),
+        ``ablate_reaction`` as given."""
+        return self.base_settings().replace(ablate_reaction=ablated,
+                                            horizon=self.horizon if horizon is None else horizon)
 
 
 def load_predictor(predictor: str, horizon: int) -> nudge.Predictor:
@@ -245,7 +264,7 @@ def _run_arm(arm: Arm, predictor: str, runs: list[tuple[Path, list[int]]], cfg: 
              hasher: _Hasher, bar: tqdm) -> tuple[dict[str, list], float, float]:
     """The runs of one arm (cached per part): its columns, the wall time of its parts (s, as
     measured when each ran) and the time computed now (s)."""
-    settings = cfg.settings(arm.ablated)
+    settings = cfg.arm_settings(arm.ablated)
     config = nudge.SimConfig(world=arm.world)
     inputs = {"schema": CACHE_SCHEMA, "native": hasher(Path(nudge._native.__file__)), "predictor": predictor,
               "settings": json.loads(settings.to_json()), "config": json.loads(config.to_json()),
@@ -498,7 +517,7 @@ def find_pair(data: dict, planners: Sequence[str]) -> tuple[str, str, str, int, 
 
 
 def draw_pair(split: str, pair: tuple[str, str, str, int, float], predictor: str, out_png: Path,
-              out_gif_dir: Path | None, horizon: int = 6) -> list[Path]:
+              out_gif_dir: Path | None, cfg: InteractionConfig | None = None) -> list[Path]:
     """Re-runs the pair with traces; draws the ego's lateral position over time for both arms
     with the target lane (PNG) and writes both animations (GIF) when ``out_gif_dir`` is given."""
     world, _, scenario, seed, _ = pair
@@ -506,7 +525,7 @@ def draw_pair(split: str, pair: tuple[str, str, str, int, float], predictor: str
     recs = {}
     for ablated in (False, True):
         recs[ablated] = nudge.simulate([path], predictor, scene_seeds=[seed], runs=1, threads=1,
-                                       settings=nudge.PlannerSettings(ablate_reaction=ablated, horizon=horizon),
+                                       settings=(cfg or InteractionConfig()).arm_settings(ablated),
                                        world=world, trace=True)
     import matplotlib
 
@@ -660,7 +679,10 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
              + ("." if "log_replay" in cfg.worlds else "; here: " + ", ".join(f"`{w}`" for w in cfg.worlds)
                 + " only."),
              f"- Closed loop: the default `SimConfig` (`{json.dumps(json.loads(config.to_json()), sort_keys=True)}`, "
-             "world set per arm), default planner settings"
+             "world set per arm), "
+             + (f"planner settings `{json.dumps(json.loads(Path(cfg.settings).read_text()), sort_keys=True)}` "
+                f"(`--settings {paths.repo_relative(Path(cfg.settings))}`, the rest default)"
+                if cfg.settings is not None else "default planner settings")
              + (f" (horizon {cfg.horizon} steps = {cfg.horizon * nudge.DT:.1f} s)." if cfg.horizon == DEFAULT_HORIZON
                 else f" except the horizon: **{cfg.horizon} steps = {cfg.horizon * nudge.DT:.1f} s** (default "
                      f"{DEFAULT_HORIZON} = {DEFAULT_HORIZON * nudge.DT:.1f} s); planners whose model cannot predict it "
@@ -804,7 +826,7 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
         png = paths.figures() / f"interaction_pair{tag}.png"
         written = []
         if cfg.animate:
-            written = draw_pair(data["split"], pair, predictor, png, paths.figures() / f"interaction{tag}", cfg.horizon)
+            written = draw_pair(data["split"], pair, predictor, png, paths.figures() / f"interaction{tag}", cfg)
         fig_lines += [f"`{data['split']}` split, `{world}` world, planner `{planner}`: scene `{scenario}`, "
                       f"seed {seed}: "
                       f"the aware planner reaches the target lane, the ablated one does not within "
