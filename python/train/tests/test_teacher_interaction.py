@@ -1,9 +1,11 @@
 """The shipped teacher is interaction-aware on real test-split scenes.
 
 For every shipped scene (all from the test split) and each adjacent lane holding a vehicle behind
-the ego (the follower in that lane), two ego candidates are compared: keep the lane at constant
-velocity, or move into the follower's lane within 1.2 s at the same speed. The teacher's
-recursive prediction must make the follower fall back (yield) when the ego cuts in front of it.
+the ego (the follower in that lane) within a time gap of ``TIME_GAP`` s (centre gap over the
+follower's speed: a vehicle further back, or falling back anyway, has nothing to yield to), two ego
+candidates are compared: keep the lane at constant velocity, or move into the follower's lane within
+1.2 s at the same speed. The teacher's recursive prediction must make the follower fall back
+(yield) when the ego cuts in front of it.
 """
 
 from __future__ import annotations
@@ -14,10 +16,13 @@ import torch
 from safetensors.numpy import load_file
 
 from nudge_train import paths
+from nudge_train.constants import DT
 from nudge_train.models.interactive import teacher_interactive
 from nudge_train.training.export import load_generator, read_weights
 
 TEACHER = paths.model_weights("teacher")
+TIME_GAP = 2.0
+"""The followers a cut-in concerns: centre gap / follower speed at the last observed step (s)."""
 
 
 def _followers(scene: dict[str, np.ndarray]) -> list[tuple[int, int]]:
@@ -32,7 +37,10 @@ def _followers(scene: dict[str, np.ndarray]) -> list[tuple[int, int]]:
             if abs(h[a, -1, 1] - lanes[lane]) < 1.6 and h[a, -1, 0] < h[0, -1, 0]
         ]
         if behind:
-            out.append((lane, max(behind, key=lambda a: h[a, -1, 0])))
+            f = max(behind, key=lambda a: h[a, -1, 0])
+            speed = (h[f, -1, 0] - h[f, -2, 0]) / DT
+            if speed > 0 and (h[0, -1, 0] - h[f, -1, 0]) / speed <= TIME_GAP:
+                out.append((lane, f))
     return out
 
 
