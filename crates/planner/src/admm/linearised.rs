@@ -94,8 +94,9 @@ pub(crate) struct LinearisedProblem {
     /// extent, or breaking the stopping rule of a lane that ends, count as outside the
     /// bounds.
     pub lanes: Option<LaneTable>,
-    /// The stopping rule's deceleration and margin (`stop_decel` (m/s²), `stop_margin` (m)).
-    pub stop_rule: (f64, f64),
+    /// The stopping rule's deceleration and margin (`stop_decel` (m/s²), `stop_margin` (m)),
+    /// `None` when the rule does not bind this call ([`stop_rule`]).
+    pub stop_rule: Option<(f64, f64)>,
     /// Where the ego must stop when its lane really ends ahead of its start: the stopping
     /// line's x and the own lane's centre y, in this frame (m); `None` otherwise.
     pub stop_line: Option<StopLine>,
@@ -183,7 +184,7 @@ impl LinearisedProblem {
             },
             ego_size: p.sizes[0],
             lanes: p.lanes.as_ref().map(LaneTable::new),
-            stop_rule: (s.stop_decel, s.stop_margin),
+            stop_rule: stop_rule(s, p),
             stop_line: stop_line(s, p),
             delta_box,
             accel_box,
@@ -283,9 +284,8 @@ impl LinearisedProblem {
     /// ends in a lane that really ends must end able to stop `stop_margin` before the end,
     /// braking at `stop_decel`; 0 without a lane layout.
     pub(crate) fn stop_excess(&self, z: &[State]) -> f64 {
-        match (&self.lanes, z.last()) {
-            (Some(lanes), Some(zt)) => {
-                let (decel, margin) = self.stop_rule;
+        match (&self.lanes, z.last(), self.stop_rule) {
+            (Some(lanes), Some(zt), Some((decel, margin))) => {
                 let (x, y) = (zt[0] + self.origin[0], zt[1] + self.origin[1]);
                 lanes.view().stop_excess(x, y, zt[3], decel, margin)
             }
@@ -331,10 +331,30 @@ pub(crate) fn lateral_weight(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f6
     }
 }
 
+/// The stopping rule of this call, (`stop_decel`, `stop_margin`), or `None` when it does not
+/// bind: without a lane layout, or when the ego's start already breaks it (its stopping point
+/// braking at `stop_decel` lies beyond the stopping line). Past that point no plan within the
+/// comfortable deceleration can comply, so the rule would only make every plan that is still
+/// in the ending lane at the horizon inadmissible and hand the step to the fallbacks; the ego
+/// is committed to the merge, which the deadline weight drives (measured: two real merges of
+/// the curvilinear test split, US-101 scene 9, that started 39 m before the stopping line at
+/// 16.3 m/s ended `LaneEnded` with the rule always on, and merge in 6–7 steps with this gate,
+/// as before the rule existed). A start that complies keeps the rule for the whole call, so an
+/// ego that has been complying stays able to stop.
+fn stop_rule(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<(f64, f64)> {
+    let lanes = p.lanes?;
+    let excess = lanes.stop_excess(p.ego.x, p.ego.y, p.ego.v, s.stop_decel, s.stop_margin);
+    (excess <= 0.0).then_some((s.stop_decel, s.stop_margin))
+}
+
 /// Where the fallback's stopping sequences stop the ego: `stop_margin` before the end of the
 /// lane it starts in, when that lane really ends ahead within reach of the stopping rule (a
-/// plan accelerating at `a_max` over the horizon could break it), in the call's frame.
+/// plan accelerating at `a_max` over the horizon could break it) and the rule binds this call
+/// ([`stop_rule`]), in the call's frame.
 fn stop_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<StopLine> {
+    // Only while the stopping rule binds: past the point where the ego can still stop, braking
+    // towards the line is no longer a way out ([`stop_rule`]).
+    stop_rule(s, p)?;
     let lanes = p.lanes?;
     let x = lanes.stop_line(p.ego.x, p.ego.y, s.stop_margin)?;
     // Out of reach: no plan (accelerating at a_max all along) could break the stopping rule.
