@@ -32,18 +32,27 @@ help:
 	@echo "make interaction  each planner vs its reaction ablated on dense scenes (docs/results/interaction.md)"
 
 # ---- set-up ---------------------------------------------------------------------------------
+# pip with retries: the registry sometimes drops a long download (torch's CUDA wheels are
+# 0.5 GB each) at the same byte on every resume, so after pip's own resumes a failed install is
+# started again, up to PIP_TRIES times, PIP_RETRY_SLEEP seconds apart.
+PIP_TRIES ?= 3
+PIP_RETRY_SLEEP ?= 20
+# The first install upgrades pip itself (Python's bundled pip lacks --resume-retries).
+PIP_BASE := --disable-pip-version-check -q --timeout 60
+PIP_FLAGS := $(PIP_BASE) --resume-retries 10
+RETRY := bash -c 'for i in $$(seq 1 $(PIP_TRIES)); do "$$@" && exit 0; echo "pip install failed (try $$i of $(PIP_TRIES))" >&2; [ $$i -lt $(PIP_TRIES) ] && sleep $(PIP_RETRY_SLEEP); done; exit 1' --
 $(STAMP): python/train/pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PIP) install --disable-pip-version-check -q --upgrade pip
-	$(PIP) install --disable-pip-version-check -q -e "python/train[dev]"
+	$(RETRY) $(PIP) install $(PIP_BASE) --upgrade pip
+	$(RETRY) $(PIP) install $(PIP_FLAGS) -e "python/train[dev]"
 	touch $(STAMP)
 
 venv: $(STAMP)
 
 $(DEMO_STAMP): python/train/pyproject.toml
 	test -x $(DEMO_VENV)/bin/python || $(PYTHON) -m venv $(DEMO_VENV)
-	$(DEMO_VENV)/bin/pip install --disable-pip-version-check -q --upgrade pip
-	$(DEMO_VENV)/bin/pip install --disable-pip-version-check -q -e "python/train[demo]"
+	$(RETRY) $(DEMO_VENV)/bin/pip install $(PIP_BASE) --upgrade pip
+	$(RETRY) $(DEMO_VENV)/bin/pip install $(PIP_FLAGS) -e "python/train[demo]"
 	touch $(DEMO_STAMP)
 
 # The light environment with the extension nudge._native built into it (rebuilt when the Rust
@@ -81,7 +90,7 @@ wheel-smoke: wheel
 	echo "wheel $$(basename $$whl): $$(du -k $$whl | cut -f1) KiB"; \
 	t0=$$($(PYTHON) -c 'import time; print(time.time())'); \
 	TIMEFORMAT="pip install into a fresh venv: %R s"; \
-	time "$$tmp/venv/bin/pip" install --disable-pip-version-check -q "$$whl"; \
+	time $(RETRY) "$$tmp/venv/bin/pip" install $(PIP_BASE) "$$whl"; \
 	cd "$$tmp" && env -u NUDGE_ASSETS -u NUDGE_REPO NUDGE_SMOKE_T0=$$t0 "$$tmp/venv/bin/python" smoke.py --scenes $$scenes
 
 # ---- tests ----------------------------------------------------------------------------------
@@ -108,7 +117,7 @@ test-python: develop build
 CR_VENV ?= .venv-commonroad
 $(CR_VENV)/.nudge-stamp: python/train/pyproject.toml
 	test -x $(CR_VENV)/bin/python || $(PYTHON) -m venv $(CR_VENV)
-	$(CR_VENV)/bin/pip install --disable-pip-version-check -q -e "python/train[commonroad]" pytest
+	$(RETRY) $(CR_VENV)/bin/pip install $(PIP_FLAGS) -e "python/train[commonroad]" pytest
 	touch $@
 
 test-commonroad: $(CR_VENV)/.nudge-stamp build
