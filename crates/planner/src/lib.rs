@@ -49,5 +49,5 @@ pub use settings::{PlannerSettings, SafetyGeometry};
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
     RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,
-    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane,
+    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane, target_reach,
 };

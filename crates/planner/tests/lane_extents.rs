@@ -461,7 +461,7 @@ fn shipped_scenes_plan_bit_for_bit_the_same_with_lanes_that_span_the_scene() {
         assert_eq!(strip(a), strip(b), "{}", sc.name);
         // And one planning call, plan for plan (timings aside).
         let h = History::new(sc.history.clone(), sc.n_agents).unwrap();
-        let y = sc.lane_centres[nudge_planner::target_lane(sc, 3).unwrap()];
+        let y = sc.lane_centres[nudge_planner::target_lane(sc, 3, &s, &cfg).unwrap()];
         let p = PlanningProblem::at_scenario_start(sc, &h, y);
         let q = PlanningProblem::at_scenario_start(&full, &h, y);
         assert!(p.lanes.is_none() && q.lanes.is_some());
@@ -563,4 +563,153 @@ fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
         "never beyond the centre"
     );
     assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
+}
+
+/// The draw of the target lane before lanes could end within reach, recorded from the rule as
+/// it was (`Scenario.target_lane(seed)` over seeds 0..64 on the shipped scenes): whether seed
+/// k picks the second of two adjacent lanes ('1') or the first ('0').
+const DRAW_BEFORE: &str = "1000001000010101000001100000010111111110100000100001100011111110";
+
+/// Three lanes, the ego alone at x = 0 at 16.3 m/s in the middle one (runs through): lane 0
+/// (the auxiliary lane on US-101) ends for real at `aux_end`, lane 2 runs through.
+fn beside_an_auxiliary_lane(aux_end: f64) -> Scenario {
+    let v = 16.3;
+    let history = (0..T_OBS)
+        .flat_map(|t| [-v * DT * (T_OBS - 1 - t) as f64, 3.7])
+        .collect();
+    Scenario {
+        name: "synthetic-auxiliary".to_string(),
+        n_agents: 1,
+        history,
+        heading: vec![0.0],
+        speed: vec![v],
+        size: vec![[4.5, 1.9]],
+        n_future: 0,
+        future: Vec::new(),
+        future_valid: Vec::new(),
+        lane_centres: vec![0.0, 3.7, 7.4],
+        lane_bounds: vec![-1.85, 1.85, 5.55, 9.25],
+        ego_lane: 1,
+        agent_ids: vec![0],
+        lane_extents: Some(vec![
+            extent(-500.0, aux_end, false, true),
+            extent(-500.0, 2000.0, false, false),
+            extent(-500.0, 2000.0, false, false),
+        ]),
+        metadata: HashMap::new(),
+    }
+}
+
+/// The draws of seeds 0..`n` as a string of lane indices.
+fn draws(sc: &Scenario, n: u64, s: &PlannerSettings, cfg: &SimConfig) -> String {
+    (0..n)
+        .map(|k| {
+            nudge_planner::target_lane(sc, k, s, cfg)
+                .unwrap()
+                .to_string()
+        })
+        .collect()
+}
+
+/// A lane that really ends within the run's reach (`max_steps` · dt · v_0 +
+/// `deadline_distance` ahead of the ego) is never drawn as the target: beside an auxiliary
+/// lane ending 44 m ahead (US-101 scene 9, vehicle 416) every seed draws the lane on the other
+/// side; one ending just beyond the reach is drawn as before; and the reach follows the run's
+/// length and the planner's deadline distance.
+#[test]
+fn the_target_draw_never_offers_a_lane_that_ends_within_reach() {
+    let s = PlannerSettings::default();
+    let cfg = SimConfig::default();
+    let sc = beside_an_auxiliary_lane(44.0);
+    let reach = nudge_planner::target_reach(&sc, &s, &cfg);
+    assert!(
+        (reach - (30.0 * 0.3 * 16.3 + 100.0)).abs() < 1e-9,
+        "{reach}"
+    );
+    assert_eq!(draws(&sc, 200, &s, &cfg), "2".repeat(200));
+    let just_within = beside_an_auxiliary_lane(reach - 0.01);
+    assert_eq!(draws(&just_within, 200, &s, &cfg), "2".repeat(200));
+    // Beyond the reach: both neighbours, drawn as before the rule.
+    let far = beside_an_auxiliary_lane(reach + 0.01);
+    let before: String = DRAW_BEFORE
+        .chars()
+        .map(|c| if c == '1' { '2' } else { '0' })
+        .collect();
+    assert_eq!(draws(&far, 64, &s, &cfg), before);
+    // A shorter run reaches less far: the lane 200 m ahead is offered at 5 steps
+    // (24.45 + 100 m), not at the default 30 (246.7 + 100 m) nor with a 150 m deadline.
+    let at_200 = beside_an_auxiliary_lane(200.0);
+    let short = SimConfig {
+        max_steps: 5,
+        ..cfg
+    };
+    assert_eq!(draws(&at_200, 64, &s, &short), before);
+    assert_eq!(draws(&at_200, 64, &s, &cfg), "2".repeat(64));
+    let wary = PlannerSettings {
+        deadline_distance: 180.0,
+        ..s.clone()
+    };
+    assert_eq!(draws(&at_200, 64, &wary, &short), "2".repeat(64));
+    // In the simulator too: the run heads for lane 2.
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(&sc, &s, &log_replay(3), 1, &mut cv, WorldModel::LogReplay).unwrap();
+    assert_eq!(run.target_lane, 2);
+    // With lane 2 gone (a two-lane road) nothing is left to draw: a typed error naming the scene.
+    let two = Scenario {
+        lane_centres: vec![0.0, 3.7],
+        lane_bounds: vec![-1.85, 1.85, 5.55],
+        lane_extents: sc.lane_extents.as_ref().map(|e| e[..2].to_vec()),
+        ..sc.clone()
+    };
+    match nudge_planner::target_lane(&two, 0, &s, &cfg) {
+        Err(e @ nudge_planner::SimError::NoAdjacentLane { ego_lane: 1, .. }) => {
+            assert!(e.to_string().contains("synthetic-auxiliary"), "{e}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// On scenes without real lane ends the draw is the rule's from before lanes could end within
+/// reach, seed for seed: the shipped straight scenes (schema 1), the same scenes with extents
+/// that span them (begins and ends not real) at any run length, and the shipped merges (the
+/// ego's lane ends, its neighbour runs through).
+#[test]
+fn scenes_without_real_ends_draw_the_same_target_lanes_as_before() {
+    let s = PlannerSettings::default();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes");
+    let (scenes, bad) = Scenario::load_dir(&root).unwrap();
+    assert!(bad.is_empty() && scenes.len() >= 10, "{bad:?}");
+    for sc in &scenes {
+        let (lo, hi) = (sc.ego_lane.checked_sub(1), sc.ego_lane + 1);
+        let want: String = DRAW_BEFORE
+            .chars()
+            .map(|c| match (lo, hi < sc.lane_centres.len()) {
+                (Some(lo), true) => (if c == '1' { hi } else { lo }).to_string(),
+                (Some(lo), false) => lo.to_string(),
+                (None, _) => hi.to_string(),
+            })
+            .collect();
+        let spanning = Scenario {
+            lane_extents: Some(vec![extent(-1e5, 1e5, false, false); sc.lane_centres.len()]),
+            ..sc.clone()
+        };
+        for max_steps in [1, 30, 400] {
+            let cfg = SimConfig {
+                max_steps,
+                ..SimConfig::default()
+            };
+            assert_eq!(draws(sc, 64, &s, &cfg), want, "{}", sc.name);
+            assert_eq!(draws(&spanning, 64, &s, &cfg), want, "{}", sc.name);
+        }
+    }
+    let (merges, bad) = Scenario::load_dir(root.join("merge")).unwrap();
+    assert!(bad.is_empty() && merges.len() == 7, "{bad:?}");
+    for sc in &merges {
+        assert_eq!(
+            draws(sc, 64, &s, &SimConfig::default()),
+            "1".repeat(64),
+            "{}",
+            sc.name
+        );
+    }
 }
