@@ -713,3 +713,81 @@ fn scenes_without_real_ends_draw_the_same_target_lanes_as_before() {
         );
     }
 }
+
+/// One planning call per step from `ego` (x, y, ψ, v) towards `y_target` on the scene `sc`
+/// (its lanes and road; the ego alone, constant-velocity prediction), the first input applied
+/// to the bicycle model each time: the statuses, applied accelerations (m/s²) and states after
+/// each step.
+fn drive(
+    sc: &Scenario,
+    mut ego: [f64; 4],
+    y_target: f64,
+    steps: usize,
+) -> Vec<(PlanStatus, f64, [f64; 4])> {
+    let s = PlannerSettings::default();
+    let mut planner = Planner::new(s).unwrap();
+    let mut cv = ConstantVelocity::default();
+    let (mut last_delta, mut last_accel) = (0.0, 0.0);
+    let mut out = Vec::new();
+    for _ in 0..steps {
+        let pos: Vec<f64> = (0..T_OBS)
+            .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
+            .collect();
+        let h = History::new(pos, 1).unwrap();
+        let p = PlanningProblem {
+            ego: EgoState {
+                x: ego[0],
+                y: ego[1],
+                psi: ego[2],
+                v: ego[3],
+            },
+            last_delta,
+            last_accel,
+            history: &h,
+            sizes: &sc.size,
+            y_target,
+            v_ref: sc.speed[0],
+            road: sc.road(),
+            y_retreat: None,
+            lanes: sc.lanes(),
+        };
+        let plan = planner.plan(&p, &mut cv).unwrap();
+        let next = planner.model().advance(
+            &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
+            plan.delta[0],
+            plan.accel[0],
+        );
+        ego = [next[0], next[1], next[2], next[3]];
+        (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        out.push((plan.status, plan.accel[0], ego));
+    }
+    out
+}
+
+/// The stopping rule binds only while the ego's start complies with it. An ego whose centre
+/// has just entered a lane that really ends (y = 1 m, 0.85 m inside its line), 39 m before the
+/// stopping line at 16.3 m/s (US-101 scene 9, vehicle 433, when the auxiliary lane was still
+/// drawn as a target), can no longer stop there at `stop_decel` (it needs 44.3 m): it is
+/// committed, so its plans towards the lane's centre stay admissible, it keeps its speed and
+/// settles within 4 steps. With the rule binding regardless (the gate removed), every plan
+/// that ends in the lane breaks it: the fallbacks brake (−1.5, −3, −4.5, −5 m/s²) and the
+/// ego creeps towards the centre (0.29 m off after 6 steps).
+#[test]
+fn the_stopping_rule_lets_go_of_an_ego_that_can_no_longer_stop() {
+    let s = PlannerSettings::default();
+    let v = 16.3;
+    let x0 = END - s.stop_margin - 39.0;
+    assert!(x0 + v * v / (2.0 * s.stop_decel) > END - s.stop_margin);
+    let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
+    let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 4);
+    for (k, (status, accel, ego)) in steps.iter().enumerate() {
+        assert!(
+            !matches!(status, PlanStatus::Fallback | PlanStatus::Unsafe),
+            "step {k}: {status:?}"
+        );
+        assert!(*accel >= -0.5, "step {k}: {accel} m/s²");
+        assert!(ego[0] < END - s.stop_margin, "step {k}: {ego:?}");
+    }
+    let settled = steps.iter().filter(|(_, _, e)| e[1].abs() <= 0.3).count();
+    assert!(settled >= 2, "{steps:?}");
+}
