@@ -37,7 +37,7 @@ pub use admm::{
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
 };
-pub use extents::{LaneViolation, LaneViolationKind, Lanes};
+pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{

@@ -764,30 +764,89 @@ fn drive(
     out
 }
 
-/// The stopping rule binds only while the ego's start complies with it. An ego whose centre
-/// has just entered a lane that really ends (y = 1 m, 0.85 m inside its line), 39 m before the
-/// stopping line at 16.3 m/s (US-101 scene 9, vehicle 433, when the auxiliary lane was still
-/// drawn as a target), can no longer stop there at `stop_decel` (it needs 44.3 m): it is
-/// committed, so its plans towards the lane's centre stay admissible, it keeps its speed and
-/// settles within 4 steps. With the rule binding regardless (the gate removed), every plan
-/// that ends in the lane breaks it: the fallbacks brake (−1.5, −3, −4.5, −5 m/s²) and the
-/// ego creeps towards the centre (0.29 m off after 6 steps).
+/// The stopping rule binds only while the ego's start could still comply, braking at the
+/// planner's hardest deceleration (−`a_min`, 5 m/s²). An ego whose centre has just entered a
+/// lane that really ends (y = 1 m, 0.85 m inside its line, aiming at the lane's centre, as
+/// US-101 vehicle 433 did when the auxiliary lane was still drawn as a target) 20 m before
+/// the stopping line at 16.3 m/s needs 26.6 m to stop even at 5 m/s²: it is committed, so its
+/// first plan stays admissible and it settles on the lane's centre within 3 steps. With the
+/// rule binding regardless (the gate removed) every plan that ends in the lane breaks it: the
+/// first plan is `Unsafe` and the ego stays 0.7 m off the centre. 39 m before the line (the
+/// vehicle's own numbers) it can still stop at 5 m/s², so the rule binds and the ego brakes.
 #[test]
 fn the_stopping_rule_lets_go_of_an_ego_that_can_no_longer_stop() {
     let s = PlannerSettings::default();
     let v = 16.3;
-    let x0 = END - s.stop_margin - 39.0;
-    assert!(x0 + v * v / (2.0 * s.stop_decel) > END - s.stop_margin);
+    let line = END - s.stop_margin;
+    let x0 = line - 20.0;
+    assert!(x0 + v * v / (2.0 * -s.a_min) > line);
     let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
-    let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 4);
-    for (k, (status, accel, ego)) in steps.iter().enumerate() {
-        assert!(
-            !matches!(status, PlanStatus::Fallback | PlanStatus::Unsafe),
-            "step {k}: {status:?}"
-        );
-        assert!(*accel >= -0.5, "step {k}: {accel} m/s²");
-        assert!(ego[0] < END - s.stop_margin, "step {k}: {ego:?}");
+    let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 3);
+    let (status, accel, _) = steps[0];
+    assert!(
+        !matches!(status, PlanStatus::Fallback | PlanStatus::Unsafe),
+        "{status:?}"
+    );
+    assert!(accel >= -0.5, "{accel} m/s²");
+    let last = steps[2].2;
+    assert!(last[1].abs() <= 0.3 && last[0] < line, "{steps:?}");
+    // Still able to stop at 5 m/s²: the rule binds and the ego brakes.
+    let x0 = line - 39.0;
+    assert!(x0 + v * v / (2.0 * -s.a_min) <= line);
+    let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
+    let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 2);
+    assert!(steps.iter().all(|st| st.1 <= -1.0), "{steps:?}");
+}
+
+/// A platoon at the ego's speed from 140 m behind to 60 m ahead of it, then an empty main
+/// lane: the ego has to stop before the end and wait; the gap arrives when the tail passes,
+/// about 13 s in.
+fn gap_after_a_stop() -> Scenario {
+    let mut agents = vec![(0.0, 0.0, 20.0)];
+    let mut x = -140.0 + 4.0;
+    while x <= 60.0 {
+        agents.push((x, 3.7, 20.0));
+        x += 9.0;
     }
-    let settled = steps.iter().filter(|(_, _, e)| e[1].abs() <= 0.3).count();
-    assert!(settled >= 2, "{steps:?}");
+    assert!(agents.len() <= nudge_predictor::MAX_AGENTS);
+    scene(&agents, Some(merge_extents()))
+}
+
+/// An ego that has stopped before the end of its lane merges once the main lane empties: it
+/// waits (stopped, within `stop_margin` + 4 m of the stopping line, still in its lane), then
+/// steers out from the standstill, its stopping rule crediting the way out of the lane, and
+/// crosses into the main lane before the end without a collision. With the rule crediting no
+/// sideways progress, or the stopping line 8 m before the end (too close to leave the lane
+/// from a standstill), it waits to the step limit.
+#[test]
+fn an_ego_stopped_before_the_end_merges_once_the_main_lane_empties() {
+    let sc = gap_after_a_stop();
+    let s = PlannerSettings::default();
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(&sc, &s, &log_replay(70), 0, &mut cv, WorldModel::LogReplay).unwrap();
+    assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
+    assert!(!run.collision);
+    let lanes = sc.lanes().unwrap();
+    for st in &run.steps {
+        assert_eq!(
+            lanes.outside(st.ego[0], st.ego[1]),
+            None,
+            "step {}",
+            st.step
+        );
+    }
+    let crossed = run.steps.iter().find(|st| st.ego[1] > BOUNDS[1]).unwrap();
+    assert!(crossed.ego[0] < END, "crossed at {:?}", crossed.ego);
+    // It had stopped, in its lane, near the stopping line, before it crossed.
+    let stopped = run.steps[..crossed.step]
+        .iter()
+        .filter(|st| st.ego[3] < 0.3)
+        .collect::<Vec<_>>();
+    assert!(stopped.len() >= 3, "stopped for {} steps", stopped.len());
+    for st in stopped {
+        assert!(
+            st.ego[1] < BOUNDS[1] && st.ego[0] > END - s.stop_margin - 4.0,
+            "{st:?}"
+        );
+    }
 }
