@@ -813,7 +813,7 @@ fn gap_after_a_stop() -> Scenario {
 }
 
 /// An ego that has stopped before the end of its lane merges once the main lane empties: it
-/// waits (stopped, within `stop_margin` + 4 m of the stopping line, still in its lane), then
+/// waits (stopped, at most 4 m before the stopping line, still in its lane), then
 /// steers out from the standstill, its stopping rule crediting the way out of the lane, and
 /// crosses into the main lane before the end without a collision. With the rule crediting no
 /// sideways progress, or the stopping line 8 m before the end (too close to leave the lane
