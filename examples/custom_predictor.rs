@@ -8,7 +8,7 @@
 //! Run from the repository root: `cargo run --release --example custom_predictor`.
 #![allow(clippy::print_stdout)]
 
-use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, target_lane};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, target_lane};
 use nudge::predictor::{
     ConstantVelocity, History, Predictor, PredictorError, T_OBS, default_assets_dir,
 };
@@ -65,7 +65,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         default_assets_dir().join("scenes/us101-11_1-t02.1-ego132.safetensors"),
     )?;
     let history = History::new(sc.history.clone(), sc.n_agents)?;
-    let y_target = sc.lane_centres[target_lane(&sc, 0)?];
+    let y_target =
+        sc.lane_centres[target_lane(&sc, 0, &PlannerSettings::default(), &SimConfig::default())?];
     let problem = PlanningProblem::at_scenario_start(&sc, &history, y_target);
     let mut cautious = CuttingIn {
         horizon: 6,

@@ -4,7 +4,7 @@
 //! Run from the repository root: `cargo run --release --example plan_one_step`.
 #![allow(clippy::print_stdout)]
 
-use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, target_lane};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, target_lane};
 use nudge::predictor::{History, PredictorSpec, default_assets_dir};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -14,7 +14,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut student = PredictorSpec::resolve("student", &assets, 6)?.build();
 
     // The ego at its last observed position, aiming at the centre of the lane seed 0 draws.
-    let lane = target_lane(&sc, 0)?;
+    let lane = target_lane(&sc, 0, &PlannerSettings::default(), &SimConfig::default())?;
     let history = History::new(sc.history.clone(), sc.n_agents)?; // [n, 8, 2] m
     let problem = PlanningProblem::at_scenario_start(&sc, &history, sc.lane_centres[lane]);
     let mut planner = Planner::new(PlannerSettings::default())?;

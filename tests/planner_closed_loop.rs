@@ -246,7 +246,13 @@ fn lane_change_in_idm_world_on_real_scene() {
 /// logged future (they keep their speed).
 fn convoy_scene(name: &str, seed: u64, spacing: f64) -> (Scenario, f64, f64) {
     let base = scene(name);
-    let lane = target_lane(&base, seed).unwrap();
+    let lane = target_lane(
+        &base,
+        seed,
+        &PlannerSettings::default(),
+        &SimConfig::default(),
+    )
+    .unwrap();
     let y_lane = base.lane_centres[lane];
     let p = base.position(0, 7);
     let v = base.speed[0];

@@ -105,3 +105,50 @@ def test_arbitrary_layouts_give_a_plan_or_an_input_error(n_lanes: int, n_bounds_
         return
     v = out["lane_violation"]
     assert v is None or (0 <= v["lane"] < n_lanes and v["kind"] in ("Ended", "NotBegun"))
+
+
+def _beside_an_ending_lane(tmp_path: Path, ahead: float) -> Path:
+    """The first shipped scene (ego in lane 1 of 5) as "nudge.scenario/2" with lane 0 really
+    ending ``ahead`` m ahead of the ego, every other lane running through."""
+    from safetensors import safe_open
+    from safetensors.numpy import save_file
+
+    src = nudge.scene_paths()[0]
+    with safe_open(str(src), "np") as f:
+        meta = f.metadata()
+        t = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 (safe_open is not a mapping)
+    assert int(t["ego_lane"][0]) == 1
+    n_lanes = len(t["lane_centres"])
+    x0 = float(t["history"][0, -1, 0])
+    extent = np.tile([-1e4, 1e4], (n_lanes, 1))
+    extent[0, 1] = x0 + ahead
+    real = np.zeros((n_lanes, 2), dtype=np.uint8)
+    real[0, 1] = 1
+    t["lane_extent"], t["lane_extent_real"] = extent, real
+    out = tmp_path / f"ending_{ahead:.0f}.safetensors"
+    save_file(t, str(out), metadata={**meta, "schema": "nudge.scenario/2"})
+    return out
+
+
+def test_the_target_lane_is_one_rule_for_scenario_and_simulate(tmp_path: Path) -> None:
+    """``Scenario.target_lane`` and the run's ``target_lane`` column come from the one Rust
+    rule: a lane that really ends within the run's reach (max_steps · dt · v + deadline
+    distance) is never drawn; a short run with a short deadline distance may draw it."""
+    path = _beside_an_ending_lane(tmp_path, 60.0)
+    sc = nudge.Scenario.load(path)
+    seeds = range(16)
+    assert {sc.target_lane(s) for s in seeds} == {2}
+    short = nudge.SimConfig(max_steps=1, world="log_replay")
+    near = nudge.PlannerSettings(deadline_distance=10.0)
+    drawn = [sc.target_lane(s, near, short) for s in seeds]
+    assert set(drawn) == {0, 2}
+    # The draw of a scene without real ends, seed for seed.
+    plain = nudge.Scenario.load(nudge.scene_paths()[0])
+    assert drawn == [plain.target_lane(s) for s in seeds]
+    for settings_, config in ((None, nudge.SimConfig(world="log_replay", max_steps=1)), (near, short)):
+        r = nudge.simulate([path] * len(seeds), "constant_velocity", scene_seeds=list(seeds), threads=1,
+                           settings=settings_, config=config)
+        assert r["runs"]["target_lane"].tolist() == [sc.target_lane(s, settings_, config) for s in seeds]
+    planner = nudge.Planner(near, nudge.Predictor.constant_velocity())
+    assert [planner.plan_scenario(sc, seed=s, config=short)["target_lane"] for s in seeds[:4]] == drawn[:4]
+    assert planner.plan_scenario(sc, seed=1)["target_lane"] == 2

@@ -351,8 +351,13 @@ pub enum WorldFileError {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SimError {
-    /// The scenario offers no lane adjacent to the ego's.
-    #[error("scenario {scene}: no lane adjacent to the ego's lane {ego_lane} (lanes: {lanes})")]
+    /// The scenario offers no lane adjacent to the ego's that may be drawn as the target
+    /// ([`crate::target_lane`]: one that exists, is open at the ego's x and does not end within
+    /// [`crate::target_reach`]).
+    #[error(
+        "scenario {scene}: no lane adjacent to the ego's lane {ego_lane} that is open and runs on \
+         (lanes: {lanes})"
+    )]
     NoAdjacentLane {
         /// Scenario name.
         scene: String,

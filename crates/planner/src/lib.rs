@@ -37,7 +37,7 @@ pub use admm::{
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
 };
-pub use extents::{LaneViolation, LaneViolationKind, Lanes};
+pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
@@ -49,5 +49,5 @@ pub use settings::{PlannerSettings, SafetyGeometry};
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
     RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,
-    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane,
+    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane, target_reach,
 };

@@ -50,10 +50,14 @@ pub struct PlannerSettings {
     /// Deceleration (m/s², > 0) of the lane-end stopping rule: the last planned state, when
     /// its centre is in a lane that really ends, must be able to stop, braking at this rate,
     /// `stop_margin` before the end: x_T + v_T² / (2 · `stop_decel`) ≤ end − `stop_margin`
-    /// ([`crate::extents`]).
+    /// (less for a state heading out of the lane: [`crate::extents`]).
     pub stop_decel: f64,
     /// Distance before the real end of a lane (m) by which the stopping rule must stop the
-    /// ego's centre, and where the fallback's stopping sequences stop it.
+    /// ego's centre, and where the fallback's stopping sequences stop it; a state heading out
+    /// of the lane at half `heading_max` or more needs only the distance it takes to leave
+    /// the lane ([`crate::extents::Lanes::stop_excess`]). It must leave room to merge from a
+    /// standstill: from a lane's centre, a 3.7 m lane, the bicycle at the steering and heading
+    /// bounds needs about 10 m of road to get its centre across the line.
     pub stop_margin: f64,
     /// Weight of (v − v_ref)² per step.
     pub w_v: f64,
@@ -261,7 +265,7 @@ impl Default for PlannerSettings {
             w_deadline: 60.0,
             deadline_distance: 100.0,
             stop_decel: 3.0,
-            stop_margin: 8.0,
+            stop_margin: 12.0,
             w_v: 3.0,
             w_psi: 1.0,
             w_delta: 3.0,

@@ -461,7 +461,7 @@ fn shipped_scenes_plan_bit_for_bit_the_same_with_lanes_that_span_the_scene() {
         assert_eq!(strip(a), strip(b), "{}", sc.name);
         // And one planning call, plan for plan (timings aside).
         let h = History::new(sc.history.clone(), sc.n_agents).unwrap();
-        let y = sc.lane_centres[nudge_planner::target_lane(sc, 3).unwrap()];
+        let y = sc.lane_centres[nudge_planner::target_lane(sc, 3, &s, &cfg).unwrap()];
         let p = PlanningProblem::at_scenario_start(sc, &h, y);
         let q = PlanningProblem::at_scenario_start(&full, &h, y);
         assert!(p.lanes.is_none() && q.lanes.is_some());
@@ -563,4 +563,290 @@ fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
         "never beyond the centre"
     );
     assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
+}
+
+/// The draw of the target lane before lanes could end within reach, recorded from the rule as
+/// it was (`Scenario.target_lane(seed)` over seeds 0..64 on the shipped scenes): whether seed
+/// k picks the second of two adjacent lanes ('1') or the first ('0').
+const DRAW_BEFORE: &str = "1000001000010101000001100000010111111110100000100001100011111110";
+
+/// Three lanes, the ego alone at x = 0 at 16.3 m/s in the middle one (runs through): lane 0
+/// (the auxiliary lane on US-101) ends for real at `aux_end`, lane 2 runs through.
+fn beside_an_auxiliary_lane(aux_end: f64) -> Scenario {
+    let v = 16.3;
+    let history = (0..T_OBS)
+        .flat_map(|t| [-v * DT * (T_OBS - 1 - t) as f64, 3.7])
+        .collect();
+    Scenario {
+        name: "synthetic-auxiliary".to_string(),
+        n_agents: 1,
+        history,
+        heading: vec![0.0],
+        speed: vec![v],
+        size: vec![[4.5, 1.9]],
+        n_future: 0,
+        future: Vec::new(),
+        future_valid: Vec::new(),
+        lane_centres: vec![0.0, 3.7, 7.4],
+        lane_bounds: vec![-1.85, 1.85, 5.55, 9.25],
+        ego_lane: 1,
+        agent_ids: vec![0],
+        lane_extents: Some(vec![
+            extent(-500.0, aux_end, false, true),
+            extent(-500.0, 2000.0, false, false),
+            extent(-500.0, 2000.0, false, false),
+        ]),
+        metadata: HashMap::new(),
+    }
+}
+
+/// The draws of seeds 0..`n` as a string of lane indices.
+fn draws(sc: &Scenario, n: u64, s: &PlannerSettings, cfg: &SimConfig) -> String {
+    (0..n)
+        .map(|k| {
+            nudge_planner::target_lane(sc, k, s, cfg)
+                .unwrap()
+                .to_string()
+        })
+        .collect()
+}
+
+/// A lane that really ends within the run's reach (`max_steps` · dt · v_0 +
+/// `deadline_distance` ahead of the ego) is never drawn as the target: beside an auxiliary
+/// lane ending 44 m ahead (US-101 scene 9, vehicle 416) every seed draws the lane on the other
+/// side; one ending just beyond the reach is drawn as before; and the reach follows the run's
+/// length and the planner's deadline distance.
+#[test]
+fn the_target_draw_never_offers_a_lane_that_ends_within_reach() {
+    let s = PlannerSettings::default();
+    let cfg = SimConfig::default();
+    let sc = beside_an_auxiliary_lane(44.0);
+    let reach = nudge_planner::target_reach(&sc, &s, &cfg);
+    assert!(
+        (reach - (30.0 * 0.3 * 16.3 + 100.0)).abs() < 1e-9,
+        "{reach}"
+    );
+    assert_eq!(draws(&sc, 200, &s, &cfg), "2".repeat(200));
+    let just_within = beside_an_auxiliary_lane(reach - 0.01);
+    assert_eq!(draws(&just_within, 200, &s, &cfg), "2".repeat(200));
+    // Beyond the reach: both neighbours, drawn as before the rule.
+    let far = beside_an_auxiliary_lane(reach + 0.01);
+    let before: String = DRAW_BEFORE
+        .chars()
+        .map(|c| if c == '1' { '2' } else { '0' })
+        .collect();
+    assert_eq!(draws(&far, 64, &s, &cfg), before);
+    // A shorter run reaches less far: the lane 200 m ahead is offered at 5 steps
+    // (24.45 + 100 m), not at the default 30 (246.7 + 100 m) nor with a 150 m deadline.
+    let at_200 = beside_an_auxiliary_lane(200.0);
+    let short = SimConfig {
+        max_steps: 5,
+        ..cfg
+    };
+    assert_eq!(draws(&at_200, 64, &s, &short), before);
+    assert_eq!(draws(&at_200, 64, &s, &cfg), "2".repeat(64));
+    let wary = PlannerSettings {
+        deadline_distance: 180.0,
+        ..s.clone()
+    };
+    assert_eq!(draws(&at_200, 64, &wary, &short), "2".repeat(64));
+    // In the simulator too: the run heads for lane 2.
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(&sc, &s, &log_replay(3), 1, &mut cv, WorldModel::LogReplay).unwrap();
+    assert_eq!(run.target_lane, 2);
+    // With lane 2 gone (a two-lane road) nothing is left to draw: a typed error naming the scene.
+    let two = Scenario {
+        lane_centres: vec![0.0, 3.7],
+        lane_bounds: vec![-1.85, 1.85, 5.55],
+        lane_extents: sc.lane_extents.as_ref().map(|e| e[..2].to_vec()),
+        ..sc.clone()
+    };
+    match nudge_planner::target_lane(&two, 0, &s, &cfg) {
+        Err(e @ nudge_planner::SimError::NoAdjacentLane { ego_lane: 1, .. }) => {
+            assert!(e.to_string().contains("synthetic-auxiliary"), "{e}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// On scenes without real lane ends the draw is the rule's from before lanes could end within
+/// reach, seed for seed: the shipped straight scenes (schema 1), the same scenes with extents
+/// that span them (begins and ends not real) at any run length, and the shipped merges (the
+/// ego's lane ends, its neighbour runs through).
+#[test]
+fn scenes_without_real_ends_draw_the_same_target_lanes_as_before() {
+    let s = PlannerSettings::default();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/scenes");
+    let (scenes, bad) = Scenario::load_dir(&root).unwrap();
+    assert!(bad.is_empty() && scenes.len() >= 10, "{bad:?}");
+    for sc in &scenes {
+        let (lo, hi) = (sc.ego_lane.checked_sub(1), sc.ego_lane + 1);
+        let want: String = DRAW_BEFORE
+            .chars()
+            .map(|c| match (lo, hi < sc.lane_centres.len()) {
+                (Some(lo), true) => (if c == '1' { hi } else { lo }).to_string(),
+                (Some(lo), false) => lo.to_string(),
+                (None, _) => hi.to_string(),
+            })
+            .collect();
+        let spanning = Scenario {
+            lane_extents: Some(vec![extent(-1e5, 1e5, false, false); sc.lane_centres.len()]),
+            ..sc.clone()
+        };
+        for max_steps in [1, 30, 400] {
+            let cfg = SimConfig {
+                max_steps,
+                ..SimConfig::default()
+            };
+            assert_eq!(draws(sc, 64, &s, &cfg), want, "{}", sc.name);
+            assert_eq!(draws(&spanning, 64, &s, &cfg), want, "{}", sc.name);
+        }
+    }
+    let (merges, bad) = Scenario::load_dir(root.join("merge")).unwrap();
+    assert!(bad.is_empty() && merges.len() == 7, "{bad:?}");
+    for sc in &merges {
+        assert_eq!(
+            draws(sc, 64, &s, &SimConfig::default()),
+            "1".repeat(64),
+            "{}",
+            sc.name
+        );
+    }
+}
+
+/// One planning call per step from `ego` (x, y, ψ, v) towards `y_target` on the scene `sc`
+/// (its lanes and road; the ego alone, constant-velocity prediction), the first input applied
+/// to the bicycle model each time: the statuses, applied accelerations (m/s²) and states after
+/// each step.
+fn drive(
+    sc: &Scenario,
+    mut ego: [f64; 4],
+    y_target: f64,
+    steps: usize,
+) -> Vec<(PlanStatus, f64, [f64; 4])> {
+    let s = PlannerSettings::default();
+    let mut planner = Planner::new(s).unwrap();
+    let mut cv = ConstantVelocity::default();
+    let (mut last_delta, mut last_accel) = (0.0, 0.0);
+    let mut out = Vec::new();
+    for _ in 0..steps {
+        let pos: Vec<f64> = (0..T_OBS)
+            .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
+            .collect();
+        let h = History::new(pos, 1).unwrap();
+        let p = PlanningProblem {
+            ego: EgoState {
+                x: ego[0],
+                y: ego[1],
+                psi: ego[2],
+                v: ego[3],
+            },
+            last_delta,
+            last_accel,
+            history: &h,
+            sizes: &sc.size,
+            y_target,
+            v_ref: sc.speed[0],
+            road: sc.road(),
+            y_retreat: None,
+            lanes: sc.lanes(),
+        };
+        let plan = planner.plan(&p, &mut cv).unwrap();
+        let next = planner.model().advance(
+            &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
+            plan.delta[0],
+            plan.accel[0],
+        );
+        ego = [next[0], next[1], next[2], next[3]];
+        (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        out.push((plan.status, plan.accel[0], ego));
+    }
+    out
+}
+
+/// The stopping rule binds only while the ego's start could still comply, braking at the
+/// planner's hardest deceleration (−`a_min`, 5 m/s²). An ego whose centre has just entered a
+/// lane that really ends (y = 1 m, 0.85 m inside its line, aiming at the lane's centre, as
+/// US-101 vehicle 433 did when the auxiliary lane was still drawn as a target) 20 m before
+/// the stopping line at 16.3 m/s needs 26.6 m to stop even at 5 m/s²: it is committed, so its
+/// first plan stays admissible and it settles on the lane's centre within 3 steps. With the
+/// rule binding regardless (the gate removed) every plan that ends in the lane breaks it: the
+/// first plan is `Unsafe` and the ego stays 0.7 m off the centre. 39 m before the line (the
+/// vehicle's own numbers) it can still stop at 5 m/s², so the rule binds and the ego brakes.
+#[test]
+fn the_stopping_rule_lets_go_of_an_ego_that_can_no_longer_stop() {
+    let s = PlannerSettings::default();
+    let v = 16.3;
+    let line = END - s.stop_margin;
+    let x0 = line - 20.0;
+    assert!(x0 + v * v / (2.0 * -s.a_min) > line);
+    let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
+    let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 3);
+    let (status, accel, _) = steps[0];
+    assert!(
+        !matches!(status, PlanStatus::Fallback | PlanStatus::Unsafe),
+        "{status:?}"
+    );
+    assert!(accel >= -0.5, "{accel} m/s²");
+    let last = steps[2].2;
+    assert!(last[1].abs() <= 0.3 && last[0] < line, "{steps:?}");
+    // Still able to stop at 5 m/s²: the rule binds and the ego brakes.
+    let x0 = line - 39.0;
+    assert!(x0 + v * v / (2.0 * -s.a_min) <= line);
+    let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
+    let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 2);
+    assert!(steps.iter().all(|st| st.1 <= -1.0), "{steps:?}");
+}
+
+/// A platoon at the ego's speed from 140 m behind to 60 m ahead of it, then an empty main
+/// lane: the ego has to stop before the end and wait; the gap arrives when the tail passes,
+/// about 13 s in.
+fn gap_after_a_stop() -> Scenario {
+    let mut agents = vec![(0.0, 0.0, 20.0)];
+    let mut x = -140.0 + 4.0;
+    while x <= 60.0 {
+        agents.push((x, 3.7, 20.0));
+        x += 9.0;
+    }
+    assert!(agents.len() <= nudge_predictor::MAX_AGENTS);
+    scene(&agents, Some(merge_extents()))
+}
+
+/// An ego that has stopped before the end of its lane merges once the main lane empties: it
+/// waits (stopped, at most 4 m before the stopping line, still in its lane), then
+/// steers out from the standstill, its stopping rule crediting the way out of the lane, and
+/// crosses into the main lane before the end without a collision. With the rule crediting no
+/// sideways progress, or the stopping line 8 m before the end (too close to leave the lane
+/// from a standstill), it waits to the step limit.
+#[test]
+fn an_ego_stopped_before_the_end_merges_once_the_main_lane_empties() {
+    let sc = gap_after_a_stop();
+    let s = PlannerSettings::default();
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(&sc, &s, &log_replay(70), 0, &mut cv, WorldModel::LogReplay).unwrap();
+    assert_eq!(run.outcome, RunOutcome::Success, "{:?}", run.outcome);
+    assert!(!run.collision);
+    let lanes = sc.lanes().unwrap();
+    for st in &run.steps {
+        assert_eq!(
+            lanes.outside(st.ego[0], st.ego[1]),
+            None,
+            "step {}",
+            st.step
+        );
+    }
+    let crossed = run.steps.iter().find(|st| st.ego[1] > BOUNDS[1]).unwrap();
+    assert!(crossed.ego[0] < END, "crossed at {:?}", crossed.ego);
+    // It had stopped, in its lane, near the stopping line, before it crossed.
+    let stopped = run.steps[..crossed.step]
+        .iter()
+        .filter(|st| st.ego[3] < 0.3)
+        .collect::<Vec<_>>();
+    assert!(stopped.len() >= 3, "stopped for {} steps", stopped.len());
+    for st in stopped {
+        assert!(
+            st.ego[1] < BOUNDS[1] && st.ego[0] > END - s.stop_margin - 4.0,
+            "{st:?}"
+        );
+    }
 }

@@ -27,7 +27,7 @@ fn shipped_defaults_are_valid_and_unchanged() {
     let expected = json!({
         "horizon": 6, "dt": 0.3, "l_f": 1.4, "l_r": 1.4,
         "w_y": 15.0, "w_deadline": 60.0, "deadline_distance": 100.0,
-        "stop_decel": 3.0, "stop_margin": 8.0, "w_v": 3.0, "w_psi": 1.0, "w_delta": 3.0, "w_ddelta": 3.0, "w_a": 1.0,
+        "stop_decel": 3.0, "stop_margin": 12.0, "w_v": 3.0, "w_psi": 1.0, "w_delta": 3.0, "w_ddelta": 3.0, "w_a": 1.0,
         "w_da": 1.0, "rho": 1000.0,
         "delta_max": 0.15, "ddelta_max": 0.05, "a_min": -5.0, "a_max": 3.0, "da_max": 1.5,
         "v_max": 30.0, "edge_margin": 0.0, "v_lin_min": 1.0,

@@ -4,7 +4,8 @@ use std::sync::Mutex;
 
 use nudge_planner::scenario::{LaneExtent, MAX_LANES};
 use nudge_planner::{
-    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem,
+    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerSettings,
+    PlanningProblem, SimConfig,
 };
 use nudge_predictor::{History, MAX_AGENTS, T_OBS};
 use numpy::{IntoPyArray, PyArrayMethods};
@@ -16,7 +17,7 @@ use crate::arrays::{Dim, to_f64};
 use crate::errors::{InputError, NudgeError, planner_err, predictor_err, sim_err};
 use crate::py_predictor::PlanningPredictor;
 use crate::scenario::PyScenario;
-use crate::settings::PySettings;
+use crate::settings::{PySettings, PySimConfig};
 
 /// The interaction-aware MPC planner bound to one predictor (built in, or a Python object:
 /// `crate::py_predictor`). Keeps its previous solution as the warm start of the next call
@@ -272,10 +273,11 @@ impl PyPlanner {
 
     /// One MPC call at a scenario's start, as the simulator's first step: ego state from the
     /// last observed step, `v_ref` = its speed, target = the centre of `target_lane` (default:
-    /// the lane the simulator draws for `seed`).
+    /// the lane the simulator draws for `seed` in a run with this planner's settings under
+    /// `config`, default `SimConfig.default()`).
     #[pyo3(
-        signature = (scenario, target_lane = None, seed = Int::from(0)),
-        text_signature = "($self, scenario, target_lane=None, seed=0)"
+        signature = (scenario, target_lane = None, seed = Int::from(0), config = None),
+        text_signature = "($self, scenario, target_lane=None, seed=0, config=None)"
     )]
     fn plan_scenario<'py>(
         &self,
@@ -283,6 +285,7 @@ impl PyPlanner {
         scenario: &PyScenario,
         target_lane: Option<Int>,
         seed: Int,
+        config: Option<Bound<'_, PySimConfig>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
             let seed = seed.u64("seed", u64::MAX)?;
@@ -298,7 +301,11 @@ impl PyPlanner {
                         sc.lane_centres.len()
                     )));
                 }
-                None => nudge_planner::target_lane(sc, seed).map_err(sim_err)?,
+                None => {
+                    let settings = self.settings().inner;
+                    let config = config.map_or_else(SimConfig::default, |c| c.get().inner);
+                    nudge_planner::target_lane(sc, seed, &settings, &config).map_err(sim_err)?
+                }
             };
             let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;
             let problem = PlanningProblem::at_scenario_start(sc, &history, sc.lane_centres[lane]);

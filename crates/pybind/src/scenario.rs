@@ -5,13 +5,14 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use nudge_planner::Scenario;
+use nudge_planner::{PlannerSettings, Scenario, SimConfig};
 use nudge_predictor::T_OBS;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 
 use crate::args::{Int, guard};
 use crate::errors::{NudgeError, scenario_err};
+use crate::settings::{PySettings, PySimConfig};
 
 /// One real scene (agent 0 = ego), road frame, metres, 0.3 s steps.
 #[pyclass(name = "Scenario", module = "nudge._native", frozen)]
@@ -188,11 +189,27 @@ impl PyScenario {
         (r[0], r[1])
     }
 
-    /// The target lane the simulator draws for `seed` (an adjacent lane of the ego's).
-    fn target_lane(&self, seed: Int) -> PyResult<usize> {
+    /// The target lane the simulator draws for `seed` in a run under `settings` and `config`
+    /// (defaults: `PlannerSettings.default()`, `SimConfig.default()`): an adjacent lane of the
+    /// ego's that is open and does not really end within the run's reach
+    /// (`nudge_planner::target_lane`, the one rule of every front end).
+    #[pyo3(
+        signature = (seed, settings = None, config = None),
+        text_signature = "($self, seed, settings=None, config=None)"
+    )]
+    fn target_lane(
+        &self,
+        seed: Int,
+        settings: Option<Bound<'_, PySettings>>,
+        config: Option<Bound<'_, PySimConfig>>,
+    ) -> PyResult<usize> {
         guard(|| {
             let seed = seed.u64("seed", u64::MAX)?;
-            nudge_planner::target_lane(&self.inner, seed).map_err(crate::errors::sim_err)
+            let settings =
+                settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
+            let config = config.map_or_else(SimConfig::default, |c| c.get().inner);
+            nudge_planner::target_lane(&self.inner, seed, &settings, &config)
+                .map_err(crate::errors::sim_err)
         })
     }
 

@@ -3,7 +3,7 @@
 //! shifted previous plan, or constant velocity on a cold start), the linearised dynamics
 //! around it, the input and state bounds, and the cost J = Φ1 + Φ2 + Φ3.
 
-use crate::extents::{LaneTable, deadline_factor};
+use crate::extents::{LaneTable, StopRule, deadline_factor};
 use crate::model::{Bicycle, Linearisation, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
@@ -94,9 +94,9 @@ pub(crate) struct LinearisedProblem {
     /// extent, or breaking the stopping rule of a lane that ends, count as outside the
     /// bounds.
     pub lanes: Option<LaneTable>,
-    /// The stopping rule's deceleration and margin (`stop_decel` (m/s²), `stop_margin` (m)),
-    /// `None` when the rule does not bind this call ([`stop_rule`]).
-    pub stop_rule: Option<(f64, f64)>,
+    /// The stopping rule (`stop_decel`, `stop_margin` and the steering bounds that credit
+    /// sideways progress), `None` when the rule does not bind this call ([`stop_rule`]).
+    pub stop_rule: Option<StopRule>,
     /// Where the ego must stop when its lane really ends ahead of its start: the stopping
     /// line's x and the own lane's centre y, in this frame (m); `None` otherwise.
     pub stop_line: Option<StopLine>,
@@ -285,9 +285,9 @@ impl LinearisedProblem {
     /// braking at `stop_decel`; 0 without a lane layout.
     pub(crate) fn stop_excess(&self, z: &[State]) -> f64 {
         match (&self.lanes, z.last(), self.stop_rule) {
-            (Some(lanes), Some(zt), Some((decel, margin))) => {
+            (Some(lanes), Some(zt), Some(rule)) => {
                 let (x, y) = (zt[0] + self.origin[0], zt[1] + self.origin[1]);
-                lanes.view().stop_excess(x, y, zt[3], decel, margin)
+                lanes.view().stop_excess(x, y, zt[2], zt[3], &rule)
             }
             _ => 0.0,
         }
@@ -331,20 +331,29 @@ pub(crate) fn lateral_weight(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f6
     }
 }
 
-/// The stopping rule of this call, (`stop_decel`, `stop_margin`), or `None` when it does not
-/// bind: without a lane layout, or when the ego's start already breaks it (its stopping point
-/// braking at `stop_decel` lies beyond the stopping line). Past that point no plan within the
-/// comfortable deceleration can comply, so the rule would only make every plan that is still
-/// in the ending lane at the horizon inadmissible and hand the step to the fallbacks; the ego
-/// is committed to the merge, which the deadline weight drives (measured: two real merges of
-/// the curvilinear test split, US-101 scene 9, that started 39 m before the stopping line at
-/// 16.3 m/s ended `LaneEnded` with the rule always on, and merge in 6–7 steps with this gate,
-/// as before the rule existed). A start that complies keeps the rule for the whole call, so an
-/// ego that has been complying stays able to stop.
-fn stop_rule(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<(f64, f64)> {
+/// The stopping rule of this call ([`StopRule`]: `stop_decel`, `stop_margin`, the credit for
+/// heading out of the lane), or `None` when it does not bind: without a lane layout, or when
+/// the ego's start could not comply even braking at the planner's hardest deceleration
+/// −`a_min` (or `stop_decel` if that is harder; its stopping point at that rate lies beyond its stopping line). Past that point
+/// the rule would only make every plan that is still in the ending lane at the horizon
+/// inadmissible and hand the step to the fallbacks; the ego is committed to the merge, which
+/// the deadline weight drives. Short of it the rule binds, and an ego that has slipped past
+/// the comfortable stopping point is brought back by plans (or stopping sequences) that
+/// brake harder. Measured on the 105 merge scenarios of the train split: gated at
+/// `stop_decel` instead (the ego let go as soon as it could not stop at 3 m/s²), the ego of
+/// US-101 scene 7, vehicle 465 (63 m before the end at 17.3 m/s, blocked) slipped past that
+/// point after one step at `stop_margin` 12 m and drove on to `LaneEnded` in every arm,
+/// where gated at |`a_min`| it slows down and merges.
+fn stop_rule(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<StopRule> {
     let lanes = p.lanes?;
-    let excess = lanes.stop_excess(p.ego.x, p.ego.y, p.ego.v, s.stop_decel, s.stop_margin);
-    (excess <= 0.0).then_some((s.stop_decel, s.stop_margin))
+    let rule = StopRule::new(s);
+    let hardest = StopRule {
+        decel: (-s.a_min).max(s.stop_decel),
+        ..rule
+    };
+    let e = &p.ego;
+    let excess = lanes.stop_excess(e.x, e.y, e.psi, e.v, &hardest);
+    (excess <= 0.0).then_some(rule)
 }
 
 /// Where the fallback's stopping sequences stop the ego: `stop_margin` before the end of the

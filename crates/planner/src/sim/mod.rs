@@ -47,5 +47,5 @@ pub use idm::{IdmPopulation, IdmTraffic, LaneEndMerge, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
 pub use records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
-pub use run::{RunControl, simulate, simulate_with, target_lane};
+pub use run::{RunControl, simulate, simulate_with, target_lane, target_reach};
 pub use world::WorldModel;

@@ -30,14 +30,37 @@ fn splitmix(seed: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The target lane drawn from `seed`: an adjacent lane of the ego's that exists. On a scene
-/// with lane extents the adjacent lane must be open where the ego is (not before its real
-/// begin nor past its real end at the ego's x), and when the ego's own lane really ends, still
-/// run at that end: the ego merges out of a lane that ends, never into one that ends before it.
+/// How far ahead of the ego (m) an adjacent lane must still run to be drawn as the target
+/// ([`target_lane`]): the distance the ego covers over the whole run at its speed,
+/// `max_steps` · `dt` · v_0 (v_0: its speed at the last observed step), plus
+/// `deadline_distance` (where the planner starts to count a lane's end). A lane that really
+/// ends within this distance of the ego's x ends before the ego could finish a change into it
+/// and travel on: the ego would settle in it only to face its end (on US-101 the auxiliary
+/// lane, offered to egos in the lane beside it 44 m before its end). At the defaults
+/// (30 steps of 0.3 s, 100 m) an ego at 20 m/s needs 280 m.
+#[must_use]
+pub fn target_reach(sc: &Scenario, settings: &PlannerSettings, cfg: &SimConfig) -> f64 {
+    let v0 = sc.speed.first().copied().unwrap_or(0.0).max(0.0);
+    cfg.max_steps as f64 * settings.dt * v0 + settings.deadline_distance
+}
+
+/// The target lane drawn from `seed` for a run of `sc` under `settings` and `cfg`: an adjacent
+/// lane of the ego's that exists. On a scene with lane extents the adjacent lane must be open
+/// where the ego is (not before its real begin nor past its real end at the ego's x), must not
+/// really end within [`target_reach`] of the ego's x, and when the ego's own lane really ends,
+/// must still run at that end: the ego merges out of a lane that ends, never into one that
+/// ends before it or soon after. Only real begins and ends count, so on a scene without them
+/// (or without extents) the draw depends on `seed` and the scene alone. The one rule of every
+/// front end (the simulator, the CLI and Python's `Scenario.target_lane`).
 ///
 /// # Errors
 /// [`SimError::NoAdjacentLane`] on a one-lane road, or when no adjacent lane is open.
-pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
+pub fn target_lane(
+    sc: &Scenario,
+    seed: u64,
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+) -> Result<usize, SimError> {
     let mut options = Vec::new();
     if sc.ego_lane > 0 {
         options.push(sc.ego_lane - 1);
@@ -49,13 +72,15 @@ pub fn target_lane(sc: &Scenario, seed: u64) -> Result<usize, SimError> {
         && let Some(&own) = ext.get(sc.ego_lane)
     {
         let x = sc.position(0, T_OBS - 1)[0];
+        let reach = x + target_reach(sc, settings, cfg);
         options.retain(|&j| {
             let Some(&e) = ext.get(j) else {
                 return false;
             };
             let closed = (e.begins && x < e.begin) || (e.ends && x > e.end);
             let outlasts = !own.ends || !e.ends || e.end >= own.end;
-            !closed && outlasts
+            let ends_within_reach = e.ends && e.end < reach;
+            !closed && outlasts && !ends_within_reach
         });
     }
     if options.is_empty() {
@@ -355,7 +380,7 @@ pub fn simulate_with(
         fit.push((w.name(), w.horizon()));
     }
     crate::fit::check_closed_loop(settings, &fit)?;
-    let lane = target_lane(sc, seed)?;
+    let lane = target_lane(sc, seed, settings, cfg)?;
     let mut mover = Mover::new(cfg, world, sc, seed, settings.horizon)?;
     let y_target = sc.lane_centres[lane];
     let p0 = sc.position(0, T_OBS - 1);
