@@ -115,7 +115,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 50, "numeric settings");
+    assert_eq!(numeric, 51, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

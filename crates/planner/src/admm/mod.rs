@@ -165,6 +165,24 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// almost no margin (b < 0.02) next to a target-lane vehicle that the IDM world moves
 /// differently from the prediction. Test split: `docs/results/closed_loop.md`.
 ///
+/// **Speed floor** (`fallback_speed_floor`, 0.5 by default). The √2 ellipse reaches 3.4–3.5 m
+/// across the road for two cars, about one lane: a vehicle passing in the next lane, both
+/// centred in their lanes, makes every candidate inadmissible, and the least total violation
+/// was braking at a_min, a planned standstill in a live lane (on validation, student planner,
+/// 300 scenes × 3 seeds: the planned-slow steps of the idm and log-replay worlds were almost
+/// all `Unsafe` steps of this kind). With the floor, an inadmissible candidate whose only
+/// violations come from vehicles beside the ego ([`SafetyConstraint::beside`]: their boxes
+/// cannot touch at any offset along the road), within the state bounds, and ending at or
+/// above the floor × `v_ref` beats the others; every other case ranks as before (a vehicle
+/// in the ego's path still brakes it). Ranking by the violation in the path first (instead of
+/// this one class) or choosing by cost among the clear ones was tried and raised the
+/// log-replay at-fault collisions (8 → 13 and 20 of 900 runs: a truck ego's swinging tail, and
+/// logged drivers drifting into an ego that accelerated beside them). Measured together with the
+/// gap seeking of [`crate::lane`] (`SimConfig::gap_speed`) on those validation runs, paired
+/// with both off: runs slow in a live lane (executed) 0 / 4 / 6 → 0 / 0 / 0 (teacher / idm /
+/// log replay), planned 8 / 10 / 25 → 12 / 3 / 9; success 86.0 → 86.7, 89.4 → 90.0,
+/// 84.4 → 84.7 %; at-fault collisions 0 → 0, 1 → 1, 8 → 7.
+///
 /// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
 /// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
 /// angle, so while a target-lane vehicle is level with the ego it asks for 2.85 m between the
