@@ -408,7 +408,7 @@ def simulate(
     (m) towards the target lane while its box straddles the line, before the crossing, counts
     too. Gap seeking: while a target-lane vehicle alongside (bumper gap below ``gap_window``, m)
     blocks the change, the planner's reference speed moves ``gap_speed`` (m/s) past that
-    vehicle's speed, ahead of it or behind it (``gap_speed = 0`` disables it).
+    vehicle's speed, ahead of it or behind it (off by default: ``gap_speed = 0``).
     The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).
 
     ``trace``: keep every step's plan and the planning predictor's predicted reaction to it

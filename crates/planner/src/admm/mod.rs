@@ -177,11 +177,13 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// in the ego's path still brakes it). Ranking by the violation in the path first (instead of
 /// this one class) or choosing by cost among the clear ones was tried and raised the
 /// log-replay at-fault collisions (8 → 13 and 20 of 900 runs: a truck ego's swinging tail, and
-/// logged drivers drifting into an ego that accelerated beside them). Measured together with the
-/// gap seeking of [`crate::lane`] (`SimConfig::gap_speed`) on those validation runs, paired
-/// with both off: runs slow in a live lane (executed) 0 / 4 / 6 → 0 / 0 / 0 (teacher / idm /
-/// log replay), planned 8 / 10 / 25 → 12 / 3 / 9; success 86.0 → 86.7, 89.4 → 90.0,
-/// 84.4 → 84.7 %; at-fault collisions 0 → 0, 1 → 1, 8 → 7.
+/// logged drivers drifting into an ego that accelerated beside them). Measured on those
+/// validation runs, paired with the floor off (student planner, 900 runs per world, teacher /
+/// idm / log replay): runs slow in a live lane (executed) 0 / 4 / 6 → 0 / 0 / 0, planned
+/// 8 / 10 / 25 → 4 / 3 / 12; success 86.0 → 85.3 (7 runs lost, 1 gained), 89.4 → 89.8,
+/// 84.4 → 84.8 %; at-fault collisions 0 → 0, 1 → 1, 8 → 8 (the same events). Teacher planner,
+/// log replay, 100 scenes × 3: success 89.0 → 88.7 %, 0 at-fault collisions either way, slow
+/// runs 3 → 0 (planned 12 → 4).
 ///
 /// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
 /// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every

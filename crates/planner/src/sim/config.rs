@@ -117,7 +117,10 @@ pub struct SimConfig {
     /// this much below (then never above the run's starting speed nor more than this below it,
     /// never below 0; never above the planner's `v_max`; [`crate::lane::LaneChange::v_ref`]). Without it the reference
     /// stays the ego's starting speed and the ego can ride beside a target-lane vehicle of
-    /// about its speed, half across the line, until the step budget runs out. 0 disables it.
+    /// about its speed, half across the line, until the step budget runs out. 0 (the
+    /// default) disables it: on validation it gained 1.3 pp of success for the student planner
+    /// in the teacher world but cost the teacher planner 17 of 300 log-replay runs
+    /// (`crate::lane`).
     pub gap_speed: f64,
     /// Bumper gap along the road (m) below which a target-lane vehicle blocks a lane change
     /// (see `gap_speed`).
@@ -145,7 +148,7 @@ impl SimConfig {
         abort_after: 4,
         abort_hold: 3,
         stall_progress: 0.0,
-        gap_speed: 2.0,
+        gap_speed: 0.0,
         gap_window: 6.0,
         fault_brake_limit: 3.0,
     };
