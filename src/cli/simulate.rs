@@ -92,6 +92,17 @@ pub struct SimulateArgs {
     ))]
     pub stall_progress: Option<f64>,
     #[arg(long, help = noted(
+        "Gap seeking: while a target-lane vehicle alongside blocks the lane change, aim this \
+         much (m/s) above its speed when the ego will be ahead of it, else below; 0 disables",
+        DEFAULT.gap_speed,
+    ))]
+    pub gap_speed: Option<f64>,
+    #[arg(long, help = noted(
+        "Gap seeking: bumper gap along the road (m) below which a target-lane vehicle blocks",
+        DEFAULT.gap_window,
+    ))]
+    pub gap_window: Option<f64>,
+    #[arg(long, help = noted(
         "At-fault rule: an ego hit from behind while inside one lane is not at fault only if it \
          braked no harder than this (m/s²)",
         DEFAULT.fault_brake_limit,
@@ -135,6 +146,8 @@ impl SimulateArgs {
         c.abort_after = self.abort_after.unwrap_or(c.abort_after);
         c.abort_hold = self.abort_hold.unwrap_or(c.abort_hold);
         c.stall_progress = self.stall_progress.unwrap_or(c.stall_progress);
+        c.gap_speed = self.gap_speed.unwrap_or(c.gap_speed);
+        c.gap_window = self.gap_window.unwrap_or(c.gap_window);
         c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);
         Ok(c)
     }

@@ -22,7 +22,22 @@
 //!   ([`LaneChange::retreat`]) before the crossing, and after it only while the ego is stuck
 //!   across the line (`abort_after` consecutive steps without an admissible plan, not yet
 //!   wholly inside the target lane). The goal stays the target lane; the fallbacks pick
-//!   going back only when it violates the predicted safety least.
+//!   going back only when it violates the predicted safety least;
+//! * **seek a gap** (with a positive `gap_speed`, [`LaneChange::with_gap_seeking`]): while the
+//!   goal is the target lane and the ego is not yet wholly inside it, a target-lane vehicle
+//!   alongside the ego (bumper gap along the road below `gap_window`) blocks the change. The
+//!   reference speed of the next planning step then leaves it: `gap_speed` faster than that
+//!   vehicle when, at their current speeds, the ego will be ahead of it after the planning
+//!   horizon, else `gap_speed` slower, but never more than `gap_speed` below the run's own
+//!   reference ([`LaneChange::v_ref`]). Without it the planner keeps
+//!   the ego's starting speed as its reference and can ride beside a target-lane vehicle of
+//!   about its speed until the step budget runs out, half across the line. On validation
+//!   (student planner, teacher world, 300 scenes × 3 seeds) it moved success 86.0 → 87.3 %
+//!   (18 runs lost, 30 gained); dropping back without the `gap_speed` floor below the base
+//!   (86.7 %) braked the ego behind slowing vehicles, and passing only (86.1 %) gained nothing.
+//!   It is off by default (`SimConfig::gap_speed` 0): with it the teacher planner lost 17 of
+//!   300 log-replay runs (89.0 → 83.3 %, 0 gained; 3 not-at-fault collisions), replayed
+//!   drivers never opening the gap it speeds up or drops back for.
 //!
 //! The simulator ([`crate::sim`]) applies it in every closed loop; a user embedding the planner
 //! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
@@ -52,6 +67,26 @@ pub struct LaneChange {
     stuck_steps: usize,
     hold: usize,
     aborts: usize,
+    /// Speed offset (m/s) from a blocking target-lane vehicle's speed; 0: gap seeking off.
+    gap_speed: f64,
+    /// Bumper gap along the road (m) below which a target-lane vehicle blocks.
+    gap_window: f64,
+    /// The ego's length (m).
+    ego_length: f64,
+}
+
+/// Another vehicle as the gap seeking of [`LaneChange::v_ref`] sees it: its centre (road frame,
+/// m), its speed along the road (m/s) and its length (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Neighbour {
+    /// Centre along the road (m).
+    pub x: f64,
+    /// Centre across the road (m, positive left).
+    pub y: f64,
+    /// Speed along the road (m/s).
+    pub v: f64,
+    /// Length (m).
+    pub length: f64,
 }
 
 impl LaneChange {
@@ -82,6 +117,56 @@ impl LaneChange {
             stuck_steps: 0,
             hold: 0,
             aborts: 0,
+            gap_speed: 0.0,
+            gap_window: 0.0,
+            ego_length: 0.0,
+        }
+    }
+
+    /// Turns on gap seeking ([`LaneChange::v_ref`]) for an ego `ego_length` long (m): a
+    /// target-lane vehicle whose bumper gap to the ego along the road is below `gap_window`
+    /// (m) blocks the change, and the reference speed moves `gap_speed` (m/s) past its speed
+    /// (0: off).
+    #[must_use]
+    pub fn with_gap_seeking(mut self, gap_speed: f64, gap_window: f64, ego_length: f64) -> Self {
+        self.gap_speed = gap_speed;
+        self.gap_window = gap_window;
+        self.ego_length = ego_length;
+        self
+    }
+
+    /// The reference speed of the next planning step (m/s) for an ego at `ego` = (x, y, ψ, v)
+    /// (road frame, m, rad, m/s) among `others`, `base` being the run's own reference speed and
+    /// `horizon_s` the planning horizon (s). With gap seeking on, while the goal is the target
+    /// lane and the ego is not yet wholly inside it, the blocking vehicle is the target-lane
+    /// vehicle (centre within half the lane spacing of the target lane's centre) nearest along
+    /// the road among those whose bumper gap to the ego is below `gap_window`. When, at their
+    /// current speeds, the ego would be ahead of it after `horizon_s`, the reference is
+    /// `max(base, v + gap_speed)` (pass it), else `min(base, v − gap_speed)` but no lower
+    /// than `base − gap_speed` nor 0 (let it pass without braking towards a standstill
+    /// behind a slowing vehicle); `base` otherwise. The caller bounds the result by the
+    /// planner's `v_max`.
+    #[must_use]
+    pub fn v_ref(&self, base: f64, ego: [f64; 4], others: &[Neighbour], horizon_s: f64) -> f64 {
+        if self.gap_speed <= 0.0 || self.hold > 0 || (ego[1] - self.y_target).abs() <= self.inside {
+            return base;
+        }
+        let half_spacing = (self.y_target - self.y_line).abs();
+        let blocking = others
+            .iter()
+            .filter(|o| (o.y - self.y_target).abs() < half_spacing)
+            .filter(|o| (o.x - ego[0]).abs() - 0.5 * (self.ego_length + o.length) < self.gap_window)
+            .min_by(|a, b| (a.x - ego[0]).abs().total_cmp(&(b.x - ego[0]).abs()));
+        let Some(o) = blocking else {
+            return base;
+        };
+        // The ego ahead of it after the horizon at the current speeds: pass it, else drop back.
+        if ego[0] - o.x + (ego[3] - o.v) * horizon_s > 0.0 {
+            base.max(o.v + self.gap_speed)
+        } else {
+            base.min(o.v - self.gap_speed)
+                .max(base - self.gap_speed)
+                .max(0.0)
         }
     }
 
@@ -321,6 +406,60 @@ mod tests {
             right.after_plan(StepStatus::Converged, y);
         }
         assert_eq!(right.aborts(), 1);
+    }
+
+    /// A target-lane vehicle alongside moves the reference speed past it: faster when the ego
+    /// will be ahead of it after the horizon, slower (by at most `gap_speed` below the base)
+    /// when it will be ahead of the ego; nothing changes without a blocking vehicle, once the
+    /// ego is inside the target lane, during an abort's hold, or with the rule off.
+    #[test]
+    fn gap_seeking_moves_the_reference_speed_past_a_blocking_vehicle() {
+        // Own lane y = 0, target 3.7 (half spacing 1.85); a 4.5 m ego at x = 0, v = 20.
+        let seeking = || change().with_gap_seeking(2.0, 6.0, 4.5);
+        let ego = [0.0, 0.5, 0.0, 20.0];
+        let car = |x: f64, y: f64, v: f64| Neighbour {
+            x,
+            y,
+            v,
+            length: 4.5,
+        };
+        let c = seeking();
+        // Level, 2 m behind and slower: the ego will be ahead, so it passes at 19 + 2.
+        assert_eq!(c.v_ref(20.0, ego, &[car(-2.0, 3.7, 19.0)], 1.8), 21.0);
+        // 3 m ahead at the same speed: the ego drops back to 20 − 2.
+        assert_eq!(c.v_ref(20.0, ego, &[car(3.0, 3.8, 20.0)], 1.8), 18.0);
+        // 8 m ahead at 19 (bumper gap 3.5 m): 19 − 2 = 17, but never below base − gap_speed.
+        assert_eq!(c.v_ref(20.0, ego, &[car(8.0, 3.8, 19.0)], 1.8), 18.0);
+        // 3 m ahead at 12: the ego will be ahead of it after 1.8 s, so the base stays.
+        assert_eq!(c.v_ref(20.0, ego, &[car(3.0, 3.8, 12.0)], 1.8), 20.0);
+        // Ahead but fast enough to clear: the base stays.
+        assert_eq!(c.v_ref(20.0, ego, &[car(3.0, 3.8, 25.0)], 1.8), 20.0);
+        // The nearest blocking vehicle decides (the one 1 m behind, not the one 9 m ahead).
+        let two = [car(9.0, 3.7, 20.0), car(-1.0, 3.7, 19.5)];
+        assert_eq!(c.v_ref(20.0, ego, &two, 1.8), 21.5);
+        // Not blocking: bumper gap 12 − 4.5 = 7.5 m ≥ 6 m; in the own lane; in a far lane.
+        for o in [
+            car(12.0, 3.7, 20.0),
+            car(1.0, 0.2, 20.0),
+            car(1.0, 7.4, 20.0),
+        ] {
+            assert_eq!(c.v_ref(20.0, ego, &[o], 1.8), 20.0, "{o:?}");
+        }
+        // Inside the target lane (|y − 3.7| ≤ 0.9): the base.
+        let inside = [0.0, 3.0, 0.0, 20.0];
+        assert_eq!(c.v_ref(20.0, inside, &[car(3.0, 3.8, 20.0)], 1.8), 20.0);
+        // The rule off: the base.
+        assert_eq!(change().v_ref(20.0, ego, &[car(3.0, 3.8, 20.0)], 1.8), 20.0);
+        // While an abort holds the own lane: the base.
+        let mut held = seeking();
+        held.after_plan(StepStatus::Unsafe, 0.5);
+        held.after_plan(StepStatus::Unsafe, 0.5);
+        assert_eq!(held.goal(), 0.0);
+        assert_eq!(held.v_ref(20.0, ego, &[car(3.0, 3.8, 20.0)], 1.8), 20.0);
+        // A change to the right sees the target lane below.
+        let right = LaneChange::new(3.7, 0.0, 1.9, 0.3, 2, 3).with_gap_seeking(2.0, 6.0, 4.5);
+        let ego_r = [0.0, 3.2, 0.0, 20.0];
+        assert_eq!(right.v_ref(20.0, ego_r, &[car(-2.0, 0.1, 19.0)], 1.8), 21.0);
     }
 
     #[test]

@@ -172,6 +172,17 @@ pub struct PlannerSettings {
     /// Check the nonlinear roll-out of the returned inputs with the predictor and fall back to
     /// the least-violating simple input sequence when it is unsafe.
     pub rollout_check: bool,
+    /// Speed floor of the fallbacks without an admissible plan (fraction of the reference speed
+    /// `v_ref`, in [0, 1]; 0: off). When no plan is admissible, a candidate whose path is clear
+    /// and that ends at or above `fallback_speed_floor` · `v_ref` beats every other candidate
+    /// (among themselves, and among the rest, the least total violation wins as without it).
+    /// Its path is clear when it is within the state bounds and its only safety violations
+    /// come from vehicles **beside** the ego: the lateral distance of the centres is at least
+    /// the sum of the half widths of their road-aligned bounding boxes plus `margin_y`, so the
+    /// boxes cannot touch at any offset along the road. Without it the least total violation
+    /// wins, and a vehicle passing in the next lane, inside the ellipse but never able to
+    /// touch the ego, has the ego brake towards a standstill in its own live lane.
+    pub fallback_speed_floor: f64,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
     /// Ablate the predicted reaction: the predictor sees the ego's keep-lane path
@@ -301,6 +312,7 @@ impl Default for PlannerSettings {
             relinearise: false,
             warm_start_dual: false,
             rollout_check: true,
+            fallback_speed_floor: 0.5,
             restore_step: 1.0,
             ablate_reaction: false,
             heading_max: 0.2,
@@ -480,6 +492,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("pgd_halvings", 0.0, 30.0, "halvings"),
     closed("pin_weight", 0.0, 1e8, "1/m²"),
     closed("z_step_margin", 0.0, 10.0, "units of b"),
+    closed("fallback_speed_floor", 0.0, 1.0, "–"),
     open_min("restore_step", 0.0, 10.0, "m"),
     open_min("heading_max", 0.0, 10.0, "rad"),
     open_min("heading_recovery", 0.0, 1.5, "rad per step"),
@@ -547,6 +560,7 @@ impl PlannerSettings {
             "pgd_halvings" => self.pgd_halvings as f64,
             "pin_weight" => self.pin_weight,
             "z_step_margin" => self.z_step_margin,
+            "fallback_speed_floor" => self.fallback_speed_floor,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,
             "heading_recovery" => self.heading_recovery,

@@ -107,6 +107,31 @@ impl SafetyConstraint {
         )
     }
 
+    /// Whether `vehicle` at `other` (having moved from `previous`, m) is **beside** the ego at
+    /// `ego` = (x, y, ψ, v): the lateral distance of their centres is at least the sum of the
+    /// half widths of their road-aligned bounding boxes (at their headings) plus `margin_y`,
+    /// so their boxes cannot touch at any offset along the road.
+    #[must_use]
+    pub fn beside(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+    ) -> bool {
+        let reach = Ellipse::oriented(
+            self.ego_size,
+            heading_direction(ego[2]),
+            vehicle.size,
+            motion_direction(previous, other, vehicle.direction),
+            1.0,
+            0.0,
+            self.margins[1],
+        )
+        .a_y;
+        (other[1] - ego[1]).abs() >= reach
+    }
+
     /// The closing-speed margin (m) added to the ellipse's longitudinal semi-axis: the extra
     /// distance the rear one of the ego (at `ego`, m, speed `ego_speed`, m/s) and the other
     /// vehicle (at `other`, having moved from `previous` in one step) needs to brake to the
@@ -335,6 +360,11 @@ pub(crate) struct Evaluation {
     pub min_b: Option<f64>,
     /// Σ (threshold − b) over the pairs with b ≤ threshold.
     pub violation: f64,
+    /// Minimum b over the pairs whose vehicle is not beside the ego
+    /// ([`SafetyConstraint::beside`]; `None` when there is none).
+    pub path_min_b: Option<f64>,
+    /// `violation` over the pairs whose vehicle is not beside the ego.
+    pub path_violation: f64,
 }
 
 impl Evaluation {
@@ -540,6 +570,8 @@ impl<'c> SafetyEval<'c> {
             return Ok(Evaluation {
                 min_b: None,
                 violation: 0.0,
+                path_min_b: None,
+                path_violation: 0.0,
             });
         }
         let t = self.horizon;
@@ -556,11 +588,15 @@ impl<'c> SafetyEval<'c> {
             return Ok(Evaluation {
                 min_b: Some(f64::NEG_INFINITY),
                 violation: f64::INFINITY,
+                path_min_b: Some(f64::NEG_INFINITY),
+                path_violation: f64::INFINITY,
             });
         }
         self.predict(predictor)?;
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;
+        let mut path_min_b: Option<f64> = None;
+        let mut path_violation = 0.0;
         self.rows.clear();
         for v in checked {
             let base = (v.index - 1) * t * 2;
@@ -571,14 +607,18 @@ impl<'c> SafetyEval<'c> {
                     self.prediction[base + 2 * k],
                     self.prediction[base + 2 * k + 1],
                 ];
-                let (b, g) = self.constraint.b_and_gradient(
-                    v,
-                    [ego[0], ego[1], self.ego_heading[k], self.ego_speed[k]],
-                    previous,
-                    other,
-                    k + 1 == t,
-                );
+                let ego_state = [ego[0], ego[1], self.ego_heading[k], self.ego_speed[k]];
+                let (b, g) =
+                    self.constraint
+                        .b_and_gradient(v, ego_state, previous, other, k + 1 == t);
+                let in_path = !self.constraint.beside(v, ego_state, previous, other);
                 previous = other;
+                if in_path {
+                    path_min_b = Some(path_min_b.map_or(b, |m| min_or_nan(m, b)));
+                    if b <= self.threshold {
+                        path_violation += self.threshold - b;
+                    }
+                }
                 min_b = min_or_nan(min_b, b);
                 if b < ROW_B {
                     self.rows.push(SafetyRow {
@@ -598,11 +638,15 @@ impl<'c> SafetyEval<'c> {
             return Ok(Evaluation {
                 min_b: Some(f64::NEG_INFINITY),
                 violation: f64::INFINITY,
+                path_min_b: Some(f64::NEG_INFINITY),
+                path_violation: f64::INFINITY,
             });
         }
         Ok(Evaluation {
             min_b: Some(min_b),
             violation,
+            path_min_b: path_min_b.map(|b| if b.is_nan() { f64::NEG_INFINITY } else { b }),
+            path_violation,
         })
     }
 }

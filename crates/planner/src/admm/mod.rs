@@ -165,6 +165,26 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// almost no margin (b < 0.02) next to a target-lane vehicle that the IDM world moves
 /// differently from the prediction. Test split: `docs/results/closed_loop.md`.
 ///
+/// **Speed floor** (`fallback_speed_floor`, 0.5 by default). The √2 ellipse reaches 3.4–3.5 m
+/// across the road for two cars, about one lane: a vehicle passing in the next lane, both
+/// centred in their lanes, makes every candidate inadmissible, and the least total violation
+/// was braking at a_min, a planned standstill in a live lane (on validation, student planner,
+/// 300 scenes × 3 seeds: the planned-slow steps of the idm and log-replay worlds were almost
+/// all `Unsafe` steps of this kind). With the floor, an inadmissible candidate whose only
+/// violations come from vehicles beside the ego ([`SafetyConstraint::beside`]: their boxes
+/// cannot touch at any offset along the road), within the state bounds, and ending at or
+/// above the floor × `v_ref` beats the others; every other case ranks as before (a vehicle
+/// in the ego's path still brakes it). Ranking by the violation in the path first (instead of
+/// this one class) or choosing by cost among the clear ones was tried and raised the
+/// log-replay at-fault collisions (8 → 13 and 20 of 900 runs: a truck ego's swinging tail, and
+/// logged drivers drifting into an ego that accelerated beside them). Measured on those
+/// validation runs, paired with the floor off (student planner, 900 runs per world, teacher /
+/// idm / log replay): runs slow in a live lane (executed) 0 / 4 / 6 → 0 / 0 / 0, planned
+/// 8 / 10 / 25 → 4 / 3 / 12; success 86.0 → 85.3 (7 runs lost, 1 gained), 89.4 → 89.8,
+/// 84.4 → 84.8 %; at-fault collisions 0 → 0, 1 → 1, 8 → 8 (the same events). Teacher planner,
+/// log replay, 100 scenes × 3: success 89.0 → 88.7 %, 0 at-fault collisions either way, slow
+/// runs 3 → 0 (planned 12 → 4).
+///
 /// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
 /// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
 /// angle, so while a target-lane vehicle is level with the ego it asks for 2.85 m between the

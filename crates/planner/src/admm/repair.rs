@@ -65,11 +65,18 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 
 /// A candidate's rank: an admissible sequence by its cost J, another by its total violation
 /// (safety violation + [`EXCESS_WEIGHT`] × state-bound excess); any admissible one beats
-/// every other.
+/// every other. With a positive `PlannerSettings::fallback_speed_floor`, an inadmissible one
+/// whose path is clear (no violation from a vehicle that is not beside the ego,
+/// [`super::SafetyConstraint::beside`], and no state-bound excess) and that ends at or above
+/// the floor beats every other inadmissible one: a vehicle whose box cannot touch the ego's
+/// never calls for braking towards a standstill.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
     /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
     pub safe: bool,
+    /// Inadmissible, but its path is clear and it keeps the speed floor (false unless the
+    /// floor is on).
+    pub clear: bool,
     /// Cost when admissible, total violation when not.
     pub value: f64,
 }
@@ -80,6 +87,7 @@ impl Rank {
         match (self.safe, other.safe) {
             (true, false) => true,
             (false, true) => false,
+            _ if self.clear != other.clear => self.clear,
             _ => self.value < other.value,
         }
     }
@@ -140,16 +148,25 @@ impl Repairer<'_, '_> {
         let rank = if let Some(v) = retreat_violation {
             Rank {
                 safe: false,
+                clear: false,
                 value: v,
             }
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
+                clear: false,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
             }
         } else {
+            let floor = self.s.fallback_speed_floor;
+            let v_end = rollout.last().map_or(self.lp.start[3], |z| z[3]);
+            let clear = floor > 0.0
+                && excess <= EXCESS_TOLERANCE
+                && safety_violation(e.path_min_b, e.path_violation, self.s.safety_min) == 0.0
+                && v_end >= floor * self.lp.reference[3];
             Rank {
                 safe: false,
+                clear,
                 value: safety_violation(e.min_b, e.violation, self.s.safety_min)
                     + EXCESS_WEIGHT * excess,
             }

@@ -1267,3 +1267,59 @@ fn deadline_weight_and_its_gradient_against_finite_differences() {
         }
     }
 }
+
+/// A wide vehicle passing in the next lane 3.3 m to the side is inside the √2 ellipse (a_y
+/// 3.48 m) but its box can never touch the ego's (half widths 0.95 + 1.3 + margin_y 0.3 =
+/// 2.55 m): nothing is admissible, and without `fallback_speed_floor` the least total
+/// violation brakes the ego at a_min towards a standstill in its own lane; with it the
+/// fallback ends at or above the floor. A slower vehicle ahead across the ego's path still
+/// makes it brake below the floor.
+#[test]
+fn a_vehicle_passing_beside_does_not_brake_the_ego_to_a_standstill() {
+    let v = 10.0;
+    let (h, mut sizes) = scene(v, 0.0, &[(-3.0, 3.3, 14.0)]);
+    sizes[1] = [5.0, 2.6];
+    let mut p = problem(&h, &sizes, v);
+    p.y_target = 0.0;
+    let plan_with = |floor: f64, p: &PlanningProblem<'_>| {
+        let s = PlannerSettings {
+            fallback_speed_floor: floor,
+            ..PlannerSettings::default()
+        };
+        let mut planner = Planner::new(s).unwrap();
+        planner
+            .plan(p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap()
+    };
+    let on = plan_with(0.5, &p);
+    let off = plan_with(0.0, &p);
+    assert!(
+        on.min_safety.is_some_and(|b| b < 0.0) && off.min_safety.is_some_and(|b| b < 0.0),
+        "the passing vehicle is inside the ellipse either way: {:?} {:?}",
+        on.min_safety,
+        off.min_safety
+    );
+    let v_end = |plan: &Plan| plan.states.last().unwrap()[3];
+    assert!(
+        v_end(&off) < 0.5 * v,
+        "without the floor the ego brakes towards a standstill: {} m/s",
+        v_end(&off)
+    );
+    assert!(
+        v_end(&on) >= 0.5 * v,
+        "with it the ego keeps at least half its reference speed: {} m/s",
+        v_end(&on)
+    );
+    // A slow vehicle 12 m ahead in the ego's lane on a one-lane road (in its path).
+    let (h2, mut sizes2) = scene(v, 0.0, &[(12.0, 0.0, 3.0)]);
+    sizes2[1] = [5.0, 2.6];
+    let mut p2 = problem(&h2, &sizes2, v);
+    p2.y_target = 0.0;
+    p2.road = [-1.85, 1.85];
+    let ahead = plan_with(0.5, &p2);
+    assert!(
+        v_end(&ahead) < 0.5 * v,
+        "a slower vehicle across the ego's path still brakes it: {} m/s",
+        v_end(&ahead)
+    );
+}

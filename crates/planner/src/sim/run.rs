@@ -11,7 +11,7 @@ use nudge_predictor::{Checked, History, Predictor, T_OBS};
 use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
 use crate::error::{PlannerError, SimError};
 use crate::extents::LaneViolationKind;
-use crate::lane::LaneChange;
+use crate::lane::{LaneChange, Neighbour};
 use crate::model::State;
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
@@ -131,6 +131,27 @@ pub struct RunControl<'c> {
 }
 
 impl ClosedLoop<'_> {
+    /// The reference speed of the next planning step: the run's starting speed, or the lane
+    /// change's gap seeking ([`LaneChange::v_ref`]) among the vehicles as last observed, at
+    /// most the planner's `v_max`.
+    fn v_ref(&self) -> f64 {
+        let others: Vec<Neighbour> = others_from_history(self.sc, &self.observed)
+            .iter()
+            .map(|o| Neighbour {
+                x: o.bbox.x,
+                y: o.bbox.y,
+                v: o.vx,
+                length: o.bbox.length,
+            })
+            .collect();
+        let horizon_s = self.settings.horizon as f64 * self.settings.dt;
+        let e = &self.ego;
+        let v = self
+            .lane
+            .v_ref(self.v_ref, [e[0], e[1], e[2], e[3]], &others, horizon_s);
+        v.min(self.settings.v_max.max(self.v_ref))
+    }
+
     /// The observed history as the predictors take it.
     fn history(&self) -> Result<History, SimError> {
         let flat: Vec<f64> = self
@@ -218,7 +239,7 @@ impl ClosedLoop<'_> {
             history: &history,
             sizes: &sc.size,
             y_target: self.lane.goal(),
-            v_ref: self.v_ref,
+            v_ref: self.v_ref(),
             road: sc.road(),
             y_retreat: self.lane.retreat(self.ego[1]),
             lanes: sc.lanes(),
@@ -402,7 +423,8 @@ pub fn simulate_with(
             cfg.abort_after,
             cfg.abort_hold,
         )
-        .with_stall_abort(cfg.stall_progress),
+        .with_stall_abort(cfg.stall_progress)
+        .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0]),
         observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
         trace: control.trace,
     };
