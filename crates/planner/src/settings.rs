@@ -226,14 +226,16 @@ pub struct PlannerSettings {
     /// T − `contingency_steps`.
     pub contingency_steps: usize,
 
-    /// The follower-gap rule (s; 0 disables it; see `crate::Planner`, "Followers that do not
-    /// yield"): a plan may not narrow the lateral clearance between the ego's box and a vehicle
+    /// The follower-gap rule (s; 0, the default, disables it; see `crate::Planner`,
+    /// "Followers that do not yield"): a plan may not narrow the lateral clearance between the ego's box and a vehicle
     /// behind it on the goal's side below `follower_clearance` while that vehicle, driving on
     /// along the road at its last observed speed without reacting, is closer behind the ego
     /// (bumper to bumper) than `follower_min_gap` plus its closing speed times this time to
     /// collision. Checked on the nonlinear roll-out in the execution check, with no predictor
     /// call; a plan that breaks it is not admissible, and among inadmissible fallbacks its
-    /// violation (m) ranks like a bound excess.
+    /// violation (m) ranks like a bound excess. Off by default: at 2 s it removed the
+    /// log-replay at-fault collisions it targets but lowered success in every world on
+    /// validation (`docs/results/follower_gap.md`).
     pub follower_ttc: f64,
     /// Bumper gap (m) every follower of the follower-gap rule must keep behind the ego, however
     /// slow it is.
@@ -329,7 +331,7 @@ impl Default for PlannerSettings {
             contingency: false,
             contingency_accel: -2.0,
             contingency_steps: 3,
-            follower_ttc: 2.0,
+            follower_ttc: 0.0,
             follower_min_gap: 0.5,
             follower_clearance: 0.8,
         }

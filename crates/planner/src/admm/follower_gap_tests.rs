@@ -42,6 +42,15 @@ impl Predictor for Yielding {
     }
 }
 
+/// The rule on at the time to collision measured on validation (`follower_ttc` 2 s; off by
+/// default), the other settings at their defaults.
+fn rule_on() -> PlannerSettings {
+    PlannerSettings {
+        follower_ttc: 2.0,
+        ..PlannerSettings::default()
+    }
+}
+
 /// The ego at 20 m/s in its lane (y = 0), a follower 12 m behind in the target lane
 /// (y = 3.7) observed at `follower_speed` m/s; both 4.5 m × 1.9 m.
 fn follower_scene(follower_speed: f64) -> (History, Vec<[f64; 2]>) {
@@ -67,7 +76,7 @@ fn least_clearance(plan: &Plan) -> f64 {
 
 #[test]
 fn a_plan_may_not_narrow_the_clearance_to_a_faster_follower() {
-    let s = PlannerSettings::default();
+    let s = rule_on();
     let (h, sizes) = follower_scene(25.0);
     let p = problem(&h, &sizes, 20.0);
     let rule = FollowerGap::new(&p, &s).expect("a follower on the goal's side");
@@ -97,7 +106,7 @@ fn a_plan_may_not_narrow_the_clearance_to_a_faster_follower() {
 
 #[test]
 fn slow_far_or_own_lane_followers_and_the_rule_off_leave_the_plan_free() {
-    let s = PlannerSettings::default();
+    let s = rule_on();
     let entering = states(&[0.3, 0.7, 1.1, 1.5, 1.9, 2.3]);
     // As fast as the ego and 7.5 m back: only the 0.5 m minimum gap applies.
     let (h, sizes) = follower_scene(20.0);
@@ -113,14 +122,10 @@ fn slow_far_or_own_lane_followers_and_the_rule_off_leave_the_plan_free() {
         let p = problem(&h, &sizes, 20.0);
         assert!(FollowerGap::new(&p, &s).is_none(), "{other:?}");
     }
-    // The rule off.
-    let off = PlannerSettings {
-        follower_ttc: 0.0,
-        ..PlannerSettings::default()
-    };
+    // The rule off (the default).
     let (h, sizes) = follower_scene(25.0);
     let p = problem(&h, &sizes, 20.0);
-    assert!(FollowerGap::new(&p, &off).is_none());
+    assert!(FollowerGap::new(&p, &PlannerSettings::default()).is_none());
 }
 
 /// The planner with a predictor that expects the follower to yield (slow to 15 m/s): without
@@ -138,24 +143,20 @@ fn the_planner_does_not_cut_in_front_of_a_faster_follower() {
         };
         Planner::new(s).unwrap().plan(&p, &mut predictor).unwrap()
     };
-    let off = PlannerSettings {
-        follower_ttc: 0.0,
-        ..PlannerSettings::default()
-    };
-    let without = plan_with(off, 25.0);
+    let without = plan_with(PlannerSettings::default(), 25.0);
     assert!(
         least_clearance(&without) < 0.8,
         "without the rule the ego enters: {}",
         least_clearance(&without)
     );
-    let with = plan_with(PlannerSettings::default(), 25.0);
+    let with = plan_with(rule_on(), 25.0);
     assert!(
         least_clearance(&with) >= 0.8 - 1e-9,
         "with the rule it keeps out: {} ({:?})",
         least_clearance(&with),
         with.status
     );
-    let slow = plan_with(PlannerSettings::default(), 20.0);
+    let slow = plan_with(rule_on(), 20.0);
     assert!(
         least_clearance(&slow) < 0.8,
         "a follower at the ego's speed lets it in: {}",
@@ -220,11 +221,7 @@ fn in_log_replay_the_ego_lets_a_faster_follower_pass() {
         };
         simulate(&sc, s, &cfg, 0, &mut predictor, WorldModel::LogReplay).unwrap()
     };
-    let off = PlannerSettings {
-        follower_ttc: 0.0,
-        ..PlannerSettings::default()
-    };
-    let without = run(&off);
+    let without = run(&PlannerSettings::default());
     assert!(
         without
             .collisions
@@ -233,7 +230,7 @@ fn in_log_replay_the_ego_lets_a_faster_follower_pass() {
         "without the rule the follower runs into the ego: {:?}",
         without.collisions
     );
-    let with = run(&PlannerSettings::default());
+    let with = run(&rule_on());
     assert!(
         !with.collision,
         "with the rule no collision: {:?}",
