@@ -176,10 +176,10 @@ pub struct PlannerSettings {
     /// `v_ref`, in [0, 1]; 0: off). When no plan is admissible, a candidate whose path is clear
     /// and that ends at or above `fallback_speed_floor` · `v_ref` beats every other candidate
     /// (among themselves, and among the rest, the least total violation wins as without it).
-    /// Its path is clear when it is within the state bounds and its only safety violations
-    /// come from vehicles **beside** the ego: the lateral distance of the centres is at least
-    /// the sum of the half widths of their road-aligned bounding boxes plus `margin_y`, so the
-    /// boxes cannot touch at any offset along the road. Without it the least total violation
+    /// Its path is clear when it is within the state bounds, keeps the follower-gap rule (when
+    /// on) and its only safety violations come from vehicles **beside** the ego: the lateral
+    /// distance of the centres is at least the sum of the half widths of their road-aligned
+    /// bounding boxes plus `margin_y`, so the boxes cannot touch at any offset along the road. Without it the least total violation
     /// wins, and a vehicle passing in the next lane, inside the ellipse but never able to
     /// touch the ego, has the ego brake towards a standstill in its own live lane.
     pub fallback_speed_floor: f64,
@@ -240,6 +240,25 @@ pub struct PlannerSettings {
     /// branches off the plan at its first state across the line, but no later than step
     /// T − `contingency_steps`.
     pub contingency_steps: usize,
+
+    /// The follower-gap rule (s; 0, the default, disables it; see `crate::Planner`,
+    /// "Followers that do not yield"): a plan may not narrow the lateral clearance between the ego's box and a vehicle
+    /// behind it on the goal's side below `follower_clearance` while that vehicle, driving on
+    /// along the road at its last observed speed without reacting, is closer behind the ego
+    /// (bumper to bumper) than `follower_min_gap` plus its closing speed times this time to
+    /// collision. Checked on the nonlinear roll-out in the execution check, with no predictor
+    /// call; a plan that breaks it is not admissible, and among inadmissible fallbacks its
+    /// violation (m) ranks like a bound excess. Off by default: at 2 s it removed the
+    /// log-replay at-fault collisions it targets but lowered success in every world on
+    /// validation (`docs/results/follower_gap.md`).
+    pub follower_ttc: f64,
+    /// Bumper gap (m) every follower of the follower-gap rule must keep behind the ego, however
+    /// slow it is.
+    pub follower_min_gap: f64,
+    /// Lateral clearance (m) between the ego's box and a follower's below which the ego is in
+    /// that follower's path for the follower-gap rule (boxes side by side in adjacent lanes
+    /// keep about 1.1–1.5 m on NGSIM roads).
+    pub follower_clearance: f64,
 }
 
 /// The shape of the safety constraint b_i between the ego and one other vehicle.
@@ -328,6 +347,9 @@ impl Default for PlannerSettings {
             contingency: false,
             contingency_accel: -2.0,
             contingency_steps: 3,
+            follower_ttc: 0.0,
+            follower_min_gap: 0.5,
+            follower_clearance: 0.8,
         }
     }
 }
@@ -510,6 +532,9 @@ pub const RANGES: &[FieldRange] = &[
         nudge_predictor::MAX_HORIZON as f64,
         "steps",
     ),
+    closed("follower_ttc", 0.0, 30.0, "s"),
+    closed("follower_min_gap", 0.0, 50.0, "m"),
+    closed("follower_clearance", 0.0, 5.0, "m"),
 ];
 
 impl PlannerSettings {
@@ -573,6 +598,9 @@ impl PlannerSettings {
             "budget_calls" => self.budget_calls as f64,
             "contingency_accel" => self.contingency_accel,
             "contingency_steps" => self.contingency_steps as f64,
+            "follower_ttc" => self.follower_ttc,
+            "follower_min_gap" => self.follower_min_gap,
+            "follower_clearance" => self.follower_clearance,
             _ => return None,
         })
     }

@@ -43,7 +43,8 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "refine_iters": 5, "refine_margin": 0.02, "refine_trust_delta": 0.05,
         "refine_trust_accel": 2.0, "budget_s": 0.0, "budget_calls": 0,
         "safety_geometry": "ellipse", "contingency": false, "contingency_accel": -2.0,
-        "contingency_steps": 3
+        "contingency_steps": 3, "follower_ttc": 0.0, "follower_min_gap": 0.5,
+        "follower_clearance": 0.8
     });
     assert_eq!(serde_json::to_value(&d).unwrap(), expected);
     assert_eq!(PlannerSettings::from_json("{}").unwrap(), d);
@@ -115,7 +116,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 51, "numeric settings");
+    assert_eq!(numeric, 54, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

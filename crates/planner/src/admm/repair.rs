@@ -19,6 +19,11 @@
 //! ego across the line between its own lane and the target lane is admissible only when its
 //! retreat is safe (`super::contingency`); every candidate above is checked by that rule.
 //!
+//! With `PlannerSettings::follower_ttc`, a roll-out that narrows the lateral clearance to a
+//! follower on the goal's side whose non-reacting gap behind the ego is too short is not
+//! admissible either (`super::follower_gap`); among inadmissible candidates its violation
+//! ranks like a bound excess.
+//!
 //! A failed QP skips the check: the ADMM iterates are dropped and the best fallback is the plan.
 
 use nudge_predictor::Predictor;
@@ -30,6 +35,7 @@ use crate::settings::PlannerSettings;
 
 use super::constraint::{SafetyEval, SafetyRow};
 use super::contingency::Contingency;
+use super::follower_gap::FollowerGap;
 use super::linearised::LinearisedProblem;
 use super::refine;
 
@@ -45,7 +51,8 @@ pub(crate) struct Candidate {
     /// Minimum b of the roll-out (`None` when nothing is checked).
     pub min_b: Option<f64>,
     /// The predictor's verdict: the roll-out is safe at `safety_min` (state bounds aside),
-    /// its contingency retreat included when the rule applies.
+    /// its contingency retreat included when the rule applies, and it keeps the follower-gap
+    /// rule (`super::follower_gap`) when that applies.
     pub predicted_safe: bool,
     /// The contingency rule refused the roll-out: otherwise admissible, its retreat is not
     /// safe (`super::contingency`).
@@ -111,6 +118,8 @@ pub(crate) struct Repairer<'a, 'c> {
     pub predictor: &'a mut dyn Predictor,
     /// The contingency rule of the call (`None` when it does not apply).
     pub contingency: Option<Contingency>,
+    /// The follower-gap rule of the call (`None` when it does not apply).
+    pub follower_gap: Option<FollowerGap>,
 }
 
 impl Repairer<'_, '_> {
@@ -139,7 +148,11 @@ impl Repairer<'_, '_> {
             _ => self.lp.bound_excess(&rollout),
         };
         let rows = self.safety.rows.clone();
-        let mut predicted_safe = e.is_safe(self.s.safety_min);
+        let gap_violation = self
+            .follower_gap
+            .as_ref()
+            .map_or(0.0, |g| g.violation(&rollout));
+        let mut predicted_safe = e.is_safe(self.s.safety_min) && gap_violation <= EXCESS_TOLERANCE;
         let mut retreat_violation = None;
         if predicted_safe && excess <= EXCESS_TOLERANCE && goal == Goal::Target {
             retreat_violation = self.check_retreat(&delta, &accel, &rollout)?;
@@ -162,13 +175,14 @@ impl Repairer<'_, '_> {
             let v_end = rollout.last().map_or(self.lp.start[3], |z| z[3]);
             let clear = floor > 0.0
                 && excess <= EXCESS_TOLERANCE
+                && gap_violation <= EXCESS_TOLERANCE
                 && safety_violation(e.path_min_b, e.path_violation, self.s.safety_min) == 0.0
                 && v_end >= floor * self.lp.reference[3];
             Rank {
                 safe: false,
                 clear,
                 value: safety_violation(e.min_b, e.violation, self.s.safety_min)
-                    + EXCESS_WEIGHT * excess,
+                    + EXCESS_WEIGHT * (excess + gap_violation),
             }
         };
         Ok(Candidate {

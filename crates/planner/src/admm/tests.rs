@@ -467,6 +467,7 @@ fn repairer_checks_every_candidate_on_its_rollout() {
         safety: &mut safety,
         predictor: &mut gate,
         contingency: None,
+        follower_gap: None,
     };
     let c = r.check(steer.clone(), vec![0.0; 6]).unwrap();
     assert!(!c.rank.safe && c.min_b == Some(-1.0), "{:?}", c.min_b);
