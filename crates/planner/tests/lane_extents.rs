@@ -114,17 +114,22 @@ fn a_free_main_lane_is_merged_into_before_the_end() {
     );
 }
 
-/// A platoon in the main lane at the ego's speed, 9 m apart (4.5 m gaps between 4.5 m cars),
-/// from 200 m behind to 60 m ahead of the ego: no gap for the whole run.
-fn blocked() -> Scenario {
+/// The merge scene with a platoon in the main lane at the ego's speed (20 m/s), 9 m apart
+/// (4.5 m gaps between 4.5 m cars), from `behind` m behind to 60 m ahead of the ego.
+fn platoon_from(behind: f64) -> Scenario {
     let mut agents = vec![(0.0, 0.0, 20.0)];
-    let mut x = -200.0 + 4.0;
+    let mut x = -behind + 4.0;
     while x <= 60.0 {
         agents.push((x, 3.7, 20.0));
         x += 9.0;
     }
     assert!(agents.len() <= nudge_predictor::MAX_AGENTS);
     scene(&agents, Some(merge_extents()))
+}
+
+/// A platoon from 200 m behind to 60 m ahead of the ego: no gap for the whole run.
+fn blocked() -> Scenario {
+    platoon_from(200.0)
 }
 
 /// The ego of a blocked merge waits: it never enters the ended lane (every executed centre in
@@ -802,14 +807,7 @@ fn the_stopping_rule_lets_go_of_an_ego_that_can_no_longer_stop() {
 /// lane: the ego has to stop before the end and wait; the gap arrives when the tail passes,
 /// about 13 s in.
 fn gap_after_a_stop() -> Scenario {
-    let mut agents = vec![(0.0, 0.0, 20.0)];
-    let mut x = -140.0 + 4.0;
-    while x <= 60.0 {
-        agents.push((x, 3.7, 20.0));
-        x += 9.0;
-    }
-    assert!(agents.len() <= nudge_predictor::MAX_AGENTS);
-    scene(&agents, Some(merge_extents()))
+    platoon_from(140.0)
 }
 
 /// An ego that has stopped before the end of its lane merges once the main lane empties: it
