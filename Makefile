@@ -117,6 +117,7 @@ test-python: develop build
 CR_VENV ?= .venv-commonroad
 $(CR_VENV)/.nudge-stamp: python/train/pyproject.toml
 	test -x $(CR_VENV)/bin/python || $(PYTHON) -m venv $(CR_VENV)
+	$(RETRY) $(CR_VENV)/bin/pip install $(PIP_BASE) --upgrade pip
 	$(RETRY) $(CR_VENV)/bin/pip install $(PIP_FLAGS) -e "python/train[commonroad]" pytest
 	touch $@
 
