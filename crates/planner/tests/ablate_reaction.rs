@@ -7,22 +7,11 @@
 
 use std::path::PathBuf;
 
-use nudge_planner::{EgoState, Planner, PlannerSettings, PlanningProblem, SafetyConstraint};
-use nudge_predictor::{ConstantVelocity, History, Predictor, PredictorSpec, T_OBS};
+mod common;
 
-/// Agents `(x, y, speed)` along +x, agent 0 the ego.
-fn scene(agents: &[(f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
-    let mut pos = Vec::new();
-    for &(x, y, v) in agents {
-        for t in 0..T_OBS {
-            pos.extend([x - v * (T_OBS - 1 - t) as f64 * 0.3, y]);
-        }
-    }
-    (
-        History::new(pos, agents.len()).unwrap(),
-        vec![[4.5, 1.9]; agents.len()],
-    )
-}
+use common::{problem, scene};
+use nudge_planner::{Planner, PlannerSettings, SafetyConstraint};
+use nudge_predictor::{ConstantVelocity, History, Predictor, PredictorSpec};
 
 /// Dense: target-lane (y = 3.7 m) vehicles alongside the ego's rear and front.
 const DENSE: [(f64, f64, f64); 4] = [
@@ -33,26 +22,6 @@ const DENSE: [(f64, f64, f64); 4] = [
 ];
 /// A gap in the target lane.
 const OPEN: [(f64, f64, f64); 3] = [(0.0, 0.0, 12.0), (-25.0, 3.7, 12.0), (20.0, 0.0, 10.0)];
-
-fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], y_target: f64) -> PlanningProblem<'a> {
-    PlanningProblem {
-        ego: EgoState {
-            x: 0.0,
-            y: 0.0,
-            psi: 0.0,
-            v: 12.0,
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: h,
-        sizes,
-        y_target,
-        v_ref: 12.0,
-        road: [-1.85, 5.55],
-        y_retreat: None,
-        lanes: None,
-    }
-}
 
 fn teacher() -> Box<dyn Predictor> {
     let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets");

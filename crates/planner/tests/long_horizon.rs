@@ -7,10 +7,10 @@
 
 use std::path::PathBuf;
 
-use nudge_planner::{
-    EgoState, Planner, PlannerError, PlannerSettings, PlanningProblem, SafetyConstraint,
-};
-use nudge_predictor::{History, PredictorSpec, T_OBS};
+mod common;
+
+use nudge_planner::{Planner, PlannerError, PlannerSettings, PlanningProblem, SafetyConstraint};
+use nudge_predictor::{History, PredictorSpec};
 
 const HORIZON: usize = 10;
 
@@ -20,42 +20,16 @@ fn assets() -> PathBuf {
 
 /// Agents `(x, y, speed)` along +x, agent 0 the ego; a gap in the target lane (y = 3.7 m).
 fn scene() -> (History, Vec<[f64; 2]>) {
-    let agents = [
+    common::scene(&[
         (0.0, 0.0, 12.0),
         (-25.0, 3.7, 12.0),
         (20.0, 0.0, 10.0),
         (30.0, 3.7, 13.0),
-    ];
-    let mut pos = Vec::new();
-    for (x, y, v) in agents {
-        for t in 0..T_OBS {
-            pos.extend([x - v * (T_OBS - 1 - t) as f64 * 0.3, y]);
-        }
-    }
-    (
-        History::new(pos, agents.len()).unwrap(),
-        vec![[4.5, 1.9]; agents.len()],
-    )
+    ])
 }
 
 fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
-    PlanningProblem {
-        ego: EgoState {
-            x: 0.0,
-            y: 0.0,
-            psi: 0.0,
-            v: 12.0,
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: h,
-        sizes,
-        y_target: 3.7,
-        v_ref: 12.0,
-        road: [-1.85, 5.55],
-        y_retreat: None,
-        lanes: None,
-    }
+    common::problem(h, sizes, 3.7)
 }
 
 fn settings() -> PlannerSettings {

@@ -4,41 +4,21 @@
 //! speeds are refused naming the field.
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
 use nudge_planner::{
-    EgoState, PlanStatus, Planner, PlannerError, PlannerSettings, PlanningProblem, SafetyConstraint,
+    PlanStatus, Planner, PlannerError, PlannerSettings, PlanningProblem, SafetyConstraint,
 };
-use nudge_predictor::{ConstantVelocity, History, Predictor, PredictorError, T_OBS};
+use nudge_predictor::{ConstantVelocity, History, Predictor, PredictorError};
 
 /// Ego at (0, 0) at 12 m/s on a two-lane road, a slower car 15 m ahead in its lane and one
 /// 5 m behind in the left lane: both within `check_range`.
 fn scene() -> (History, Vec<[f64; 2]>) {
-    let mut pos = Vec::new();
-    for (x0, y, v) in [(0.0, 0.0, 12.0), (15.0, 0.0, 9.0), (-5.0, 3.7, 12.0)] {
-        for t in 0..T_OBS {
-            pos.extend([x0 - v * 0.3 * (T_OBS - 1 - t) as f64, y]);
-        }
-    }
-    (History::new(pos, 3).unwrap(), vec![[4.5, 1.9]; 3])
+    common::scene(&[(0.0, 0.0, 12.0), (15.0, 0.0, 9.0), (-5.0, 3.7, 12.0)])
 }
 
 fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
-    PlanningProblem {
-        ego: EgoState {
-            x: 0.0,
-            y: 0.0,
-            psi: 0.0,
-            v: 12.0,
-        },
-        last_delta: 0.0,
-        last_accel: 0.0,
-        history: h,
-        sizes,
-        y_target: 3.7,
-        v_ref: 12.0,
-        road: [-1.85, 5.55],
-        y_retreat: None,
-        lanes: None,
-    }
+    common::problem(h, sizes, 3.7)
 }
 
 /// How a [`Foreign`] predictor corrupts the constant-velocity prediction.
