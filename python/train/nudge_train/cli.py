@@ -10,7 +10,7 @@
     nudge-train horizon                    the teacher over 3 s (accuracy, cut-ins, latency), docs/results/horizon.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
     nudge-train paper [--quick]            the paper's Tables I-II and Figures 7-10 into docs/paper
-    nudge-train interaction                aware planner vs its reaction ablated on dense scenes, docs/results/interaction.md
+    nudge-train interaction                aware planner vs its reaction ablated on dense or merge scenes, docs/results/interaction.md
     nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
     nudge-train goldens [--check]          golden files of the Rust predictor tests
     nudge-train figures runs|curves        figures of closed-loop runs and training curves
@@ -486,6 +486,8 @@ def _add_interaction(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--teacher-n", type=int, nargs="+", default=[15, 30],
                    help="of these, scenes of the aware teacher planner: one count or one per split")
     p.add_argument("--seeds", type=int, default=3, help="runs (seeds drawing a blocked target lane) per scene")
+    p.add_argument("--scenes", choices=("dense", "merge"), default="dense",
+                   help="dense: the target lane blocked at the start; merge: the ego's lane really ends ahead of it")
     p.add_argument("--margin", type=float, default=2.0,
                    help="blocked: a target-lane vehicle overlaps the ego's longitudinal extent +- this (m)")
     p.add_argument("--candidate", type=Path, default=None,
@@ -515,7 +517,7 @@ def _run_interaction(a: argparse.Namespace) -> int:
     from nudge_train.experiments.interaction import InteractionConfig, command_line, run
 
     cfg = InteractionConfig(splits=tuple(a.splits), n=tuple(a.n), teacher_n=tuple(a.teacher_n), seeds=a.seeds,
-                            margin=a.margin, candidate=a.candidate, settings=a.settings, worlds=tuple(a.worlds),
+                            margin=a.margin, scenes=a.scenes, candidate=a.candidate, settings=a.settings, worlds=tuple(a.worlds),
                             seed=a.seed,
                             threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap, progress=not a.no_progress,
                             animate=not a.no_figure, compare_horizon=a.compare_horizon,

@@ -165,3 +165,35 @@ def test_settings_file_is_the_base_of_every_arm(tmp_path: Path) -> None:
     # The arm's horizon overrides the file's; ablate_reaction is per arm.
     arm = InteractionConfig(settings=good, horizon=10).arm_settings(True)
     assert arm.safety_geometry == "boxes" and arm.horizon == 10 and arm.ablate_reaction
+
+
+def test_merge_runs_are_the_scenes_whose_ego_lane_ends() -> None:
+    from safetensors.numpy import load_file
+
+    from nudge_train.data.scenarios import is_merge_scenario
+    from nudge_train.experiments.interaction import is_merge, merge_runs
+
+    files = sorted((REPO / "assets" / "scenes").glob("*.safetensors")) + sorted(
+        (REPO / "assets" / "scenes" / "merge").glob("*.safetensors"))
+    runs = merge_runs(files, 2, 0)
+    bases = np.random.default_rng([0, 2]).integers(0, 2**31, size=len(files)).tolist()
+    by_name = {p: b for p, b in zip(files, bases, strict=True)}
+    # Independently: the build-time rule on the file's raw tensors.
+    want = [p for p in files if is_merge_scenario(load_file(str(p)))]
+    assert len(want) >= 7, "the shipped merge scenes are merges"
+    assert [p for p, _ in runs] == want
+    assert all(is_merge(nudge.Scenario.load(p)) == (p in want) for p in files)
+    for path, seeds in runs:
+        assert seeds == [by_name[path], by_name[path] + 1]
+        sc = nudge.Scenario.load(path)
+        ego = sc.ego_lane
+        for s in seeds:
+            lane = sc.target_lane(s)
+            assert abs(lane - ego) == 1
+            # The target outlasts the ego's lane, which ends ahead.
+            assert sc.lane_extents[lane][1] > sc.lane_extents[ego][1]
+
+
+def test_merge_scenes_setting_is_checked() -> None:
+    with pytest.raises(ValueError, match="--scenes"):
+        InteractionConfig(scenes="merges").validate()

@@ -22,6 +22,11 @@ model with its reaction ablated, on dense scenes, written to ``docs/results/inte
 * **Sizes**: ``n`` dense scenes per split (one count or one per split) for every arm, the aware
   teacher planner (about 10x slower) on a seeded subset of ``teacher_n`` of them (its ablated arm runs on all ``n``; the
   aware-vs-ablated comparison uses the common pairs).
+* **Merge scenes** (``scenes="merge"``, :func:`is_merge`, :func:`merge_runs`): instead of dense
+  scenes, the scenes whose ego is in a lane that really ends ahead of it (an acceleration or
+  auxiliary lane); the target lane is then the adjacent lane that outlasts the ego's (the
+  simulator's draw never offers a lane ending within reach), and every scene's runs are its first
+  ``seeds`` seeds. The report counts how many of these runs start with the target lane blocked.
 
 Runs are cached per part under ``runs/interaction/`` with a hash of every input (scene files,
 seeds, planner, settings, closed-loop config, models, the IDM file, the compiled extension) and
@@ -49,13 +54,15 @@ from nudge_train import paths
 from nudge_train.experiments.closed_loop import model_files
 from nudge_train.experiments.stats import BOOTSTRAP, cluster_bootstrap, mcnemar_exact, paired_bootstrap
 
-__all__ = ["Arm", "InteractionConfig", "blocked", "dense_runs", "paired", "run", "start_geometry", "start_reactions",
-           "verdict"]
+__all__ = ["Arm", "InteractionConfig", "blocked", "dense_runs", "is_merge", "merge_runs", "paired", "run",
+           "start_geometry", "start_reactions", "verdict"]
 
 CACHE_SCHEMA = "nudge.interaction_cache/1"
 SEED_TRIES = 32
 """Seeds ``scene_seed + r``, r < SEED_TRIES, tried per scene for a blocked target lane."""
 WORLDS = ("idm", "teacher", "log_replay")
+SCENE_KINDS = ("dense", "merge")
+"""The scene sets of the experiment: dense scenes (a blocked target lane) or merges (a lane that ends)."""
 REACTIVE = ("idm", "teacher")
 CANDIDATE = "student_react"
 """Label of the candidate student's arms."""
@@ -93,6 +100,9 @@ class InteractionConfig:
     """Of these, the aware teacher planner's scenes: one value or one per split."""
     seeds: int = 3
     margin: float = 2.0
+    scenes: str = "dense"
+    """Which scenes: ``dense`` (the target lane blocked at the start) or ``merge`` (the ego's lane
+    really ends ahead of it)."""
     candidate: Path | None = None
     settings: Path | None = None
     """Planner settings JSON of every arm (missing fields default; ``ablate_reaction`` is set per
@@ -126,6 +136,8 @@ class InteractionConfig:
             values = getattr(self, name)
             if len(values) not in (1, len(self.splits)) or min(values) < 1:
                 raise ValueError(f"--{name.replace('_', '-')}: one count >= 1 or one per split, got {list(values)}")
+        if self.scenes not in SCENE_KINDS:
+            raise ValueError(f"--scenes: unknown scene set {self.scenes!r} ({', '.join(SCENE_KINDS)})")
         if self.seeds > SEED_TRIES:
             raise ValueError(f"--seeds must be <= {SEED_TRIES}, got {self.seeds}")
         if not (math.isfinite(self.margin) and self.margin >= 0.0):
@@ -220,6 +232,41 @@ def dense_runs(files: Sequence[Path], seeds: int, margin: float, seed: int) -> l
     return out
 
 
+def is_merge(scene: nudge.Scenario) -> bool:
+    """Whether the ego, at its last observed step, is in a lane that really ends ahead of it
+    (``lane_extent_real[ego_lane, 1]`` and its x <= ``lane_extents[ego_lane, 1]``, m): an
+    acceleration or auxiliary lane that ends inside the scene. False for a scene without lane
+    extents (its lanes run through)."""
+    real = scene.lane_extent_real
+    if real is None:
+        return False
+    lane = scene.ego_lane
+    return bool(real[lane][1]) and float(scene.history[0, -1, 0]) <= float(scene.lane_extents[lane][1])
+
+
+def merge_runs(files: Sequence[Path], seeds: int, seed: int) -> list[tuple[Path, list[int]]]:
+    """The merge scenes among ``files`` (sorted order, :func:`is_merge`) with their run seeds: scene
+    i's base seed is drawn with ``seed`` as in :func:`dense_runs`, its runs are ``base + r`` for
+    r < ``seeds``. The target lane each seed draws is the adjacent lane that outlasts the ego's."""
+    bases = np.random.default_rng([seed, 2]).integers(0, 2**31, size=len(files)).tolist()
+    out = []
+    for path, base in zip(files, bases, strict=True):
+        if is_merge(nudge.Scenario.load(path)):
+            out.append((path, [int(base) + r for r in range(seeds)]))
+    return out
+
+
+def blocked_share(runs: list[tuple[Path, list[int]]], margin: float) -> tuple[int, int]:
+    """(runs whose target lane is blocked at the start (:func:`blocked`), runs)."""
+    hit = total = 0
+    for path, seeds in runs:
+        sc = nudge.Scenario.load(path)
+        for s in seeds:
+            hit += blocked(sc, sc.target_lane(s), margin)
+            total += 1
+    return hit, total
+
+
 def _draw(items: list, n: int, seed: int, salt: int) -> list[int]:
     """Indices of a seeded draw of ``n`` of ``items``, in their order."""
     order = np.random.default_rng([seed, salt]).permutation(len(items))
@@ -306,16 +353,21 @@ def _run_arm(arm: Arm, predictor: str, runs: list[tuple[Path, list[int]]], cfg: 
 
 
 def collect(cfg: InteractionConfig, split: str, log=print) -> dict:  # noqa: ANN001 (a print-like callable)
-    """Selects the dense scenes of ``split`` and runs (or loads) every arm on them."""
+    """Selects the dense (or merge) scenes of ``split`` and runs (or loads) every arm on them."""
     files = sorted(paths.scenes(split).glob("*.safetensors"))
     if not files:
         raise FileNotFoundError(f"no scenario files in {paths.scenes(split)}")
     t0 = time.perf_counter()
-    dense = dense_runs(files, cfg.seeds, cfg.margin, cfg.seed)
+    if cfg.scenes == "merge":
+        dense = merge_runs(files, cfg.seeds, cfg.seed)
+    else:
+        dense = dense_runs(files, cfg.seeds, cfg.margin, cfg.seed)
+    if not dense:
+        raise FileNotFoundError(f"no {cfg.scenes} scenes in {paths.scenes(split)}")
     n, teacher_n = cfg.sizes(split)
     chosen = [dense[i] for i in _draw(dense, n, cfg.seed, 1)]
     teacher_runs = [chosen[i] for i in _draw(chosen, teacher_n, cfg.seed, 3)]
-    log(f"{split}: {len(dense)} dense scenes of {len(files)} ({time.perf_counter() - t0:.0f} s); "
+    log(f"{split}: {len(dense)} {cfg.scenes} scenes of {len(files)} ({time.perf_counter() - t0:.0f} s); "
         f"{len(chosen)} drawn, the aware teacher planner on {len(teacher_runs)}")
     todo = []
     for world in cfg.worlds:
@@ -332,7 +384,7 @@ def collect(cfg: InteractionConfig, split: str, log=print) -> dict:  # noqa: ANN
             bar.set_postfix_str(f"{arm.label} in {arm.world}")
             arms[arm] = _run_arm(arm, predictor, runs, cfg, split, hasher, bar)
     return {"split": split, "n_files": len(files), "dense": dense, "chosen": chosen, "teacher_runs": teacher_runs,
-            "arms": arms, "wall_s": time.perf_counter() - t0}
+            "blocked": blocked_share(chosen, cfg.margin), "arms": arms, "wall_s": time.perf_counter() - t0}
 
 
 # ---- statistics ----------------------------------------------------------------------------------
@@ -571,9 +623,15 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
     split = data["split"]
     arms = data["arms"]
     n_dense, n_files = len(data["dense"]), data["n_files"]
+    if cfg.scenes == "merge":
+        hit, total = data["blocked"]
+        which = (f"Merge scenes: **{n_dense} of {n_files}** (the ego in a lane that really ends ahead of it); "
+                 f"{hit} of the {total} runs drawn start with the target lane blocked (± {cfg.margin:g} m); ")
+    else:
+        which = (f"Dense scenes: **{n_dense} of {n_files}** qualify (a blocked target lane drawn by {cfg.seeds} of "
+                 "the seeds tried); ")
     lines = [f"## Split `{split}`", "",
-             f"Dense scenes: **{n_dense} of {n_files}** qualify (a blocked target lane drawn by {cfg.seeds} of the "
-             f"seeds tried); {len(data['chosen'])} drawn × {cfg.seeds} seeds = {len(data['chosen']) * cfg.seeds} runs "
+             which + f"{len(data['chosen'])} drawn × {cfg.seeds} seeds = {len(data['chosen']) * cfg.seeds} runs "
              f"per arm, the aware teacher planner on {len(data['teacher_runs'])} of them "
              f"({len(data['teacher_runs']) * cfg.seeds} runs). Simulation: "
              f"{sum(v[1] for v in arms.values()) / 60:.1f} min summed over the cached parts "
@@ -585,7 +643,8 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
              "| world | planner | runs (scenes) | success % | reached lane % | time to lane s | time to target s | "
              "at-fault events (runs) | not at fault (runs) | aborts / run | unsafe steps |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
-    numbers: dict = {"dense": n_dense, "files": n_files, "arms": {}, "pairs": {}}
+    numbers: dict = {cfg.scenes: n_dense, "files": n_files, "blocked_runs": list(data["blocked"]), "arms": {},
+                     "pairs": {}}
     for arm, (cols, _, _) in arms.items():
         s = summarise(cols, budget, cfg.bootstrap)
         numbers["arms"][f"{arm.world}/{arm.label}"] = s
@@ -645,26 +704,42 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
     idm = json.loads((nudge.assets_dir() / "worlds" / "idm.json").read_text())
     rule = idm["intrusion"]
     title = "# Interaction: the aware planner against the same model with its reaction ablated"
+    if cfg.scenes == "merge":
+        title += ", on merges"
     if cfg.horizon != DEFAULT_HORIZON:
         title += f", horizon {cfg.horizon} steps ({cfg.horizon * nudge.DT:.1f} s)"
+    if cfg.scenes == "merge":
+        where = "On real merges (the ego's lane ends)"
+        selection = (f"- Merge scene: at the last observed step the ego is in a lane that really ends ahead of it "
+                     "(an acceleration or auxiliary lane: `lane_extent_real[ego_lane]` ends, the ego before its "
+                     "end). The target lane is the simulator's draw, which never offers a lane ending within the "
+                     "run's reach: the adjacent lane that outlasts the ego's. A scene's runs are its first "
+                     f"{cfg.seeds} seeds scene_seed + r (scene seeds drawn with seed {cfg.seed} as in `nudge-train "
+                     "closed-loop`); seeds differ only in the idm world's drivers. Scenes drawn per split: a seeded "
+                     + ", ".join(f"{cfg.sizes(sp)[0]} ({sp})" for sp in cfg.splits)
+                     + " of them; the aware teacher planner (about 10× slower than the others) on a seeded "
+                     + ", ".join(f"{cfg.sizes(sp)[1]} ({sp})" for sp in cfg.splits) + " of those.")
+    else:
+        where = "In dense traffic"
+        selection = (f"- Dense scene: the target lane is blocked at the start, i.e. a vehicle whose centre lies in "
+                     f"the target lane overlaps the ego's longitudinal extent ± {cfg.margin:g} m (|x − x_ego| < "
+                     f"(L_ego + L)/2 + {cfg.margin:g} m) at the last observed step. The target lane comes from the "
+                     f"run's seed; a scene qualifies when {cfg.seeds} of the seeds scene_seed + r (r < {SEED_TRIES}) "
+                     "draw a blocked lane, and those are its runs (scene seeds drawn with seed "
+                     f"{cfg.seed} as in `nudge-train closed-loop`). Scenes drawn per split: a seeded "
+                     + ", ".join(f"{cfg.sizes(sp)[0]} ({sp})" for sp in cfg.splits)
+                     + " of the qualifying ones; the aware teacher planner (about 10× slower than the others) on a "
+                     "seeded " + ", ".join(f"{cfg.sizes(sp)[1]} ({sp})" for sp in cfg.splits) + " of those.")
     lines = [title, "",
              f"Generated by `{command}` (python/train/nudge_train/experiments/interaction.py).", "",
-             "**Question.** In dense traffic, does a planner whose predictor answers the ego's plan (aware) reach the "
+             f"**Question.** {where}, does a planner whose predictor answers the ego's plan (aware) reach the "
              "target lane sooner, or more often, than the same planner whose predictor only ever sees the ego "
              "keeping its lane (ablated: planner setting `ablate_reaction`, `--ablate-reaction`: the predictor sees "
              f"the keep-lane path x_k = x_0 + k·0.3 s·v_0, y_k = y_0, k = 1..{cfg.horizon}, predicted once per "
              "planning step, "
              "so the predicted traffic cannot depend on the plan; cost, safety rule and fallbacks unchanged)?", "",
              "**Set-up.**",
-             f"- Dense scene: the target lane is blocked at the start, i.e. a vehicle whose centre lies in the "
-             f"target lane overlaps the ego's longitudinal extent ± {cfg.margin:g} m (|x − x_ego| < (L_ego + L)/2 + "
-             f"{cfg.margin:g} m) at the last observed step. The target lane comes from the run's seed; a scene "
-             f"qualifies when {cfg.seeds} of the seeds scene_seed + r (r < {SEED_TRIES}) draw a blocked lane, and "
-             "those are its runs (scene seeds drawn with seed "
-             f"{cfg.seed} as in `nudge-train closed-loop`). Scenes drawn per split: a seeded "
-             + ", ".join(f"{cfg.sizes(sp)[0]} ({sp})" for sp in cfg.splits)
-             + " of the qualifying ones; the aware teacher planner (about 10× slower than the others) on a seeded "
-             + ", ".join(f"{cfg.sizes(sp)[1]} ({sp})" for sp in cfg.splits) + " of those.",
+             selection,
              "- Planners: " + ", ".join(f"`{label}`" for label, _ in cfg.planners()) + " "
              + (f"(`{CANDIDATE}`: **candidate, not shipped**: `{paths.repo_relative(Path(cfg.candidate))}`, the "
                 "reaction-distilled student of docs/results/reaction.md) "
@@ -772,14 +847,14 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
     horizon_numbers: dict = {}
     if refs:
         extra, horizon_numbers = horizon_section(results, refs, cfg)
-    extra += ["## What the safety rule asks of a dense start", ""]
+    extra += [f"## What the safety rule asks of a {cfg.scenes} start", ""]
     rule_threshold = float(json.loads((nudge.assets_dir() / "worlds" / "idm.json").read_text())
                            ["intrusion"]["threshold_m"])
     settings = nudge.PlannerSettings.default()
     for data in results:
         g = start_gaps(data["chosen"], settings)
         if g["gap"].size:
-            extra.append(f"- `{data['split']}` ({g['gap'].size} dense (scene, target lane) starts): bumper gap to the "
+            extra.append(f"- `{data['split']}` ({g['gap'].size} {cfg.scenes} (scene, target lane) starts): bumper gap to the "
                          f"nearest target-lane vehicle median {np.median(g['gap']):+.2f} m (negative = overlapping "
                          f"along the road); the √2 ellipse with margin_x {settings.margin_x} m needs a gap of "
                          f"{np.median(g['need']):.2f} m (median) to have the ego level with it in the target lane; "
@@ -794,7 +869,8 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
               "The target-lane follower's predicted x at "
               + " and at ".join(f"{h * nudge.DT:.1f} s" for h in react_horizons)
               + " under a lane change to the target lane's centre (smoothstep over 1.8 s at the ego's speed, then on "
-              "the centre) minus under the keep-lane path, at every dense (scene, target lane) start with a follower "
+              f"the centre) minus under the keep-lane path, at every {cfg.scenes} (scene, target lane) start with a "
+              "follower "
               "(the vehicle the nudge should slow down); median [95 % bootstrap interval over starts], the share "
               "below −1 cm and the most negative value.", "",
               "| split | model | starts | at (s) | reaction (m) | share < −1 cm | most negative (m) |",
