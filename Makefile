@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -242,6 +242,13 @@ paper-quick: develop
 # candidate when make student-react has made it.
 interaction: develop
 	nice -n 5 $(TRAIN) interaction --threads 2 $(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
+
+# The same experiment on every real merge (ego lane ends) of the train and test splits; the
+# validation split has none. Intervals over ego vehicles.
+interaction-merge: develop
+	nice -n 5 $(TRAIN) interaction --scenes merge --splits train test --n 105 7 --teacher-n 30 7 --threads 2 \
+		--out docs/results/interaction_merge.md --json runs/interaction/interaction_merge.json \
+		$(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
 
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
 # planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the

@@ -197,3 +197,35 @@ def test_merge_runs_are_the_scenes_whose_ego_lane_ends() -> None:
 def test_merge_scenes_setting_is_checked() -> None:
     with pytest.raises(ValueError, match="--scenes"):
         InteractionConfig(scenes="merges").validate()
+
+
+def test_vehicle_of_drops_the_start_time_only() -> None:
+    from nudge_train.experiments.interaction import vehicle_of
+
+    assert vehicle_of("us101-23_1-t06.6-ego90") == "us101-23_1-ego90"
+    assert vehicle_of("us101-9_1-t02.1-ego434") == vehicle_of("us101-9_1-t03.9-ego434")
+    assert vehicle_of("us101-9_1-t02.1-ego434") != vehicle_of("us101-9_1-t02.1-ego433")
+    assert vehicle_of("i80-3-t12-ego7") == "i80-3-ego7"
+    assert vehicle_of("plain") == "plain"
+
+
+def test_paired_by_vehicle_resamples_vehicles() -> None:
+    # Two start times of one vehicle and one of another: 2 clusters by vehicle, 3 by scene.
+    names = ["a-t01.0-ego1", "a-t01.3-ego1", "a-t01.0-ego2"]
+    a = _cols(names, [0, 0, 0], [True, True, False], [3, 3, -1])
+    b = _cols(names, [0, 0, 0], [True, True, True], [3, 3, 4])
+    assert paired(a, b, 30, 200)["clusters"] == 3
+    p = paired(a, b, 30, 200, by_vehicle=True)
+    assert p["clusters"] == 2 and p["scenes"] == 3 and p["only_b"] == 1
+
+
+def test_one_cluster_has_no_interval_and_never_meets_the_bar() -> None:
+    # Three start times of one vehicle: by vehicle one cluster, so no interval, whatever the gain.
+    names = ["a-t01.0-ego1", "a-t01.3-ego1", "a-t01.6-ego1"]
+    a = _cols(names, [0, 0, 0], [False, False, False], [-1, -1, -1])
+    b = _cols(names, [0, 0, 0], [True, True, True], [3, 3, 3])
+    p = paired(a, b, 30, 200, by_vehicle=True)
+    assert p["d_success_pp"][0] == pytest.approx(100.0)
+    assert all(np.isnan(p["d_success_pp"][1:])) and all(np.isnan(p["d_ttl"][1:]))
+    assert verdict(p) == "not met"
+    assert verdict(paired(a, b, 30, 200)) == "**met**"  # by scene: three clusters

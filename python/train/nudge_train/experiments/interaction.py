@@ -38,6 +38,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 import shlex
 import sys
 import time
@@ -398,20 +399,41 @@ def _ok(cols: dict[str, list]) -> np.ndarray:
     return np.array([e is None for e in cols["error"]], dtype=bool)
 
 
-def summarise(cols: dict[str, list], budget: int, n_boot: int) -> dict:
-    """Success, time to lane and to target (failures at the budget), collisions of one arm."""
+def vehicle_of(scenario: str) -> str:
+    """The ego vehicle of a scenario name, its start time dropped:
+    ``us101-23_1-t06.6-ego90`` -> ``us101-23_1-ego90`` (names without a ``-t<seconds>`` part are
+    their own vehicle)."""
+    return re.sub(r"-t\d+(?:\.\d+)?-", "-", scenario, count=1)
+
+
+def _no_interval(t: tuple[float, float, float], clusters: int) -> tuple[float, float, float]:
+    """``t`` (estimate, low, high) with the bounds NaN when fewer than 2 clusters were resampled:
+    a bootstrap over one cluster has no spread to show."""
+    return t if clusters >= 2 else (t[0], math.nan, math.nan)
+
+
+def _clusters(names: np.ndarray, by_vehicle: bool) -> np.ndarray:
+    """The bootstrap's cluster of each run: its scene, or its ego vehicle when ``by_vehicle``."""
+    return np.array([vehicle_of(str(n)) for n in names]) if by_vehicle else names
+
+
+def summarise(cols: dict[str, list], budget: int, n_boot: int, by_vehicle: bool = False) -> dict:
+    """Success, time to lane and to target (failures at the budget), collisions of one arm; the
+    intervals resample scenes, or ego vehicles when ``by_vehicle``."""
     ok = _ok(cols)
-    scen = np.asarray(cols["scenario"])[ok]
+    scen = _clusters(np.asarray(cols["scenario"])[ok], by_vehicle)
     succ = np.asarray(cols["success"], dtype=np.float64)[ok]
     ttl = _time(cols, "steps_to_lane", budget)[ok]
     ttt = _time(cols, "steps_to_target", budget)[ok]
     fault = np.asarray(cols["collisions_at_fault"], dtype=np.int64)[ok]
     not_fault = np.asarray(cols["collisions_not_at_fault"], dtype=np.int64)[ok]
     reached = np.asarray(cols["steps_to_lane"], dtype=np.int64)[ok] >= 0
-    return {"runs": int(ok.sum()), "errors": int((~ok).sum()), "scenes": len(set(scen.tolist())),
-            "success": cluster_bootstrap(succ, scen, n_boot=n_boot),
+    k = len(set(scen.tolist()))
+    return {"runs": int(ok.sum()), "errors": int((~ok).sum()),
+            "scenes": len(set(np.asarray(cols["scenario"])[ok].tolist())), "clusters": k,
+            "success": _no_interval(cluster_bootstrap(succ, scen, n_boot=n_boot), k),
             "reached": float(reached.mean()) if reached.size else math.nan,
-            "ttl": cluster_bootstrap(ttl, scen, n_boot=n_boot, seed=1),
+            "ttl": _no_interval(cluster_bootstrap(ttl, scen, n_boot=n_boot, seed=1), k),
             "ttt": float(ttt.mean()) if ttt.size else math.nan,
             "at_fault": (int(fault.sum()), int((fault > 0).sum())),
             "not_at_fault": (int(not_fault.sum()), int((not_fault > 0).sum())),
@@ -420,10 +442,11 @@ def summarise(cols: dict[str, list], budget: int, n_boot: int) -> dict:
                                   max(1, np.sum(np.asarray(cols["n_steps"])[ok])))}
 
 
-def paired(a: dict[str, list], b: dict[str, list], budget: int, n_boot: int) -> dict:
+def paired(a: dict[str, list], b: dict[str, list], budget: int, n_boot: int, by_vehicle: bool = False) -> dict:
     """B against A on the (scene, seed) runs both ran: success both / only A / only B / neither,
     McNemar's exact p, the success difference B − A (percentage points) and the time-to-lane and
-    time-to-target differences B − A (s), each with a paired bootstrap interval over scenes.
+    time-to-target differences B − A (s), each with a paired bootstrap interval over scenes (over
+    ego vehicles when ``by_vehicle``).
     Raises ValueError when a pair's target lanes differ (a seed fixes the lane)."""
     def index(c: dict[str, list]) -> dict[tuple[str, int], int]:
         return {(s, int(d)): i for i, (s, d, e) in enumerate(zip(c["scenario"], c["seed"], c["error"], strict=True))
@@ -438,7 +461,8 @@ def paired(a: dict[str, list], b: dict[str, list], budget: int, n_boot: int) -> 
     lanes_b = np.asarray(b["target_lane"])[rb]
     if np.any(lanes_a != lanes_b):
         raise ValueError("paired runs with different target lanes")
-    scen = np.array([k[0] for k in common])
+    names = np.array([k[0] for k in common])
+    scen = _clusters(names, by_vehicle)
     sa = np.asarray(a["success"], dtype=bool)[ra]
     sb = np.asarray(b["success"], dtype=bool)[rb]
     only_a, only_b = int((sa & ~sb).sum()), int((~sa & sb).sum())
@@ -447,11 +471,12 @@ def paired(a: dict[str, list], b: dict[str, list], budget: int, n_boot: int) -> 
     d_succ = paired_bootstrap(sa.astype(np.float64), sb.astype(np.float64), scen, n_boot)
     la = np.asarray(a["steps_to_lane"], dtype=np.int64)[ra] >= 0
     lb = np.asarray(b["steps_to_lane"], dtype=np.int64)[rb] >= 0
-    return {"pairs": len(common), "scenes": len(set(scen.tolist())), "both": int((sa & sb).sum()),
+    k = len(set(scen.tolist()))
+    return {"pairs": len(common), "scenes": len(set(names.tolist())), "clusters": k, "both": int((sa & sb).sum()),
             "only_a": only_a, "only_b": only_b, "neither": int((~sa & ~sb).sum()),
-            "p": mcnemar_exact(only_a, only_b), "d_success_pp": tuple(100.0 * x for x in d_succ),
-            "d_ttl": paired_bootstrap(*ttl, scen, n_boot, seed=1),
-            "d_ttt": paired_bootstrap(*ttt, scen, n_boot, seed=2),
+            "p": mcnemar_exact(only_a, only_b), "d_success_pp": _no_interval(tuple(100.0 * x for x in d_succ), k),
+            "d_ttl": _no_interval(paired_bootstrap(*ttl, scen, n_boot, seed=1), k),
+            "d_ttt": _no_interval(paired_bootstrap(*ttt, scen, n_boot, seed=2), k),
             "lane_only_a": int((la & ~lb).sum()), "lane_only_b": int((~la & lb).sum()),
             "ttl_diff": (ttl[1] - ttl[0]), "keys": common}
 
@@ -612,9 +637,11 @@ def draw_pair(split: str, pair: tuple[str, str, str, int, float], predictor: str
 
 # ---- report --------------------------------------------------------------------------------------
 def _ci(t: tuple[float, float, float], scale: float = 1.0, digits: int = 1, sign: bool = False) -> str:
+    f = f"{{:{'+' if sign else ''}.{digits}f}}"
+    if math.isfinite(t[0]) and not (math.isfinite(t[1]) and math.isfinite(t[2])):
+        return f"{f.format(t[0] * scale)} [no interval: one cluster]"
     if not all(math.isfinite(x) for x in t):
         return "–"
-    f = f"{{:{'+' if sign else ''}.{digits}f}}"
     return f"{f.format(t[0] * scale)} [{f.format(t[1] * scale)}, {f.format(t[2] * scale)}]"
 
 
@@ -625,7 +652,9 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
     n_dense, n_files = len(data["dense"]), data["n_files"]
     if cfg.scenes == "merge":
         hit, total = data["blocked"]
-        which = (f"Merge scenes: **{n_dense} of {n_files}** (the ego in a lane that really ends ahead of it); "
+        vehicles = len({vehicle_of(p.stem) for p, _ in data["chosen"]})
+        which = (f"Merge scenes: **{n_dense} of {n_files}** (the ego in a lane that really ends ahead of it), the "
+                 f"chosen ones of {vehicles} ego vehicles; "
                  f"{hit} of the {total} runs drawn start with the target lane blocked (± {cfg.margin:g} m); ")
     else:
         which = (f"Dense scenes: **{n_dense} of {n_files}** qualify (a blocked target lane drawn by {cfg.seeds} of "
@@ -637,7 +666,8 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
              f"{sum(v[1] for v in arms.values()) / 60:.1f} min summed over the cached parts "
              f"({sum(v[2] for v in arms.values()) / 60:.1f} min computed by this invocation).", "",
              "### Every arm", "",
-             "Success and time to lane: mean [95 % bootstrap interval over scenes]; time to lane/target: failures at "
+             "Success and time to lane: mean [95 % bootstrap interval over "
+             + ("ego vehicles" if cfg.scenes == "merge" else "scenes") + "]; time to lane/target: failures at "
              f"the budget ({budget} steps = {budget * nudge.DT:.1f} s); unsafe steps: share of steps whose plan was "
              "Unsafe, Fallback or SolverFailed.", "",
              "| world | planner | runs (scenes) | success % | reached lane % | time to lane s | time to target s | "
@@ -646,7 +676,7 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
     numbers: dict = {cfg.scenes: n_dense, "files": n_files, "blocked_runs": list(data["blocked"]), "arms": {},
                      "pairs": {}}
     for arm, (cols, _, _) in arms.items():
-        s = summarise(cols, budget, cfg.bootstrap)
+        s = summarise(cols, budget, cfg.bootstrap, by_vehicle=cfg.scenes == "merge")
         numbers["arms"][f"{arm.world}/{arm.label}"] = s
         err = f" + {s['errors']} failed" if s["errors"] else ""
         lines.append(f"| {arm.world} | {arm.label} | {s['runs']}{err} ({s['scenes']}) | "
@@ -669,7 +699,7 @@ def split_section(data: dict, cfg: InteractionConfig, budget: int) -> tuple[list
     for world, a, b in comparisons:
         if a not in arms or b not in arms:
             continue
-        p = paired(arms[a][0], arms[b][0], budget, cfg.bootstrap)
+        p = paired(arms[a][0], arms[b][0], budget, cfg.bootstrap, by_vehicle=cfg.scenes == "merge")
         name = f"{b.label} vs {a.label}"
         numbers["pairs"][f"{world}/{name}"] = {k: v for k, v in p.items() if k not in ("keys", "ttl_diff")}
         if not p["pairs"]:
@@ -765,8 +795,10 @@ def report(results: list[dict], cfg: InteractionConfig, command: str, extra: lis
              "- Main metric: time to lane, the time until the ego's centre first lies inside the target lane, "
              f"failures (never) counted at the budget {budget * nudge.DT:.1f} s. Also success (settled in the target "
              "lane within the budget without any collision), time to target (settled), collisions at fault or not "
-             "(docs/results/closed_loop.md defines them). Intervals: 95 % percentile bootstrap over scenes "
-             f"({cfg.bootstrap} resamples; runs of one scene are not independent); McNemar's exact test on paired "
+             "(docs/results/closed_loop.md defines them). Intervals: 95 % percentile bootstrap over "
+             + ("ego vehicles (a merge scene's ego appears at several start times, 0.3 s apart, in scenes that are "
+                "not independent: `vehicle_of`)" if cfg.scenes == "merge" else "scenes")
+             + f" ({cfg.bootstrap} resamples; runs of one scene are not independent); McNemar's exact test on paired "
              "success. In the `teacher` and `log_replay` worlds a run depends on its seed only through the target "
              "lane, so seeds of one scene that draw the same lane repeat a run exactly; in `idm` the seed also "
              "draws the drivers.",
@@ -898,7 +930,8 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
             continue
         world, planner, scenario, seed, diff = pair
         predictor = dict(cfg.planners())[planner]
-        tag = "" if cfg.horizon == DEFAULT_HORIZON else f"_h{cfg.horizon}"
+        tag = ("" if cfg.scenes == "dense" else f"_{cfg.scenes}") + (
+            "" if cfg.horizon == DEFAULT_HORIZON else f"_h{cfg.horizon}")
         png = paths.figures() / f"interaction_pair{tag}.png"
         written = []
         if cfg.animate:
