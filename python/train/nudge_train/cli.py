@@ -235,6 +235,27 @@ def _run_student(a: argparse.Namespace) -> int:
                teacher=a.teacher, report=a.report, export=None if a.no_export else a.export, threads=a.threads)
 
 
+def _add_student_report(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "student-report",
+                 "the report of a trained student (default the shipped one): fidelity, reaction and accuracy against "
+                 "the teacher, how it was trained: docs/results/student.md", _run_student_report)
+    p.add_argument("--weights", type=Path, default=paths.model_weights("student"), help="the student")
+    p.add_argument("--teacher", type=Path, default=paths.model_weights("teacher"),
+                   help="the teacher the distillation set was generated with")
+    p.add_argument("--distill", type=Path, default=paths.distill(),
+                   help="the distillation set the student was trained on (its test split is scored)")
+    p.add_argument("--data", type=Path, default=paths.processed(), help="real NGSIM windows (test split)")
+    p.add_argument("--report", type=Path, default=paths.results() / "student.md", help="the report (markdown)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+
+
+def _run_student_report(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.student import report
+
+    return report(weights=a.weights, teacher=a.teacher, distill=a.distill, data=a.data, out=a.report,
+                  threads=a.threads)
+
+
 def _add_student_react(sub: argparse._SubParsersAction) -> None:
     p = _command(sub, "student-react",
                  "distil a student with a loss on its reaction to the ego candidate (select on validation, export)",
@@ -732,6 +753,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_teacher(sub)
     _add_student(sub)
     _add_student_react(sub)
+    _add_student_report(sub)
     _add_reaction(sub)
     _add_horizon(sub)
     _add_distill(sub)

@@ -27,6 +27,7 @@ COMMANDS: list[tuple[list[str], str]] = [
     (["student"], "_run_student"),
     (["distill"], "_run_distill"),
     (["student-react"], "_run_student_react"),
+    (["student-report"], "_run_student_report"),
     (["reaction"], "_run_reaction"),
     (["closed-loop"], "_run_closed_loop"),
     (["bench", "inference"], "_run_bench_inference"),
@@ -69,6 +70,9 @@ def test_defaults_are_those_of_the_replaced_entry_points() -> None:
     assert (s.distill, s.out_dir) == (str(paths.repo() / "data" / "distill"), str(paths.repo() / "runs" / "student"))
     sr = p.parse_args(["student-react"])
     assert sr.config == paths.repo() / "python" / "train" / "configs" / "student_react.toml"
+    rep = p.parse_args(["student-report"])
+    assert (rep.weights, rep.distill) == (paths.repo() / "assets" / "models" / "student.safetensors", paths.distill())
+    assert rep.report == paths.repo() / "docs" / "results" / "student.md"
     r = p.parse_args(["reaction"])
     assert (r.distill, r.split, r.candidate, r.bootstrap) == (paths.repo() / "data" / "distill", "test", [], 2000)
     assert r.report == paths.repo() / "docs" / "results" / "reaction.md"
@@ -103,8 +107,8 @@ def test_top_level_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) ->
     with pytest.raises(SystemExit):
         main(["--help"])
     out = capsys.readouterr().out
-    for name in ("data", "train", "teacher", "student", "student-react", "reaction", "distill", "closed-loop", "bench",
-                 "goldens", "figures"):
+    for name in ("data", "train", "teacher", "student", "student-react", "student-report", "reaction",
+                 "distill", "closed-loop", "bench", "goldens", "figures"):
         assert f"    {name} " in out
 
 

@@ -1,6 +1,7 @@
 """Reaction measures (nudge_train.experiments.reaction*, nudge_train.training.reaction): the metric on
 synthetic cases with a known answer, the reaction loss against its pairwise definition, a
-synthetic cut-in against the analytic fall-back, and a collapse guard on the shipped teacher."""
+synthetic cut-in against the analytic fall-back, a collapse guard on the shipped teacher, and the
+student report's training stages read from a weights file's provenance."""
 
 from __future__ import annotations
 
@@ -302,3 +303,38 @@ def test_reaction_configs_parse_and_unknown_keys_are_refused(tmp_path: Path) -> 
     bad.write_text('[model]\nkind = "student"\n[train]\nreaction_wieght = 3.0\n')
     with pytest.raises(ConfigError, match="reaction_wieght"):
         load_reaction_config(bad)
+
+
+def test_student_report_lists_every_training_stage_from_the_provenance(tmp_path: Path) -> None:
+    """The student report's training section follows ``init_provenance`` from the newest
+    reaction stage back to the position-only student, with each stage's own numbers."""
+    from nudge_train.experiments.student import _training_lines
+    from nudge_train.models.config import student_config
+    from nudge_train.models.networks import build_model
+    from nudge_train.training.export import export_generator
+
+    base = {"config": "student.toml", "data": "data/distill", "best_epoch": 30, "best_val_ade": 0.1176,
+            "commit": "a" * 40}
+
+    def stage(config: str, init: str, step: int, ade: float, parent: dict) -> dict:
+        return {"config": config, "data": "runs/distill", "commit": "b" * 40, "hardware": "1 CPU threads",
+                "train": {"init": init, "reference": "l2.safetensors", "reaction_weight": 1000.0, "lr": 5e-4,
+                          "time_budget_s": 900.0, "eval_every": 500},
+                "selected": {"step": step, "val_ade": ade, "val_fde": 2 * ade, "val_reaction_error": 0.04},
+                "reference": {"val_ade": 0.1117, "val_fde": 0.2271, "val_reaction_error": 0.0596},
+                "init_provenance": parent}
+
+    first = stage("student_react.toml", "l2.safetensors", 5000, 0.1220, base)
+    cont = stage("student_react_cont.toml", "runs/student_react/student.safetensors", 2500, 0.1053, first)
+    cfg = student_config()
+    path = export_generator(build_model(cfg)[0], cfg, tmp_path / "s.safetensors", trained=True, provenance=cont)
+    lines = _training_lines(path)
+    assert len(lines) == 3
+    assert "student_react_cont.toml" in lines[0] and "kept step 2500" in lines[0] and "0.1053 / 0.2106" in lines[0]
+    assert "from `runs/student_react/student.safetensors`" in lines[0]
+    assert "student_react.toml" in lines[1] and "kept step 5000" in lines[1] and "from `l2.safetensors`" in lines[1]
+    assert "nudge-train student --config python/train/configs/student.toml" in lines[2]
+    assert "best epoch 31" in lines[2] and "0.1176" in lines[2]
+    # A student without a recorded start is one stage.
+    path = export_generator(build_model(cfg)[0], cfg, tmp_path / "p.safetensors", trained=True, provenance=base)
+    assert len(_training_lines(path)) == 1

@@ -48,7 +48,7 @@ from nudge_train.errors import ConfigError, TrainingError
 from nudge_train.experiments.reaction import keep_lane, model_predictor, per_context, planner_reactions
 from nudge_train.models.config import ModelConfig, student_config
 from nudge_train.models.networks import PoolHiddenNet, TrajectoryGenerator, build_model
-from nudge_train.training.export import export_generator, load_generator
+from nudge_train.training.export import export_generator, load_generator, read_weights
 
 __all__ = ["ReactionTrainConfig", "TrainSet", "build_train_set", "load_reaction_config", "reaction_loss", "train"]
 
@@ -448,6 +448,8 @@ def run(*, config: Path, out_dir: str | None, steps: int | None, time_budget_s: 
         "reference": res["summary"]["reference"],
         "commit": git_commit(),
         "hardware": f"{torch.get_num_threads()} CPU threads",
+        # How the student it was fine-tuned from was made (a chain back to the position-only one).
+        "init_provenance": read_weights(Path(tcfg.init)).provenance if tcfg.init else None,
     }
     export_generator(res["generator"], mcfg, target, trained=True, provenance=prov)
     print(f"exported the student to {target}")
