@@ -23,11 +23,13 @@ mod follower_gap;
 mod inputs;
 mod linearised;
 mod problem;
+mod projection;
 mod reference;
 mod refine;
 mod repair;
 mod restoration;
 mod safe_step;
+mod start;
 mod workspace;
 mod z_update;
 
@@ -39,6 +41,8 @@ mod contingency_tests;
 mod convergence_tests;
 #[cfg(test)]
 mod follower_gap_tests;
+#[cfg(test)]
+mod projection_tests;
 #[cfg(test)]
 mod tests;
 
@@ -422,8 +426,8 @@ impl Planner {
             safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.dt));
         }
         let mut timings = PhaseTimings::default();
-        let iterates = Iterates::start(&lp);
-        let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);
+        let (iterates, first) = start::start(s, &self.model, &lp, &mut safety, predictor)?;
+        let current = CurrentSafety::new(first, &safety);
         let mut ws = Workspace::new(s, &lp, iterates, current);
         // ADMM: loop {(re-linearisation;) Δ-update; α-update; Z-update; dual update}.
         let run = admm_loop(
