@@ -1,14 +1,16 @@
 //! The ADMM MPC of the paper's Algorithm 1. One call of [`Planner::plan`] is
 //!
 //! 1. **set-up** ([`linearised`]): the nominal trajectory (the shifted previous plan), the
-//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), and a
-//!    workspace allocated once for the call ([`workspace`]);
+//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), the
+//!    start of the iterates (the nominal, or the best safe simple candidate when it is unsafe,
+//!    [`start`]), and a workspace allocated once for the call ([`workspace`]);
 //! 2. **the ADMM loop**, until ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change or `max_iter`:
 //!    the re-linearisation around the current inputs and their roll-out
 //!    ([`LinearisedProblem::relinearise`]), the Δ-update and α-update (box/rate QPs solved
 //!    by Clarabel, [`inputs`]), the Z-update (projected descent whose every trial point is
 //!    checked by the predictor, [`z_update`], the linearised-safety step [`safe_step`]
-//!    among them, with feasibility restoration from an unsafe Z, [`restoration`]), and the
+//!    and the projection onto the linearised safe set [`projection`] among them, with
+//!    feasibility restoration from an unsafe Z, [`restoration`]), and the
 //!    dual update μ ← μ + ρF;
 //! 3. **the execution check** ([`repair`]): the nonlinear roll-out of (Δ, α) is checked by
 //!    the predictor and repaired (backtracking, then simple fallbacks) when unsafe; a QP

@@ -15,7 +15,7 @@ use super::linearised::LinearisedProblem;
 use super::projection::{bound_rows, cut_row};
 use super::repair::simple_inputs;
 use super::safe_step::{StepRow, constrained_step};
-use super::start::start;
+use super::start::{StartCandidate, start};
 use super::workspace::{CurrentSafety, Iterates, Workspace};
 use super::z_update::Lagrangian;
 use super::*;
@@ -366,7 +366,8 @@ fn safe_start_is_the_cheapest_safe_candidate() {
             "the nominal is unsafe"
         );
         // Brute force.
-        let mut best: Option<(f64, Vec<f64>, Vec<f64>, Vec<State>)> = None;
+        // (cost, inputs and Z) of the best safe candidate.
+        let mut best: Option<(f64, StartCandidate)> = None;
         for (d, a) in simple_inputs(&s, &model, &lp) {
             let mut z = vec![State::zeros(); 6];
             model.rollout(&lp.start, &d, &a, &mut z);
@@ -378,7 +379,12 @@ fn safe_start_is_the_cheapest_safe_candidate() {
             if fresh(&z, &mut cv).0.is_safe(threshold) {
                 let cost = lp.cost(&s, &d, &a, &z);
                 if best.as_ref().is_none_or(|b| cost < b.0) {
-                    best = Some((cost, d, a, z));
+                    let c = StartCandidate {
+                        delta: d,
+                        accel: a,
+                        z,
+                    };
+                    best = Some((cost, c));
                 }
             }
         }
@@ -392,8 +398,8 @@ fn safe_start_is_the_cheapest_safe_candidate() {
                 SafetyEval::new(&constraint, lp.origin, 6, others.len() + 1, threshold);
             let (it, e) = start(&s, &model, &lp, &mut safety, &mut cv).unwrap();
             match (&best, safe_start) {
-                (Some((_, d, a, z)), true) => {
-                    assert_eq!((&it.delta, &it.accel, &it.z), (d, a, z));
+                (Some((_, c)), true) => {
+                    assert_eq!((&it.delta, &it.accel, &it.z), (&c.delta, &c.accel, &c.z));
                     assert!(e.is_safe(threshold));
                 }
                 _ => {

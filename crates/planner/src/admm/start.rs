@@ -53,8 +53,11 @@ pub(crate) fn start(
 
 /// A candidate start: inputs `[T]` and their clamped roll-out `[T]`.
 pub(crate) struct StartCandidate {
+    /// Steering `[T]` (rad).
     pub delta: Vec<f64>,
+    /// Acceleration `[T]` (m/s²).
     pub accel: Vec<f64>,
+    /// The roll-out z_1..z_T `[T]` (call frame), clamped into the state bounds.
     pub z: Vec<State>,
 }
 
