@@ -174,6 +174,14 @@ pub struct PlannerSettings {
     /// in the feasibility restoration and rarely reaches an admissible roll-out within
     /// `max_iter`.
     pub safe_start: bool,
+    /// Re-tightenings of the Z-update's threshold per call (0: off). When the loop converges
+    /// but the predictor finds the nonlinear roll-out of the inputs unsafe (b ≤ `safety_min`),
+    /// the threshold `safety_min + plan_buffer` is raised by the drop of b from Z to that
+    /// roll-out plus `z_step_margin`, Z is evaluated at the new threshold and the loop goes
+    /// on (within `max_iter`), at most this many times: the constraint tightening by the
+    /// measured roll-out error of this call rather than a fixed `plan_buffer`. The execution
+    /// check and its repairs keep `safety_min`.
+    pub z_retighten: usize,
     /// Try the nonlinear roll-out of the current (Δ, α), clamped into the state bounds, as the
     /// first trial of each Z-update: accepted like any trial (safe and lowering G), it puts Z
     /// where the inputs actually take the ego, so the primal residual there is the
@@ -347,6 +355,7 @@ impl Default for PlannerSettings {
             z_step_margin: 0.01,
             z_cuts: 0,
             safe_start: false,
+            z_retighten: 0,
             z_rollout_trial: false,
             relinearise: false,
             warm_start_dual: false,
@@ -535,6 +544,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("pin_weight", 0.0, 1e8, "1/m²"),
     closed("z_step_margin", 0.0, 10.0, "units of b"),
     closed("z_cuts", 0.0, 8.0, "cuts"),
+    closed("z_retighten", 0.0, 10.0, "re-tightenings"),
     closed("fallback_speed_floor", 0.0, 1.0, "–"),
     open_min("restore_step", 0.0, 10.0, "m"),
     open_min("heading_max", 0.0, 10.0, "rad"),
@@ -607,6 +617,7 @@ impl PlannerSettings {
             "pin_weight" => self.pin_weight,
             "z_step_margin" => self.z_step_margin,
             "z_cuts" => self.z_cuts as f64,
+            "z_retighten" => self.z_retighten as f64,
             "fallback_speed_floor" => self.fallback_speed_floor,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,

@@ -116,7 +116,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 55, "numeric settings");
+    assert_eq!(numeric, 56, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

@@ -30,6 +30,7 @@ mod reference;
 mod refine;
 mod repair;
 mod restoration;
+mod retighten;
 mod safe_step;
 mod start;
 mod workspace;
@@ -529,6 +530,7 @@ fn admm_loop(
     let mut earlier_solves = 0;
     let mut stop = Stop::MaxIterations;
     let mut iterations = 0;
+    let mut retightened = 0;
     for iteration in 0..s.max_iter {
         if safety.budget.spent(safety.calls) {
             stop = Stop::Budget;
@@ -560,11 +562,22 @@ fn admm_loop(
             stop = Stop::Budget;
             break;
         }
+        if converged && retightened < s.z_retighten {
+            if let Some(threshold) =
+                retighten::raised_threshold(s, model, lp, ws, safety, predictor)?
+            {
+                retightened += 1;
+                safety.set_threshold(threshold);
+                ws.current = CurrentSafety::new(safety.eval(predictor, &ws.iterates.z)?, safety);
+                continue;
+            }
+        }
         if converged {
             stop = Stop::Converged;
             break;
         }
     }
+    safety.set_threshold(s.safety_min + s.plan_buffer);
     Ok(AdmmRun {
         stop,
         iterations,

@@ -1,8 +1,9 @@
-//! Tests of the Z-update's projection onto the linearised safe set (`z_cuts`) and of the safe
-//! start (`safe_start`), each phase alone against an independent truth: the cut row against
-//! finite differences of b, the projected step with cuts against a Clarabel solve of the same
-//! QP, the safe start against a brute-force check of every candidate; and each mechanism
-//! against the same run with it switched off.
+//! Tests of the Z-update's projection onto the linearised safe set (`z_cuts`), the safe start
+//! (`safe_start`) and the re-tightening of the Z-update's threshold (`z_retighten`), each
+//! phase alone against an independent truth: the cut row against finite differences of b, the
+//! projected step with cuts and bounds against a Clarabel solve of the same QP, the safe start
+//! against a brute-force check of every candidate, the re-tightening rule by hand; and each
+//! mechanism against the same run with it switched off.
 #![allow(clippy::unwrap_used)]
 
 use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
@@ -14,6 +15,7 @@ use super::inputs::{Input, InputQps};
 use super::linearised::LinearisedProblem;
 use super::projection::{bound_rows, cut_row};
 use super::repair::simple_inputs;
+use super::retighten;
 use super::safe_step::{StepRow, constrained_step};
 use super::start::{StartCandidate, start};
 use super::workspace::{CurrentSafety, Iterates, Workspace};
@@ -413,4 +415,70 @@ fn safe_start_is_the_cheapest_safe_candidate() {
             assert_eq!(safety.violation_gradient, gradient);
         }
     }
+}
+
+/// The re-tightening rule by hand: a roll-out 0.07 below Z's minimum and unsafe raises the
+/// threshold by that drop plus the margin; a safe roll-out, nothing checked, or a non-finite
+/// roll-out (the budget's "not evaluated") leave it; a roll-out above Z adds the margin alone.
+#[test]
+fn retightening_raises_the_threshold_by_the_rollouts_drop() {
+    let near = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() < 1e-12);
+    assert!(near(
+        retighten::raise(0.03, 0.05, Some(-0.02), 0.0, 0.01),
+        0.11
+    ));
+    assert!(near(
+        retighten::raise(0.03, -0.01, Some(0.0), 0.0, 0.01),
+        0.04
+    ));
+    assert_eq!(retighten::raise(0.03, 0.05, Some(0.001), 0.0, 0.01), None);
+    assert_eq!(retighten::raise(0.03, 0.05, None, 0.0, 0.01), None);
+    assert_eq!(
+        retighten::raise(0.03, 0.05, Some(f64::NEG_INFINITY), 0.0, 0.01),
+        None
+    );
+}
+
+/// A lane change with a car 10 m ahead at 10 m/s and one 5 m behind in the target lane that
+/// shadows the ego's lateral moves: with the rules and the projection, the loop converges
+/// (before `max_iter`) with inputs whose roll-out the predictor finds unsafe, and the plan is
+/// a repair; with the re-tightening the loop goes on inside the raised threshold and its own
+/// roll-out is admissible (`Converged`).
+#[test]
+fn retightening_turns_a_converged_unsafe_rollout_into_a_converged_plan() {
+    let rules = PlannerSettings {
+        z_safe_step: true,
+        z_rollout_trial: true,
+        relinearise: true,
+        plan_buffer: 0.03,
+        z_cuts: 3,
+        safe_start: true,
+        ..PlannerSettings::default()
+    };
+    let (h, sizes) = scene(12.0, &[(10.0, 0.0, 10.0), (-5.0, 3.7, 12.0)]);
+    let p = super::tests::problem(&h, &sizes, 12.0);
+    let plan = |s: &PlannerSettings| {
+        let mut planner = Planner::new(s.clone()).unwrap();
+        let mut shadow = Shadow {
+            follow: 0.3,
+            last: Vec::new(),
+        };
+        planner.plan(&p, &mut shadow).unwrap()
+    };
+    let off = plan(&rules);
+    assert!(off.iterations < rules.max_iter, "the loop converged");
+    assert!(
+        !matches!(
+            off.status,
+            PlanStatus::Converged | PlanStatus::MaxIterations
+        ),
+        "its roll-out was not admissible: {:?}",
+        off.status
+    );
+    let on = plan(&PlannerSettings {
+        z_retighten: 2,
+        ..rules.clone()
+    });
+    assert_eq!(on.status, PlanStatus::Converged);
+    assert!(on.min_safety.is_some_and(|b| b > rules.safety_min));
 }

@@ -11,7 +11,8 @@ Arms (planner settings, closed-loop settings): ``main`` (the defaults), ``rules`
 default planner with the stalled-change abort), ``rules_proj`` (the rules with the Z-update's
 projection onto the linearised safe set, ``z_cuts`` 3, and the safe start ``safe_start``),
 ``rules_cuts`` and ``rules_start`` (the rules with one of the two), ``proj`` (the safe step with
-the projection and the safe start, no other rule, no stalled-change abort). Every arm runs the same (scene, seed) pairs:
+the projection and the safe start, no other rule, no stalled-change abort), ``rules_proj_rt``
+(``rules_proj`` with two re-tightenings of the Z-update's threshold, ``z_retighten`` 2). Every arm runs the same (scene, seed) pairs:
 the scenes and seeds of ``nudge-train closed-loop --seed 0`` (one run per scene; with
 ``--teacher-n`` its seeded subset), so the arms are paired; success is compared with McNemar's
 exact test. Each step is classified by its status and by whether the loop stopped at
@@ -47,6 +48,7 @@ ARMS: dict[str, tuple[dict, dict]] = {
     "rules_cuts": ({**RULES, "z_cuts": PROJECTION["z_cuts"]}, {"stall_progress": 0.05}),
     "rules_start": ({**RULES, "safe_start": True}, {"stall_progress": 0.05}),
     "proj": ({"z_safe_step": True, **PROJECTION}, {}),
+    "rules_proj_rt": ({**RULES, **PROJECTION, "z_retighten": 2}, {"stall_progress": 0.05}),
 }
 STATUSES = ("Converged", "MaxIterations", "Refined", "Backtracked", "Fallback", "Unsafe", "BudgetExhausted",
             "SolverFailed")
