@@ -562,15 +562,17 @@ fn admm_loop(
             stop = Stop::Budget;
             break;
         }
-        if converged && retightened < s.z_retighten {
-            if let Some(threshold) =
+        // The re-tightening (`z_retighten`): a converged loop whose roll-out is unsafe goes
+        // on inside a threshold raised by the roll-out's drop.
+        if converged
+            && retightened < s.z_retighten
+            && let Some(threshold) =
                 retighten::raised_threshold(s, model, lp, ws, safety, predictor)?
-            {
-                retightened += 1;
-                safety.set_threshold(threshold);
-                ws.current = CurrentSafety::new(safety.eval(predictor, &ws.iterates.z)?, safety);
-                continue;
-            }
+        {
+            retightened += 1;
+            safety.set_threshold(threshold);
+            ws.current = CurrentSafety::new(safety.eval(predictor, &ws.iterates.z)?, safety);
+            continue;
         }
         if converged {
             stop = Stop::Converged;
