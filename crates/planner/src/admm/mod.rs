@@ -124,6 +124,46 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// compounds over the horizon). The steps cost more: student p50 10.9 → 16.1 ms, p99 37.8 →
 /// 59.3 ms on that machine (more predictor calls per Z-update).
 ///
+/// **Projection, safe start and re-tightening** (`z_cuts`, `safe_start`, `z_retighten`; off by
+/// default). With the rules on, on the curvilinear-frame validation split (300 of its 713
+/// scenes, the seeds of `nudge-train closed-loop --seed 0`, student planner, teacher world),
+/// the loop still stopped at `max_iter` with an inadmissible roll-out in 38 % of the steps.
+/// Two causes, two rules:
+///
+/// * Z stuck on the tightened boundary. The Newton step's halvings stop Z where the first
+///   halving is safe, on the boundary along the one direction of the unconstrained minimiser;
+///   the safe step, whose rows hold the prediction fixed, lands outside the boundary when the
+///   other vehicles react to the new Z (or the ellipse turns with the ego's heading), and
+///   its trial point was then halved back along the same direction, or clamped by the state
+///   bounds back onto the unsafe point. With `z_cuts` the Z-update tries, right after the
+///   full Newton step, the **projection onto the linearised safe set**
+///   (module `projection`): G's minimiser subject to the safety rows of Z, the state bounds as
+///   rows (so the step needs no clamping), and, when the predictor finds the trial point
+///   unsafe, the cuts of that trial point (its violated rows linearised there, under its own
+///   prediction), solved again up to `z_cuts` times; only then the halvings.
+/// * An unsafe start. With `safe_start` a nominal whose Z is unsafe is replaced by the best
+///   safe simple candidate (keep lane or steer towards the goal at a constant acceleration,
+///   least cost J; module `start`), instead of starting in the feasibility restoration.
+///
+/// Measured (validation, 300 scenes, paired; `docs/results/latency.md`), defaults → the rules
+/// → the rules with `z_cuts` 3 and `safe_start`: `Converged` 21.5 → 39.0 → 46.4 % of the
+/// steps (teacher world), 24.9 → 39.8 → 47.1 % (IDM), 20.7 → 35.1 → 41.8 % (log replay);
+/// loop at `max_iter` with an inadmissible roll-out 51.7 → 38.2 → 26.2 % (teacher world);
+/// Fallback 8.4 → 6.5 → 5.7 %; success 256 → 258 → 261, 262 → 267 → 265, 257 → 253 → 258 of
+/// 300; at-fault collision events 0 → 0 → 0, 0 → 1 → 1 (one IDM run, the same with the rules
+/// alone), 3 → 2 → 2. On their own account (teacher world, with the rules): the projection
+/// 45.1 %, the safe start 42.7 %; the projection and the safe start without the other rules
+/// 32.0 %. More loops now converge with an inadmissible roll-out (13.7 → 20.8 %: Z on the
+/// boundary, the roll-out just outside it); `z_retighten` 2 (the Z-update's threshold raised
+/// by the roll-out's drop from Z when a converged loop's roll-out is unsafe, and the loop
+/// goes on; module `retighten`) halves that class (20.8 → 9.9 %) but sends more loops to
+/// `max_iter` (26.2 → 33.0 %): `Converged` 46.4 → 48.3 %, success 261 → 259, Fallback
+/// 5.7 → 6.7 %. **What bounds the share**: in 12.3 % of the steps (teacher world; 12.1 % IDM,
+/// 19.5 % log replay) no candidate at all is admissible (`Unsafe`: the fallbacks and the
+/// refinement find none either), so no rule of the optimiser can make those steps
+/// `Converged`; 90 % needs the problem itself to change for them (a relaxed, least-violation
+/// problem with its own status), not a better loop.
+///
 /// **Why the rules are off by default.** With them the planner finds admissible plans where
 /// it found none before, and the lane-change abort of [`crate::lane`], which fires after
 /// consecutive steps *without* an admissible plan, no longer fires in front of a closed convoy
