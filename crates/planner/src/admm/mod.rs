@@ -11,7 +11,8 @@
 //!    checked by the predictor, [`z_update`], the linearised-safety step [`safe_step`]
 //!    and the projection onto the linearised safe set [`projection`] among them, with
 //!    feasibility restoration from an unsafe Z, [`restoration`]), and the
-//!    dual update μ ← μ + ρF;
+//!    dual update μ ← μ + ρF; a converged loop whose roll-out is unsafe may go on inside a
+//!    raised threshold ([`retighten`]);
 //! 3. **the execution check** ([`repair`]): the nonlinear roll-out of (Δ, α) is checked by
 //!    the predictor and repaired (backtracking, then simple fallbacks) when unsafe; a QP
 //!    failure goes straight to the fallbacks.
