@@ -156,6 +156,32 @@ pub struct PlannerSettings {
     /// Target of the linearised safety rows of the Z-update's safe step above the Z-update's
     /// threshold `safety_min + plan_buffer` (units of b, ≥ 0).
     pub z_step_margin: f64,
+    /// Cuts of the Z-update's projection onto the linearised safe set (with `z_safe_step`;
+    /// 0: off). With cuts, the linearised-safety step is tried right after the full Newton
+    /// step, as a projection: when its trial point is unsafe under the prediction of that
+    /// trial (the linearisation was wrong: the other vehicles reacted, or the ellipse turned),
+    /// the safety rows violated at the trial point, linearised there, join the rows of the
+    /// current Z and the step is solved again, at most this many times, before it is halved;
+    /// the halvings of the Newton step (which stop Z on the boundary along the one direction
+    /// of the unconstrained minimiser) come after it. So Z slides along the boundary instead
+    /// of sticking on it (see [`crate::Planner`], convergence by design).
+    pub z_cuts: usize,
+    /// Start the ADMM loop from the best safe simple candidate when the nominal (the shifted
+    /// previous plan) is unsafe: the fallbacks' keep-lane and steer-towards-the-goal input
+    /// sequences at constant accelerations ([`crate::Planner`]), whose roll-outs (clamped into
+    /// the state bounds) are checked by the predictor at the Z-update's threshold; the safe
+    /// one with the least cost J becomes the starting inputs and Z. Without it the loop starts
+    /// in the feasibility restoration and rarely reaches an admissible roll-out within
+    /// `max_iter`.
+    pub safe_start: bool,
+    /// Re-tightenings of the Z-update's threshold per call (0: off). When the loop converges
+    /// but the predictor finds the nonlinear roll-out of the inputs unsafe (b ≤ `safety_min`),
+    /// the threshold `safety_min + plan_buffer` is raised by the drop of b from Z to that
+    /// roll-out plus `z_step_margin`, Z is evaluated at the new threshold and the loop goes
+    /// on (within `max_iter`), at most this many times: the constraint tightening by the
+    /// measured roll-out error of this call rather than a fixed `plan_buffer`. The execution
+    /// check and its repairs keep `safety_min`.
+    pub z_retighten: usize,
     /// Try the nonlinear roll-out of the current (Δ, α), clamped into the state bounds, as the
     /// first trial of each Z-update: accepted like any trial (safe and lowering G), it puts Z
     /// where the inputs actually take the ego, so the primal residual there is the
@@ -327,6 +353,9 @@ impl Default for PlannerSettings {
             pin_weight: 1e4,
             z_safe_step: false,
             z_step_margin: 0.01,
+            z_cuts: 0,
+            safe_start: false,
+            z_retighten: 0,
             z_rollout_trial: false,
             relinearise: false,
             warm_start_dual: false,
@@ -514,6 +543,8 @@ pub const RANGES: &[FieldRange] = &[
     closed("pgd_halvings", 0.0, 30.0, "halvings"),
     closed("pin_weight", 0.0, 1e8, "1/m²"),
     closed("z_step_margin", 0.0, 10.0, "units of b"),
+    closed("z_cuts", 0.0, 8.0, "cuts"),
+    closed("z_retighten", 0.0, 10.0, "re-tightenings"),
     closed("fallback_speed_floor", 0.0, 1.0, "–"),
     open_min("restore_step", 0.0, 10.0, "m"),
     open_min("heading_max", 0.0, 10.0, "rad"),
@@ -585,6 +616,8 @@ impl PlannerSettings {
             "pgd_halvings" => self.pgd_halvings as f64,
             "pin_weight" => self.pin_weight,
             "z_step_margin" => self.z_step_margin,
+            "z_cuts" => self.z_cuts as f64,
+            "z_retighten" => self.z_retighten as f64,
             "fallback_speed_floor" => self.fallback_speed_floor,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,

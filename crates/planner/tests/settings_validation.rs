@@ -36,7 +36,8 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "check_range": 60.0, "safety_min": 0.0, "plan_buffer": 0.0,
         "max_iter": 30, "eps_primal": 0.01, "eps_change": 0.01, "pgd_steps": 5,
         "pgd_halvings": 3, "hessian_scaled": true, "pin_weight": 10000.0,
-        "z_safe_step": false, "z_step_margin": 0.01, "z_rollout_trial": false, "relinearise": false,
+        "z_safe_step": false, "z_step_margin": 0.01, "z_cuts": 0, "safe_start": false,
+        "z_retighten": 0, "z_rollout_trial": false, "relinearise": false,
         "warm_start_dual": false, "rollout_check": true, "fallback_speed_floor": 0.5, "restore_step": 1.0,
         "ablate_reaction": false,
         "heading_max": 0.2, "heading_recovery": 0.05, "overshoot_max": 0.3,
@@ -116,7 +117,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 54, "numeric settings");
+    assert_eq!(numeric, 56, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

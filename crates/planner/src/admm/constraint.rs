@@ -558,6 +558,11 @@ impl<'c> SafetyEval<'c> {
         self.threshold
     }
 
+    /// Sets the threshold of the violation (b_min) for the evaluations from now on.
+    pub(crate) fn set_threshold(&mut self, threshold: f64) {
+        self.threshold = threshold;
+    }
+
     /// Evaluates the candidate states `z` (`[T]`, this call's frame); no predictor call when
     /// nothing is checked.
     pub(crate) fn eval(

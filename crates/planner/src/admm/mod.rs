@@ -1,15 +1,18 @@
 //! The ADMM MPC of the paper's Algorithm 1. One call of [`Planner::plan`] is
 //!
 //! 1. **set-up** ([`linearised`]): the nominal trajectory (the shifted previous plan), the
-//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), and a
-//!    workspace allocated once for the call ([`workspace`]);
+//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), the
+//!    start of the iterates (the nominal, or the best safe simple candidate when it is unsafe,
+//!    [`start`]), and a workspace allocated once for the call ([`workspace`]);
 //! 2. **the ADMM loop**, until ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change or `max_iter`:
 //!    the re-linearisation around the current inputs and their roll-out
 //!    ([`LinearisedProblem::relinearise`]), the Δ-update and α-update (box/rate QPs solved
 //!    by Clarabel, [`inputs`]), the Z-update (projected descent whose every trial point is
 //!    checked by the predictor, [`z_update`], the linearised-safety step [`safe_step`]
-//!    among them, with feasibility restoration from an unsafe Z, [`restoration`]), and the
-//!    dual update μ ← μ + ρF;
+//!    and the projection onto the linearised safe set [`projection`] among them, with
+//!    feasibility restoration from an unsafe Z, [`restoration`]), and the
+//!    dual update μ ← μ + ρF; a converged loop whose roll-out is unsafe may go on inside a
+//!    raised threshold ([`retighten`]);
 //! 3. **the execution check** ([`repair`]): the nonlinear roll-out of (Δ, α) is checked by
 //!    the predictor and repaired (backtracking, then simple fallbacks) when unsafe; a QP
 //!    failure goes straight to the fallbacks.
@@ -23,11 +26,14 @@ mod follower_gap;
 mod inputs;
 mod linearised;
 mod problem;
+mod projection;
 mod reference;
 mod refine;
 mod repair;
 mod restoration;
+mod retighten;
 mod safe_step;
+mod start;
 mod workspace;
 mod z_update;
 
@@ -39,6 +45,8 @@ mod contingency_tests;
 mod convergence_tests;
 #[cfg(test)]
 mod follower_gap_tests;
+#[cfg(test)]
+mod projection_tests;
 #[cfg(test)]
 mod tests;
 
@@ -116,6 +124,47 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// converged Z still differs from its roll-out by a median 0.07 m (F ≤ `eps_primal` per step
 /// compounds over the horizon). The steps cost more: student p50 10.9 → 16.1 ms, p99 37.8 →
 /// 59.3 ms on that machine (more predictor calls per Z-update).
+///
+/// **Projection, safe start and re-tightening** (`z_cuts`, `safe_start`, `z_retighten`; off by
+/// default). With the rules on, on the curvilinear-frame validation split (300 of its 713
+/// scenes, the seeds of `nudge-train closed-loop --seed 0`, student planner, teacher world),
+/// the loop still stopped at `max_iter` with an inadmissible roll-out in 38 % of the steps.
+/// Two causes, two rules:
+///
+/// * Z stuck on the tightened boundary. The Newton step's halvings stop Z where the first
+///   halving is safe, on the boundary along the one direction of the unconstrained minimiser;
+///   the safe step, whose rows hold the prediction fixed, lands outside the boundary when the
+///   other vehicles react to the new Z (or the ellipse turns with the ego's heading), and
+///   its trial point was then halved back along the same direction, or clamped by the state
+///   bounds back onto the unsafe point. With `z_cuts` the Z-update tries, right after the
+///   full Newton step, the **projection onto the linearised safe set**
+///   (module `projection`): G's minimiser subject to the safety rows of Z, the state bounds as
+///   rows (so the step needs no clamping), and, when the predictor finds the trial point
+///   unsafe, the cuts of that trial point (its violated rows linearised there, under its own
+///   prediction), solved again up to `z_cuts` times; only then the halvings.
+/// * An unsafe start. With `safe_start` a nominal whose Z is unsafe is replaced by the best
+///   safe simple candidate (keep lane or steer towards the goal at a constant acceleration,
+///   least cost J; module `start`), instead of starting in the feasibility restoration.
+///
+/// Measured (validation, 300 scenes, paired; `docs/results/latency.md`), defaults → the rules
+/// → the rules with `z_cuts` 3 and `safe_start`: `Converged` 21.5 → 39.0 → 46.4 % of the
+/// steps (teacher world), 24.9 → 39.8 → 47.1 % (IDM), 20.7 → 35.1 → 41.8 % (log replay);
+/// loop at `max_iter` with an inadmissible roll-out 51.7 → 38.2 → 26.2 % (teacher world);
+/// Fallback 8.4 → 6.5 → 5.7 %; success 256 → 258 → 261, 262 → 267 → 265, 257 → 253 → 258 of
+/// 300; at-fault collision events 0 → 0 → 0, 0 → 1 → 1 (one IDM run, the same with the rules
+/// alone), 3 → 2 → 2; the teacher planner (teacher world, 60 scenes) 23.4 → 42.3 → 54.6 %,
+/// success 55 → 52 → 54 of 60, no at-fault event. On their own account (teacher world, with the rules): the projection
+/// 45.1 %, the safe start 42.7 %; the projection and the safe start without the other rules
+/// 32.0 %. More loops now converge with an inadmissible roll-out (13.7 → 20.8 %: Z on the
+/// boundary, the roll-out just outside it); `z_retighten` 2 (the Z-update's threshold raised
+/// by the roll-out's drop from Z when a converged loop's roll-out is unsafe, and the loop
+/// goes on; module `retighten`) halves that class (20.8 → 9.9 %) but sends more loops to
+/// `max_iter` (26.2 → 33.0 %): `Converged` 46.4 → 48.3 %, success 261 → 259, Fallback
+/// 5.7 → 6.7 %. **What bounds the share**: in 12.3 % of the steps (teacher world; 12.1 % IDM,
+/// 19.5 % log replay) no candidate at all is admissible (`Unsafe`: the fallbacks and the
+/// refinement find none either), so no rule of the optimiser can make those steps
+/// `Converged`; 90 % needs the problem itself to change for them (a relaxed, least-violation
+/// problem with its own status), not a better loop.
 ///
 /// **Why the rules are off by default.** With them the planner finds admissible plans where
 /// it found none before, and the lane-change abort of [`crate::lane`], which fires after
@@ -422,8 +471,8 @@ impl Planner {
             safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.dt));
         }
         let mut timings = PhaseTimings::default();
-        let iterates = Iterates::start(&lp);
-        let current = CurrentSafety::new(safety.eval(predictor, &iterates.z)?, &safety);
+        let (iterates, first) = start::start(s, &self.model, &lp, &mut safety, predictor)?;
+        let current = CurrentSafety::new(first, &safety);
         let mut ws = Workspace::new(s, &lp, iterates, current);
         // ADMM: loop {(re-linearisation;) Δ-update; α-update; Z-update; dual update}.
         let run = admm_loop(
@@ -523,6 +572,7 @@ fn admm_loop(
     let mut earlier_solves = 0;
     let mut stop = Stop::MaxIterations;
     let mut iterations = 0;
+    let mut retightened = 0;
     for iteration in 0..s.max_iter {
         if safety.budget.spent(safety.calls) {
             stop = Stop::Budget;
@@ -554,11 +604,24 @@ fn admm_loop(
             stop = Stop::Budget;
             break;
         }
+        // The re-tightening (`z_retighten`): a converged loop whose roll-out is unsafe goes
+        // on inside a threshold raised by the roll-out's drop.
+        if converged
+            && retightened < s.z_retighten
+            && let Some(threshold) =
+                retighten::raised_threshold(s, model, lp, ws, safety, predictor)?
+        {
+            retightened += 1;
+            safety.set_threshold(threshold);
+            ws.current = CurrentSafety::new(safety.eval(predictor, &ws.iterates.z)?, safety);
+            continue;
+        }
         if converged {
             stop = Stop::Converged;
             break;
         }
     }
+    safety.set_threshold(s.safety_min + s.plan_buffer);
     Ok(AdmmRun {
         stop,
         iterations,

@@ -33,6 +33,32 @@ const ROW_TOLERANCE: f64 = 1e-9;
 /// 30 m/s covers 54 m).
 pub(crate) const MAX_STEP: f64 = 50.0;
 
+/// One linear row Σ coef · d[index] ≥ `need` on the stacked step d (`[4T]`, Z⁺ = Z + d), with
+/// at most two non-zero coefficients: a safety row (∇b on x_k, y_k) or a state bound (±1 on
+/// one component).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct StepRow {
+    /// (index into the stacked step, coefficient); an unused term has coefficient 0.
+    pub terms: [(usize, f64); 2],
+    /// The right-hand side.
+    pub need: f64,
+}
+
+impl StepRow {
+    /// The safety row `r` at `target`: ∇b_r · d_xy ≥ target − b_r.
+    pub(crate) fn safety(r: &SafetyRow, target: f64) -> Self {
+        Self {
+            terms: [(4 * r.step, r.gradient[0]), (4 * r.step + 1, r.gradient[1])],
+            need: target - r.b,
+        }
+    }
+
+    /// Σ coef · v[index].
+    pub(crate) fn along(&self, v: &[f64]) -> f64 {
+        self.terms.iter().map(|&(i, c)| c * v[i]).sum()
+    }
+}
+
 /// The step d (`[T]` states, Z⁺ = Π(Z − η d) as every Z-update trial) of the problem above,
 /// with H⁻¹ `inverse` (`[4T, 4T]` row-major), ∇G `gradient` (`[T]`), the safety `rows` of Z
 /// and their `target` (units of b). Writes `out`; returns `false` when no step is defined
@@ -44,36 +70,43 @@ pub(crate) fn linearised_step(
     target: f64,
     out: &mut [State],
 ) -> bool {
+    let rows: Vec<StepRow> = rows.iter().map(|r| StepRow::safety(r, target)).collect();
+    constrained_step(inverse, gradient, &rows, MAX_ACTIVE, out)
+}
+
+/// The minimiser d of ½dᵀHd + ∇G·d subject to the linear `rows` (the same active-set method,
+/// for rows of any two components, at most `rounds` rows added), written as `out` = −d;
+/// `false` when no step is defined.
+pub(crate) fn constrained_step(
+    inverse: &[f64],
+    gradient: &[State],
+    rows: &[StepRow],
+    rounds: usize,
+    out: &mut [State],
+) -> bool {
     let nz = 4 * gradient.len();
     let g: Vec<f64> = gradient.iter().flat_map(|s| s.iter().copied()).collect();
     // d0 = −H⁻¹ g.
     let d0: Vec<f64> = (0..nz)
         .map(|r| -(0..nz).map(|c| inverse[r * nz + c] * g[c]).sum::<f64>())
         .collect();
-    // H⁻¹ a_r for every row (a_r has ∇b on x_k, y_k only).
+    // H⁻¹ aᵣ for every row (H⁻¹ is symmetric).
     let hinv_a: Vec<Vec<f64>> = rows
         .iter()
         .map(|r| {
-            let (cx, cy) = (4 * r.step, 4 * r.step + 1);
             (0..nz)
-                .map(|i| {
-                    inverse[i * nz + cx] * r.gradient[0] + inverse[i * nz + cy] * r.gradient[1]
-                })
+                .map(|i| r.terms.iter().map(|&(j, c)| inverse[i * nz + j] * c).sum())
                 .collect()
         })
         .collect();
-    let along = |r: &SafetyRow, d: &[f64]| {
-        r.gradient[0] * d[4 * r.step] + r.gradient[1] * d[4 * r.step + 1]
-    };
-    let need = |r: &SafetyRow| target - r.b;
     let mut active: Vec<usize> = Vec::new();
     let mut d = d0.clone();
-    for _ in 0..MAX_ACTIVE {
+    for _ in 0..rounds {
         let worst = rows
             .iter()
             .enumerate()
             .filter(|(j, _)| !active.contains(j))
-            .map(|(j, r)| (j, need(r) - along(r, &d)))
+            .map(|(j, r)| (j, r.need - r.along(&d)))
             .filter(|&(_, v)| v > ROW_TOLERANCE)
             .max_by(|a, b| a.1.total_cmp(&b.1));
         let Some((j, _)) = worst else {
@@ -82,10 +115,8 @@ pub(crate) fn linearised_step(
         active.push(j);
         loop {
             let m = active.len();
-            let mat = DMatrix::from_fn(m, m, |a, b| along(&rows[active[a]], &hinv_a[active[b]]));
-            let rhs = DVector::from_fn(m, |a, _| {
-                need(&rows[active[a]]) - along(&rows[active[a]], &d0)
-            });
+            let mat = DMatrix::from_fn(m, m, |a, b| rows[active[a]].along(&hinv_a[active[b]]));
+            let rhs = DVector::from_fn(m, |a, _| rows[active[a]].need - rows[active[a]].along(&d0));
             let Some(lambda) = mat.lu().solve(&rhs) else {
                 return false;
             };

@@ -14,6 +14,7 @@ use crate::settings::PlannerSettings;
 use super::constraint::SafetyEval;
 use super::linearised::LinearisedProblem;
 use super::problem::PhaseTimings;
+use super::projection::{Projected, project};
 use super::restoration::restore;
 use super::safe_step::linearised_step;
 use super::workspace::{CurrentSafety, Curvature, Scratch, Workspace, mat_vec, max_diff};
@@ -69,6 +70,12 @@ pub(crate) enum Trial {
     /// minimiser subject to the safety rows of the current Z, so that Z slides along the
     /// constraint boundary instead of stalling on it.
     SafeStep,
+    /// With `z_cuts`: the projection onto the linearised safe set ([`super::projection`]):
+    /// the linearised-safety step at η = 1, solved again with the cuts of its unsafe trial
+    /// points, then halved (η = 1/2, ...).
+    Projection,
+    /// With `z_cuts`: the Newton step's halvings (η = 1/2, ...), after the projection.
+    NewtonHalved,
     /// d = Z − Π(roll-out of the current (Δ, α)) with η = 1 only: the nonlinear roll-out of
     /// the inputs as a trial point (F there is the linearisation error alone).
     RollOut,
@@ -83,7 +90,18 @@ impl Trial {
     /// The kinds tried in order: the roll-out trial (used only with `z_rollout_trial`, in a
     /// Z-update's first step), then the Newton pair with Hessian scaling, else the gradient;
     /// with `z_safe_step` the safe step after the Newton step (after the gradient step).
+    /// With `z_cuts` (and `z_safe_step`, Hessian scaling) the full Newton step, then the
+    /// projection, then the Newton step's halvings.
     fn sequence(s: &PlannerSettings, curvature: &Curvature) -> &'static [Trial] {
+        if curvature.newton.is_some() && s.z_safe_step && s.z_cuts > 0 {
+            return &[
+                Self::RollOut,
+                Self::Newton,
+                Self::Projection,
+                Self::NewtonHalved,
+                Self::PinnedNewton,
+            ];
+        }
         match (curvature.newton.is_some(), s.z_safe_step) {
             (true, true) => &[
                 Self::RollOut,
@@ -102,6 +120,7 @@ impl Trial {
         match self {
             Self::Newton | Self::PinnedNewton | Self::SafeStep | Self::RollOut => 1.0,
             Self::Gradient => 1.0 / curvature.lipschitz,
+            Self::Projection | Self::NewtonHalved => 0.5,
         }
     }
 
@@ -109,7 +128,9 @@ impl Trial {
     fn halvings(self, s: &PlannerSettings) -> usize {
         match self {
             Self::PinnedNewton | Self::RollOut => 0,
+            Self::Newton if s.z_safe_step && s.z_cuts > 0 => 0,
             Self::Newton | Self::Gradient | Self::SafeStep => s.pgd_halvings,
+            Self::Projection | Self::NewtonHalved => s.pgd_halvings.saturating_sub(1),
         }
     }
 }
@@ -133,6 +154,15 @@ fn descend(
         if trial == Trial::SafeStep && !safe_direction(g, curvature, current, safety, scratch) {
             continue;
         }
+        if trial == Trial::Projection {
+            match project(
+                g, curvature, z, g_current, scratch, current, safety, predictor,
+            )? {
+                Projected::Moved => return Ok(true),
+                Projected::NoStep => continue,
+                Projected::Rejected => {}
+            }
+        }
         if trial == Trial::RollOut {
             if !g.s.z_rollout_trial || !first {
                 continue;
@@ -147,7 +177,8 @@ fn descend(
             }
         }
         let direction = match trial {
-            Trial::Newton => &scratch.newton_step,
+            Trial::Newton | Trial::NewtonHalved => &scratch.newton_step,
+            Trial::Projection => &scratch.safe_step,
             Trial::PinnedNewton => &scratch.pinned_step,
             Trial::Gradient => &scratch.gradient,
             Trial::SafeStep => &scratch.safe_step,

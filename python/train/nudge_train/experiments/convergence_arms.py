@@ -8,7 +8,11 @@ the ADMM loop ended (the measurements behind the convergence section of
 Arms (planner settings, closed-loop settings): ``main`` (the defaults), ``rules`` (``z_safe_step``,
 ``z_rollout_trial``, ``relinearise``, ``plan_buffer`` 0.03, with the stalled-change abort
 ``stall_progress`` 0.05), ``rules_no_stall`` (the rules, no stalled-change abort), ``stall`` (the
-default planner with the stalled-change abort). Every arm runs the same (scene, seed) pairs:
+default planner with the stalled-change abort), ``rules_proj`` (the rules with the Z-update's
+projection onto the linearised safe set, ``z_cuts`` 3, and the safe start ``safe_start``),
+``rules_cuts`` and ``rules_start`` (the rules with one of the two), ``proj`` (the safe step with
+the projection and the safe start, no other rule, no stalled-change abort), ``rules_proj_rt``
+(``rules_proj`` with two re-tightenings of the Z-update's threshold, ``z_retighten`` 2). Every arm runs the same (scene, seed) pairs:
 the scenes and seeds of ``nudge-train closed-loop --seed 0`` (one run per scene; with
 ``--teacher-n`` its seeded subset), so the arms are paired; success is compared with McNemar's
 exact test. Each step is classified by its status and by whether the loop stopped at
@@ -34,11 +38,17 @@ from nudge_train.experiments.closed_loop import choose
 from nudge_train.experiments.stats import mcnemar_exact
 
 RULES = {"z_safe_step": True, "z_rollout_trial": True, "relinearise": True, "plan_buffer": 0.03}
+PROJECTION = {"z_cuts": 3, "safe_start": True}
 ARMS: dict[str, tuple[dict, dict]] = {
     "main": ({}, {}),
     "rules": (RULES, {"stall_progress": 0.05}),
     "rules_no_stall": (RULES, {}),
     "stall": ({}, {"stall_progress": 0.05}),
+    "rules_proj": ({**RULES, **PROJECTION}, {"stall_progress": 0.05}),
+    "rules_cuts": ({**RULES, "z_cuts": PROJECTION["z_cuts"]}, {"stall_progress": 0.05}),
+    "rules_start": ({**RULES, "safe_start": True}, {"stall_progress": 0.05}),
+    "proj": ({"z_safe_step": True, **PROJECTION}, {}),
+    "rules_proj_rt": ({**RULES, **PROJECTION, "z_retighten": 2}, {"stall_progress": 0.05}),
 }
 STATUSES = ("Converged", "MaxIterations", "Refined", "Backtracked", "Fallback", "Unsafe", "BudgetExhausted",
             "SolverFailed")
