@@ -418,6 +418,7 @@ impl Planner {
         let threshold = s.safety_min + s.plan_buffer;
         let mut safety = SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, threshold);
         safety.budget = Budget::new(s, start);
+        safety.count_overlap = s.contact_first;
         if s.ablate_reaction {
             safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.dt));
         }
