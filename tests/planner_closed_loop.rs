@@ -358,3 +358,62 @@ fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
         }
     }
 }
+
+/// An ego that starts with its box 0.4 m across the line into a closed target-lane convoy
+/// (its centre still in its own lane) finds no admissible plan from the first step. With
+/// `start_abort_after` = 1 the change is aborted after that first step and the next
+/// `abort_hold` steps aim at the own lane's centre; without it the goal stays the target lane
+/// for `abort_after` steps (the fallbacks' retreat brings the box back into the own lane
+/// either way: the own lane is offered to them before the crossing).
+#[test]
+fn an_ego_starting_across_the_line_aborts_at_once() {
+    let (mut sc, y_target, y_own) = convoy_scene("us101-11_1-t02.1-ego144", 0, 11.0);
+    let towards = (y_target - y_own).signum();
+    let half_width = 0.5 * sc.size[0][1];
+    let to_line = 0.5 * (y_target - y_own).abs();
+    let y0 = y_own + towards * (to_line - half_width + 0.4);
+    for t in 0..8 {
+        sc.history[2 * t + 1] = y0;
+    }
+    let run = |start_abort_after: usize| {
+        let cfg = SimConfig {
+            world: World::LogReplay,
+            start_abort_after,
+            ..SimConfig::default()
+        };
+        let mut cv = ConstantVelocity::default();
+        simulate(
+            &sc,
+            &PlannerSettings::default(),
+            &cfg,
+            0,
+            &mut cv,
+            WorldModel::LogReplay,
+        )
+        .unwrap()
+    };
+    let (plain, start) = (run(0), run(1));
+    for rec in [&plain, &start] {
+        assert!(!rec.collision, "collision");
+        assert!(
+            rec.steps[0].status.is_unsafe_plan(),
+            "{:?}",
+            rec.steps[0].status
+        );
+    }
+    let cfg = SimConfig::default();
+    assert!(
+        plain.steps[..cfg.abort_after]
+            .iter()
+            .all(|s| s.y_goal == y_target),
+        "without the rule the goal stays the target lane for {} steps",
+        cfg.abort_after
+    );
+    assert!(
+        start.steps[1..=cfg.abort_hold]
+            .iter()
+            .all(|s| s.y_goal == y_own),
+        "with it the steps after the first aim at the own lane"
+    );
+    assert!(start.aborts >= 1);
+}

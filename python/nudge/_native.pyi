@@ -401,14 +401,16 @@ def simulate(
     ``idm``: the driver population of an ``"idm"`` world (default ``<assets>/worlds/idm.json``).
     ``config`` (default ``SimConfig.default()``) with ``config_overrides`` (``SimConfig`` fields:
     ``world``, ``max_steps``, ``settle_y``, ``settle_psi``, ``settle_steps``, ``abort_after``,
-    ``abort_hold``, ``stall_progress``, ``gap_speed``, ``gap_window``, ``fault_brake_limit``) sets
+    ``abort_hold``, ``stall_progress``, ``start_abort_after``, ``gap_speed``, ``gap_window``,
+    ``fault_brake_limit``) sets
     the closed loop. Lane-change
     aborts: after ``abort_after`` consecutive steps without a safe plan (status ``Fallback``,
     ``Unsafe`` or ``SolverFailed``) while the ego is not yet wholly inside the target lane, the ego
     aims at its own lane's centre for ``abort_hold`` steps, then retries (``abort_after = 0``
     disables aborts); with ``stall_progress`` > 0 a step that moved the ego less than that
     (m) towards the target lane while its box straddles the line, before the crossing, counts
-    too. Gap seeking: while a target-lane vehicle alongside (bumper gap below ``gap_window``, m)
+    too; with ``start_abort_after`` > 0 an ego whose box starts across a line of its own lane
+    aborts after that many steps without a safe plan, before its first safe plan. Gap seeking: while a target-lane vehicle alongside (bumper gap below ``gap_window``, m)
     blocks the change, the planner's reference speed moves ``gap_speed`` (m/s) past that
     vehicle's speed, ahead of it or behind it (off by default: ``gap_speed = 0``).
     The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).

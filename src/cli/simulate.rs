@@ -92,6 +92,12 @@ pub struct SimulateArgs {
     ))]
     pub stall_progress: Option<f64>,
     #[arg(long, help = noted(
+        "Abort a lane change whose ego starts with its box across a line of its own lane after \
+         this many steps without a safe plan (before its first safe plan); 0 disables",
+        DEFAULT.start_abort_after,
+    ))]
+    pub start_abort_after: Option<usize>,
+    #[arg(long, help = noted(
         "Gap seeking: while a target-lane vehicle alongside blocks the lane change, aim this \
          much (m/s) above its speed when the ego will be ahead of it, else below; 0 disables",
         DEFAULT.gap_speed,
@@ -146,6 +152,7 @@ impl SimulateArgs {
         c.abort_after = self.abort_after.unwrap_or(c.abort_after);
         c.abort_hold = self.abort_hold.unwrap_or(c.abort_hold);
         c.stall_progress = self.stall_progress.unwrap_or(c.stall_progress);
+        c.start_abort_after = self.start_abort_after.unwrap_or(c.start_abort_after);
         c.gap_speed = self.gap_speed.unwrap_or(c.gap_speed);
         c.gap_window = self.gap_window.unwrap_or(c.gap_window);
         c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);

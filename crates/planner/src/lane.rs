@@ -16,6 +16,14 @@
 //!   abort like a step without an admissible plan. A planner that finds admissible plans which
 //!   edge over the line and stop there (in front of a closed gap) would otherwise idle across
 //!   it for good;
+//! * **abort at once from a straddling start** (with a positive `start_abort_after`,
+//!   [`LaneChange::with_start_abort`]): an ego whose box starts across a line of its own lane
+//!   (it spans the line, its centre still in its own lane) counts, until its first admissible
+//!   plan, towards an abort after `start_abort_after` steps without an admissible plan
+//!   instead of `abort_after`: with 1, the first step without an admissible plan turns the
+//!   goal to the own lane's centre, so the planner (not only its fallbacks) plans the way
+//!   back at once. One such abort per run; after it, or after the first admissible plan, or
+//!   once the box is inside its own lane, `abort_after` applies;
 //! * **commit** once the centre has crossed that line: from then on the change is finished,
 //!   never aborted (going back would cross the line a second time);
 //! * **retreat when stuck**: the own lane stays on offer to the planner's fallbacks
@@ -73,6 +81,12 @@ pub struct LaneChange {
     gap_window: f64,
     /// The ego's length (m).
     ego_length: f64,
+    /// Steps without an admissible plan before an abort while the start's straddle lasts
+    /// ([`LaneChange::with_start_abort`]); 0: off.
+    start_abort_after: usize,
+    /// The ego started straddling a line of its own lane and has had no admissible plan,
+    /// no start abort, and not yet been wholly inside its own lane since.
+    straddling_start: bool,
 }
 
 /// Another vehicle as the gap seeking of [`LaneChange::v_ref`] sees it: its centre (road frame,
@@ -120,7 +134,27 @@ impl LaneChange {
             gap_speed: 0.0,
             gap_window: 0.0,
             ego_length: 0.0,
+            start_abort_after: 0,
+            straddling_start: false,
         }
+    }
+
+    /// Turns on the abort from a straddling start for an ego whose centre starts at `y0`
+    /// (m): when its box spans a line of its own lane (|y0 − y_own| above half the lane
+    /// spacing less half the ego's width), steps without an admissible plan count towards an
+    /// abort after `start_abort_after` of them (0: off) until the first admissible plan, the
+    /// first such abort, or the box wholly inside its own lane.
+    #[must_use]
+    pub fn with_start_abort(mut self, start_abort_after: usize, y0: f64) -> Self {
+        self.start_abort_after = start_abort_after;
+        self.straddling_start = start_abort_after > 0 && self.straddles_own_lane(y0);
+        self
+    }
+
+    /// Whether an ego centred at `y` (m) has its box across a line of its own lane (the lane
+    /// spacing taken from the own and target centres).
+    fn straddles_own_lane(&self, y: f64) -> bool {
+        (y - self.y_own).abs() > (self.y_line - self.y_own).abs() - self.half_width
     }
 
     /// Turns on gap seeking ([`LaneChange::v_ref`]) for an ego `ego_length` long (m): a
@@ -228,18 +262,27 @@ impl LaneChange {
         } else {
             self.stuck_steps = 0;
         }
+        if self.straddling_start && (!status.is_unsafe_plan() || !self.straddles_own_lane(y)) {
+            self.straddling_start = false;
+        }
+        let abort_after = if self.straddling_start {
+            self.start_abort_after
+        } else {
+            self.abort_after
+        };
         if self.hold > 0 {
             self.hold -= 1;
-        } else if self.abort_after > 0
+        } else if abort_after > 0
             && (status.is_unsafe_plan() || stalled)
             && (y - self.y_target).abs() > self.inside
             && !self.committed(y)
         {
             self.unsafe_steps += 1;
-            if self.unsafe_steps >= self.abort_after {
+            if self.unsafe_steps >= abort_after {
                 self.hold = self.abort_hold;
                 self.unsafe_steps = 0;
                 self.aborts += 1;
+                self.straddling_start = false;
             }
         } else {
             self.unsafe_steps = 0;
@@ -460,6 +503,44 @@ mod tests {
         let right = LaneChange::new(3.7, 0.0, 1.9, 0.3, 2, 3).with_gap_seeking(2.0, 6.0, 4.5);
         let ego_r = [0.0, 3.2, 0.0, 20.0];
         assert_eq!(right.v_ref(20.0, ego_r, &[car(-2.0, 0.1, 19.0)], 1.8), 21.0);
+    }
+
+    /// An ego whose box starts across the line (centre 1.2 m from its own lane's centre,
+    /// half width 0.95, line at 1.85) aborts on its first step without an admissible plan
+    /// with `start_abort_after` = 1; without it only after `abort_after` = 2; one start abort
+    /// per run, and none for an ego that starts inside its lane or once a plan was admissible.
+    #[test]
+    fn aborts_at_once_from_a_straddling_start() {
+        let mut c = change().with_start_abort(1, 1.2);
+        c.after_plan(StepStatus::Unsafe, 1.2);
+        assert_eq!((c.goal(), c.aborts()), (0.0, 1), "aborted at once");
+        let mut plain = change();
+        plain.after_plan(StepStatus::Unsafe, 1.2);
+        assert_eq!(
+            (plain.goal(), plain.aborts()),
+            (3.7, 0),
+            "abort_after = 2 steps"
+        );
+        // After the hold, the plain abort_after applies again.
+        for _ in 0..3 {
+            c.after_plan(StepStatus::Unsafe, 1.0);
+        }
+        assert_eq!(c.goal(), 3.7);
+        c.after_plan(StepStatus::Unsafe, 1.0);
+        assert_eq!((c.goal(), c.aborts()), (3.7, 1), "one start abort per run");
+        // Starting inside the own lane (|0.5| ≤ 1.85 − 0.95): no start abort.
+        let mut inside = change().with_start_abort(1, 0.5);
+        inside.after_plan(StepStatus::Unsafe, 0.5);
+        assert_eq!(inside.aborts(), 0);
+        // An admissible plan first ends the straddling start.
+        let mut ok = change().with_start_abort(1, 1.2);
+        ok.after_plan(StepStatus::Converged, 1.2);
+        ok.after_plan(StepStatus::Unsafe, 1.2);
+        assert_eq!(ok.aborts(), 0);
+        // Across the other line of the own lane (y = −1.2): it straddles too.
+        let mut other = change().with_start_abort(1, -1.2);
+        other.after_plan(StepStatus::Fallback, -1.2);
+        assert_eq!(other.aborts(), 1);
     }
 
     #[test]

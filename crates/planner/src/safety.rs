@@ -169,6 +169,40 @@ impl Ellipse {
         dx * dx + dy * dy - 1.0
     }
 
+    /// b and ∂b/∂(x, y) of an ego cut into `slices` equal slices along its long axis
+    /// `axis` = (cos ψ, sin ψ) (a unit vector), `self` being the ellipse of **one** slice (an
+    /// ego of size (length / `slices`, width), [`Ellipse::oriented`]): the smallest over the
+    /// slices j of [`Ellipse::value`] at the slice's centre `ego` + c_j·`axis`,
+    /// c_j = −length/2 + (j + ½)·length/`slices` (m), with that slice's gradient (the centres
+    /// move with `ego`, the heading held fixed); the first slice on ties, NaN when any value is.
+    /// The ego's box is the union of the slices' boxes, so with scale √2 and non-negative
+    /// margins b > 0 still excludes overlap, and one slice is [`Ellipse::value`] itself.
+    #[must_use]
+    pub fn sliced(
+        &self,
+        ego: [f64; 2],
+        axis: [f64; 2],
+        length: f64,
+        slices: usize,
+        other: [f64; 2],
+    ) -> (f64, [f64; 2]) {
+        let k = slices.max(1);
+        let piece = length / k as f64;
+        let mut best = (f64::INFINITY, [0.0; 2]);
+        for j in 0..k {
+            let c = -0.5 * length + (j as f64 + 0.5) * piece;
+            let p = [ego[0] + c * axis[0], ego[1] + c * axis[1]];
+            let b = self.value(p, other);
+            if b.is_nan() {
+                return (f64::NAN, [0.0; 2]);
+            }
+            if b < best.0 {
+                best = (b, self.gradient(p, other));
+            }
+        }
+        best
+    }
+
     /// ∂b/∂(x, y) of the ego position, the prediction held fixed.
     #[must_use]
     pub fn gradient(&self, ego: [f64; 2], other: [f64; 2]) -> [f64; 2] {
@@ -385,7 +419,101 @@ mod tests {
         );
     }
 
+    /// The slice ellipse of an ego `size` cut into `k` slices at heading `h0` against a
+    /// vehicle `other` at heading `h1` (scale √2).
+    fn slice_ellipse(
+        size: [f64; 2],
+        k: usize,
+        h0: f64,
+        other: [f64; 2],
+        h1: f64,
+        m: [f64; 2],
+    ) -> Ellipse {
+        let piece = [size[0] / k as f64, size[1]];
+        Ellipse::with_headings(piece, h0, other, h1, std::f64::consts::SQRT_2, m[0], m[1])
+    }
+
+    /// The failure the slices fix: a 19.8 m truck 4 m behind a car's bumper in the same lane
+    /// (centres 16.15 m apart) is inside the whole-truck ellipse (a_x ≈ 18.7 m), although the
+    /// boxes are 4 m apart; four slices see it outside, and one slice is the plain ellipse.
+    #[test]
+    fn a_sliced_long_ego_reaches_no_further_than_needed() {
+        let (truck, car, m) = ([19.8, 2.6], [4.5, 1.8], [1.5, 0.3]);
+        let other = [16.15, 0.0];
+        let whole = slice_ellipse(truck, 1, 0.0, car, 0.0, m);
+        assert!(whole.value([0.0, 0.0], other) < 0.0);
+        let (b1, g1) = whole.sliced([0.0, 0.0], [1.0, 0.0], truck[0], 1, other);
+        assert_eq!(
+            (b1, g1),
+            (
+                whole.value([0.0, 0.0], other),
+                whole.gradient([0.0, 0.0], other)
+            )
+        );
+        let four = slice_ellipse(truck, 4, 0.0, car, 0.0, m);
+        let (b4, g4) = four.sliced([0.0, 0.0], [1.0, 0.0], truck[0], 4, other);
+        assert!(b4 > 0.0, "{b4}");
+        // The front slice binds (centre 7.425 m ahead of the truck's): its gradient.
+        let front = four.gradient([7.425, 0.0], other);
+        assert!((g4[0] - front[0]).abs() < 1e-12 && (g4[1] - front[1]).abs() < 1e-12);
+        let ego = OrientedBox::along([0.0, 0.0], [1.0, 0.0], truck);
+        let ahead = OrientedBox::along(other, [1.0, 0.0], car);
+        assert!(!ego.overlaps(&ahead));
+        // A NaN position is never safe.
+        assert!(
+            four.sliced([f64::NAN, 0.0], [1.0, 0.0], truck[0], 4, other)
+                .0
+                .is_nan()
+        );
+    }
+
     proptest::proptest! {
+        /// A sliced ego (k slices of a box up to 25 m long, any heading within ±0.6 rad) with
+        /// s = √2 and non-negative margins: b > 0 excludes overlap of the rotated boxes
+        /// (independent truth: the separating-axis test, [`OrientedBox::overlaps`]).
+        #[test]
+        fn positive_sliced_b_excludes_overlap(
+            l0 in 2.0f64..25.0, w0 in 1.0f64..3.0, h0 in -0.6f64..0.6, k in 1usize..6,
+            l1 in 2.0f64..20.0, w1 in 1.0f64..3.0, h1 in -0.6f64..0.6,
+            dx in -30.0f64..30.0, dy in -6.0f64..6.0,
+            mx in 0.0f64..3.0, my in 0.0f64..1.0,
+        ) {
+            let e = slice_ellipse([l0, w0], k, h0, [l1, w1], h1, [mx, my]);
+            let (b, _) = e.sliced([0.0, 0.0], [h0.cos(), h0.sin()], l0, k, [dx, dy]);
+            let a = OrientedBox { x: 0.0, y: 0.0, heading: h0, length: l0, width: w0 };
+            let o = OrientedBox { x: dx, y: dy, heading: h1, length: l1, width: w1 };
+            if b > 0.0 {
+                proptest::prop_assert!(!a.overlaps(&o));
+            }
+        }
+
+        /// The sliced gradient against central finite differences of the ego's centre, away
+        /// from the kinks (two slices within 1e-3 of each other).
+        #[test]
+        fn sliced_gradient_matches_finite_differences(
+            l0 in 2.0f64..25.0, w0 in 1.0f64..3.0, h0 in -0.6f64..0.6, k in 1usize..6,
+            dx in -30.0f64..30.0, dy in -6.0f64..6.0,
+        ) {
+            let e = slice_ellipse([l0, w0], k, h0, [4.5, 1.8], 0.0, [1.5, 0.3]);
+            let axis = [h0.cos(), h0.sin()];
+            let other = [dx, dy];
+            let mut v: Vec<f64> = (0..k)
+                .map(|j| {
+                    let c = -0.5 * l0 + (j as f64 + 0.5) * l0 / k as f64;
+                    e.value([c * axis[0], c * axis[1]], other)
+                })
+                .collect();
+            v.sort_by(f64::total_cmp);
+            proptest::prop_assume!(k == 1 || v[1] - v[0] > 1e-3);
+            let f = |x: f64, y: f64| e.sliced([x, y], axis, l0, k, other).0;
+            let (_, g) = e.sliced([0.0, 0.0], axis, l0, k, other);
+            let h = 1e-6;
+            let fx = (f(h, 0.0) - f(-h, 0.0)) / (2.0 * h);
+            let fy = (f(0.0, h) - f(0.0, -h)) / (2.0 * h);
+            proptest::prop_assert!((fx - g[0]).abs() < 1e-5 && (fy - g[1]).abs() < 1e-5,
+                "fd ({}, {}) vs {:?}", fx, fy, g);
+        }
+
         /// With s = √2 and non-negative margins, b > 0 excludes overlap of the rotated boxes
         /// (independent truth: the separating-axis test).
         #[test]

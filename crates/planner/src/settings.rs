@@ -108,6 +108,19 @@ pub struct PlannerSettings {
     /// `z_step_margin` and `refine_margin` are then in metres too). The ellipse stays the
     /// default: on validation the boxes lowered success (`docs/results/nudge_safety.md`).
     pub safety_geometry: SafetyGeometry,
+    /// Longest slice of the ego (m) one safety ellipse covers; 0: off (one ellipse for the
+    /// whole ego). With `safety_geometry` = `ellipse` and an ego longer than this, the ego is
+    /// cut along its heading into k = ⌈length / `ego_segment_length`⌉ equal slices and b_i is
+    /// the smallest of the k ellipses of [`crate::safety::Ellipse::oriented`], each sized by
+    /// one slice (length / k) and centred on it. The √2 ellipse of one long box reaches
+    /// √2 × the summed half lengths along the road (≈ 18.7 m for a 19.8 m truck and a car,
+    /// against 12.2 m where the boxes touch); the slices' ellipses still circumscribe the
+    /// overlap region (the union of the slices is the ego's box), so b > 0 keeps excluding
+    /// overlap, with a reach closer to the box. Cars shorter than this are unaffected.
+    /// 6 m by default (with `contact_first` and `edge_first`; measured together on validation,
+    /// see [`crate::Planner`]'s "Long egos" section): the validation egos longer than 6 m are
+    /// trucks of 6.1–19.8 m.
+    pub ego_segment_length: f64,
     /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
     /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
     /// when the rear one of the ego and the other vehicle is faster, so a plan never ends in a
@@ -209,6 +222,20 @@ pub struct PlannerSettings {
     /// wins, and a vehicle passing in the next lane, inside the ellipse but never able to
     /// touch the ego, has the ego brake towards a standstill in its own live lane.
     pub fallback_speed_floor: f64,
+    /// Rank the road-edge excess first among fallbacks without an admissible plan: the
+    /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
+    /// horizon, m) wins before the speed floor and the total violation (which otherwise
+    /// weighs that excess in one sum with the safety violation, so an ego that starts over
+    /// the edge could swing a corner further out to lower its safety violation). On by
+    /// default.
+    pub edge_first: bool,
+    /// Rank predicted contact first among fallbacks without an admissible plan: the candidate
+    /// whose box overlaps the predicted boxes of the other vehicles least (Σ over vehicles and
+    /// steps of the separating-axis overlap depth, m) wins before the road-edge rule, the
+    /// speed floor and the total violation. The total violation alone weighs a margin
+    /// violation like a contact, so a long ego could swing its tail into a car beside it to
+    /// lower its violation against vehicles ahead and behind. On by default.
+    pub contact_first: bool,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
     /// Ablate the predicted reaction: the predictor sees the ego's keep-lane path
@@ -361,6 +388,8 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             fallback_speed_floor: 0.5,
+            edge_first: true,
+            contact_first: true,
             restore_step: 1.0,
             ablate_reaction: false,
             heading_max: 0.2,
@@ -373,6 +402,7 @@ impl Default for PlannerSettings {
             budget_s: 0.0,
             budget_calls: 0,
             safety_geometry: SafetyGeometry::Ellipse,
+            ego_segment_length: 6.0,
             contingency: false,
             contingency_accel: -2.0,
             contingency_steps: 3,
@@ -522,6 +552,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("ellipse_scale", 1.0, 4.0, ""),
     closed("margin_x", 0.0, 20.0, "m"),
     closed("margin_y", 0.0, 5.0, "m"),
+    closed("ego_segment_length", 0.0, 100.0, "m"),
     closed("brake_decel", 0.0, 15.0, "m/s²"),
     closed(
         "check_range",
@@ -605,6 +636,7 @@ impl PlannerSettings {
             "ellipse_scale" => self.ellipse_scale,
             "margin_x" => self.margin_x,
             "margin_y" => self.margin_y,
+            "ego_segment_length" => self.ego_segment_length,
             "brake_decel" => self.brake_decel,
             "check_range" => self.check_range,
             "safety_min" => self.safety_min,

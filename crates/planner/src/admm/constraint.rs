@@ -43,6 +43,9 @@ pub struct SafetyConstraint {
     scale: f64,
     margins: [f64; 2],
     geometry: SafetyGeometry,
+    /// Slices the ego is cut into along its heading for the ellipse geometry
+    /// ([`PlannerSettings::ego_segment_length`]; 1: one ellipse for the whole ego).
+    segments: usize,
     /// Step length (s), for the other vehicles' speeds from their predicted positions.
     dt: f64,
     /// Deceleration (m/s²) the closing-speed margin grants the rear vehicle; 0 disables it.
@@ -75,6 +78,7 @@ impl SafetyConstraint {
             scale: settings.ellipse_scale,
             margins: [settings.margin_x, settings.margin_y],
             geometry: settings.safety_geometry,
+            segments: ego_segments(problem.sizes[0][0], settings.ego_segment_length),
             dt: settings.dt,
             brake_decel: settings.brake_decel,
         }
@@ -191,6 +195,9 @@ impl SafetyConstraint {
         };
         ellipse.a_x += closing;
         let b = match self.geometry {
+            SafetyGeometry::Ellipse if self.segments > 1 => {
+                self.sliced(vehicle, ego, previous, other, closing).0
+            }
             SafetyGeometry::Ellipse => ellipse.value([ego[0], ego[1]], other),
             SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
                 self.boxes(vehicle, ego, previous, other, closing).0
@@ -216,6 +223,9 @@ impl SafetyConstraint {
             0.0
         };
         match self.geometry {
+            SafetyGeometry::Ellipse if self.segments > 1 => {
+                self.sliced(vehicle, ego, previous, other, closing)
+            }
             SafetyGeometry::Ellipse => {
                 let mut e = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
                 e.a_x += closing;
@@ -226,6 +236,35 @@ impl SafetyConstraint {
                 self.boxes(vehicle, ego, previous, other, closing)
             }
         }
+    }
+
+    /// b of the sliced ego ([`PlannerSettings::ego_segment_length`]) and its gradient
+    /// ∂b/∂(x, y) of the ego's centre: the ego at `ego` = (x, y, ψ, v) is cut along its
+    /// heading into `segments` slices of length L/k, and b is the smallest over the slices of
+    /// the [`Ellipse::oriented`] of one slice (size (L/k, W) at the ego's heading) and the
+    /// vehicle (at `other`, heading of its motion from `previous`), `closing` (m) added to the
+    /// longitudinal semi-axis, evaluated at the slice's centre ([`Ellipse::sliced`]).
+    fn sliced(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+        closing: f64,
+    ) -> (f64, [f64; 2]) {
+        let k = self.segments;
+        let mut e = Ellipse::oriented(
+            [self.ego_size[0] / k as f64, self.ego_size[1]],
+            heading_direction(ego[2]),
+            vehicle.size,
+            motion_direction(previous, other, vehicle.direction),
+            self.scale,
+            self.margins[0],
+            self.margins[1],
+        );
+        e.a_x += closing;
+        let (sn, cs) = ego[2].sin_cos();
+        e.sliced([ego[0], ego[1]], [cs, sn], self.ego_size[0], k, other)
     }
 
     /// The [`box_separation`] of the ego's box at `ego` (its heading ψ) and the vehicle's at
@@ -254,6 +293,29 @@ impl SafetyConstraint {
         }
         let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
         box_separation(&a, &b, clearance)
+    }
+
+    /// How deep the ego's box at `ego` = (x, y, ψ, v) overlaps the vehicle's box at `other`
+    /// (heading of its motion from `previous`) (m): −[`box_separation`] without clearance
+    /// when the boxes overlap, else 0; ∞ when it is NaN (never counted as clear).
+    #[must_use]
+    pub fn overlap(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+    ) -> f64 {
+        let (sn, cs) = ego[2].sin_cos();
+        let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
+        let axis = motion_axis(previous, other, vehicle.axis);
+        let b = OrientedBox::along(other, axis, vehicle.size);
+        let sep = box_separation(&a, &b, [0.0, 0.0]).0;
+        if sep.is_nan() {
+            f64::INFINITY
+        } else {
+            (-sep).max(0.0)
+        }
     }
 
     /// The minimum b_i over the checked vehicles at the step the vehicles actually drove: the
@@ -329,6 +391,18 @@ impl SafetyConstraint {
     }
 }
 
+/// The slices k = ⌈`length` / `segment`⌉ (≥ 1) an ego `length` long (m) is cut into for the
+/// ellipse geometry; 1 when `segment` is 0 (off) or at least the length.
+#[must_use]
+pub(crate) fn ego_segments(length: f64, segment: f64) -> usize {
+    if segment > 0.0 && length > segment {
+        // Both finite and positive (validated settings and sizes): a small positive count.
+        (length / segment).ceil() as usize
+    } else {
+        1
+    }
+}
+
 /// (|cos ψ|, |sin ψ|).
 fn heading_direction(psi: f64) -> [f64; 2] {
     let (sn, cs) = psi.sin_cos();
@@ -365,6 +439,9 @@ pub(crate) struct Evaluation {
     pub path_min_b: Option<f64>,
     /// `violation` over the pairs whose vehicle is not beside the ego.
     pub path_violation: f64,
+    /// Σ over the pairs of how deep the boxes overlap (m, [`SafetyConstraint::overlap`]); 0
+    /// unless the evaluator counts it ([`SafetyEval::count_overlap`]).
+    pub overlap: f64,
 }
 
 impl Evaluation {
@@ -403,6 +480,8 @@ pub(crate) struct SafetyEval<'c> {
     /// With `PlannerSettings::ablate_reaction`: the path the predictor sees instead of every
     /// candidate.
     keep_lane: Option<KeepLane>,
+    /// Count [`Evaluation::overlap`] (`PlannerSettings::contact_first`).
+    pub count_overlap: bool,
 }
 
 /// The keep-lane path `[T, 2]` (road frame, m) the predictor sees when the reaction is
@@ -515,6 +594,7 @@ impl<'c> SafetyEval<'c> {
             rows: Vec::new(),
             budget: Budget::unlimited(),
             keep_lane: None,
+            count_overlap: false,
         }
     }
 
@@ -577,6 +657,7 @@ impl<'c> SafetyEval<'c> {
                 violation: 0.0,
                 path_min_b: None,
                 path_violation: 0.0,
+                overlap: 0.0,
             });
         }
         let t = self.horizon;
@@ -595,6 +676,7 @@ impl<'c> SafetyEval<'c> {
                 violation: f64::INFINITY,
                 path_min_b: Some(f64::NEG_INFINITY),
                 path_violation: f64::INFINITY,
+                overlap: f64::INFINITY,
             });
         }
         self.predict(predictor)?;
@@ -602,6 +684,7 @@ impl<'c> SafetyEval<'c> {
         let mut violation = 0.0;
         let mut path_min_b: Option<f64> = None;
         let mut path_violation = 0.0;
+        let mut overlap = 0.0;
         self.rows.clear();
         for v in checked {
             let base = (v.index - 1) * t * 2;
@@ -617,6 +700,9 @@ impl<'c> SafetyEval<'c> {
                     self.constraint
                         .b_and_gradient(v, ego_state, previous, other, k + 1 == t);
                 let in_path = !self.constraint.beside(v, ego_state, previous, other);
+                if self.count_overlap {
+                    overlap += self.constraint.overlap(v, ego_state, previous, other);
+                }
                 previous = other;
                 if in_path {
                     path_min_b = Some(path_min_b.map_or(b, |m| min_or_nan(m, b)));
@@ -645,6 +731,7 @@ impl<'c> SafetyEval<'c> {
                 violation: f64::INFINITY,
                 path_min_b: Some(f64::NEG_INFINITY),
                 path_violation: f64::INFINITY,
+                overlap: f64::INFINITY,
             });
         }
         Ok(Evaluation {
@@ -652,6 +739,7 @@ impl<'c> SafetyEval<'c> {
             violation,
             path_min_b: path_min_b.map(|b| if b.is_nan() { f64::NEG_INFINITY } else { b }),
             path_violation,
+            overlap,
         })
     }
 }

@@ -263,10 +263,7 @@ impl LinearisedProblem {
                 let bounds: f64 = (1..4)
                     .map(|j| (lower[k][j] - zk[j]).max(0.0) + (zk[j] - upper[k][j]).max(0.0))
                     .sum();
-                let e = half_extent_at(self.ego_size, zk[2]);
-                let road = bounds
-                    + (self.edges[0] - (zk[1] - e)).max(0.0)
-                    + ((zk[1] + e) - self.edges[1]).max(0.0);
+                let road = bounds + self.edge_excess_at(zk);
                 match &self.lanes {
                     Some(lanes) => {
                         let (x, y) = (zk[0] + self.origin[0], zk[1] + self.origin[1]);
@@ -277,6 +274,19 @@ impl LinearisedProblem {
             })
             .sum::<f64>()
             + self.stop_excess(z)
+    }
+
+    /// How far the corners of the ego's box at `zk` (this frame) lie beyond the road's
+    /// [`LinearisedProblem::edges`] (m, the box's lateral half extent at its heading ψ).
+    fn edge_excess_at(&self, zk: &State) -> f64 {
+        let e = half_extent_at(self.ego_size, zk[2]);
+        (self.edges[0] - (zk[1] - e)).max(0.0) + ((zk[1] + e) - self.edges[1]).max(0.0)
+    }
+
+    /// The road-edge part of [`Self::bound_excess`]: Σ over the states `z` (`[T]`, this frame)
+    /// of how far the box's corners lie beyond the road's edges (m).
+    pub(crate) fn edge_excess(&self, z: &[State]) -> f64 {
+        z.iter().map(|zk| self.edge_excess_at(zk)).sum()
     }
 
     /// The stopping rule's excess of the plan `z` (`[T]`, this frame) (m): that of its last

@@ -76,7 +76,11 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 /// whose path is clear (no violation from a vehicle that is not beside the ego,
 /// [`super::SafetyConstraint::beside`], and no state-bound excess) and that ends at or above
 /// the floor beats every other inadmissible one: a vehicle whose box cannot touch the ego's
-/// never calls for braking towards a standstill.
+/// never calls for braking towards a standstill. With `PlannerSettings::edge_first`, among
+/// inadmissible ones the smaller road-edge excess wins before anything else (an ego that
+/// starts over the road's edge never picks a fallback that swings a corner further out to
+/// lower its safety violation). With `PlannerSettings::contact_first`, the smaller predicted
+/// box overlap wins before that.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
     /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
@@ -86,6 +90,12 @@ pub(crate) struct Rank {
     pub clear: bool,
     /// Cost when admissible, total violation when not.
     pub value: f64,
+    /// Predicted box overlap of the roll-out (m, [`super::constraint::Evaluation::overlap`])
+    /// when inadmissible and `PlannerSettings::contact_first` is on, else 0.
+    pub contact: f64,
+    /// Road-edge excess of the roll-out (m, [`LinearisedProblem::edge_excess`]) when
+    /// inadmissible and `PlannerSettings::edge_first` is on, else 0.
+    pub edge: f64,
 }
 
 impl Rank {
@@ -94,6 +104,12 @@ impl Rank {
         match (self.safe, other.safe) {
             (true, false) => true,
             (false, true) => false,
+            (false, false) if (self.contact - other.contact).abs() > EXCESS_TOLERANCE => {
+                self.contact < other.contact
+            }
+            (false, false) if (self.edge - other.edge).abs() > EXCESS_TOLERANCE => {
+                self.edge < other.edge
+            }
             _ if self.clear != other.clear => self.clear,
             _ => self.value < other.value,
         }
@@ -163,12 +179,16 @@ impl Repairer<'_, '_> {
                 safe: false,
                 clear: false,
                 value: v,
+                contact: e.overlap,
+                edge: self.edge_rank(&rollout),
             }
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
                 clear: false,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
+                contact: 0.0,
+                edge: 0.0,
             }
         } else {
             let floor = self.s.fallback_speed_floor;
@@ -183,6 +203,8 @@ impl Repairer<'_, '_> {
                 clear,
                 value: safety_violation(e.min_b, e.violation, self.s.safety_min)
                     + EXCESS_WEIGHT * (excess + gap_violation),
+                contact: e.overlap,
+                edge: self.edge_rank(&rollout),
             }
         };
         Ok(Candidate {
@@ -195,6 +217,16 @@ impl Repairer<'_, '_> {
             rank,
             rows,
         })
+    }
+
+    /// The road-edge excess an inadmissible `rollout` ranks by first (m): its
+    /// [`LinearisedProblem::edge_excess`] with `PlannerSettings::edge_first`, else 0.
+    fn edge_rank(&self, rollout: &[State]) -> f64 {
+        if self.s.edge_first {
+            self.lp.edge_excess(rollout)
+        } else {
+            0.0
+        }
     }
 
     /// The contingency rule on a plan (`delta`, `accel` and their `rollout`): `None` when it

@@ -1324,3 +1324,160 @@ fn a_vehicle_passing_beside_does_not_brake_the_ego_to_a_standstill() {
         v_end(&ahead)
     );
 }
+
+/// A 19.8 m truck in its lane's centre at 18.6 m/s, a car 26 m ahead at 10 m/s, and a car
+/// beside its tail in the lane to its right (centres 8 m apart along the road, 2.6 m across:
+/// 0.3 m between the boxes), changing left. Nothing is admissible.
+fn squeezed_truck() -> (History, Vec<[f64; 2]>) {
+    let (h, mut sizes) = scene(18.6, 0.0, &[(26.0, 0.0, 10.0), (-8.0, -2.6, 18.6)]);
+    sizes[0] = [19.8, 2.59];
+    sizes[1] = [4.0, 1.8];
+    sizes[2] = [5.3, 2.0];
+    (h, sizes)
+}
+
+/// The (step, vehicle) pairs at which the plan's box overlaps a vehicle's box at its
+/// constant-velocity position (the separating-axis test, [`crate::safety::OrientedBox`]).
+fn predicted_contacts(plan: &Plan, h: &History, sizes: &[[f64; 2]]) -> usize {
+    use crate::safety::OrientedBox;
+    let mut contacts = 0;
+    for (k, z) in plan.states.iter().enumerate() {
+        let steps = (k + 1) as f64;
+        let ego = OrientedBox {
+            x: z[0],
+            y: z[1],
+            heading: z[2],
+            length: sizes[0][0],
+            width: sizes[0][1],
+        };
+        for (i, size) in sizes.iter().enumerate().skip(1) {
+            let (p, q) = (h.at(i, T_OBS - 2), h.at(i, T_OBS - 1));
+            let other = OrientedBox {
+                x: q[0] + (q[0] - p[0]) * steps,
+                y: q[1] + (q[1] - p[1]) * steps,
+                heading: 0.0,
+                length: size[0],
+                width: size[1],
+            };
+            if ego.overlaps(&other) {
+                contacts += 1;
+            }
+        }
+    }
+    contacts
+}
+
+/// Nothing is admissible for the squeezed truck, and the least total violation steers it
+/// towards the target lane, away from the slow car ahead, which swings its tail into the car
+/// beside it (a contact by the separating-axis test at the constant-velocity positions), with
+/// one ellipse for the whole truck or with 6 m slices; with `contact_first` the fallback
+/// touches nobody.
+#[test]
+fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
+    let (h, sizes) = squeezed_truck();
+    let mut p = problem(&h, &sizes, 18.6);
+    p.y_target = 3.44;
+    p.road = [-5.16, 5.16];
+    p.y_retreat = Some(0.0);
+    let plan_with = |ego_segment_length: f64, contact_first: bool| {
+        let s = PlannerSettings {
+            ego_segment_length,
+            contact_first,
+            ..PlannerSettings::default()
+        };
+        let mut planner = Planner::new(s).unwrap();
+        planner
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap()
+    };
+    for segment in [0.0, 6.0] {
+        let (off, on) = (plan_with(segment, false), plan_with(segment, true));
+        assert!(
+            off.min_safety.is_some_and(|b| b < 0.0) && on.min_safety.is_some_and(|b| b < 0.0),
+            "nothing admissible either way: {:?} {:?}",
+            off.min_safety,
+            on.min_safety
+        );
+        assert!(
+            predicted_contacts(&off, &h, &sizes) > 0,
+            "segment {segment}: without the rule the fallback touches a car: {:?}",
+            off.states
+        );
+        assert_eq!(
+            predicted_contacts(&on, &h, &sizes),
+            0,
+            "segment {segment}: with it nobody: {:?}",
+            on.states
+        );
+    }
+}
+
+/// The road-edge excess the `edge_first` rule ranks by, against the corners of the ego's box
+/// computed by rotation (independent of the half-extent formula): Σ over the states of how
+/// far the lowest corner lies below the right edge and the highest above the left one, the
+/// edges widened by the start overhang plus its slack.
+#[test]
+fn edge_excess_is_how_far_the_box_s_corners_leave_the_road() {
+    let (h, mut sizes) = scene(12.0, -1.19, &[]);
+    sizes[0] = [6.1, 2.56];
+    let mut p = problem(&h, &sizes, 12.0);
+    p.ego.y = -1.19;
+    let s = PlannerSettings::default();
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    // The truck starts 0.62 m over the right edge (−1.85): that edge moves out by 0.67 m.
+    let right = -1.85 - 0.62 - super::linearised::START_OVERHANG_SLACK;
+    let corners = |z: &State| {
+        let (sn, cs) = z[2].sin_cos();
+        [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
+            .map(|(u, v)| z[1] + 0.5 * (u * 6.1 * sn + v * 2.56 * cs))
+    };
+    let states: Vec<State> = [(-1.19, 0.0), (-1.15, 0.08), (-1.1, -0.12), (4.5, 0.2)]
+        .iter()
+        .map(|&(y, psi)| State::new(0.0, y - p.ego.y, psi, 12.0))
+        .collect();
+    let truth: f64 = states
+        .iter()
+        .map(|z| {
+            let c = corners(&State::new(0.0, z[1] + p.ego.y, z[2], 12.0));
+            let low = c.iter().copied().fold(f64::INFINITY, f64::min);
+            let high = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (right - low).max(0.0) + (high - 5.55).max(0.0)
+        })
+        .sum();
+    assert!(truth > 0.1, "the turned states leave the road: {truth}");
+    assert!(
+        (lp.edge_excess(&states) - truth).abs() < 1e-9,
+        "{} vs {truth}",
+        lp.edge_excess(&states)
+    );
+}
+
+/// Among inadmissible candidates the `edge_first` rank puts the smaller road-edge excess
+/// first, whatever the violation; equal edge excesses (0 when the rule is off) leave the
+/// speed floor and the total violation to decide as before; an admissible candidate still
+/// beats every inadmissible one.
+#[test]
+fn edge_and_contact_rank_before_the_total_violation() {
+    let r = |value: f64, edge: f64, contact: f64, clear: bool| super::repair::Rank {
+        safe: false,
+        clear,
+        value,
+        contact,
+        edge,
+    };
+    assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.05, 0.0, false)));
+    assert!(!r(1.0, 0.05, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
+    assert!(r(1.0, 0.0, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
+    assert!(r(5.0, 0.0, 0.0, true).beats(&r(1.0, 0.0, 0.0, false)));
+    // Contact before the road edge, the road edge before the speed floor.
+    assert!(r(5.0, 0.3, 0.0, false).beats(&r(1.0, 0.0, 0.2, true)));
+    assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.3, 0.0, true)));
+    let admissible = super::repair::Rank {
+        safe: true,
+        clear: false,
+        value: 100.0,
+        contact: 0.0,
+        edge: 0.0,
+    };
+    assert!(admissible.beats(&r(0.0, 0.0, 0.0, true)));
+}

@@ -424,6 +424,7 @@ pub fn simulate_with(
             cfg.abort_hold,
         )
         .with_stall_abort(cfg.stall_progress)
+        .with_start_abort(cfg.start_abort_after, p0[1])
         .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0]),
         observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
         trace: control.trace,
