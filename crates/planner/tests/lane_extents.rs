@@ -372,67 +372,107 @@ fn ramp_ahead(begin: f64) -> Vec<LaneExtent> {
     ]
 }
 
-proptest! {
-    #![proptest_config(ProptestConfig { cases: 8, .. ProptestConfig::default() })]
+/// Planning towards a lane that begins at `begin` (m) ahead of an ego at `v` (m/s) alone in
+/// the lane beside it, step after step in closed loop (the first input applied to the bicycle
+/// model, 20 steps): the ego's centre is never in that lane before it begins, no admissible
+/// plan puts a state there, and once the ramp has begun within reach the ego does enter it.
+fn ramp_run(begin: f64, v: f64) -> Result<(), TestCaseError> {
+    let ext = ramp_ahead(begin);
+    let sc = scene(&[(0.0, 0.0, v)], Some(ext.clone()));
+    let lanes = sc.lanes().unwrap();
+    let s = PlannerSettings::default();
+    let mut planner = Planner::new(s.clone()).unwrap();
+    let mut cv = ConstantVelocity::default();
+    let mut ego = [0.0, 0.0, 0.0, v];
+    let (mut last_delta, mut last_accel) = (0.0, 0.0);
+    let mut entered = false;
+    for _ in 0..20 {
+        let pos: Vec<f64> = (0..T_OBS)
+            .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
+            .collect();
+        let h = History::new(pos, 1).unwrap();
+        let p = PlanningProblem {
+            ego: EgoState {
+                x: ego[0],
+                y: ego[1],
+                psi: ego[2],
+                v: ego[3],
+            },
+            last_delta,
+            last_accel,
+            history: &h,
+            sizes: &sc.size,
+            y_target: 3.7,
+            v_ref: v,
+            road: sc.road(),
+            y_retreat: None,
+            lanes: sc.lanes(),
+        };
+        let plan = planner.plan(&p, &mut cv).unwrap();
+        if plan.status != PlanStatus::Unsafe {
+            prop_assert!(plan.lane_violation.is_none());
+            for z in &plan.states {
+                prop_assert!(lanes.outside(z[0], z[1]).is_none(), "{z:?} begin {begin}");
+            }
+        }
+        let m = planner.model();
+        let next = m.advance(
+            &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
+            plan.delta[0],
+            plan.accel[0],
+        );
+        ego = [next[0], next[1], next[2], next[3]];
+        (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        prop_assert!(
+            lanes.outside(ego[0], ego[1]).is_none(),
+            "ego at {ego:?} in the ramp before it begins at {begin}"
+        );
+        entered |= ego[1] > BOUNDS[1];
+    }
+    // Once the ramp has begun the ego does enter it (the rule does not freeze it).
+    prop_assert!(entered || begin > 20.0 * DT * v * 0.8);
+    Ok(())
+}
 
-    /// Planning towards a lane that begins ahead, step after step in closed loop (the first
-    /// input applied to the bicycle model): the ego's centre is never in that lane before it
-    /// begins, and no admissible plan puts a state there.
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: 8,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(11),
+        ..ProptestConfig::default()
+    })]
+
+    /// [`ramp_run`] over random extents and speeds.
     #[test]
     fn the_ego_never_enters_a_lane_before_it_begins(
         begin in 5.0f64..150.0,
         v in 10.0f64..28.0,
     ) {
-        let ext = ramp_ahead(begin);
-        let sc = scene(&[(0.0, 0.0, v)], Some(ext.clone()));
-        let lanes = sc.lanes().unwrap();
-        let s = PlannerSettings::default();
-        let mut planner = Planner::new(s.clone()).unwrap();
-        let mut cv = ConstantVelocity::default();
-        let mut ego = [0.0, 0.0, 0.0, v];
-        let (mut last_delta, mut last_accel) = (0.0, 0.0);
-        let mut entered = false;
-        for _ in 0..20 {
-            let pos: Vec<f64> = (0..T_OBS)
-                .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
-                .collect();
-            let h = History::new(pos, 1).unwrap();
-            let p = PlanningProblem {
-                ego: EgoState { x: ego[0], y: ego[1], psi: ego[2], v: ego[3] },
-                last_delta,
-                last_accel,
-                history: &h,
-                sizes: &sc.size,
-                y_target: 3.7,
-                v_ref: v,
-                road: sc.road(),
-                y_retreat: None,
-                lanes: sc.lanes(),
-            };
-            let plan = planner.plan(&p, &mut cv).unwrap();
-            if plan.status != PlanStatus::Unsafe {
-                prop_assert!(plan.lane_violation.is_none());
-                for z in &plan.states {
-                    prop_assert!(lanes.outside(z[0], z[1]).is_none(), "{z:?} begin {begin}");
-                }
-            }
-            let m = planner.model();
-            let next = m.advance(
-                &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
-                plan.delta[0],
-                plan.accel[0],
-            );
-            ego = [next[0], next[1], next[2], next[3]];
-            (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
-            prop_assert!(
-                lanes.outside(ego[0], ego[1]).is_none(),
-                "ego at {ego:?} in the ramp before it begins at {begin}"
-            );
-            entered |= ego[1] > BOUNDS[1];
-        }
-        // Once the ramp has begun the ego does enter it (the rule does not freeze it).
-        prop_assert!(entered || begin > 20.0 * DT * v * 0.8);
+        ramp_run(begin, v)?;
     }
+}
+
+/// Cases of [`ramp_run`] from a grid over (begin, v) that entered the ramp before it begins
+/// while the fallbacks ranked a plan 3.6 mm inside the closed lane above the shifted previous
+/// plan, which only left the lateral corridor (by 0.024 m at its last step): at v = 21.415
+/// and a ramp beginning at 104.9775 m the ego reached (102.72, 1.8536), the line at 1.85.
+#[test]
+fn the_ego_never_enters_a_lane_before_it_begins_on_the_cases_found() {
+    let failed: Vec<String> = [
+        (104.9775, 21.415),
+        (34.894_166_666_666_66, 21.415),
+        (133.9775, 21.425),
+        (61.4775, 21.475),
+        (75.9775, 21.485),
+        (124.310_833_333_333_32, 21.485),
+    ]
+    .into_iter()
+    .filter_map(|(begin, v)| {
+        ramp_run(begin, v)
+            .err()
+            .map(|e| format!("{begin}, {v}: {e}"))
+    })
+    .collect();
+    assert!(failed.is_empty(), "{failed:#?}");
 }
 
 #[test]

@@ -19,6 +19,11 @@
 //! ego across the line between its own lane and the target lane is admissible only when its
 //! retreat is safe (`super::contingency`); every candidate above is checked by that rule.
 //!
+//! A lane that has not begun is never entered for a smaller violation elsewhere: among
+//! inadmissible candidates, one whose roll-out puts a centre in a lane before it begins
+//! ([`crate::LaneViolationKind::NotBegun`]) ranks below every one that does not
+//! ([`Rank::unbegun`], the rule of [`crate::extents`]).
+//!
 //! With `PlannerSettings::follower_ttc`, a roll-out that narrows the lateral clearance to a
 //! follower on the goal's side whose non-reacting gap behind the ego is too short is not
 //! admissible either (`super::follower_gap`); among inadmissible candidates its violation
@@ -29,6 +34,7 @@
 use nudge_predictor::Predictor;
 
 use crate::error::PlannerError;
+use crate::extents::LaneViolationKind;
 use crate::model::{Bicycle, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
@@ -80,11 +86,15 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 /// inadmissible ones the smaller road-edge excess wins before anything else (an ego that
 /// starts over the road's edge never picks a fallback that swings a corner further out to
 /// lower its safety violation). With `PlannerSettings::contact_first`, the smaller predicted
-/// box overlap wins before that.
+/// box overlap wins before that. After those, an inadmissible one that puts a centre in a
+/// lane before it begins loses to every inadmissible one that does not.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
     /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
     pub safe: bool,
+    /// A state of the roll-out has its centre in a lane that really begins after its x
+    /// ([`crate::LaneViolationKind::NotBegun`]; never for an admissible one).
+    pub unbegun: bool,
     /// Inadmissible, but its path is clear and it keeps the speed floor (false unless the
     /// floor is on).
     pub clear: bool,
@@ -110,6 +120,7 @@ impl Rank {
             (false, false) if (self.edge - other.edge).abs() > EXCESS_TOLERANCE => {
                 self.edge < other.edge
             }
+            _ if self.unbegun != other.unbegun => other.unbegun,
             _ if self.clear != other.clear => self.clear,
             _ => self.value < other.value,
         }
@@ -174,9 +185,19 @@ impl Repairer<'_, '_> {
             retreat_violation = self.check_retreat(&delta, &accel, &rollout)?;
             predicted_safe = retreat_violation.is_none();
         }
+        let unbegun = self.lp.lanes.as_ref().is_some_and(|lanes| {
+            let lanes = lanes.view();
+            self.lp.to_world(&rollout).iter().any(|z| {
+                matches!(
+                    lanes.outside(z[0], z[1]),
+                    Some((_, LaneViolationKind::NotBegun))
+                )
+            })
+        });
         let rank = if let Some(v) = retreat_violation {
             Rank {
                 safe: false,
+                unbegun,
                 clear: false,
                 value: v,
                 contact: e.overlap,
@@ -185,6 +206,7 @@ impl Repairer<'_, '_> {
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
+                unbegun,
                 clear: false,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
                 contact: 0.0,
@@ -200,6 +222,7 @@ impl Repairer<'_, '_> {
                 && v_end >= floor * self.lp.reference[3];
             Rank {
                 safe: false,
+                unbegun,
                 clear,
                 value: safety_violation(e.min_b, e.violation, self.s.safety_min)
                     + EXCESS_WEIGHT * (excess + gap_violation),

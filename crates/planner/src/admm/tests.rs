@@ -1460,6 +1460,7 @@ fn edge_excess_is_how_far_the_box_s_corners_leave_the_road() {
 fn edge_and_contact_rank_before_the_total_violation() {
     let r = |value: f64, edge: f64, contact: f64, clear: bool| super::repair::Rank {
         safe: false,
+        unbegun: false,
         clear,
         value,
         contact,
@@ -1472,8 +1473,17 @@ fn edge_and_contact_rank_before_the_total_violation() {
     // Contact before the road edge, the road edge before the speed floor.
     assert!(r(5.0, 0.3, 0.0, false).beats(&r(1.0, 0.0, 0.2, true)));
     assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.3, 0.0, true)));
+    // A lane entered before it begins after contact and road edge, before the speed floor.
+    let unbegun = |rank: super::repair::Rank| super::repair::Rank {
+        unbegun: true,
+        ..rank
+    };
+    assert!(r(5.0, 0.0, 0.0, false).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
+    assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
+    assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.3, 0.0, true)));
     let admissible = super::repair::Rank {
         safe: true,
+        unbegun: false,
         clear: false,
         value: 100.0,
         contact: 0.0,
