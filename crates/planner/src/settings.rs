@@ -117,9 +117,11 @@ pub struct PlannerSettings {
     /// against 12.2 m where the boxes touch); the slices' ellipses still circumscribe the
     /// overlap region (the union of the slices is the ego's box), so b > 0 keeps excluding
     /// overlap, with a reach closer to the box. Cars shorter than this are unaffected.
-    /// 6 m by default (with `contact_first` and `edge_first`; measured together on validation,
-    /// see [`crate::Planner`]'s "Long egos" section): the validation egos longer than 6 m are
-    /// trucks of 6.1–19.8 m.
+    /// Off (0) by default; 6 m with `contact_first` and `edge_first` is the measured variant
+    /// (validation: no world lost success, log-replay at-fault runs 8 → 5; the test split,
+    /// run once, left the road and broke the heading bound in log replay, so the three stay
+    /// off; see [`crate::Planner`]'s "Long egos" section and `docs/results/long_egos.md`).
+    /// The validation egos longer than 6 m are trucks of 6.1–19.8 m.
     pub ego_segment_length: f64,
     /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
     /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
@@ -226,15 +228,17 @@ pub struct PlannerSettings {
     /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
     /// horizon, m) wins before the speed floor and the total violation (which otherwise
     /// weighs that excess in one sum with the safety violation, so an ego that starts over
-    /// the edge could swing a corner further out to lower its safety violation). On by
-    /// default.
+    /// the edge could swing a corner further out to lower its safety violation). Off by
+    /// default (`docs/results/long_egos.md`).
     pub edge_first: bool,
     /// Rank predicted contact first among fallbacks without an admissible plan: the candidate
     /// whose box overlaps the predicted boxes of the other vehicles least (Σ over vehicles and
     /// steps of the separating-axis overlap depth, m) wins before the road-edge rule, the
     /// speed floor and the total violation. The total violation alone weighs a margin
     /// violation like a contact, so a long ego could swing its tail into a car beside it to
-    /// lower its violation against vehicles ahead and behind. On by default.
+    /// lower its violation against vehicles ahead and behind. Off by default: ranked above
+    /// the state bounds, it let cars swerve past the heading bound and off the road to avoid
+    /// a predicted contact (test split, log replay; `docs/results/long_egos.md`).
     pub contact_first: bool,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
@@ -388,8 +392,8 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             fallback_speed_floor: 0.5,
-            edge_first: true,
-            contact_first: true,
+            edge_first: false,
+            contact_first: false,
             restore_step: 1.0,
             ablate_reaction: false,
             heading_max: 0.2,
@@ -402,7 +406,7 @@ impl Default for PlannerSettings {
             budget_s: 0.0,
             budget_calls: 0,
             safety_geometry: SafetyGeometry::Ellipse,
-            ego_segment_length: 6.0,
+            ego_segment_length: 0.0,
             contingency: false,
             contingency_accel: -2.0,
             contingency_steps: 3,

@@ -238,7 +238,7 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// runs 3 → 0 (planned 12 → 4).
 ///
 /// **Long egos, contact and the road edge** (`ego_segment_length` 6 m, `contact_first`,
-/// `edge_first`; on by default). The √2 ellipse of a 19.8 m truck and a car reaches 18.7 m
+/// `edge_first`; off by default: chosen on validation, they failed the test split, below). The √2 ellipse of a 19.8 m truck and a car reaches 18.7 m
 /// along the road where the boxes touch at 12.2 m, so a car 20 m ahead in the truck's lateral
 /// position made every plan inadmissible (validation, `us101-2_1-t06.6-ego513`). Cut into
 /// slices of at most 6 m ([`crate::safety::Ellipse::sliced`]) the ellipses still exclude
@@ -259,7 +259,16 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// replay 8 → 5 (student: the truck starting across the line, `t04.5-ego513`, no longer hit),
 /// 0 → 0 elsewhere; off-road runs of the teacher planner 3 → 0 in every world. The long-ego
 /// failures of the student in the teacher world stay (37 runs): those trucks ride beside a
-/// target-lane car of their own speed, which no geometry lets them pass.
+/// target-lane car of their own speed, which no geometry lets them pass. The test split, run
+/// once with the three on (300 scenes × 3 seeds, teacher planner on 150), confirmed the other
+/// worlds (teacher 88.8 → 88.6 / 88.7 → 88.4 %, idm 91.8 → 92.1 / 90.9 → 91.8 %, no at-fault
+/// collision) but not log replay: student at-fault runs 6 → 7, off-road runs 0 → 5 (student)
+/// and 0 → 1 (teacher planner), the heading bound broken (0.46 and 0.445 rad), all on cars
+/// (3.7–6.1 m): with `contact_first` above the state bounds, a fallback that is predicted to
+/// touch nobody beats one within the heading bound and on the road, so a squeezed car swerved
+/// across a lane (`us101-11_1-t03.0-ego135`: 7.9 m beyond the target lane's centre). So the
+/// three are off by default (`docs/results/long_egos.md`); a contact rank that keeps the
+/// state bounds first is the next step.
 ///
 /// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
 /// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
