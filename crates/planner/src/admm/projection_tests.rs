@@ -6,7 +6,7 @@
 //! mechanism against the same run with it switched off.
 #![allow(clippy::unwrap_used)]
 
-use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
+use nudge_predictor::{ConstantVelocity, History, Predictor};
 
 use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
 
@@ -53,9 +53,7 @@ impl Predictor for Shadow {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.last = (0..history.n_agents())
-            .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
-            .collect();
+        self.last = super::tests::last_two(history);
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {

@@ -101,7 +101,7 @@ impl Predictor for Gate {
 }
 
 /// The last two observed positions `[n][2]` (m) of every agent.
-fn last_two(history: &History) -> Vec<[[f64; 2]; 2]> {
+pub(super) fn last_two(history: &History) -> Vec<[[f64; 2]; 2]> {
     (0..history.n_agents())
         .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
         .collect()
