@@ -11,14 +11,14 @@ use nudge_predictor::{ConstantVelocity, History, Predictor};
 use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
 
 use super::constraint::{SafetyEval, SafetyRow};
-use super::inputs::{Input, InputQps};
+use super::inputs::Input;
 use super::linearised::LinearisedProblem;
 use super::projection::{bound_rows, cut_row};
 use super::repair::simple_inputs;
 use super::retighten;
 use super::safe_step::{StepRow, constrained_step};
 use super::start::{StartCandidate, start};
-use super::workspace::{CurrentSafety, Iterates, Workspace};
+use super::workspace::{Iterates, Workspace};
 use super::z_update::Lagrangian;
 use super::*;
 use crate::qp::{clarabel_settings, triplets_csc, upper_csc};
@@ -280,11 +280,8 @@ fn projection_lowers_g_where_the_halved_safe_step_stops() {
     };
     shadow.set_scene(&h).unwrap();
     let threshold = off.safety_min + off.plan_buffer;
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
-    let iterates = Iterates::start(&lp);
-    let first = safety.eval(&mut shadow, &iterates.z).unwrap();
-    let mut ws = Workspace::new(&off, &lp, iterates, CurrentSafety::new(first, &safety));
-    let mut qps = InputQps::new(&off, &lp).unwrap();
+    let (mut safety, _, mut ws, mut qps) =
+        super::tests::call_start(&off, &lp, &constraint, threshold, &mut shadow);
     let mut timings = PhaseTimings::default();
     let g_of = |ws: &Workspace| {
         Lagrangian {
