@@ -75,20 +75,9 @@ impl Predictor for Shadow {
 /// H = 2W + ρCᵀC of the call, dense `[4T, 4T]` row-major (the matrix whose inverse the
 /// Z-update uses).
 fn hessian(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<f64> {
-    let m4 = 4 * lp.horizon;
-    let c = lp.linearisation.dense_c();
-    let mut h = vec![0.0; m4 * m4];
-    for i in 0..m4 {
-        for j in 0..m4 {
-            let mut v: f64 = (0..m4).map(|r| c[r * m4 + i] * c[r * m4 + j]).sum();
-            v *= s.rho;
-            if i == j {
-                v += 2.0 * lp.weights[i % 4];
-            }
-            h[i * m4 + j] = v;
-        }
-    }
-    h
+    let h = super::workspace::hessian(s, lp);
+    let n = h.nrows();
+    (0..n * n).map(|k| h[(k / n, k % n)]).collect()
 }
 
 /// min ½dᵀHd + g·d subject to a·d ≥ need for every row, solved by Clarabel (`h` `[n, n]`).
