@@ -12,7 +12,7 @@ use std::collections::HashMap;
 
 use nudge_planner::scenario::LaneExtent;
 use nudge_planner::{
-    EgoState, LaneViolationKind, Lanes, PlanStatus, Planner, PlannerError, PlannerSettings,
+    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerError, PlannerSettings,
     PlanningProblem, RunOutcome, Scenario, SimConfig, World, WorldModel, simulate,
 };
 use nudge_predictor::{ConstantVelocity, History, T_OBS};
@@ -384,45 +384,18 @@ fn ramp_run(begin: f64, v: f64) -> Result<(), TestCaseError> {
     let mut planner = Planner::new(s.clone()).unwrap();
     let mut cv = ConstantVelocity::default();
     let mut ego = [0.0, 0.0, 0.0, v];
-    let (mut last_delta, mut last_accel) = (0.0, 0.0);
+    let mut last = (0.0, 0.0);
     let mut entered = false;
     for _ in 0..20 {
-        let pos: Vec<f64> = (0..T_OBS)
-            .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
-            .collect();
-        let h = History::new(pos, 1).unwrap();
-        let p = PlanningProblem {
-            ego: EgoState {
-                x: ego[0],
-                y: ego[1],
-                psi: ego[2],
-                v: ego[3],
-            },
-            last_delta,
-            last_accel,
-            history: &h,
-            sizes: &sc.size,
-            y_target: 3.7,
-            v_ref: v,
-            road: sc.road(),
-            y_retreat: None,
-            lanes: sc.lanes(),
-        };
-        let plan = planner.plan(&p, &mut cv).unwrap();
+        let (plan, next) = step(&mut planner, &mut cv, &sc, ego, last, 3.7, v);
         if plan.status != PlanStatus::Unsafe {
             prop_assert!(plan.lane_violation.is_none());
             for z in &plan.states {
                 prop_assert!(lanes.outside(z[0], z[1]).is_none(), "{z:?} begin {begin}");
             }
         }
-        let m = planner.model();
-        let next = m.advance(
-            &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
-            plan.delta[0],
-            plan.accel[0],
-        );
-        ego = [next[0], next[1], next[2], next[3]];
-        (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        ego = next;
+        last = (plan.delta[0], plan.accel[0]);
         prop_assert!(
             lanes.outside(ego[0], ego[1]).is_none(),
             "ego at {ego:?} in the ramp before it begins at {begin}"
@@ -759,6 +732,49 @@ fn scenes_without_real_ends_draw_the_same_target_lanes_as_before() {
     }
 }
 
+/// One planning call from `ego` (x, y, ψ, v) after the inputs `last` (steering rad,
+/// acceleration m/s²) towards `y_target` (m) at the reference speed `v_ref` (m/s) on the scene
+/// `sc` (its lanes and road; the ego alone, its history the constant-velocity past of `ego`),
+/// and the state after the plan's first input is applied to the bicycle model.
+fn step(
+    planner: &mut Planner,
+    cv: &mut ConstantVelocity,
+    sc: &Scenario,
+    ego: [f64; 4],
+    (last_delta, last_accel): (f64, f64),
+    y_target: f64,
+    v_ref: f64,
+) -> (Plan, [f64; 4]) {
+    let pos: Vec<f64> = (0..T_OBS)
+        .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
+        .collect();
+    let h = History::new(pos, 1).unwrap();
+    let p = PlanningProblem {
+        ego: EgoState {
+            x: ego[0],
+            y: ego[1],
+            psi: ego[2],
+            v: ego[3],
+        },
+        last_delta,
+        last_accel,
+        history: &h,
+        sizes: &sc.size,
+        y_target,
+        v_ref,
+        road: sc.road(),
+        y_retreat: None,
+        lanes: sc.lanes(),
+    };
+    let plan = planner.plan(&p, cv).unwrap();
+    let next = planner.model().advance(
+        &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
+        plan.delta[0],
+        plan.accel[0],
+    );
+    (plan, [next[0], next[1], next[2], next[3]])
+}
+
 /// One planning call per step from `ego` (x, y, ψ, v) towards `y_target` on the scene `sc`
 /// (its lanes and road; the ego alone, constant-velocity prediction), the first input applied
 /// to the bicycle model each time: the statuses, applied accelerations (m/s²) and states after
@@ -772,38 +788,12 @@ fn drive(
     let s = PlannerSettings::default();
     let mut planner = Planner::new(s).unwrap();
     let mut cv = ConstantVelocity::default();
-    let (mut last_delta, mut last_accel) = (0.0, 0.0);
+    let mut last = (0.0, 0.0);
     let mut out = Vec::new();
     for _ in 0..steps {
-        let pos: Vec<f64> = (0..T_OBS)
-            .flat_map(|t| [ego[0] - ego[3] * DT * (T_OBS - 1 - t) as f64, ego[1]])
-            .collect();
-        let h = History::new(pos, 1).unwrap();
-        let p = PlanningProblem {
-            ego: EgoState {
-                x: ego[0],
-                y: ego[1],
-                psi: ego[2],
-                v: ego[3],
-            },
-            last_delta,
-            last_accel,
-            history: &h,
-            sizes: &sc.size,
-            y_target,
-            v_ref: sc.speed[0],
-            road: sc.road(),
-            y_retreat: None,
-            lanes: sc.lanes(),
-        };
-        let plan = planner.plan(&p, &mut cv).unwrap();
-        let next = planner.model().advance(
-            &nudge_planner::State::new(ego[0], ego[1], ego[2], ego[3]),
-            plan.delta[0],
-            plan.accel[0],
-        );
-        ego = [next[0], next[1], next[2], next[3]];
-        (last_delta, last_accel) = (plan.delta[0], plan.accel[0]);
+        let (plan, next) = step(&mut planner, &mut cv, sc, ego, last, y_target, sc.speed[0]);
+        ego = next;
+        last = (plan.delta[0], plan.accel[0]);
         out.push((plan.status, plan.accel[0], ego));
     }
     out

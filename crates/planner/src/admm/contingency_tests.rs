@@ -2,13 +2,13 @@
 //! execution check (the same nudge admitted with a safe retreat, refused with a blocked one).
 #![allow(clippy::unwrap_used)]
 
-use nudge_predictor::{History, Predictor, T_OBS};
+use nudge_predictor::{History, Predictor};
 
 use super::constraint::{SafetyConstraint, SafetyEval};
 use super::contingency::Contingency;
 use super::linearised::LinearisedProblem;
 use super::repair::Repairer;
-use super::tests::{problem, scene};
+use super::tests::{last_two, problem, scene};
 use crate::model::{Bicycle, State};
 use crate::settings::{PlannerSettings, SafetyGeometry};
 
@@ -32,9 +32,7 @@ impl Predictor for Backstop {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.last = (0..history.n_agents())
-            .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
-            .collect();
+        self.last = last_two(history);
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {

@@ -8,7 +8,7 @@ use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
 use nudge_predictor::{ConstantVelocity, History, Predictor};
 
 use super::constraint::{SafetyEval, SafetyRow};
-use super::inputs::{Input, InputQps};
+use super::inputs::Input;
 use super::linearised::LinearisedProblem;
 use super::safe_step::linearised_step;
 use super::workspace::{CurrentSafety, Iterates, Workspace, max_diff};
@@ -265,11 +265,8 @@ fn safe_step_moves_z_where_the_newton_trials_stall() {
     let mut cv = ConstantVelocity::default();
     cv.set_scene(&h).unwrap();
     let threshold = base.safety_min + base.plan_buffer;
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
-    let iterates = Iterates::start(&lp);
-    let first = safety.eval(&mut cv, &iterates.z).unwrap();
-    let mut ws = Workspace::new(&off, &lp, iterates, CurrentSafety::new(first, &safety));
-    let mut qps = InputQps::new(&off, &lp).unwrap();
+    let (mut safety, _, mut ws, mut qps) =
+        super::tests::call_start(&off, &lp, &constraint, threshold, &mut cv);
     let mut timings = PhaseTimings::default();
     let mut stalls = 0;
     for it in 0..off.max_iter {

@@ -6,19 +6,19 @@
 //! mechanism against the same run with it switched off.
 #![allow(clippy::unwrap_used)]
 
-use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
+use nudge_predictor::{ConstantVelocity, History, Predictor};
 
 use clarabel::solver::{DefaultSolver, IPSolver, NonnegativeConeT};
 
 use super::constraint::{SafetyEval, SafetyRow};
-use super::inputs::{Input, InputQps};
+use super::inputs::Input;
 use super::linearised::LinearisedProblem;
 use super::projection::{bound_rows, cut_row};
 use super::repair::simple_inputs;
 use super::retighten;
 use super::safe_step::{StepRow, constrained_step};
 use super::start::{StartCandidate, start};
-use super::workspace::{CurrentSafety, Iterates, Workspace};
+use super::workspace::{Iterates, Workspace};
 use super::z_update::Lagrangian;
 use super::*;
 use crate::qp::{clarabel_settings, triplets_csc, upper_csc};
@@ -53,9 +53,7 @@ impl Predictor for Shadow {
         6
     }
     fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
-        self.last = (0..history.n_agents())
-            .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
-            .collect();
+        self.last = super::tests::last_two(history);
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
@@ -77,20 +75,9 @@ impl Predictor for Shadow {
 /// H = 2W + ρCᵀC of the call, dense `[4T, 4T]` row-major (the matrix whose inverse the
 /// Z-update uses).
 fn hessian(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<f64> {
-    let m4 = 4 * lp.horizon;
-    let c = lp.linearisation.dense_c();
-    let mut h = vec![0.0; m4 * m4];
-    for i in 0..m4 {
-        for j in 0..m4 {
-            let mut v: f64 = (0..m4).map(|r| c[r * m4 + i] * c[r * m4 + j]).sum();
-            v *= s.rho;
-            if i == j {
-                v += 2.0 * lp.weights[i % 4];
-            }
-            h[i * m4 + j] = v;
-        }
-    }
-    h
+    let h = super::workspace::hessian(s, lp);
+    let n = h.nrows();
+    (0..n * n).map(|k| h[(k / n, k % n)]).collect()
 }
 
 /// min ½dᵀHd + g·d subject to a·d ≥ need for every row, solved by Clarabel (`h` `[n, n]`).
@@ -282,11 +269,8 @@ fn projection_lowers_g_where_the_halved_safe_step_stops() {
     };
     shadow.set_scene(&h).unwrap();
     let threshold = off.safety_min + off.plan_buffer;
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
-    let iterates = Iterates::start(&lp);
-    let first = safety.eval(&mut shadow, &iterates.z).unwrap();
-    let mut ws = Workspace::new(&off, &lp, iterates, CurrentSafety::new(first, &safety));
-    let mut qps = InputQps::new(&off, &lp).unwrap();
+    let (mut safety, _, mut ws, mut qps) =
+        super::tests::call_start(&off, &lp, &constraint, threshold, &mut shadow);
     let mut timings = PhaseTimings::default();
     let g_of = |ws: &Workspace| {
         Lagrangian {

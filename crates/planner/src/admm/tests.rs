@@ -5,7 +5,7 @@
 
 use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 
-use super::constraint::SafetyEval;
+use super::constraint::{Evaluation, SafetyEval};
 use super::inputs::{Input, InputQps};
 use super::linearised::LinearisedProblem;
 use super::repair::{Repairer, retreat_inputs, simple_inputs};
@@ -100,8 +100,26 @@ impl Predictor for Gate {
     }
 }
 
+/// The start of one call under `s` on the linearised problem `lp`, as the call makes it: the
+/// evaluator of `constraint` (6 steps, the ego and one other agent) at `threshold`, the safety
+/// of the start's Z under `predictor`, the workspace from that start and the input QPs.
+pub(super) fn call_start<'c>(
+    s: &PlannerSettings,
+    lp: &LinearisedProblem,
+    constraint: &'c SafetyConstraint,
+    threshold: f64,
+    predictor: &mut dyn Predictor,
+) -> (SafetyEval<'c>, Evaluation, Workspace, InputQps) {
+    let mut safety = SafetyEval::new(constraint, lp.origin, 6, 2, threshold);
+    let iterates = Iterates::start(lp);
+    let first = safety.eval(predictor, &iterates.z).unwrap();
+    let ws = Workspace::new(s, lp, iterates, CurrentSafety::new(first, &safety));
+    let qps = InputQps::new(s, lp).unwrap();
+    (safety, first, ws, qps)
+}
+
 /// The last two observed positions `[n][2]` (m) of every agent.
-fn last_two(history: &History) -> Vec<[[f64; 2]; 2]> {
+pub(super) fn last_two(history: &History) -> Vec<[[f64; 2]; 2]> {
     (0..history.n_agents())
         .map(|i| [history.at(i, T_OBS - 2), history.at(i, T_OBS - 1)])
         .collect()
@@ -297,11 +315,7 @@ fn z_updates_restore_then_descend_safely() {
     let mut cv = ConstantVelocity::default();
     cv.set_scene(&h).unwrap();
     let threshold = s.safety_min + s.plan_buffer;
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
-    let iterates = Iterates::start(&lp);
-    let first = safety.eval(&mut cv, &iterates.z).unwrap();
-    let mut ws = Workspace::new(&s, &lp, iterates, CurrentSafety::new(first, &safety));
-    let mut qps = InputQps::new(&s, &lp).unwrap();
+    let (mut safety, first, mut ws, mut qps) = call_start(&s, &lp, &constraint, threshold, &mut cv);
     let mut timings = PhaseTimings::default();
     let mut violations = vec![first.violation];
     let mut safe_since = None;

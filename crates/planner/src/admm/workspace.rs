@@ -57,18 +57,7 @@ impl Curvature {
     pub(crate) fn new(s: &PlannerSettings, lp: &LinearisedProblem) -> Self {
         let t = lp.horizon;
         let m4 = 4 * t;
-        let c = lp.linearisation.dense_c();
-        let mut h = DMatrix::<f64>::zeros(m4, m4);
-        for i in 0..m4 {
-            for j in 0..m4 {
-                let mut v: f64 = (0..m4).map(|r| c[r * m4 + i] * c[r * m4 + j]).sum();
-                v *= s.rho;
-                if i == j {
-                    v += 2.0 * lp.weights[i % 4];
-                }
-                h[(i, j)] = v;
-            }
-        }
+        let h = hessian(s, lp);
         let lipschitz = (0..m4)
             .map(|i| (0..m4).map(|j| h[(i, j)].abs()).sum::<f64>())
             .fold(0.0, f64::max)
@@ -91,6 +80,25 @@ impl Curvature {
             pinned: flat_inverse(pinned),
         }
     }
+}
+
+/// H = 2W + ρCᵀC of the call (`[4T, 4T]`, T = `lp.horizon`): the Hessian of G in Z, with W
+/// the state weights and C the matrix of Z in the linearised dynamics residual F.
+pub(crate) fn hessian(s: &PlannerSettings, lp: &LinearisedProblem) -> DMatrix<f64> {
+    let m4 = 4 * lp.horizon;
+    let c = lp.linearisation.dense_c();
+    let mut h = DMatrix::<f64>::zeros(m4, m4);
+    for i in 0..m4 {
+        for j in 0..m4 {
+            let mut v: f64 = (0..m4).map(|r| c[r * m4 + i] * c[r * m4 + j]).sum();
+            v *= s.rho;
+            if i == j {
+                v += 2.0 * lp.weights[i % 4];
+            }
+            h[(i, j)] = v;
+        }
+    }
+    h
 }
 
 /// The inverse of a symmetric positive-definite matrix, flat row-major; `None` when the
