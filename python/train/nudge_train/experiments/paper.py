@@ -73,6 +73,7 @@ class PaperConfig:
     max_val_windows: int | None = None
     max_real: int | None = None
     threads: int = 1
+    students: tuple[str, ...] | None = None
     quick: bool = False
     progress: bool = True
 
@@ -108,6 +109,11 @@ class PaperConfig:
         if "figures" in self.stages and not {"teacher", "student"} <= set(self.predictors):
             raise ValueError("predictors: the figures compare teacher and student, both must run")
         parse_size(self.distill_size)
+        from nudge_train.experiments.paper_table2 import check_students
+
+        check_students(self.students)
+        if self.students is not None and tuple(self.stages) != ("table2",):
+            raise ValueError("--students trains a subset of Table II's students: give it with --stages table2 only")
         return self
 
 
@@ -159,6 +165,9 @@ def run(cfg: PaperConfig, command: str, log: Any = print) -> int:
     """Runs the stages of ``cfg``, writes the output folder; returns the exit status."""
     os.environ["RAYON_NUM_THREADS"] = "1"  # before the extension's first pool
     cfg.validate()
+    if cfg.students is not None:  # a share of the five trainings: nothing is written into cfg.out
+        _table2(cfg, log)
+        return 0
     t_start = time.perf_counter()
     start = machine()
     cfg.out.mkdir(parents=True, exist_ok=True)
@@ -264,7 +273,7 @@ def _table2_spec(cfg: PaperConfig) -> Any:
                       base_config=paths.configs() / "student.toml", size=parse_size(cfg.distill_size),
                       distill_steps=cfg.distill_steps, epochs=cfg.epochs, samples_per_epoch=cfg.samples_per_epoch,
                       batch_size=cfg.batch_size, max_val_windows=cfg.max_val_windows, max_real=cfg.max_real,
-                      threads=cfg.threads, progress=cfg.progress)
+                      threads=cfg.threads, progress=cfg.progress, students=cfg.students)
 
 
 def _table2(cfg: PaperConfig, log: Any) -> dict[str, Any]:
@@ -272,16 +281,39 @@ def _table2(cfg: PaperConfig, log: Any) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     res = t2.run(_table2_spec(cfg), cfg.processed, log)
+    if res["markdown"] is None:
+        return {"students_trained": [t2.name_of(*k) for k in res["trained"]]}
     gen_s = sum(r.get("wall_s", 0.0) for r in res["manifest"].get("generation_runs", []))
     train_s = sum(t["train_s"] for t in res["trained"].values())
+    chosen = min(res["trained"], key=lambda k: res["trained"][k]["best_val_ade"])
     note = (f"\n\nDistillation-set generation {gen_s / 60:.1f} min, training {train_s / 60:.1f} min "
             f"({cfg.threads} thread(s)); this invocation of the stage {(time.perf_counter() - t0) / 60:.1f} min. "
-            "The chosen student is not exported: the shipped `assets/models/student.safetensors` is unchanged.")
+            f"Every student is exported to `<cache>/table2/<name>/{t2.EXPORT_FILE}`; the stage never writes the "
+            f"shipped student. {shipped_sentence(res['exported'][chosen], t2.name_of(*chosen))}")
     (cfg.out / "table2.md").write_text("# Table II: students\n\n" + res["markdown"] + note + "\n")
     return {"generation_s": gen_s, "train_s": train_s,
             "chosen": list(min(res["trained"], key=lambda k: res["trained"][k]["best_val_ade"])),
             "val_ade": {t2.name_of(*k): v["best_val_ade"] for k, v in res["trained"].items()},
             "test": {t2.name_of(*k): v for k, v in res["tested"].items()}}
+
+
+def shipped_sentence(chosen_file: Path, name: str) -> str:
+    """Whether the shipped ``assets/models/student.safetensors`` holds the same weights as the
+    chosen configuration's export (their content sha256, config and tensors)."""
+    from nudge_train.training.export import read_weights
+
+    def key(path: Path) -> str:
+        from safetensors import safe_open
+
+        with safe_open(str(path), framework="pt", device="cpu") as f:
+            return (f.metadata() or {}).get("sha256", "")
+
+    shipped = paths.model_weights("student")
+    same = shipped.is_file() and key(shipped) != "" and key(shipped) == key(chosen_file)
+    if same:
+        read_weights(shipped)  # verifies the stored hash against the tensors
+        return f"The shipped `assets/models/student.safetensors` is the chosen {name}."
+    return f"The shipped `assets/models/student.safetensors` is not the chosen {name}."
 
 
 def table2_pending(cfg: PaperConfig) -> str:
