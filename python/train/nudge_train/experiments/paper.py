@@ -316,6 +316,27 @@ def shipped_sentence(chosen_file: Path, name: str) -> str:
     return f"The shipped `assets/models/student.safetensors` is not the chosen {name}."
 
 
+def students_sentence(cfg: PaperConfig, doc: dict[str, Any]) -> str:
+    """What the README says about the shipped student and Table II's: whether the shipped file is
+    Table II's chosen configuration (``doc["table2"]["chosen"]``; its export in the cache has the
+    same content sha256)."""
+    from nudge_train.experiments import paper_table2 as t2
+
+    try:
+        chosen = doc["table2"]["chosen"]
+    except (KeyError, TypeError):
+        return ("Table II's students are trained on a fresh paper-size set; this command never ships one "
+                "(`<cache>/table2/<name>/student.safetensors` holds each).")
+    name = t2.name_of(*chosen)
+    export = cfg.cache / "table2" / name / t2.EXPORT_FILE
+    if export.is_file() and shipped_sentence(export, name).endswith(f"is the chosen {name}."):
+        return (f"It is Table II's chosen configuration, {name}, trained on the fresh paper-size set of the "
+                "current planner; this command never writes it (it was copied there after the closed-loop check "
+                "of docs/paper/table2.md).")
+    return (f"It is not Table II's chosen configuration ({name}); this command never ships one "
+            "(`<cache>/table2/<name>/student.safetensors` holds each).")
+
+
 def table2_pending(cfg: PaperConfig) -> str:
     """What the README says while Table II has not been produced at the paper's size."""
     return (
@@ -542,9 +563,8 @@ def readme(cfg: PaperConfig, doc: dict[str, Any], command: str) -> str:
         "records each step's count and sum (the exact mean per update is in the table). N counts the ego. "
         "Costs are our planner's objective (its weights and horizon: docs/reference/settings.md), not the paper's, "
         "so only teacher against student is comparable, not the values.",
-        "- **Students.** The figures use the shipped student (docs/results/student.md), distilled from an "
-        "earlier planner's candidates (docs/distill.md); Table II's students are trained on a fresh set and "
-        "none of them is shipped by this command.",
+        "- **Students.** The figures use the shipped student (`assets/models/student.safetensors`, "
+        "docs/results/student.md). " + students_sentence(cfg, doc),
         "- **Outcomes.** The paper reports no success rates or collisions; ours are the simulator's "
         "(docs/results/closed_loop.md has the rules), in the teacher world (the other vehicles follow the "
         "teacher's interactive prediction of the ego's executed motion).",
