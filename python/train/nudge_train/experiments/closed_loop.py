@@ -44,7 +44,7 @@ __all__ = ["Arm", "Chunk", "EvalConfig", "collect", "explain", "report", "run"]
 
 CACHE_SCHEMA = "nudge.closed_loop_cache/1"
 STRATA = ("dense", "medium", "sparse")
-STEP_KEEP = ("run", "mpc_s", "status")
+STEP_KEEP = ("run", "mpc_s", "status", "cost")
 """Step columns kept in the cache (the run columns hold every per-step metric's count)."""
 
 
@@ -237,6 +237,9 @@ def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: AN
                 if data is not None and (data.get("key") != key or len(data["runs"]["seed"]) != len(part) * cfg.seeds):
                     log(f"  {file}: inputs changed, recomputing")
                     data = None
+                elif data is not None and any(k not in data.get("steps", {}) for k in STEP_KEEP):
+                    log(f"  {file}: written without the step columns {list(STEP_KEEP)}, recomputing")
+                    data = None
             if data is None:
                 t0 = time.perf_counter()
                 res = nudge.simulate([scenes[i] for i in part], planner, scene_seeds=[scene_seeds[i] for i in part],
@@ -294,6 +297,8 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
     n = int(ok.sum())
     ttc = f["min_ttc"]
     mpc = np.asarray(chunk.steps.get("mpc_s", []), dtype=np.float64) * 1e3
+    cost = np.asarray(chunk.steps.get("cost", []), dtype=np.float64)
+    cost = cost[np.isfinite(cost)]
     status, counts = np.unique(np.asarray(chunk.steps.get("status", []), dtype=str), return_counts=True)
 
     def med(v: np.ndarray) -> float:
@@ -322,6 +327,7 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
         "score": cluster_bootstrap(f["score"], scen, n_boot=n_boot, seed=1) if n else (math.nan,) * 3,
         "mpc_ms": (med(mpc), float(np.percentile(mpc, 90)) if mpc.size else math.nan),
         "status": dict(zip(status.tolist(), counts.tolist(), strict=True)),
+        "cost": (med(cost), float(cost.mean()) if cost.size else math.nan),
     }
 
 
@@ -518,6 +524,10 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
     lines += ["", "Planner status per step: " + "; ".join(
         f"{c.arm.world}/{c.arm.label(many)}: " + ", ".join(f"{k} {v}" for k, v in summaries[c.arm]["status"].items())
         for c in chunks), ""]
+    lines += ["Planner cost per step (the objective of the applied plan, docs/reference/settings.md; finite steps), "
+              "median (mean): " + "; ".join(
+                  f"{c.arm.world}/{c.arm.label(many)}: {_f(summaries[c.arm]['cost'][0])} "
+                  f"({_f(summaries[c.arm]['cost'][1])})" for c in chunks), ""]
     # Density strata.
     lines += ["## Per density stratum", "",
               f"Free gap in the target lane at the start: dense ≤ {cuts[0]:.1f} m < medium ≤ {cuts[1]:.1f} m < sparse "
