@@ -104,6 +104,11 @@ def test_paired_counts_by_hand() -> None:
     assert p["p"] == 1.0
     # Time to target, failures at the budget (30 steps): B − A = (−2, 18, −10, 0) · 0.3 s.
     assert abs(p["ttt"][0] - np.mean([-2, 18, -10, 0]) * nudge.DT) < 1e-12
+    # Success B − A per pair: (0, −1, +1, 0); scene a: (0, −1), scene b: (+1, 0).
+    assert p["success"][0] == 0.0 and p["success"][1] <= -0.5 + 1e-12 and p["success"][2] >= 0.5 - 1e-12
+    # C − B = (0, +1, 0, +1): +0.5 in both scenes, so every resample gives +0.5.
+    c = chunk([True, True, True, True], [10, 12, 9, 9], "c")
+    np.testing.assert_allclose(paired(b, c, 30, n_boot=200)["success"], (0.5, 0.5, 0.5), atol=1e-12)
 
 
 def test_command_writes_the_report(repo: Path, tmp_path: Path) -> None:

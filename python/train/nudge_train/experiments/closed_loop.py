@@ -343,15 +343,16 @@ def _pairs(a: Chunk, b: Chunk) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def paired(a: Chunk, b: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP) -> dict:
-    """B against A on their common (scene, seed) pairs: success concordance and McNemar's exact
-    p-value; the time to target (failures at the budget) difference B - A with a paired bootstrap
-    interval over scenes."""
+    """B against A on their common (scene, seed) pairs: success concordance, McNemar's exact
+    p-value and the success difference B - A (a fraction) with a paired bootstrap interval over
+    scenes; the time to target (failures at the budget) difference B - A with the same interval."""
     ia, ib, scen = _pairs(a, b)
     sa, sb = _arr(a, "success")[ia] > 0, _arr(b, "success")[ib] > 0
     only_a, only_b = int((sa & ~sb).sum()), int((~sa & sb).sum())
     ta, tb = time_to_target(a, budget_steps)[ia], time_to_target(b, budget_steps)[ib]
     return {"pairs": len(ia), "both": int((sa & sb).sum()), "only_a": only_a, "only_b": only_b,
             "neither": int((~sa & ~sb).sum()), "p": mcnemar_exact(only_a, only_b),
+            "success": paired_bootstrap(sa, sb, scen, n_boot) if len(ia) else (math.nan,) * 3,
             "ttt": paired_bootstrap(ta, tb, scen, n_boot) if len(ia) else (math.nan,) * 3}
 
 
@@ -568,14 +569,14 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         lines.append(f"Reference: the {ref_planner} planner in the same world; B − A on the (scene, seed) pairs "
                      "both ran.")
     lines += ["", "| world | A | B | pairs | both succeed | only A | only B | neither | McNemar p (exact) | "
-              "time to target B − A s [95 % CI] |", "|" + "---|" * 10]
+              "success B − A pp [95 % CI] | time to target B − A s [95 % CI] |", "|" + "---|" * 11]
     for a, b in comparisons:
         p = paired(a, b, budget, cfg.bootstrap)
         lines.append(f"| {b.arm.world} | {a.arm.label(many)} | {b.arm.label(many)} | {p['pairs']} | {p['both']} | "
                      f"{p['only_a']} | {p['only_b']} | {p['neither']} | {p['p']:.3g} | "
-                     f"{_ci(p['ttt'], 1.0, 2)} |")
+                     f"{_ci(p['success'], 100.0, 1)} | {_ci(p['ttt'], 1.0, 2)} |")
     if not comparisons:
-        lines.append("| - | - | - | - | - | - | - | - | - | - |")
+        lines.append("| - | - | - | - | - | - | - | - | - | - | - |")
     # Every collision, explained.
     lines += ["", "## Every collision", "",
               "dx, dy: the other vehicle's centre minus the ego's (m); ψ: headings (rad); v: speeds (m/s); "

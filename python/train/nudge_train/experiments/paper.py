@@ -332,8 +332,9 @@ def students_sentence(cfg: PaperConfig, doc: dict[str, Any]) -> str:
     if export.is_file() and shipped_sentence(export, name).endswith(f"is the chosen {name}."):
         return (f"It is Table II's chosen configuration, {name}, trained on the fresh paper-size set of the "
                 "current planner; this command never writes it (it was copied there after the closed-loop check "
-                "of docs/paper/table2.md).")
-    return (f"It is not Table II's chosen configuration ({name}); this command never ships one "
+                "of docs/results/student_refresh.md).")
+    return (f"It is not Table II's chosen configuration ({name}): whether the choice replaces it is decided "
+            "in closed loop on validation scenes (docs/results/student_refresh.md); this command never ships one "
             "(`<cache>/table2/<name>/student.safetensors` holds each).")
 
 
