@@ -226,7 +226,8 @@ reaction: distill-react
 
 # The paper's evidence in one command (docs/paper/README.md): Table I from docs/results/teacher.md,
 # Figures 7-10 by vehicle count (7 x 100 closed-loop runs per predictor, one thread) and Table II
-# (a fresh paper-size distillation set and five students: hours). Resumable; caches in runs/paper.
+# (a fresh paper-size distillation set and five students: about 1.6 h on one thread, the figures
+# 12 min more). Resumable; caches in runs/paper.
 # paper-quick: the same pipeline end to end on tiny sizes into runs/paper_quick (tests run it too).
 paper: develop
 	test -f data/processed/manifest.json || $(MAKE) data

@@ -42,6 +42,8 @@ def test_chunks_hold_every_pair_and_agree_with_a_direct_simulation(repo: Path, t
     assert s["straddle_s"] == direct["runs"]["straddle_steps"].mean() * nudge.DT
     ttt = np.where(direct["runs"]["steps_to_target"] >= 0, direct["runs"]["steps_to_target"], 30) * nudge.DT
     assert abs(s["time_to_target"] - ttt.mean()) < 1e-12
+    cost = direct["steps"]["cost"][np.isfinite(direct["steps"]["cost"])]
+    assert cost.size > 0 and s["cost"] == (float(np.median(cost)), float(cost.mean()))
     p = paired(chunks[0], chunks[1], 30, n_boot=200)
     assert p["pairs"] == 6 and p["both"] + p["only_a"] + p["only_b"] + p["neither"] == 6
 
@@ -62,6 +64,14 @@ def test_resume_reads_the_cache_and_recomputes_a_part_whose_inputs_changed(repo:
     third, _ = collect(cfg, log=messages.append)
     assert third[0].computed_s > 0 and any("recomputing" in m for m in messages)
     assert third[0].runs["success"] == first[0].runs["success"]
+    # A part written without a step column the summaries need is recomputed too.
+    data = json.loads(part.read_text())
+    del data["steps"]["cost"]
+    part.write_text(json.dumps(data))
+    messages.clear()
+    fourth, _ = collect(cfg, log=messages.append)
+    assert fourth[0].computed_s > 0 and any("without the step columns" in m for m in messages)
+    np.testing.assert_array_equal(fourth[0].steps["cost"], first[0].steps["cost"])
     # Other settings are another chunk.
     s = tmp_path / "s.json"
     s.write_text(json.dumps({"max_iter": 3}))
@@ -94,6 +104,11 @@ def test_paired_counts_by_hand() -> None:
     assert p["p"] == 1.0
     # Time to target, failures at the budget (30 steps): B − A = (−2, 18, −10, 0) · 0.3 s.
     assert abs(p["ttt"][0] - np.mean([-2, 18, -10, 0]) * nudge.DT) < 1e-12
+    # Success B − A per pair: (0, −1, +1, 0); scene a: (0, −1), scene b: (+1, 0).
+    assert p["success"][0] == 0.0 and p["success"][1] <= -0.5 + 1e-12 and p["success"][2] >= 0.5 - 1e-12
+    # C − B = (0, +1, 0, +1): +0.5 in both scenes, so every resample gives +0.5.
+    c = chunk([True, True, True, True], [10, 12, 9, 9], "c")
+    np.testing.assert_allclose(paired(b, c, 30, n_boot=200)["success"], (0.5, 0.5, 0.5), atol=1e-12)
 
 
 def test_command_writes_the_report(repo: Path, tmp_path: Path) -> None:

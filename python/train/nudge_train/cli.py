@@ -475,6 +475,9 @@ def _add_paper(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=None,
                    help=f"threads of the distillation-set generation and the student training (default "
                         f"{d.threads}; timings always run on one)")
+    p.add_argument("--students", nargs="+", default=None, metavar="NAME",
+                   help="with --stages table2: train only these of Table II's students (e.g. student_k64_adv0), "
+                        "so that several processes share the five trainings; nothing is written into --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -487,6 +490,8 @@ def _run_paper(a: argparse.Namespace) -> int:
         over["stages"] = tuple(a.stages)
     if a.ns is not None:
         over["ns"] = tuple(a.ns)
+    if a.students is not None:
+        over["students"] = tuple(a.students)
     over["progress"] = not a.no_progress
     argv = sys.argv[2:] if len(sys.argv) > 2 and sys.argv[1] == "paper" else []
     try:

@@ -78,7 +78,7 @@ def test_defaults_are_those_of_the_replaced_entry_points() -> None:
     assert r.report == paths.repo() / "docs" / "results" / "reaction.md"
     assert r.cutins == paths.repo() / "assets" / "worlds" / "cutins.json"
     d = p.parse_args(["distill"])
-    assert d.size == {"train": 213, "val": 40, "test": 37}  # the "paper" preset
+    assert d.size == {"train": 340, "val": 64, "test": 88}  # the "paper" preset
     assert (d.world, d.runs, d.seed, d.max_steps, d.scenes_per_shard, d.threads) == ("teacher", 1, 0, 30, 8, None)
     assert d.out == paths.repo() / "data" / "distill"
     b = p.parse_args(["bench", "inference"])

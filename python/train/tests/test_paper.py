@@ -216,3 +216,54 @@ def test_a_training_run_of_other_inputs_starts_afresh(tmp_path: Path) -> None:
     (run / INPUTS_FILE).unlink()  # a folder without its record is not trusted either
     _check_run_inputs(run, {"data": ["b"], "train": {"epochs": 2}}, logs.append)
     assert not (run / "summary.json").exists() and len(logs) == 2
+
+
+def test_students_must_name_configurations_and_come_with_table2_alone() -> None:
+    from nudge_train.experiments.paper import PaperConfig
+
+    with pytest.raises(ValueError, match="'student_k2_adv0' is not one of"):
+        PaperConfig(stages=("table2",), students=("student_k2_adv0",)).validate()
+    with pytest.raises(ValueError, match="--stages table2 only"):
+        PaperConfig(stages=("table1", "table2"), students=("student_k1_adv0",)).validate()
+    PaperConfig(stages=("table2",), students=("student_k1_adv0", "student_k128_adv0")).validate()
+
+
+@pytest.mark.skipif(not HAVE_DATA, reason="no processed data (make data)")
+def test_a_share_of_the_students_trains_only_those_and_writes_no_table(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("RAYON_NUM_THREADS", "1")
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    argv = ["paper", "--quick", "--out", str(out), "--cache", str(cache), "--no-progress", "--stages", "table2",
+            "--students", "student_k64_adv0"]
+    assert main(argv) == 0
+    trained = sorted(p.parent.name for p in (cache / "table2").glob("*/summary.json"))
+    assert trained == ["student_k64_adv0"]
+    assert not out.exists()  # nothing written into the output folder
+
+    # The full stage then trains the other four only and writes the table.
+    seen: list[str] = []
+    from nudge_train.training import loop
+
+    real_train = loop.train
+
+    def counting(mcfg: object, tcfg: object, **kw: object) -> object:
+        seen.append(Path(tcfg.out_dir).name)  # type: ignore[attr-defined]
+        return real_train(mcfg, tcfg, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr("nudge_train.training.loop.train", counting)
+    assert main(argv[:-2]) == 0
+    assert sorted(seen) == ["student_k128_adv0", "student_k1_adv0", "student_k1_adv1", "student_k64_adv1"]
+    table2 = (out / "table2.md").read_text()
+    assert sum(ln.startswith(("| 1 ", "| 64 ", "| 128 ")) for ln in table2.splitlines()) == 5
+    assert "is not the chosen student_k" in table2  # the stage never ships
+
+    # Every configuration's best checkpoint is exported with its provenance, loadable by the planner.
+    from nudge_train.experiments.paper_runs import file_sha
+    from nudge_train.training.export import read_weights
+
+    runs = sorted(p for p in (cache / "table2").glob("student_k*") if p.is_dir())
+    assert len(runs) == 5
+    for run in runs:
+        w = read_weights(run / "student.safetensors")
+        assert w.trained and w.provenance["best_pt_sha256"] == file_sha(run / "best.pt"), run.name
+        assert nudge.Predictor.load(str(run / "student.safetensors")) is not None

@@ -44,7 +44,7 @@ __all__ = ["Arm", "Chunk", "EvalConfig", "collect", "explain", "report", "run"]
 
 CACHE_SCHEMA = "nudge.closed_loop_cache/1"
 STRATA = ("dense", "medium", "sparse")
-STEP_KEEP = ("run", "mpc_s", "status")
+STEP_KEEP = ("run", "mpc_s", "status", "cost")
 """Step columns kept in the cache (the run columns hold every per-step metric's count)."""
 
 
@@ -237,6 +237,9 @@ def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: AN
                 if data is not None and (data.get("key") != key or len(data["runs"]["seed"]) != len(part) * cfg.seeds):
                     log(f"  {file}: inputs changed, recomputing")
                     data = None
+                elif data is not None and any(k not in data.get("steps", {}) for k in STEP_KEEP):
+                    log(f"  {file}: written without the step columns {list(STEP_KEEP)}, recomputing")
+                    data = None
             if data is None:
                 t0 = time.perf_counter()
                 res = nudge.simulate([scenes[i] for i in part], planner, scene_seeds=[scene_seeds[i] for i in part],
@@ -294,6 +297,8 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
     n = int(ok.sum())
     ttc = f["min_ttc"]
     mpc = np.asarray(chunk.steps.get("mpc_s", []), dtype=np.float64) * 1e3
+    cost = np.asarray(chunk.steps.get("cost", []), dtype=np.float64)
+    cost = cost[np.isfinite(cost)]
     status, counts = np.unique(np.asarray(chunk.steps.get("status", []), dtype=str), return_counts=True)
 
     def med(v: np.ndarray) -> float:
@@ -322,6 +327,7 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
         "score": cluster_bootstrap(f["score"], scen, n_boot=n_boot, seed=1) if n else (math.nan,) * 3,
         "mpc_ms": (med(mpc), float(np.percentile(mpc, 90)) if mpc.size else math.nan),
         "status": dict(zip(status.tolist(), counts.tolist(), strict=True)),
+        "cost": (med(cost), float(cost.mean()) if cost.size else math.nan),
     }
 
 
@@ -337,15 +343,16 @@ def _pairs(a: Chunk, b: Chunk) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def paired(a: Chunk, b: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP) -> dict:
-    """B against A on their common (scene, seed) pairs: success concordance and McNemar's exact
-    p-value; the time to target (failures at the budget) difference B - A with a paired bootstrap
-    interval over scenes."""
+    """B against A on their common (scene, seed) pairs: success concordance, McNemar's exact
+    p-value and the success difference B - A (a fraction) with a paired bootstrap interval over
+    scenes; the time to target (failures at the budget) difference B - A with the same interval."""
     ia, ib, scen = _pairs(a, b)
     sa, sb = _arr(a, "success")[ia] > 0, _arr(b, "success")[ib] > 0
     only_a, only_b = int((sa & ~sb).sum()), int((~sa & sb).sum())
     ta, tb = time_to_target(a, budget_steps)[ia], time_to_target(b, budget_steps)[ib]
     return {"pairs": len(ia), "both": int((sa & sb).sum()), "only_a": only_a, "only_b": only_b,
             "neither": int((~sa & ~sb).sum()), "p": mcnemar_exact(only_a, only_b),
+            "success": paired_bootstrap(sa, sb, scen, n_boot) if len(ia) else (math.nan,) * 3,
             "ttt": paired_bootstrap(ta, tb, scen, n_boot) if len(ia) else (math.nan,) * 3}
 
 
@@ -518,6 +525,10 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
     lines += ["", "Planner status per step: " + "; ".join(
         f"{c.arm.world}/{c.arm.label(many)}: " + ", ".join(f"{k} {v}" for k, v in summaries[c.arm]["status"].items())
         for c in chunks), ""]
+    lines += ["Planner cost per step (the objective of the applied plan, docs/reference/settings.md; finite steps), "
+              "median (mean): " + "; ".join(
+                  f"{c.arm.world}/{c.arm.label(many)}: {_f(summaries[c.arm]['cost'][0])} "
+                  f"({_f(summaries[c.arm]['cost'][1])})" for c in chunks), ""]
     # Density strata.
     lines += ["## Per density stratum", "",
               f"Free gap in the target lane at the start: dense ≤ {cuts[0]:.1f} m < medium ≤ {cuts[1]:.1f} m < sparse "
@@ -558,14 +569,14 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         lines.append(f"Reference: the {ref_planner} planner in the same world; B − A on the (scene, seed) pairs "
                      "both ran.")
     lines += ["", "| world | A | B | pairs | both succeed | only A | only B | neither | McNemar p (exact) | "
-              "time to target B − A s [95 % CI] |", "|" + "---|" * 10]
+              "success B − A pp [95 % CI] | time to target B − A s [95 % CI] |", "|" + "---|" * 11]
     for a, b in comparisons:
         p = paired(a, b, budget, cfg.bootstrap)
         lines.append(f"| {b.arm.world} | {a.arm.label(many)} | {b.arm.label(many)} | {p['pairs']} | {p['both']} | "
                      f"{p['only_a']} | {p['only_b']} | {p['neither']} | {p['p']:.3g} | "
-                     f"{_ci(p['ttt'], 1.0, 2)} |")
+                     f"{_ci(p['success'], 100.0, 1)} | {_ci(p['ttt'], 1.0, 2)} |")
     if not comparisons:
-        lines.append("| - | - | - | - | - | - | - | - | - | - |")
+        lines.append("| - | - | - | - | - | - | - | - | - | - | - |")
     # Every collision, explained.
     lines += ["", "## Every collision", "",
               "dx, dy: the other vehicle's centre minus the ego's (m); ψ: headings (rad); v: speeds (m/s); "

@@ -10,7 +10,10 @@ set, selected on validation, evaluated once on test (``nudge-train paper``, stag
    budget); each training run resumes from its ``last.pt`` and is skipped once its
    ``summary.json`` exists.
 3. **Selection** on the distillation validation split (the run's best validation ADE against the
-   teacher); the chosen configuration is reported, never exported.
+   teacher). Every configuration's best checkpoint is exported with its provenance to
+   ``<runs>/<name>/student.safetensors`` (:func:`export_all`), so that any of them can plan or
+   be compared in closed loop; the shipped ``assets/models/student.safetensors`` is never
+   touched here (shipping the chosen one is a deliberate step, docs/paper/README.md).
 4. **Test, once**: ADE / FDE at 1.8 s against the teacher on the held-out planner candidates
    (distillation test split; all, and scenes with a logged lane change) and against the logged
    future on the real test windows (all, interactive), the ego imposed. Cached per configuration
@@ -42,7 +45,9 @@ class Table2Spec:
     closed-loop steps per run of the generator; ``epochs`` / ``samples_per_epoch`` /
     ``batch_size``: the one training budget (``None``: the base config's); ``max_val_windows``:
     validation subset per epoch; ``max_real``: real test windows evaluated (``None``: all);
-    ``threads``: torch threads and rayon threads of the generator."""
+    ``threads``: torch threads and rayon threads of the generator; ``students``: run folder names
+    (:func:`name_of`) to train in this invocation, ``None`` for all five (a subset lets several
+    processes share the five trainings; the table is written by an invocation that trains all)."""
 
     distill: Path
     runs: Path
@@ -57,11 +62,22 @@ class Table2Spec:
     max_real: int | None
     threads: int
     progress: bool
+    students: tuple[str, ...] | None = None
 
 
 def name_of(kv: int, adv: int) -> str:
     """Run folder name of a configuration: ``student_k64_adv0``."""
     return f"student_k{kv}_adv{adv}"
+
+
+def check_students(names: tuple[str, ...] | None) -> None:
+    """Raises ValueError naming the first name that is not a configuration's run folder name."""
+    known = [name_of(kv, adv) for kv, adv in CONFIGS]
+    for n in names or ():
+        if n not in known:
+            raise ValueError(f"students: {n!r} is not one of {known}")
+    if names is not None and not names:
+        raise ValueError("students: at least one name expected")
 
 
 def generate_set(spec: Table2Spec, log: Log) -> dict:
@@ -129,6 +145,8 @@ def train_all(spec: Table2Spec, log: Log) -> dict[tuple[int, int], dict[str, Any
     data_key = _shards_key(spec.distill, ("train", "val"))
     out: dict[tuple[int, int], dict[str, Any]] = {}
     for kv, adv in CONFIGS:
+        if spec.students is not None and name_of(kv, adv) not in spec.students:
+            continue
         tcfg = dataclasses.replace(base, **over, k_var=float(kv), i_adv=adv,
                                    out_dir=str(spec.runs / name_of(kv, adv))).validate()
         run_dir = Path(tcfg.out_dir)
@@ -147,6 +165,53 @@ def train_all(spec: Table2Spec, log: Log) -> dict[tuple[int, int], dict[str, Any
         rows = read_metrics(run_dir)
         out[(kv, adv)] = {**summary, "train_s": sum(r["seconds"] for r in rows), "epochs_run": len(rows),
                           "tcfg": dataclasses.asdict(tcfg), "mcfg": mcfg}
+    return out
+
+
+EXPORT_FILE = "student.safetensors"
+"""The exported best checkpoint of a Table II run, in its folder."""
+
+
+def export_all(spec: Table2Spec, trained: dict[tuple[int, int], dict[str, Any]], manifest_path: Path,
+               log: Log) -> dict[tuple[int, int], Path]:
+    """Exports every trained configuration's best checkpoint to ``<run>/student.safetensors``
+    (trained = true, provenance: the distillation set, its manifest and teacher sha256, the
+    configuration, its training settings, best epoch and validation ADE, the sha256 of the
+    ``best.pt`` it came from, the commit); an export whose recorded ``best.pt`` sha256 is still
+    the run's is kept. Returns the file of each configuration."""
+    from nudge_train import paths
+    from nudge_train.jsonio import load_json
+    from nudge_train.provenance import git_commit, sha256_file
+    from nudge_train.training.export import export_generator, read_weights
+    from nudge_train.training.loop import load_best
+
+    out: dict[tuple[int, int], Path] = {}
+    for (kv, adv), info in trained.items():
+        run_dir = spec.runs / name_of(kv, adv)
+        path = run_dir / EXPORT_FILE
+        best_sha = file_sha(run_dir / "best.pt")
+        try:
+            current = path.is_file() and read_weights(path).provenance.get("best_pt_sha256") == best_sha
+        except ValueError:
+            current = False
+        if not current:
+            prov = {
+                "data": paths.repo_relative(spec.distill),
+                "distill_manifest_sha256": sha256_file(manifest_path),
+                "teacher_sha256": load_json(manifest_path)["teacher"]["sha256"],
+                "split": "distillation train (selected on distillation val)",
+                "config": f"Table II (k_var, I_adv) = ({kv}, {adv}), base {spec.base_config.name}",
+                "train": {k: (paths.repo_relative(Path(v)) if k in ("data", "out_dir") else v)
+                          for k, v in info["tcfg"].items()},
+                "best_epoch": info["best_epoch"],
+                "best_val_ade": info["best_val_ade"],
+                "best_pt_sha256": best_sha,
+                "commit": git_commit(),
+                "hardware": f"{spec.threads} CPU thread(s)",
+            }
+            export_generator(load_best(run_dir, info["mcfg"]), info["mcfg"], path, trained=True, provenance=prov)
+            log(f"table2: exported {name_of(kv, adv)} to {path}")
+        out[(kv, adv)] = path
     return out
 
 
@@ -233,12 +298,19 @@ def table_markdown(trained: dict[tuple[int, int], dict[str, Any]], tested: dict[
 
 
 def run(spec: Table2Spec, real_root: Path, log: Log) -> dict[str, Any]:
-    """The whole stage; returns ``{"markdown", "manifest", "trained", "tested"}``."""
+    """The whole stage; returns ``{"markdown", "manifest", "trained", "tested", "exported"}``
+    (``markdown`` ``None`` and ``tested`` / ``exported`` empty when ``spec.students`` leaves a
+    configuration out)."""
     manifest = generate_set(spec, log)
     incomplete = [s for s, d in manifest["splits"].items() if not d.get("complete")]
     if incomplete:
         raise RuntimeError(f"{spec.distill}: splits {incomplete} are incomplete after generation")
     trained = train_all(spec, log)
+    if len(trained) < len(CONFIGS):
+        log(f"table2: trained {sorted(name_of(*k) for k in trained)}; the table needs all {len(CONFIGS)} "
+            "configurations: run the stage again without a subset of students")
+        return {"markdown": None, "manifest": manifest, "trained": trained, "tested": {}, "exported": {}}
+    exported = export_all(spec, trained, spec.distill / "manifest.json", log)
     tested = evaluate_all(spec, trained, real_root, manifest, log)
     return {"markdown": table_markdown(trained, tested, manifest), "manifest": manifest, "trained": trained,
-            "tested": tested}
+            "tested": tested, "exported": exported}
