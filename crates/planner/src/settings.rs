@@ -238,8 +238,19 @@ pub struct PlannerSettings {
     /// violation like a contact, so a long ego could swing its tail into a car beside it to
     /// lower its violation against vehicles ahead and behind. Off by default: ranked above
     /// the state bounds, it let cars swerve past the heading bound and off the road to avoid
-    /// a predicted contact (test split, log replay; `docs/results/long_egos.md`).
+    /// a predicted contact (test split, log replay; `docs/results/long_egos.md`);
+    /// `bounds_first` ranks the state bounds above it.
     pub contact_first: bool,
+    /// Rank the state bounds first among fallbacks without an admissible plan: a candidate
+    /// whose roll-out is within the state bounds (heading, lateral corridor, speed, road edge,
+    /// lane extents and stopping rule: the excess the total violation weighs, 0) beats every
+    /// one outside them, before `contact_first`, `edge_first`, the speed floor and the total
+    /// violation are compared. With `contact_first` alone, a fallback predicted to touch
+    /// nobody beat one within the heading bound and on the road, so in log replay a squeezed
+    /// car swerved past the heading bound, across a lane and off the road; with this rule
+    /// predicted contact only decides among candidates on the same side of the bounds. Off by
+    /// default (`docs/results/long_egos.md`).
+    pub bounds_first: bool,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
     /// Ablate the predicted reaction: the predictor sees the ego's keep-lane path
@@ -394,6 +405,7 @@ impl Default for PlannerSettings {
             fallback_speed_floor: 0.5,
             edge_first: false,
             contact_first: false,
+            bounds_first: false,
             restore_step: 1.0,
             ablate_reaction: false,
             heading_max: 0.2,
