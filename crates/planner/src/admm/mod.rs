@@ -274,7 +274,8 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// 1. within the state bounds beats outside them: the roll-out's state-bound excess (heading
 ///    relative to the road, the lateral corridor of the lane change, speed, the box's corners
 ///    beyond the road's edges, lane extents and the lane-end stopping rule: the excess the
-///    total violation weighs) is 0 up to rounding (`bounds_first`);
+///    total violation weighs) is at most `bounds_slack` (default 0: none, up to rounding)
+///    (`bounds_first`);
 /// 2. the smaller predicted box overlap (`contact_first`);
 /// 3. the smaller road-edge excess (`edge_first`);
 /// 4. no centre in a lane before it begins; the speed floor's clear path; the smaller total

@@ -107,8 +107,9 @@ pub(crate) struct Rank {
     /// Cost when admissible, total violation when not.
     pub value: f64,
     /// The roll-out leaves the state bounds (its [`LinearisedProblem::bound_excess`], or that
-    /// within the retreat's bounds, exceeds the rounding tolerance) when inadmissible and
-    /// `PlannerSettings::bounds_first` is on, else false.
+    /// within the retreat's bounds, exceeds `PlannerSettings::bounds_slack`, at least the
+    /// rounding tolerance) when inadmissible and `PlannerSettings::bounds_first` is on, else
+    /// false.
     pub out_of_bounds: bool,
     /// Predicted box overlap of the roll-out (m, [`super::constraint::Evaluation::overlap`])
     /// when inadmissible and `PlannerSettings::contact_first` is on, else 0.
@@ -138,7 +139,8 @@ impl Rank {
     }
 
     /// The rank of an inadmissible candidate: its `violations`, of which the settings' rules
-    /// keep the parts they rank by (`bounds_first`: whether it leaves the state bounds;
+    /// keep the parts they rank by (`bounds_first`: whether it leaves the state bounds by
+    /// more than `bounds_slack`;
     /// `contact_first`: its predicted contact; `edge_first`: its road-edge excess; each
     /// off: false or 0, so it never decides).
     pub(crate) fn inadmissible(s: &PlannerSettings, violations: &Violations) -> Rank {
@@ -147,7 +149,8 @@ impl Rank {
             unbegun: violations.unbegun,
             clear: violations.clear,
             value: violations.value,
-            out_of_bounds: s.bounds_first && violations.bound_excess > EXCESS_TOLERANCE,
+            out_of_bounds: s.bounds_first
+                && violations.bound_excess > s.bounds_slack.max(EXCESS_TOLERANCE),
             contact: if s.contact_first {
                 violations.contact
             } else {

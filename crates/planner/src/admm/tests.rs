@@ -1562,6 +1562,18 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
     assert!(rank(&bounds, &v(0.0, 0.1, 0.0, 9.0)).beats(&rank(&bounds, &v(0.0, 0.2, 0.0, 1.0))));
     assert!(rank(&bounds, &v(0.9, 0.1, 0.0, 9.0)).beats(&rank(&bounds, &v(0.2, 0.1, 0.2, 1.0))));
     assert!(rank(&bounds, &v(0.9, 0.1, 0.2, 1.0)).beats(&rank(&bounds, &v(0.2, 0.1, 0.2, 9.0))));
+    // A slack: an excess up to it counts as within the bounds (the truck whose contact-free
+    // fallbacks leave its lateral band by 1.5 cm), a larger one still loses.
+    let dip = v(0.015, 0.0, 0.0, 1.4);
+    let turn = v(0.0, 0.3, 0.0, 2.7);
+    assert!(rank(&bounds, &turn).beats(&rank(&bounds, &dip)));
+    let slack = PlannerSettings {
+        bounds_slack: 0.05,
+        ..bounds.clone()
+    };
+    assert!(rank(&slack, &dip).beats(&rank(&slack, &turn)));
+    assert!(rank(&slack, &turn).beats(&rank(&slack, &v(0.06, 0.0, 0.0, 1.4))));
+    assert!(rank(&slack, &within).beats(&rank(&slack, &swerve)));
     // Without `contact_first` the rule still puts the bounds first, then the total
     // violation (edge_first on here: equal edges).
     let alone = settings(false, true);
