@@ -296,8 +296,11 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// 1 → 3 (idm), 8 → 7 (log replay; `contact_first` without the rule: 0, 1, 5), all the
 /// 19.8 m truck `us101-2_1-t04.5-ego513`: its contact-free fallbacks leave its lateral band by
 /// 1.5 cm (Σ over the horizon), and the yes-or-no test weighs that like a swerve, so the
-/// rule picks a turn into the car beside it. Off by default; a slack for the test is next
-/// (`docs/results/long_egos.md`).
+/// rule picks a turn into the car beside it. With `bounds_slack` 0.05 (an excess up to it
+/// counts as within; the test split's swerves were 0.46 rad and 7.9 m) the same validation
+/// runs give success 85.3 / 87.7 %, 89.9 / 93.0 %, 85.1 / 88.7 %, at-fault runs 0, 1, 5 (the
+/// truck no longer hit), the teacher planner's off-road runs 0, max |ψ| 0.200 rad. Both off by
+/// default until the test split has been run with them (`docs/results/long_egos.md`).
 ///
 /// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
 /// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
