@@ -1406,13 +1406,16 @@ fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
             .plan(&p, &mut ConstantVelocity::new(6).unwrap())
             .unwrap()
     };
+    let inadmissible = |plan: &Plan| {
+        assert!(
+            plan.min_safety.is_some_and(|b| b < 0.0),
+            "nothing admissible: {:?}",
+            plan.min_safety
+        );
+    };
     for segment in [0.0, 6.0] {
         let off = plan_with(segment, false, false);
-        assert!(
-            off.min_safety.is_some_and(|b| b < 0.0),
-            "nothing admissible: {:?}",
-            off.min_safety
-        );
+        inadmissible(&off);
         assert!(
             predicted_contacts(&off, &h, &sizes) > 0,
             "segment {segment}: without the rule the fallback touches a car: {:?}",
@@ -1420,11 +1423,7 @@ fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
         );
         for bounds_first in [false, true] {
             let on = plan_with(segment, true, bounds_first);
-            assert!(
-                on.min_safety.is_some_and(|b| b < 0.0),
-                "nothing admissible: {:?}",
-                on.min_safety
-            );
+            inadmissible(&on);
             assert_eq!(
                 predicted_contacts(&on, &h, &sizes),
                 0,
@@ -1505,16 +1504,20 @@ fn edge_and_contact_rank_before_the_total_violation() {
     assert!(r(5.0, 0.0, 0.0, false).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
     assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
     assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.3, 0.0, true)));
-    let admissible = super::repair::Rank {
+    assert!(admissible_rank(100.0).beats(&r(0.0, 0.0, 0.0, true)));
+}
+
+/// The rank of an admissible candidate of cost `value`.
+fn admissible_rank(value: f64) -> super::repair::Rank {
+    super::repair::Rank {
         safe: true,
         unbegun: false,
         clear: false,
-        value: 100.0,
+        value,
         out_of_bounds: false,
         contact: 0.0,
         edge: 0.0,
-    };
-    assert!(admissible.beats(&r(0.0, 0.0, 0.0, true)));
+    }
 }
 
 /// Two inadmissible fallbacks of a squeezed car: a swerve past the heading bound that is
@@ -1583,16 +1586,7 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
     let off = PlannerSettings::default();
     assert!(rank(&off, &swerve).beats(&rank(&off, &within)));
     assert!(!rank(&off, &within).beats(&rank(&off, &swerve)));
-    let admissible = Rank {
-        safe: true,
-        unbegun: false,
-        clear: false,
-        value: 100.0,
-        out_of_bounds: false,
-        contact: 0.0,
-        edge: 0.0,
-    };
-    assert!(admissible.beats(&rank(&bounds, &within)));
+    assert!(admissible_rank(100.0).beats(&rank(&bounds, &within)));
 }
 
 /// A car at 12 m/s, heading 0.1 rad towards the lane on its left, 7 m behind a car at 6 m/s
