@@ -39,7 +39,8 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "z_safe_step": false, "z_step_margin": 0.01, "z_cuts": 0, "safe_start": false,
         "z_retighten": 0, "z_rollout_trial": false, "relinearise": false,
         "warm_start_dual": false, "rollout_check": true, "fallback_speed_floor": 0.5,
-        "edge_first": false, "contact_first": false, "restore_step": 1.0,
+        "edge_first": false, "contact_first": false, "bounds_first": false, "bounds_slack": 0.0,
+        "restore_step": 1.0,
         "ablate_reaction": false,
         "heading_max": 0.2, "heading_recovery": 0.05, "overshoot_max": 0.3,
         "refine_iters": 5, "refine_margin": 0.02, "refine_trust_delta": 0.05,
@@ -118,7 +119,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 57, "numeric settings");
+    assert_eq!(numeric, 58, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

@@ -86,8 +86,14 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 /// inadmissible ones the smaller road-edge excess wins before anything else (an ego that
 /// starts over the road's edge never picks a fallback that swings a corner further out to
 /// lower its safety violation). With `PlannerSettings::contact_first`, the smaller predicted
-/// box overlap wins before that. After those, an inadmissible one that puts a centre in a
-/// lane before it begins loses to every inadmissible one that does not.
+/// box overlap wins before that. With `PlannerSettings::bounds_first`, one within the state
+/// bounds wins before that (predicted contact never buys a swerve past the heading bound,
+/// out of the lateral corridor or off the road). After those, an inadmissible one that puts
+/// a centre in a lane before it begins loses to every inadmissible one that does not.
+///
+/// The order among inadmissible candidates, each rule deciding only on a tie of those before
+/// it: `out_of_bounds` (false first), `contact`, `edge` (smaller first), `unbegun` (false
+/// first), `clear` (true first), `value` (smaller first).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
     /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
@@ -100,6 +106,11 @@ pub(crate) struct Rank {
     pub clear: bool,
     /// Cost when admissible, total violation when not.
     pub value: f64,
+    /// The roll-out leaves the state bounds (its [`LinearisedProblem::bound_excess`], or that
+    /// within the retreat's bounds, exceeds `PlannerSettings::bounds_slack`, at least the
+    /// rounding tolerance) when inadmissible and `PlannerSettings::bounds_first` is on, else
+    /// false.
+    pub out_of_bounds: bool,
     /// Predicted box overlap of the roll-out (m, [`super::constraint::Evaluation::overlap`])
     /// when inadmissible and `PlannerSettings::contact_first` is on, else 0.
     pub contact: f64,
@@ -114,6 +125,7 @@ impl Rank {
         match (self.safe, other.safe) {
             (true, false) => true,
             (false, true) => false,
+            (false, false) if self.out_of_bounds != other.out_of_bounds => other.out_of_bounds,
             (false, false) if (self.contact - other.contact).abs() > EXCESS_TOLERANCE => {
                 self.contact < other.contact
             }
@@ -125,6 +137,50 @@ impl Rank {
             _ => self.value < other.value,
         }
     }
+
+    /// The rank of an inadmissible candidate: its `violations`, of which the settings' rules
+    /// keep the parts they rank by (`bounds_first`: whether it leaves the state bounds by
+    /// more than `bounds_slack`;
+    /// `contact_first`: its predicted contact; `edge_first`: its road-edge excess; each
+    /// off: false or 0, so it never decides).
+    pub(crate) fn inadmissible(s: &PlannerSettings, violations: &Violations) -> Rank {
+        Rank {
+            safe: false,
+            unbegun: violations.unbegun,
+            clear: violations.clear,
+            value: violations.value,
+            out_of_bounds: s.bounds_first
+                && violations.bound_excess > s.bounds_slack.max(EXCESS_TOLERANCE),
+            contact: if s.contact_first {
+                violations.contact
+            } else {
+                0.0
+            },
+            edge: if s.edge_first { violations.edge } else { 0.0 },
+        }
+    }
+}
+
+/// What an inadmissible candidate's [`Rank`] is made of, before the settings choose the
+/// rules ([`Rank::inadmissible`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Violations {
+    /// A state of the roll-out has its centre in a lane before it begins.
+    pub unbegun: bool,
+    /// Its path is clear and it keeps the speed floor ([`Rank::clear`]).
+    pub clear: bool,
+    /// Total violation: safety violation (units of b) + [`EXCESS_WEIGHT`] × (state-bound
+    /// excess + follower-gap violation), or the contingency retreat's violation.
+    pub value: f64,
+    /// State-bound excess of the roll-out (Σ over steps, m, rad and m/s mixed, as
+    /// [`LinearisedProblem::bound_excess`]): heading, lateral corridor, speed, the box's
+    /// corners beyond the road's edges, lane extents and the stopping rule; 0 within them.
+    pub bound_excess: f64,
+    /// Predicted box overlap (m, [`super::constraint::Evaluation::overlap`]; 0 when not
+    /// counted).
+    pub contact: f64,
+    /// Road-edge excess of the box's corners (m, [`LinearisedProblem::edge_excess`]).
+    pub edge: f64,
 }
 
 /// The lateral goal whose state bounds a candidate is checked within.
@@ -195,20 +251,24 @@ impl Repairer<'_, '_> {
             })
         });
         let rank = if let Some(v) = retreat_violation {
-            Rank {
-                safe: false,
-                unbegun,
-                clear: false,
-                value: v,
-                contact: e.overlap,
-                edge: self.edge_rank(&rollout),
-            }
+            Rank::inadmissible(
+                self.s,
+                &Violations {
+                    unbegun,
+                    clear: false,
+                    value: v,
+                    bound_excess: excess,
+                    contact: e.overlap,
+                    edge: self.edge_rank(&rollout),
+                },
+            )
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
             Rank {
                 safe: true,
                 unbegun,
                 clear: false,
                 value: self.lp.cost(self.s, &delta, &accel, &rollout),
+                out_of_bounds: false,
                 contact: 0.0,
                 edge: 0.0,
             }
@@ -220,15 +280,18 @@ impl Repairer<'_, '_> {
                 && gap_violation <= EXCESS_TOLERANCE
                 && safety_violation(e.path_min_b, e.path_violation, self.s.safety_min) == 0.0
                 && v_end >= floor * self.lp.reference[3];
-            Rank {
-                safe: false,
-                unbegun,
-                clear,
-                value: safety_violation(e.min_b, e.violation, self.s.safety_min)
-                    + EXCESS_WEIGHT * (excess + gap_violation),
-                contact: e.overlap,
-                edge: self.edge_rank(&rollout),
-            }
+            Rank::inadmissible(
+                self.s,
+                &Violations {
+                    unbegun,
+                    clear,
+                    value: safety_violation(e.min_b, e.violation, self.s.safety_min)
+                        + EXCESS_WEIGHT * (excess + gap_violation),
+                    bound_excess: excess,
+                    contact: e.overlap,
+                    edge: self.edge_rank(&rollout),
+                },
+            )
         };
         Ok(Candidate {
             delta,

@@ -1385,7 +1385,8 @@ fn predicted_contacts(plan: &Plan, h: &History, sizes: &[[f64; 2]]) -> usize {
 /// towards the target lane, away from the slow car ahead, which swings its tail into the car
 /// beside it (a contact by the separating-axis test at the constant-velocity positions), with
 /// one ellipse for the whole truck or with 6 m slices; with `contact_first` the fallback
-/// touches nobody.
+/// touches nobody, and still with `bounds_first` too (the fallback that touches nobody is
+/// within the state bounds).
 #[test]
 fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
     let (h, sizes) = squeezed_truck();
@@ -1393,10 +1394,11 @@ fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
     p.y_target = 3.44;
     p.road = [-5.16, 5.16];
     p.y_retreat = Some(0.0);
-    let plan_with = |ego_segment_length: f64, contact_first: bool| {
+    let plan_with = |ego_segment_length: f64, contact_first: bool, bounds_first: bool| {
         let s = PlannerSettings {
             ego_segment_length,
             contact_first,
+            bounds_first,
             ..PlannerSettings::default()
         };
         let mut planner = Planner::new(s).unwrap();
@@ -1404,25 +1406,31 @@ fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
             .plan(&p, &mut ConstantVelocity::new(6).unwrap())
             .unwrap()
     };
-    for segment in [0.0, 6.0] {
-        let (off, on) = (plan_with(segment, false), plan_with(segment, true));
+    let inadmissible = |plan: &Plan| {
         assert!(
-            off.min_safety.is_some_and(|b| b < 0.0) && on.min_safety.is_some_and(|b| b < 0.0),
-            "nothing admissible either way: {:?} {:?}",
-            off.min_safety,
-            on.min_safety
+            plan.min_safety.is_some_and(|b| b < 0.0),
+            "nothing admissible: {:?}",
+            plan.min_safety
         );
+    };
+    for segment in [0.0, 6.0] {
+        let off = plan_with(segment, false, false);
+        inadmissible(&off);
         assert!(
             predicted_contacts(&off, &h, &sizes) > 0,
             "segment {segment}: without the rule the fallback touches a car: {:?}",
             off.states
         );
-        assert_eq!(
-            predicted_contacts(&on, &h, &sizes),
-            0,
-            "segment {segment}: with it nobody: {:?}",
-            on.states
-        );
+        for bounds_first in [false, true] {
+            let on = plan_with(segment, true, bounds_first);
+            inadmissible(&on);
+            assert_eq!(
+                predicted_contacts(&on, &h, &sizes),
+                0,
+                "segment {segment}, bounds_first {bounds_first}: with it nobody: {:?}",
+                on.states
+            );
+        }
     }
 }
 
@@ -1477,6 +1485,7 @@ fn edge_and_contact_rank_before_the_total_violation() {
         unbegun: false,
         clear,
         value,
+        out_of_bounds: false,
         contact,
         edge,
     };
@@ -1495,13 +1504,162 @@ fn edge_and_contact_rank_before_the_total_violation() {
     assert!(r(5.0, 0.0, 0.0, false).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
     assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
     assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.3, 0.0, true)));
-    let admissible = super::repair::Rank {
+    assert!(admissible_rank(100.0).beats(&r(0.0, 0.0, 0.0, true)));
+}
+
+/// The rank of an admissible candidate of cost `value`.
+fn admissible_rank(value: f64) -> super::repair::Rank {
+    super::repair::Rank {
         safe: true,
         unbegun: false,
         clear: false,
-        value: 100.0,
+        value,
+        out_of_bounds: false,
         contact: 0.0,
         edge: 0.0,
+    }
+}
+
+/// Two inadmissible fallbacks of a squeezed car: a swerve past the heading bound that is
+/// predicted to touch less (0.1 m of overlap, bound excess 0.4) and a plan within the state
+/// bounds that touches more (0.8 m). With `contact_first` alone the swerve wins; with
+/// `bounds_first` too the plan within the bounds wins, and contact, the road edge and the
+/// total violation decide only between candidates on the same side of the bounds. Off, the
+/// rule changes nothing; an admissible candidate still beats both.
+#[test]
+fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
+    use super::repair::{Rank, Violations};
+    let v = |bound_excess: f64, contact: f64, edge: f64, value: f64| Violations {
+        unbegun: false,
+        clear: false,
+        value,
+        bound_excess,
+        contact,
+        edge,
     };
-    assert!(admissible.beats(&r(0.0, 0.0, 0.0, true)));
+    let swerve = v(0.4, 0.1, 0.0, 4.5);
+    let within = v(0.0, 0.8, 0.0, 6.0);
+    let settings = |contact_first: bool, bounds_first: bool| PlannerSettings {
+        contact_first,
+        bounds_first,
+        edge_first: true,
+        ..PlannerSettings::default()
+    };
+    let first = settings(true, false);
+    let bounds = settings(true, true);
+    let rank = Rank::inadmissible;
+    // `contact_first` alone: less contact wins, the heading bound notwithstanding.
+    assert!(rank(&first, &swerve).beats(&rank(&first, &within)));
+    assert!(!rank(&first, &within).beats(&rank(&first, &swerve)));
+    // `bounds_first`: the candidate within the bounds wins whatever its contact, edge excess
+    // or total violation.
+    assert!(rank(&bounds, &within).beats(&rank(&bounds, &swerve)));
+    assert!(!rank(&bounds, &swerve).beats(&rank(&bounds, &within)));
+    let over_edge = v(0.3, 0.0, 0.3, 0.1);
+    assert!(rank(&bounds, &within).beats(&rank(&bounds, &over_edge)));
+    // Below the rounding tolerance counts as within.
+    assert!(rank(&bounds, &v(1e-12, 0.8, 0.0, 6.0)).beats(&rank(&bounds, &swerve)));
+    // On the same side of the bounds, contact decides first, then the road edge, then the
+    // total violation.
+    assert!(rank(&bounds, &v(0.9, 0.1, 0.5, 9.0)).beats(&rank(&bounds, &v(0.2, 0.2, 0.0, 1.0))));
+    assert!(rank(&bounds, &v(0.0, 0.1, 0.0, 9.0)).beats(&rank(&bounds, &v(0.0, 0.2, 0.0, 1.0))));
+    assert!(rank(&bounds, &v(0.9, 0.1, 0.0, 9.0)).beats(&rank(&bounds, &v(0.2, 0.1, 0.2, 1.0))));
+    assert!(rank(&bounds, &v(0.9, 0.1, 0.2, 1.0)).beats(&rank(&bounds, &v(0.2, 0.1, 0.2, 9.0))));
+    // A slack: an excess up to it counts as within the bounds (the truck whose contact-free
+    // fallbacks leave its lateral band by 1.5 cm), a larger one still loses.
+    let dip = v(0.015, 0.0, 0.0, 1.4);
+    let turn = v(0.0, 0.3, 0.0, 2.7);
+    assert!(rank(&bounds, &turn).beats(&rank(&bounds, &dip)));
+    let slack = PlannerSettings {
+        bounds_slack: 0.05,
+        ..bounds.clone()
+    };
+    assert!(rank(&slack, &dip).beats(&rank(&slack, &turn)));
+    assert!(rank(&slack, &turn).beats(&rank(&slack, &v(0.06, 0.0, 0.0, 1.4))));
+    assert!(rank(&slack, &within).beats(&rank(&slack, &swerve)));
+    // Without `contact_first` the rule still puts the bounds first, then the total
+    // violation (edge_first on here: equal edges).
+    let alone = settings(false, true);
+    assert!(rank(&alone, &within).beats(&rank(&alone, &swerve)));
+    assert!(rank(&alone, &v(0.0, 0.0, 0.0, 6.0)).beats(&rank(&alone, &v(0.0, 0.0, 0.0, 7.0))));
+    // Off (the default): the total violation decides, as before the rule.
+    let off = PlannerSettings::default();
+    assert!(rank(&off, &swerve).beats(&rank(&off, &within)));
+    assert!(!rank(&off, &within).beats(&rank(&off, &swerve)));
+    assert!(admissible_rank(100.0).beats(&rank(&bounds, &within)));
+}
+
+/// A car at 12 m/s, heading 0.1 rad towards the lane on its left, 7 m behind a car at 6 m/s
+/// in its own lane, with a previous plan that steers left at the steering bound (0.15 rad):
+/// nothing is admissible. With `contact_first` the fallback with the least predicted contact
+/// is that previous plan, shifted: a swerve past the heading bound (0.2 rad), out of the
+/// lateral corridor and off the road, the failure of the test split in log replay. With
+/// `bounds_first` too, the fallback stays within the heading bound, the corridor and the road,
+/// though it is predicted to touch the car ahead more.
+#[test]
+fn bounds_first_keeps_a_squeezed_car_s_fallback_within_the_heading_bound() {
+    let (h, sizes) = scene(12.0, 0.0, &[(7.0, 0.0, 6.0)]);
+    let mut p = problem(&h, &sizes, 12.0);
+    p.ego.psi = 0.1;
+    let plan_with = |bounds_first: bool| {
+        let s = PlannerSettings {
+            ego_segment_length: 6.0,
+            contact_first: true,
+            edge_first: true,
+            bounds_first,
+            ..PlannerSettings::default()
+        };
+        let mut planner = Planner::new(s).unwrap();
+        planner.warm = Some(super::linearised::WarmStart {
+            delta: vec![0.15; 6],
+            accel: vec![0.0; 6],
+            duals: vec![State::zeros(); 6],
+        });
+        planner
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap()
+    };
+    let (first, bounds) = (plan_with(false), plan_with(true));
+    let heading_max = PlannerSettings::default().heading_max;
+    let max_heading = |plan: &Plan| plan.states.iter().map(|z| z[2].abs()).fold(0.0, f64::max);
+    // The box's lateral extent from its corners, rotated (independent of the planner's
+    // half-extent formula).
+    let on_road = |plan: &Plan| {
+        plan.states.iter().all(|z| {
+            let (sn, cs) = z[2].sin_cos();
+            [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
+                .iter()
+                .map(|(u, v)| z[1] + 0.5 * (u * sizes[0][0] * sn + v * sizes[0][1] * cs))
+                .all(|y| (p.road[0]..=p.road[1]).contains(&y))
+        })
+    };
+    assert!(
+        first.min_safety.is_some_and(|b| b < 0.0) && bounds.min_safety.is_some_and(|b| b < 0.0),
+        "nothing admissible either way: {:?} {:?}",
+        first.min_safety,
+        bounds.min_safety
+    );
+    assert!(
+        max_heading(&first) > heading_max + 0.1 && !on_road(&first),
+        "contact first: the swerve past the heading bound and off the road: {:?}",
+        first.states
+    );
+    assert!(
+        predicted_contacts(&first, &h, &sizes) < predicted_contacts(&bounds, &h, &sizes),
+        "the swerve is predicted to touch less: {} vs {}",
+        predicted_contacts(&first, &h, &sizes),
+        predicted_contacts(&bounds, &h, &sizes)
+    );
+    assert!(
+        max_heading(&bounds) <= heading_max && on_road(&bounds),
+        "bounds first: within the heading bound and on the road: {:?}",
+        bounds.states
+    );
+    let corridor = -PlannerSettings::default().overshoot_max
+        ..=p.y_target + PlannerSettings::default().overshoot_max;
+    assert!(
+        bounds.states.iter().all(|z| corridor.contains(&z[1])),
+        "and within the lateral corridor: {:?}",
+        bounds.states
+    );
 }
