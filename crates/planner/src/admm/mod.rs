@@ -238,7 +238,8 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// runs 3 → 0 (planned 12 → 4).
 ///
 /// **Long egos, contact and the road edge** (`ego_segment_length` 6 m, `contact_first`,
-/// `edge_first`; off by default: chosen on validation, they failed the test split, below). The √2 ellipse of a 19.8 m truck and a car reaches 18.7 m
+/// `edge_first`; the defaults together with `bounds_first`, below: alone they failed the test
+/// split). The √2 ellipse of a 19.8 m truck and a car reaches 18.7 m
 /// along the road where the boxes touch at 12.2 m, so a car 20 m ahead in the truck's lateral
 /// position made every plan inadmissible (validation, `us101-2_1-t06.6-ego513`). Cut into
 /// slices of at most 6 m ([`crate::safety::Ellipse::sliced`]) the ellipses still exclude
@@ -267,15 +268,16 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// (3.7–6.1 m): with `contact_first` above the state bounds, a fallback that is predicted to
 /// touch nobody beats one within the heading bound and on the road, so a squeezed car swerved
 /// across a lane (`us101-11_1-t03.0-ego135`: 7.9 m beyond the target lane's centre). So the
-/// three are off by default (`docs/results/long_egos.md`).
+/// three alone did not become the defaults (`docs/results/long_egos.md`).
 ///
-/// **Contact within the state bounds** (`bounds_first`, off by default). Among candidates of
+/// **Contact within the state bounds** (`bounds_first` with `bounds_slack` 0.05: the defaults,
+/// with the three long-ego settings). Among candidates of
 /// which none is admissible, each rule below decides only on a tie of those before it:
 /// 1. within the state bounds beats outside them: the roll-out's state-bound excess (heading
 ///    relative to the road, the lateral corridor of the lane change, speed, the box's corners
 ///    beyond the road's edges, lane extents and the lane-end stopping rule: the excess the
-///    total violation weighs) is at most `bounds_slack` (default 0: none, up to rounding)
-///    (`bounds_first`);
+///    total violation weighs) is at most `bounds_slack` (default 0.05; 0: none, up to
+///    rounding) (`bounds_first`);
 /// 2. the smaller predicted box overlap (`contact_first`);
 /// 3. the smaller road-edge excess (`edge_first`);
 /// 4. no centre in a lane before it begins; the speed floor's clear path; the smaller total
@@ -302,9 +304,11 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// truck no longer hit), the teacher planner's off-road runs 0, max |ψ| 0.200 rad. On the test
 /// split, once (300 scenes × 3 seeds, teacher planner on 150): no world loses success (every
 /// paired interval includes 0), log-replay at-fault runs 6 → 5 (student) and 7 → 4 (teacher
-/// planner), 0 elsewhere, 0 off-road runs and max |ψ| 0.200 rad as with the defaults. Both
-/// stay off by default until the figures they change are regenerated with them
-/// (`docs/results/long_egos.md`).
+/// planner), 0 elsewhere, 0 off-road runs and max |ψ| 0.200 rad as with the previous
+/// defaults. So the five settings (6 m slices, `bounds_first`, `bounds_slack` 0.05,
+/// `contact_first`, `edge_first`) are the defaults, and every figure that depends on the
+/// planner was regenerated with them (`docs/results/long_egos.md`,
+/// `docs/results/closed_loop.md`, `docs/paper`).
 ///
 /// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
 /// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every

@@ -1539,9 +1539,11 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
     };
     let swerve = v(0.4, 0.1, 0.0, 4.5);
     let within = v(0.0, 0.8, 0.0, 6.0);
+    // Strict (no slack) unless stated: the defaults' slack is set below.
     let settings = |contact_first: bool, bounds_first: bool| PlannerSettings {
         contact_first,
         bounds_first,
+        bounds_slack: 0.0,
         edge_first: true,
         ..PlannerSettings::default()
     };
@@ -1570,10 +1572,10 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
     let dip = v(0.015, 0.0, 0.0, 1.4);
     let turn = v(0.0, 0.3, 0.0, 2.7);
     assert!(rank(&bounds, &turn).beats(&rank(&bounds, &dip)));
-    let slack = PlannerSettings {
-        bounds_slack: 0.05,
-        ..bounds.clone()
-    };
+    // The defaults: `bounds_first` with a slack of 0.05, `contact_first`, `edge_first`.
+    let slack = PlannerSettings::default();
+    assert!(slack.bounds_first && slack.contact_first && slack.edge_first);
+    assert_eq!(slack.bounds_slack, 0.05);
     assert!(rank(&slack, &dip).beats(&rank(&slack, &turn)));
     assert!(rank(&slack, &turn).beats(&rank(&slack, &v(0.06, 0.0, 0.0, 1.4))));
     assert!(rank(&slack, &within).beats(&rank(&slack, &swerve)));
@@ -1582,8 +1584,13 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
     let alone = settings(false, true);
     assert!(rank(&alone, &within).beats(&rank(&alone, &swerve)));
     assert!(rank(&alone, &v(0.0, 0.0, 0.0, 6.0)).beats(&rank(&alone, &v(0.0, 0.0, 0.0, 7.0))));
-    // Off (the default): the total violation decides, as before the rule.
-    let off = PlannerSettings::default();
+    // All three rules off: the total violation decides, as before them.
+    let off = PlannerSettings {
+        contact_first: false,
+        bounds_first: false,
+        edge_first: false,
+        ..PlannerSettings::default()
+    };
     assert!(rank(&off, &swerve).beats(&rank(&off, &within)));
     assert!(!rank(&off, &within).beats(&rank(&off, &swerve)));
     assert!(admissible_rank(100.0).beats(&rank(&bounds, &within)));
