@@ -31,7 +31,8 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "w_da": 1.0, "rho": 1000.0,
         "delta_max": 0.15, "ddelta_max": 0.05, "a_min": -5.0, "a_max": 3.0, "da_max": 1.5,
         "v_max": 30.0, "edge_margin": 0.0, "v_lin_min": 1.0,
-        "ellipse_scale": std::f64::consts::SQRT_2, "margin_x": 1.5, "margin_y": 0.3,
+        "ellipse_scale": std::f64::consts::SQRT_2, "ellipse_lateral_scale": 0.0, "margin_x": 1.5,
+        "margin_y": 0.3,
         "brake_decel": 4.0,
         "check_range": 60.0, "safety_min": 0.0, "plan_buffer": 0.0,
         "max_iter": 30, "eps_primal": 0.01, "eps_change": 0.01, "pgd_steps": 5,
@@ -119,7 +120,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 58, "numeric settings");
+    assert_eq!(numeric, 59, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and
@@ -185,5 +186,22 @@ fn range_table_matches_the_fields_and_is_enforced() {
                 assert!(e.to_string().contains(&format!("`{}`", r.field)), "{e}");
             }
         }
+    }
+}
+
+/// A lateral scale at or below `ellipse_scale` / √2 leaves no longitudinal scale that keeps the
+/// ellipse around the box-overlap rectangle: refused, naming the field; just above it, and 0
+/// (off), are accepted.
+#[test]
+fn a_lateral_scale_must_exceed_the_scale_over_root_two() {
+    for v in [0.5, 1.0] {
+        let err = PlannerSettings::from_json(&with("ellipse_lateral_scale", json!(v)))
+            .err()
+            .unwrap_or_else(|| panic!("ellipse_lateral_scale = {v} accepted"));
+        assert!(err.to_string().contains("ellipse_lateral_scale"), "{err}");
+    }
+    for v in [0.0, 1.001, 1.15, 4.0] {
+        PlannerSettings::from_json(&with("ellipse_lateral_scale", json!(v)))
+            .unwrap_or_else(|e| panic!("ellipse_lateral_scale = {v} refused: {e}"));
     }
 }

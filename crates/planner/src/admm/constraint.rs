@@ -40,7 +40,8 @@ pub struct CheckedVehicle {
 pub struct SafetyConstraint {
     vehicles: Vec<CheckedVehicle>,
     ego_size: [f64; 2],
-    scale: f64,
+    /// The ellipse's scales (along, across the road; [`crate::safety::axis_scales`]).
+    scales: [f64; 2],
     margins: [f64; 2],
     geometry: SafetyGeometry,
     /// Slices the ego is cut into along its heading for the ellipse geometry
@@ -75,7 +76,10 @@ impl SafetyConstraint {
         Self {
             vehicles,
             ego_size: problem.sizes[0],
-            scale: settings.ellipse_scale,
+            scales: crate::safety::axis_scales(
+                settings.ellipse_scale,
+                settings.ellipse_lateral_scale,
+            ),
             margins: [settings.margin_x, settings.margin_y],
             geometry: settings.safety_geometry,
             segments: ego_segments(problem.sizes[0][0], settings.ego_segment_length),
@@ -100,12 +104,12 @@ impl SafetyConstraint {
         previous: [f64; 2],
         other: [f64; 2],
     ) -> Ellipse {
-        Ellipse::oriented(
+        Ellipse::oriented_scaled(
             self.ego_size,
             ego_direction,
             vehicle.size,
             motion_direction(previous, other, vehicle.direction),
-            self.scale,
+            self.scales,
             self.margins[0],
             self.margins[1],
         )
@@ -253,12 +257,12 @@ impl SafetyConstraint {
         closing: f64,
     ) -> (f64, [f64; 2]) {
         let k = self.segments;
-        let mut e = Ellipse::oriented(
+        let mut e = Ellipse::oriented_scaled(
             [self.ego_size[0] / k as f64, self.ego_size[1]],
             heading_direction(ego[2]),
             vehicle.size,
             motion_direction(previous, other, vehicle.direction),
-            self.scale,
+            self.scales,
             self.margins[0],
             self.margins[1],
         );
