@@ -41,8 +41,8 @@ pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
-    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents, box_separation,
-    motion_axis, motion_direction, motion_heading,
+    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, axis_scales, bounding_half_extents,
+    box_separation, motion_axis, motion_direction, motion_heading,
 };
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::{PlannerSettings, SafetyGeometry};

@@ -101,7 +101,7 @@ pub struct PlannerSettings {
     /// s_x = 1 / √(2 / s² − 1 / s_y²) (s = `ellipse_scale`), which keeps 1/s_x² + 1/s_y² =
     /// 2/s²: with s = √2 the corner of the box-overlap rectangle stays on the ellipse, so it
     /// still circumscribes the rectangle and b > 0 still excludes overlap, with the inflation
-    /// moved from across the road to along it ([`crate::safety::axis_scales`]). Must exceed
+    /// moved from across the road to along it ([`crate::axis_scales`]). Must exceed
     /// s / √2. The isotropic √2 ellipse of two 2.0 m wide cars reaches 2.83 m + `margin_y`
     /// across the road, about the lateral distance of two cars centred in adjacent 3.4–3.7 m
     /// lanes, so a vehicle beside the ego in the next lane keeps it from centring in its own.

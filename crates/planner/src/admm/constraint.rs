@@ -40,7 +40,7 @@ pub struct CheckedVehicle {
 pub struct SafetyConstraint {
     vehicles: Vec<CheckedVehicle>,
     ego_size: [f64; 2],
-    /// The ellipse's scales (along, across the road; [`crate::safety::axis_scales`]).
+    /// The ellipse's scales (along, across the road; [`crate::axis_scales`]).
     scales: [f64; 2],
     margins: [f64; 2],
     geometry: SafetyGeometry,
