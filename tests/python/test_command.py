@@ -24,6 +24,12 @@ import nudge
 SCRIPT = Path(sys.executable).with_name("nudge")
 
 
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to its default disposition (a parent that ignores
+    it, such as a background job of a non-interactive shell, would otherwise pass that on)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _binary(repo: Path) -> Path:
     exe = Path(os.environ.get("NUDGE_CLI", repo / "target" / "release" / "nudge"))
     exe = exe if exe.is_absolute() else repo / exe
@@ -162,9 +168,11 @@ def test_ctrl_c_ends_the_command_like_the_binary(repo: Path, tmp_path: Path, fro
     """Ctrl-C ends a long ``nudge simulate`` at once (default SIGINT: the process ends by the
     signal), from the package's command as from the binary."""
     exe = _binary(repo) if front == "binary" else SCRIPT
+    # A shell without job control starts background jobs with SIGINT ignored, and the child
+    # inherits that: restore the default so the signal reaches the command as Ctrl-C does.
     p = subprocess.Popen([str(exe), "simulate", "--scenes", str(_scenes(tmp_path, 10)), "--predictor", "teacher",
                           "--runs", "100", "--threads", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                         cwd=repo, env=_env())
+                         cwd=repo, env=_env(), preexec_fn=_default_sigint)
     time.sleep(1.0)
     assert p.poll() is None, "the command ended before Ctrl-C"
     sent = time.perf_counter()

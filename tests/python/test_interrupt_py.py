@@ -12,8 +12,11 @@ import time
 
 # A batch that runs for minutes on one thread: every shipped scene, many runs each.
 SCRIPT = """
-import sys, time
+import signal, sys, time
 import nudge
+# Python leaves SIGINT ignored when it starts ignored (a background job of a non-interactive
+# shell); Ctrl-C in a terminal is what this checks, so install Python's own handler.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 paths = nudge.scene_paths()
 print("started", flush=True)
 t0 = time.monotonic()
