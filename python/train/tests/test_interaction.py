@@ -122,6 +122,8 @@ def test_start_geometry_by_hand() -> None:
     # Level with it, the ego's centre stays sqrt(2) * 1.9 + 0.3 below 3.7; its edge 0.95 above that.
     assert depth == pytest.approx((3.7 - 1.85) - (np.sqrt(2.0) * 1.9 + 0.3) + 0.95)
     assert start_geometry(sc, 0, s) is None
+    with pytest.raises(ValueError, match="ellipse_lateral_scale"):
+        start_geometry(sc, 2, s.replace(ellipse_lateral_scale=1.25))
 
 
 def test_horizon_10_leaves_the_6_step_students_out(tmp_path: Path) -> None:

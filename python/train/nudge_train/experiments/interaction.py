@@ -498,7 +498,11 @@ def start_gaps(runs: list[tuple[Path, list[int]]], settings: nudge.PlannerSettin
     ``ellipse_scale * (L_ego + L) / 2 + margin_x`` minus the half lengths), and ``depth``: how far
     (m) the ellipse lets the ego's near edge into the target lane while that vehicle is level
     with it at its start lateral position (lateral semi-axis
-    ``ellipse_scale * (W_ego + W) / 2 + margin_y``; negative: the edge stays short of the line)."""
+    ``ellipse_scale * (W_ego + W) / 2 + margin_y``; negative: the edge stays short of the line).
+
+    The isotropic, unsliced ellipse: for an ego longer than ``ego_segment_length`` the planner's
+    sliced ellipses reach less far along the road, so ``need`` is an upper bound there; a
+    non-zero ``ellipse_lateral_scale`` is refused (:func:`start_geometry`)."""
     rows = []
     for path, seeds in runs:
         sc = nudge.Scenario.load(path)
@@ -513,7 +517,15 @@ def start_gaps(runs: list[tuple[Path, list[int]]], settings: nudge.PlannerSettin
 def start_geometry(sc: nudge.Scenario, lane: int, settings: nudge.PlannerSettings) -> tuple[float, float, float] | None:
     """(gap, need, depth) of :func:`start_gaps` for one start (``sc``: anything with ``history``
     ``[n, 8, 2]``, ``size`` ``[n, 2]`` (length, width) and ``lane_bounds``), or None when no
-    vehicle is in the target lane."""
+    vehicle is in the target lane.
+
+    Raises:
+        ValueError: ``settings.ellipse_lateral_scale`` is not 0 (the gaps here are those of the
+            isotropic ellipse).
+    """
+    if settings.ellipse_lateral_scale != 0.0:
+        raise ValueError(f"start_geometry: ellipse_lateral_scale = {settings.ellipse_lateral_scale} "
+                         "is not supported (the start gaps are those of the isotropic ellipse)")
     pos = sc.history[:, -1, :]
     length, width = sc.size[:, 0], sc.size[:, 1]
     lo, hi = _lane(sc.lane_bounds, lane)
