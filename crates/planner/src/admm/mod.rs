@@ -23,6 +23,7 @@
 mod constraint;
 mod contingency;
 mod follower_gap;
+mod heading;
 mod inputs;
 mod linearised;
 mod problem;
