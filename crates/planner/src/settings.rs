@@ -291,7 +291,9 @@ pub struct PlannerSettings {
 
     /// Heading bound relative to the road (rad): every returned state has |ψ_k| ≤ heading_max
     /// (an ego that starts beyond it gets a bound that returns to it by `heading_recovery`
-    /// per step). A value ≥ π/2 leaves the heading unbounded.
+    /// per step). An admissible plan keeps it by definition; with `heading_governor` every
+    /// other plan keeps it too, wherever the steering's box and rate bounds allow. A value
+    /// ≥ π/2 leaves the heading unbounded.
     pub heading_max: f64,
     /// Rate (rad per step) at which the heading bound of an ego starting beyond `heading_max`
     /// returns to it.
