@@ -300,13 +300,15 @@ pub struct PlannerSettings {
     pub heading_recovery: f64,
     /// Govern every candidate's steering to the heading bounds before its roll-out is checked:
     /// at each step the steering nearest to the candidate's, within the box and rate bounds,
-    /// that keeps ψ_{k+1} within the bound on the exact model (the plan carries the governed
-    /// steering). Without it the ADMM inputs keep the bound on the linearised dynamics only:
+    /// from which the heading stays within the bound for the rest of the horizon on the exact
+    /// model even when the steering is then unwound as fast as the rate allows (the plan
+    /// carries the governed steering; a sequence whose roll-out keeps the bound is unchanged).
+    /// Without it the ADMM inputs keep the bound on the linearised dynamics only:
     /// their roll-out can pass it by a few milliradians, which sends the step to the repairs,
     /// and a plan that nothing admissible beats is returned past it (0.2011 rad once in 4050
-    /// test-split runs). On by default: on validation, paired with it off, success rose or
-    /// held in five of six arms (the sixth: −0.3 pp, one run) and the student planner's
-    /// at-fault runs in log replay fell 5 → 0 (`docs/results/heading_governor.md`).
+    /// test-split runs). On by default: on validation, paired with it off, success rose in
+    /// five of six arms (the sixth: −0.7 pp, 3 runs lost and 1 gained) and the student
+    /// planner's at-fault runs in log replay fell 5 → 0 (`docs/results/heading_governor.md`).
     pub heading_governor: bool,
     /// Lateral overshoot allowed beyond the lateral goal and behind the start (m): the ego's
     /// centre stays within [min(y_0, y_target) − overshoot_max, max(y_0, y_target) +
