@@ -190,15 +190,7 @@ mod tests {
 
     fn govern(start: &State, delta: &mut [f64], accel: &[f64], prev: f64) -> usize {
         let (lo, hi) = heading_bounds(delta.len(), 0.2);
-        govern_heading(
-            &model(),
-            start,
-            delta,
-            accel,
-            steering_box(prev),
-            &lo,
-            &hi,
-        )
+        govern_heading(&model(), start, delta, accel, steering_box(prev), &lo, &hi)
     }
 
     /// The fastest unwinding of the steering from `d0` (the continuation of the viability
@@ -254,13 +246,19 @@ mod tests {
         let mut delta = vec![0.09, 0.06, 0.01, -0.03, -0.05, -0.05];
         let accel = vec![0.0; 6];
         let before = rollout(&start, &delta, &accel);
-        assert!(before[0][2] < 0.2 && before.iter().any(|z| z[2] > 0.2005), "{before:?}");
+        assert!(
+            before[0][2] < 0.2 && before.iter().any(|z| z[2] > 0.2005),
+            "{before:?}"
+        );
         let n = govern(&start, &mut delta, &accel, 0.06);
         assert!(n >= 1);
         assert!(delta[0] < 0.09, "{delta:?}");
         let after = rollout(&start, &delta, &accel);
         let peak = after.iter().map(|z| z[2]).fold(f64::NEG_INFINITY, f64::max);
-        assert!(peak <= 0.2 + 1e-9 && peak > 0.2 - 1e-6, "peak {peak}: {after:?}");
+        assert!(
+            peak <= 0.2 + 1e-9 && peak > 0.2 - 1e-6,
+            "peak {peak}: {after:?}"
+        );
         // The first steering is where the fastest unwinding just reaches the bound.
         let at = unwound_peak(&start, delta[0], 0.0, 6);
         assert!((at - 0.2).abs() < 1e-9, "{at}");

@@ -244,7 +244,10 @@ impl Repairer<'_, '_> {
         self.model
             .rollout(&self.lp.start, &delta, &accel, &mut rollout);
         let e = self.safety.eval(self.predictor, &rollout)?;
-        let excess = self.lp.bound_excess_within(lower, upper, &rollout);
+        let excess = match (goal, &self.lp.retreat) {
+            (Goal::Retreat, Some(r)) => self.lp.bound_excess_within(&r.lower, &r.upper, &rollout),
+            _ => self.lp.bound_excess(&rollout),
+        };
         let rows = self.safety.rows.clone();
         let gap_violation = self
             .follower_gap

@@ -1730,4 +1730,3 @@ fn the_heading_governor_adopts_the_optimisers_plan() {
         assert!(z[2].abs() <= s.heading_max + 1e-12, "{z:?}");
     }
 }
-
