@@ -535,7 +535,8 @@ fn shipped_real_merges_complete_before_the_end() {
 /// In the `idm` world another vehicle whose lane ends merges too: a car 40 m ahead of the ego
 /// in the acceleration lane, the main lane free, changes into the main lane (its centre moves
 /// towards the main lane's centre, across the line before the end), without a collision, and
-/// the ego merges as well.
+/// the ego merges as well. The ego must stay settled for 10 steps, so the run lasts long
+/// enough to watch the other car whatever the ego's own timing (it settles within 6 steps).
 #[test]
 fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
     let sc = scene(
@@ -548,6 +549,7 @@ fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
     let cfg = SimConfig {
         world: World::Idm,
         max_steps: 30,
+        settle_steps: 10,
         ..SimConfig::default()
     };
     let never = nudge_planner::Cancel::new();

@@ -42,6 +42,7 @@ use crate::settings::PlannerSettings;
 use super::constraint::{SafetyEval, SafetyRow};
 use super::contingency::Contingency;
 use super::follower_gap::FollowerGap;
+use super::heading::govern_heading;
 use super::linearised::LinearisedProblem;
 use super::refine;
 
@@ -215,13 +216,30 @@ impl Repairer<'_, '_> {
         self.check_within(delta, accel, Goal::Target)
     }
 
-    /// [`Self::check`] within the state bounds of a plan aiming at `goal`.
+    /// [`Self::check`] within the state bounds of a plan aiming at `goal`; with
+    /// `PlannerSettings::heading_governor` the steering is first governed to those bounds'
+    /// heading ([`govern_heading`]), and the candidate carries the governed steering.
     fn check_within(
         &mut self,
-        delta: Vec<f64>,
+        mut delta: Vec<f64>,
         accel: Vec<f64>,
         goal: Goal,
     ) -> Result<Candidate, PlannerError> {
+        let (lower, upper) = match (goal, &self.lp.retreat) {
+            (Goal::Retreat, Some(r)) => (&r.lower, &r.upper),
+            _ => (&self.lp.lower, &self.lp.upper),
+        };
+        if self.s.heading_governor {
+            govern_heading(
+                self.model,
+                &self.lp.start,
+                &mut delta,
+                &accel,
+                self.lp.delta_box,
+                lower,
+                upper,
+            );
+        }
         let mut rollout = vec![State::zeros(); self.lp.horizon];
         self.model
             .rollout(&self.lp.start, &delta, &accel, &mut rollout);

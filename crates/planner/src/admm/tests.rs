@@ -1602,18 +1602,21 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
 /// is that previous plan, shifted: a swerve past the heading bound (0.2 rad), out of the
 /// lateral corridor and off the road, the failure of the test split in log replay. With
 /// `bounds_first` too, the fallback stays within the heading bound, the corridor and the road,
-/// though it is predicted to touch the car ahead more.
+/// though it is predicted to touch the car ahead more. The rank rules are tested alone, with
+/// the heading governor off (it keeps even the contact-first swerve within the heading bound,
+/// checked at the end).
 #[test]
 fn bounds_first_keeps_a_squeezed_car_s_fallback_within_the_heading_bound() {
     let (h, sizes) = scene(12.0, 0.0, &[(7.0, 0.0, 6.0)]);
     let mut p = problem(&h, &sizes, 12.0);
     p.ego.psi = 0.1;
-    let plan_with = |bounds_first: bool| {
+    let plan_governed = |bounds_first: bool, heading_governor: bool| {
         let s = PlannerSettings {
             ego_segment_length: 6.0,
             contact_first: true,
             edge_first: true,
             bounds_first,
+            heading_governor,
             ..PlannerSettings::default()
         };
         let mut planner = Planner::new(s).unwrap();
@@ -1626,6 +1629,7 @@ fn bounds_first_keeps_a_squeezed_car_s_fallback_within_the_heading_bound() {
             .plan(&p, &mut ConstantVelocity::new(6).unwrap())
             .unwrap()
     };
+    let plan_with = |bounds_first: bool| plan_governed(bounds_first, false);
     let (first, bounds) = (plan_with(false), plan_with(true));
     let heading_max = PlannerSettings::default().heading_max;
     let max_heading = |plan: &Plan| plan.states.iter().map(|z| z[2].abs()).fold(0.0, f64::max);
@@ -1669,4 +1673,60 @@ fn bounds_first_keeps_a_squeezed_car_s_fallback_within_the_heading_bound() {
         "and within the lateral corridor: {:?}",
         bounds.states
     );
+    // The governor alone keeps every candidate, the contact-first swerve included, within the
+    // heading bound (the ego starts within it, at 0.1 rad).
+    for bounds_first in [false, true] {
+        let governed = plan_governed(bounds_first, true);
+        assert!(
+            max_heading(&governed) <= heading_max + 1e-12,
+            "governed, bounds_first {bounds_first}: {:?}",
+            governed.states
+        );
+    }
+}
+
+/// With `heading_governor`, an ADMM answer whose nonlinear roll-out passed the heading bound
+/// only by the linearisation's error is admissible once governed, and the plan is the
+/// optimiser's own (not the refinement's); its states are the roll-out of its inputs and keep
+/// the bound. The same call without the governor needs the refinement.
+#[test]
+fn the_heading_governor_adopts_the_optimisers_plan() {
+    let (h, sizes) = scene(10.5, 0.0, &[(8.0, 3.7, 10.5)]);
+    let p = problem(&h, &sizes, 10.5);
+    let q = PlanningProblem {
+        ego: EgoState {
+            x: 0.0,
+            y: 0.0,
+            psi: 0.12,
+            v: 10.5,
+        },
+        ..p
+    };
+    let plan_with = |heading_governor: bool| {
+        let s = PlannerSettings {
+            heading_governor,
+            ..PlannerSettings::default()
+        };
+        let mut planner = Planner::new(s).unwrap();
+        planner.plan(&q, &mut ConstantVelocity::default()).unwrap()
+    };
+    assert!(PlannerSettings::default().heading_governor);
+    let without = plan_with(false);
+    let with = plan_with(true);
+    assert_eq!(without.status, PlanStatus::Refined, "{without:?}");
+    assert!(
+        matches!(
+            with.status,
+            PlanStatus::Converged | PlanStatus::MaxIterations
+        ),
+        "{with:?}"
+    );
+    let s = PlannerSettings::default();
+    let mut rollout = vec![State::zeros(); with.states.len()];
+    let start = State::new(0.0, 0.0, 0.12, 10.5);
+    model(&s).rollout(&start, &with.delta, &with.accel, &mut rollout);
+    for (z, r) in with.states.iter().zip(&rollout) {
+        assert!((0..4).all(|j| (z[j] - r[j]).abs() < 1e-9), "{z:?} vs {r:?}");
+        assert!(z[2].abs() <= s.heading_max + 1e-12, "{z:?}");
+    }
 }
