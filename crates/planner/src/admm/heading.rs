@@ -157,13 +157,11 @@ impl Lookahead<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::settings::PlannerSettings;
 
+    /// The default bicycle (l_f = l_r = 1.4 m, dt = 0.3 s).
     fn model() -> Bicycle {
-        Bicycle {
-            l_f: 1.4,
-            l_r: 1.4,
-            dt: 0.3,
-        }
+        crate::admm::tests::model(&PlannerSettings::default())
     }
 
     fn steering_box(prev: f64) -> RateBox {

@@ -196,7 +196,8 @@ fn repairs_only() -> PlannerSettings {
     }
 }
 
-fn model(s: &PlannerSettings) -> Bicycle {
+/// The bicycle of the settings `s`.
+pub(super) fn model(s: &PlannerSettings) -> Bicycle {
     Bicycle {
         l_f: s.l_f,
         l_r: s.l_r,
