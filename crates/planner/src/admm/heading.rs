@@ -50,6 +50,13 @@ pub(crate) fn govern_heading(
     lower: &[State],
     upper: &[State],
 ) -> usize {
+    let view = Lookahead {
+        model,
+        accel,
+        bounds,
+        lower,
+        upper,
+    };
     let mut z = *start;
     let mut prev = bounds.prev.clamp(bounds.lo, bounds.hi);
     let mut governed = 0;
@@ -57,13 +64,6 @@ pub(crate) fn govern_heading(
         let lo = bounds.lo.max(prev - bounds.rate);
         let hi = bounds.hi.min(prev + bounds.rate);
         let d = delta[k].clamp(lo, hi);
-        let view = Lookahead {
-            model,
-            accel,
-            bounds,
-            lower,
-            upper,
-        };
         // The largest steering viable for the upper bound, the smallest for the lower one.
         let most = view.limit(&z, k, lo, hi, Side::Upper);
         let least = view.limit(&z, k, lo, hi, Side::Lower);
