@@ -510,9 +510,18 @@ fn a_crawling_ego_keeps_up_with_the_target_lanes_flow() {
             sc.position(1, 7)[0] + 10.0 * t - st.ego[0] > 50.0
         })
         .unwrap();
-    assert!(out_of_range + 3 <= on.steps.len(), "{out_of_range} of {}", on.steps.len());
+    assert!(
+        out_of_range + 3 <= on.steps.len(),
+        "{out_of_range} of {}",
+        on.steps.len()
+    );
     for st in &on.steps[out_of_range..] {
-        assert!(st.v_planned > 8.0, "step {}: plans {} m/s", st.step, st.v_planned);
+        assert!(
+            st.v_planned > 8.0,
+            "step {}: plans {} m/s",
+            st.step,
+            st.v_planned
+        );
     }
     assert!((on.steps.last().unwrap().ego[1] - y_target).abs() < 0.5);
 }
