@@ -186,6 +186,8 @@ fn cli_refuses_bad_arguments_by_name() {
         (vec!["--fault-brake-limit", "0"], "fault_brake_limit"),
         (vec!["--stall-progress", "2"], "stall_progress"),
         (vec!["--start-abort-after", "5000"], "start_abort_after"),
+        (vec!["--crawl-fraction", "2"], "crawl_fraction"),
+        (vec!["--crawl-fraction", "NaN"], "crawl_fraction"),
     ] {
         let mut all = vec!["simulate", "--scenes", sc];
         all.extend(&args);

@@ -417,3 +417,111 @@ fn an_ego_starting_across_the_line_aborts_at_once() {
     );
     assert!(start.aborts >= 1);
 }
+
+/// The real scene `name` with its ego crawling at `v_ego` (m/s) in its own lane and three
+/// vehicles in the seeded target lane moving at `v_flow` (m/s), 40–50 m ahead of it, no logged
+/// future (they keep their speed and soon leave the 50 m flow range).
+fn crawl_scene(name: &str, seed: u64, v_ego: f64, v_flow: f64) -> (Scenario, f64) {
+    let base = scene(name);
+    let lane = target_lane(
+        &base,
+        seed,
+        &PlannerSettings::default(),
+        &SimConfig::default(),
+    )
+    .unwrap();
+    let y_lane = base.lane_centres[lane];
+    let y_own = base.lane_centres[base.ego_lane];
+    let x0 = base.position(0, 7)[0];
+    let ahead = [40.0, 45.0, 50.0];
+    let n = 1 + ahead.len();
+    let mut history = Vec::with_capacity(n * 16);
+    for t in 0..8 {
+        let back = f64::from(7 - t) * 0.3 * v_ego;
+        history.extend_from_slice(&[x0 - back, y_own]);
+    }
+    for dx in ahead {
+        for t in 0..8 {
+            let back = f64::from(7 - t) * 0.3 * v_flow;
+            history.extend_from_slice(&[x0 + dx - back, y_lane]);
+        }
+    }
+    let mut size = vec![base.size[0]];
+    size.extend(std::iter::repeat_n([4.5, 1.8], ahead.len()));
+    let mut speed = vec![v_ego];
+    speed.extend(std::iter::repeat_n(v_flow, ahead.len()));
+    let sc = Scenario {
+        name: format!("{name}-crawl"),
+        n_agents: n,
+        history,
+        heading: vec![0.0; n],
+        speed,
+        size,
+        n_future: base.n_future,
+        future: vec![0.0; n * base.n_future * 2],
+        future_valid: vec![false; n * base.n_future],
+        agent_ids: (0..n as i64).collect(),
+        ..base.clone()
+    };
+    (sc, y_lane)
+}
+
+/// An ego that starts at 1.5 m/s beside a target lane moving at 10 m/s: with the crawl
+/// reference off it plans that crawl for the whole run and ends it slow in a live lane; with
+/// the default (`crawl_fraction` 0.5) it changes lanes and ends near the lane's flow, after
+/// the traffic that set the flow has left the 50 m range (the remembered flow).
+#[test]
+fn a_crawling_ego_keeps_up_with_the_target_lanes_flow() {
+    let (sc, y_target) = crawl_scene("us101-11_1-t02.1-ego144", 0, 1.5, 10.0);
+    let run = |crawl_fraction: f64| {
+        let cfg = SimConfig {
+            world: World::LogReplay,
+            crawl_fraction,
+            ..SimConfig::default()
+        };
+        let mut cv = ConstantVelocity::default();
+        simulate(
+            &sc,
+            &PlannerSettings::default(),
+            &cfg,
+            0,
+            &mut cv,
+            WorldModel::LogReplay,
+        )
+        .unwrap()
+    };
+    assert_eq!(SimConfig::default().crawl_fraction, 0.5);
+    let (off, on) = (run(0.0), run(SimConfig::default().crawl_fraction));
+    let last_v = |rec: &RunRecord| rec.steps.last().unwrap().ego[3];
+    for rec in [&off, &on] {
+        assert!(!rec.collision, "collision");
+    }
+    assert!(last_v(&off) < 3.0, "off: ends at {} m/s", last_v(&off));
+    assert!(off.metrics.slow_planned_steps > 0);
+    assert!(on.success, "on: did not settle in the target lane");
+    assert!(last_v(&on) > 8.0, "on: ends at {} m/s", last_v(&on));
+    // The 10 m/s vehicles leave the 50 m range steps before the end: from then on the
+    // reference is the remembered flow, and the ego keeps it.
+    let out_of_range = on
+        .steps
+        .iter()
+        .position(|st| {
+            let t = 0.3 * (st.step + 1) as f64;
+            sc.position(1, 7)[0] + 10.0 * t - st.ego[0] > 50.0
+        })
+        .unwrap();
+    assert!(
+        out_of_range + 3 <= on.steps.len(),
+        "{out_of_range} of {}",
+        on.steps.len()
+    );
+    for st in &on.steps[out_of_range..] {
+        assert!(
+            st.v_planned > 8.0,
+            "step {}: plans {} m/s",
+            st.step,
+            st.v_planned
+        );
+    }
+    assert!((on.steps.last().unwrap().ego[1] - y_target).abs() < 0.5);
+}

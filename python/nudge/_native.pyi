@@ -402,7 +402,7 @@ def simulate(
     ``config`` (default ``SimConfig.default()``) with ``config_overrides`` (``SimConfig`` fields:
     ``world``, ``max_steps``, ``settle_y``, ``settle_psi``, ``settle_steps``, ``abort_after``,
     ``abort_hold``, ``stall_progress``, ``start_abort_after``, ``gap_speed``, ``gap_window``,
-    ``fault_brake_limit``) sets
+    ``crawl_fraction``, ``fault_brake_limit``) sets
     the closed loop. Lane-change
     aborts: after ``abort_after`` consecutive steps without a safe plan (status ``Fallback``,
     ``Unsafe`` or ``SolverFailed``) while the ego is not yet wholly inside the target lane, the ego
@@ -413,6 +413,10 @@ def simulate(
     aborts after that many steps without a safe plan, before its first safe plan. Gap seeking: while a target-lane vehicle alongside (bumper gap below ``gap_window``, m)
     blocks the change, the planner's reference speed moves ``gap_speed`` (m/s) past that
     vehicle's speed, ahead of it or behind it (off by default: ``gap_speed = 0``).
+    Crawl reference: once the ego's starting speed is below ``crawl_fraction`` times the
+    median speed of the goal lane's vehicles within 50 m along the road (the last such median
+    seen when none is in range), its reference speed is at least that median for the rest of
+    the run (``crawl_fraction = 0``: off).
     The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).
 
     ``trace``: keep every step's plan and the planning predictor's predicted reaction to it

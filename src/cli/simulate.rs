@@ -109,6 +109,13 @@ pub struct SimulateArgs {
     ))]
     pub gap_window: Option<f64>,
     #[arg(long, help = noted(
+        "Crawl reference: once the ego's starting speed is below this fraction of the median \
+         speed of the goal lane's vehicles within 50 m, its reference speed keeps up with that \
+         median; 0 disables",
+        DEFAULT.crawl_fraction,
+    ))]
+    pub crawl_fraction: Option<f64>,
+    #[arg(long, help = noted(
         "At-fault rule: an ego hit from behind while inside one lane is not at fault only if it \
          braked no harder than this (m/s²)",
         DEFAULT.fault_brake_limit,
@@ -155,6 +162,7 @@ impl SimulateArgs {
         c.start_abort_after = self.start_abort_after.unwrap_or(c.start_abort_after);
         c.gap_speed = self.gap_speed.unwrap_or(c.gap_speed);
         c.gap_window = self.gap_window.unwrap_or(c.gap_window);
+        c.crawl_fraction = self.crawl_fraction.unwrap_or(c.crawl_fraction);
         c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);
         Ok(c)
     }

@@ -46,11 +46,28 @@
 //!   It is off by default (`SimConfig::gap_speed` 0): with it the teacher planner lost 17 of
 //!   300 log-replay runs (89.0 → 83.3 %, 0 gained; 3 not-at-fault collisions), replayed
 //!   drivers never opening the gap it speeds up or drops back for.
+//! * **keep up with the flow after a crawl** (with a positive `crawl_fraction`,
+//!   [`LaneChange::with_crawl_reference`]): the reference speed is the ego's starting speed,
+//!   and an ego that starts queued at 1–3 m/s keeps planning that crawl after the traffic
+//!   ahead has cleared. The first step at which the starting speed is below `crawl_fraction`
+//!   × the goal lane's flow (the median speed of its vehicles within [`FLOW_RANGE_M`], or the
+//!   last one seen once they are out of range) makes the ego crawling, and from then on its
+//!   reference is at least that flow ([`LaneChange::v_ref`]). Egos that start at an ordinary
+//!   speed keep their own reference. At 0.5 (the default) no validation run changes (the
+//!   validation split has no crawling start); on 100 of the train split's 581 crawling
+//!   starts × 3 seeds it raised the student planner's success in the teacher world from 29.0
+//!   to 57.0 % and cut the runs with planned slow steps from 99 to 21
+//!   (`docs/results/crawl_reference.md`).
 //!
 //! The simulator ([`crate::sim`]) applies it in every closed loop; a user embedding the planner
 //! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
 
 use crate::admm::StepStatus;
+
+/// Other vehicles within this distance along the road (m, centre to centre) make a lane's
+/// flow ([`LaneChange::flow`]): the range of the surrounding traffic of the closed-loop
+/// metrics.
+pub const FLOW_RANGE_M: f64 = crate::sim::metrics::TRAFFIC_RANGE_M;
 
 /// The state of one lane change. Lateral positions are road-frame y (m, positive left).
 #[derive(Debug, Clone, PartialEq)]
@@ -81,6 +98,14 @@ pub struct LaneChange {
     gap_window: f64,
     /// The ego's length (m).
     ego_length: f64,
+    /// A base reference speed below this fraction of the goal lane's flow makes the ego
+    /// crawling ([`LaneChange::with_crawl_reference`]); 0: off.
+    crawl_fraction: f64,
+    /// The ego has crawled: its reference speed keeps up with the goal lane's flow.
+    crawling: bool,
+    /// The last flow (m/s) seen in the target lane and in the own lane
+    /// ([`LaneChange::flow`]).
+    seen_flow: [Option<f64>; 2],
     /// Steps without an admissible plan before an abort while the start's straddle lasts
     /// ([`LaneChange::with_start_abort`]); 0: off.
     start_abort_after: usize,
@@ -134,6 +159,9 @@ impl LaneChange {
             gap_speed: 0.0,
             gap_window: 0.0,
             ego_length: 0.0,
+            crawl_fraction: 0.0,
+            crawling: false,
+            seen_flow: [None, None],
             start_abort_after: 0,
             straddling_start: false,
         }
@@ -169,19 +197,66 @@ impl LaneChange {
         self
     }
 
+    /// Turns on the crawl reference ([`LaneChange::v_ref`]): an ego whose base reference speed
+    /// falls below `crawl_fraction` (0: off) × the goal lane's flow ([`LaneChange::flow`])
+    /// keeps up with that flow from then on.
+    #[must_use]
+    pub fn with_crawl_reference(mut self, crawl_fraction: f64) -> Self {
+        self.crawl_fraction = crawl_fraction;
+        self
+    }
+
+    /// The flow of the goal lane ([`LaneChange::goal`]) around an ego at x = `ego_x` (m): the
+    /// median speed along the road (m/s) of the `others` whose centres lie within half the
+    /// lane spacing of the goal lane's centre and within [`FLOW_RANGE_M`] of `ego_x` along the
+    /// road; `None` when there are none.
+    #[must_use]
+    pub fn flow(&self, ego_x: f64, others: &[Neighbour]) -> Option<f64> {
+        let half_spacing = (self.y_target - self.y_line).abs();
+        let goal = self.goal();
+        let speeds: Vec<f64> = others
+            .iter()
+            .filter(|o| (o.y - goal).abs() < half_spacing && (o.x - ego_x).abs() <= FLOW_RANGE_M)
+            .map(|o| o.v)
+            .collect();
+        crate::sim::metrics::median(&speeds)
+    }
+
     /// The reference speed of the next planning step (m/s) for an ego at `ego` = (x, y, ψ, v)
     /// (road frame, m, rad, m/s) among `others`, `base` being the run's own reference speed and
-    /// `horizon_s` the planning horizon (s). With gap seeking on, while the goal is the target
-    /// lane and the ego is not yet wholly inside it, the blocking vehicle is the target-lane
-    /// vehicle (centre within half the lane spacing of the target lane's centre) nearest along
-    /// the road among those whose bumper gap to the ego is below `gap_window`. When, at their
-    /// current speeds, the ego would be ahead of it after `horizon_s`, the reference is
-    /// `max(base, v + gap_speed)` (pass it), else `min(base, v − gap_speed)` but no lower
-    /// than `base − gap_speed` nor 0 (let it pass without braking towards a standstill
-    /// behind a slowing vehicle); `base` otherwise. The caller bounds the result by the
-    /// planner's `v_max`.
-    #[must_use]
-    pub fn v_ref(&self, base: f64, ego: [f64; 4], others: &[Neighbour], horizon_s: f64) -> f64 {
+    /// `horizon_s` the planning horizon (s). Called once per planning step, before the plan.
+    ///
+    /// With the crawl reference on ([`LaneChange::with_crawl_reference`]) the goal lane's
+    /// flow is [`LaneChange::flow`] now, or when no vehicle of that lane is within range, the
+    /// last flow this lane change saw in that lane (the traffic that left the ego behind drove
+    /// at that speed). The first step at which `base` is below `crawl_fraction` × that flow
+    /// makes the ego *crawling* for the rest of the lane change, and a crawling ego's `base`
+    /// is raised to the flow (unchanged while none has been seen in the goal lane). An ego
+    /// that starts at a crawl, queued behind a slow vehicle, otherwise keeps that crawl as its
+    /// reference after its path has cleared; one that starts at an ordinary speed below the
+    /// flow keeps its own (raising every reference to the flow changed the validation runs
+    /// of ordinary egos and cost success, `docs/results/crawl_reference.md`).
+    ///
+    /// With gap seeking on, while the goal is the target lane and the ego is not yet wholly
+    /// inside it, the blocking vehicle is the target-lane vehicle (centre within half the lane
+    /// spacing of the target lane's centre) nearest along the road among those whose bumper
+    /// gap to the ego is below `gap_window`. When, at their current speeds, the ego would be
+    /// ahead of it after `horizon_s`, the reference is `max(base, v + gap_speed)` (pass it),
+    /// else `min(base, v − gap_speed)` but no lower than `base − gap_speed` nor 0 (let it pass
+    /// without braking towards a standstill behind a slowing vehicle); `base` otherwise. The
+    /// caller bounds the result by the planner's `v_max`.
+    pub fn v_ref(&mut self, base: f64, ego: [f64; 4], others: &[Neighbour], horizon_s: f64) -> f64 {
+        let slot = usize::from(self.hold > 0);
+        if let Some(flow) = self.flow(ego[0], others) {
+            self.seen_flow[slot] = Some(flow);
+        }
+        let base = match self.seen_flow[slot] {
+            Some(flow) if self.crawl_fraction > 0.0 => {
+                self.crawling |= base < self.crawl_fraction * flow;
+                if self.crawling { base.max(flow) } else { base }
+            }
+            _ => base,
+        };
         if self.gap_speed <= 0.0 || self.hold > 0 || (ego[1] - self.y_target).abs() <= self.inside {
             return base;
         }
@@ -466,7 +541,7 @@ mod tests {
             v,
             length: 4.5,
         };
-        let c = seeking();
+        let mut c = seeking();
         // Level, 2 m behind and slower: the ego will be ahead, so it passes at 19 + 2.
         assert_eq!(c.v_ref(20.0, ego, &[car(-2.0, 3.7, 19.0)], 1.8), 21.0);
         // 3 m ahead at the same speed: the ego drops back to 20 − 2.
@@ -500,9 +575,73 @@ mod tests {
         assert_eq!(held.goal(), 0.0);
         assert_eq!(held.v_ref(20.0, ego, &[car(3.0, 3.8, 20.0)], 1.8), 20.0);
         // A change to the right sees the target lane below.
-        let right = LaneChange::new(3.7, 0.0, 1.9, 0.3, 2, 3).with_gap_seeking(2.0, 6.0, 4.5);
+        let mut right = LaneChange::new(3.7, 0.0, 1.9, 0.3, 2, 3).with_gap_seeking(2.0, 6.0, 4.5);
         let ego_r = [0.0, 3.2, 0.0, 20.0];
         assert_eq!(right.v_ref(20.0, ego_r, &[car(-2.0, 0.1, 19.0)], 1.8), 21.0);
+    }
+
+    /// The crawl reference: the goal lane's flow is the median speed of its vehicles within
+    /// 50 m along the road (centres within half a lane spacing of the goal's centre), or the
+    /// last one seen; a base below `crawl_fraction` × that flow makes the ego crawling, which
+    /// raises its reference to the flow for the rest of the lane change; a base at or above
+    /// the fraction never moves; an abort's hold uses the own lane's flow; off, the base.
+    #[test]
+    fn a_crawling_ego_keeps_up_with_the_goal_lanes_flow() {
+        let car = |x: f64, y: f64, v: f64| Neighbour {
+            x,
+            y,
+            v,
+            length: 4.5,
+        };
+        let ego = [0.0, 0.2, 0.0, 1.5];
+        // Target lane (3.7): 8, 10, 12 m/s within range (median 10), one at 30 m/s 60 m away
+        // and one in the own lane at 2 m/s, neither of which counts.
+        let traffic = [
+            car(-30.0, 3.6, 8.0),
+            car(20.0, 3.9, 12.0),
+            car(45.0, 3.0, 10.0),
+            car(60.0, 3.7, 30.0),
+            car(9.0, 0.1, 2.0),
+        ];
+        let far = &traffic[3..];
+        let crawl = || change().with_crawl_reference(0.5);
+        // Nothing seen in the target lane yet: the base.
+        let mut c = crawl();
+        assert_eq!(c.flow(0.0, far), None);
+        assert_eq!(c.v_ref(1.5, ego, far, 1.8), 1.5);
+        // 1.5 < 0.5 × 10: crawling, the reference is the flow.
+        assert_eq!(c.flow(0.0, &traffic), Some(10.0));
+        assert_eq!(c.v_ref(1.5, ego, &traffic, 1.8), 10.0);
+        // The lane's vehicles gone out of range: the last flow seen.
+        assert_eq!(c.v_ref(1.5, ego, far, 1.8), 10.0);
+        // Crawling stays once begun: a slower flow later (2.5 m/s, no longer twice the base)
+        // is still kept up with, and never lowers the base.
+        let slower = [car(5.0, 3.7, 2.5)];
+        assert_eq!(c.v_ref(1.5, ego, &slower, 1.8), 2.5);
+        assert_eq!(c.v_ref(3.0, ego, &slower, 1.8), 3.0);
+        // A base at half the flow or more is an ordinary speed: never moved.
+        let mut ordinary = crawl();
+        assert_eq!(ordinary.v_ref(5.0, ego, &traffic, 1.8), 5.0);
+        assert_eq!(ordinary.v_ref(6.0, ego, &traffic, 1.8), 6.0);
+        // Off: the base.
+        assert_eq!(change().v_ref(1.5, ego, &traffic, 1.8), 1.5);
+        // While an abort holds the own lane, its flow counts (the 2 m/s car), not the target
+        // lane's remembered one.
+        let mut held = crawl();
+        assert_eq!(held.v_ref(0.5, ego, &traffic, 1.8), 10.0);
+        held.after_plan(StepStatus::Unsafe, 0.2);
+        held.after_plan(StepStatus::Unsafe, 0.2);
+        assert_eq!(held.goal(), 0.0);
+        assert_eq!(held.flow(0.0, &traffic), Some(2.0));
+        assert_eq!(held.v_ref(0.5, ego, &traffic, 1.8), 2.0);
+        assert_eq!(held.v_ref(0.5, ego, far, 1.8), 2.0);
+        // With gap seeking too, the crawl reference is the base the gap seeking starts from:
+        // the car level with the ego at 10 m/s in the target lane blocks and the ego, ahead
+        // of it after the horizon, passes at 10 + 2.
+        let mut both = crawl().with_gap_seeking(2.0, 6.0, 4.5);
+        let ego_fast = [0.0, 0.5, 0.0, 11.0];
+        let beside = [car(-1.0, 3.7, 10.0), car(20.0, 3.7, 10.0)];
+        assert_eq!(both.v_ref(1.5, ego_fast, &beside, 1.8), 12.0);
     }
 
     /// An ego whose box starts across the line (centre 1.2 m from its own lane's centre,

@@ -133,6 +133,30 @@ def test_rerun_skips_complete_shards_and_regenerates_missing(tmp_path: Path, sce
     assert sorted(calls) == sorted(first)
 
 
+def test_closed_loop_defaults_are_part_of_the_content_key(tmp_path: Path, scenes_root: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Shards made under other closed-loop defaults (here without the crawl reference) are not
+    resumed from: the SimConfig defaults are in the content key and the manifest."""
+    cfg = _cfg(tmp_path / "d", scenes_root)
+    generate(cfg, log=lambda _: None)
+    first = _files(cfg.out)
+    manifest = json.loads((cfg.out / "manifest.json").read_text())
+    assert manifest["sim_config"] == nudge.SimConfig.default().to_dict()
+    calls: list[str] = []
+    real = gen_mod.compute_shard
+
+    def counting(spec, *a, **k):  # type: ignore[no-untyped-def]
+        calls.append(spec.file)
+        return real(spec, *a, **k)
+
+    monkeypatch.setattr(gen_mod, "compute_shard", counting)
+    other = nudge.SimConfig.default().replace(crawl_fraction=0.0)
+    monkeypatch.setattr(gen_mod.nudge.SimConfig, "default", staticmethod(lambda: other))
+    generate(cfg, log=lambda _: None)
+    assert sorted(calls) == sorted(first)
+    assert json.loads((cfg.out / "manifest.json").read_text())["content_key"] != manifest["content_key"]
+
+
 def test_failed_shard_leaves_no_file(tmp_path: Path, scenes_root: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg = _cfg(tmp_path / "d", scenes_root)
 

@@ -137,6 +137,16 @@ pub struct SimConfig {
     /// Bumper gap along the road (m) below which a target-lane vehicle blocks a lane change
     /// (see `gap_speed`).
     pub gap_window: f64,
+    /// Crawl reference (a fraction; 0 disables it): the first planning step at which the
+    /// run's reference speed (the ego's starting speed) is below this fraction of the goal
+    /// lane's flow (the median speed of the vehicles, as last observed, in the lane the ego is
+    /// aiming for within [`crate::lane::FLOW_RANGE_M`] along the road, or the last such median
+    /// seen) makes the ego *crawling*, and from then on its reference speed is at least that
+    /// flow ([`crate::lane::LaneChange::v_ref`]). Without it an ego that starts at a crawl
+    /// (queued behind a slow vehicle) keeps planning that crawl beside traffic at 6–12 m/s
+    /// after its path has cleared. 0.5 was chosen on validation scenes and on the train
+    /// split's crawling starts (the validation split has none), `docs/results/crawl_reference.md`.
+    pub crawl_fraction: f64,
     /// Braking limit of the at-fault rule (m/s²): an ego hit from behind while wholly
     /// inside one lane is not at fault only if its applied acceleration at that step was
     /// ≥ −`fault_brake_limit` ([`crate::sim::metrics::classify_collision`]).
@@ -163,6 +173,7 @@ impl SimConfig {
         start_abort_after: 0,
         gap_speed: 0.0,
         gap_window: 6.0,
+        crawl_fraction: 0.5,
         fault_brake_limit: 3.0,
     };
 
@@ -182,6 +193,7 @@ impl SimConfig {
         closed("start_abort_after", 0.0, Self::MAX_STEPS as f64, "steps"),
         closed("gap_speed", 0.0, 10.0, "m/s"),
         closed("gap_window", 0.0, 100.0, "m"),
+        closed("crawl_fraction", 0.0, 1.0, "–"),
         positive("fault_brake_limit", "m/s²"),
     ];
 
@@ -199,6 +211,7 @@ impl SimConfig {
             "start_abort_after" => self.start_abort_after as f64,
             "gap_speed" => self.gap_speed,
             "gap_window" => self.gap_window,
+            "crawl_fraction" => self.crawl_fraction,
             "fault_brake_limit" => self.fault_brake_limit,
             _ => return None,
         })

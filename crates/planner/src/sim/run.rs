@@ -131,10 +131,10 @@ pub struct RunControl<'c> {
 }
 
 impl ClosedLoop<'_> {
-    /// The reference speed of the next planning step: the run's starting speed, or the lane
-    /// change's gap seeking ([`LaneChange::v_ref`]) among the vehicles as last observed, at
-    /// most the planner's `v_max`.
-    fn v_ref(&self) -> f64 {
+    /// The reference speed of the next planning step: the run's starting speed, raised by the
+    /// lane change's flow-speed floor and moved by its gap seeking ([`LaneChange::v_ref`])
+    /// among the vehicles as last observed, at most the planner's `v_max`.
+    fn v_ref(&mut self) -> f64 {
         let others: Vec<Neighbour> = others_from_history(self.sc, &self.observed)
             .iter()
             .map(|o| Neighbour {
@@ -227,6 +227,7 @@ impl ClosedLoop<'_> {
     ) -> Result<StepRecord, SimError> {
         let sc = self.sc;
         let history = self.history()?;
+        let v_ref = self.v_ref();
         let problem = PlanningProblem {
             ego: EgoState {
                 x: self.ego[0],
@@ -239,7 +240,7 @@ impl ClosedLoop<'_> {
             history: &history,
             sizes: &sc.size,
             y_target: self.lane.goal(),
-            v_ref: self.v_ref(),
+            v_ref,
             road: sc.road(),
             y_retreat: self.lane.retreat(self.ego[1]),
             lanes: sc.lanes(),
@@ -425,7 +426,8 @@ pub fn simulate_with(
         )
         .with_stall_abort(cfg.stall_progress)
         .with_start_abort(cfg.start_abort_after, p0[1])
-        .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0]),
+        .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0])
+        .with_crawl_reference(cfg.crawl_fraction),
         observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
         trace: control.trace,
     };

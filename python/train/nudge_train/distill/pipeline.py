@@ -232,7 +232,10 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
     nudge.Predictor.load(teacher)  # fail early with WeightsError on a bad file
     teacher_sha = sha256_file(cfg.teacher)
     settings = nudge.PlannerSettings.default()
-    key = cfg.content_key(teacher_sha + settings.to_json())
+    # The closed loop's own defaults (the crawl reference, aborts, ...) shape the runs as much
+    # as the planner's settings; world and max_steps come from cfg and are in the key already.
+    sim_config = nudge.SimConfig.default()
+    key = cfg.content_key(teacher_sha + settings.to_json() + sim_config.to_json())
     shards = plan_shards(cfg)
     manifest: dict = {
         "schema": DISTILL_SCHEMA,
@@ -243,6 +246,7 @@ def generate(cfg: DistillConfig, ray_address: str | None = None, use_ray: bool =
         "native": {"file": Path(nudge._native.__file__).name, "sha256": sha256_file(Path(nudge._native.__file__)),
                    "version": nudge.__version__},
         "planner_settings": settings.to_dict(),
+        "sim_config": sim_config.to_dict(),
         "config": cfg.to_json(),
         "splits": {},
     }
