@@ -138,6 +138,9 @@ def test_errors(scenes: list[Path], tmp_path: Path) -> None:
         nudge.simulate(scenes[:1], "constant_velocity", fault_brake_limit=-1.0)
     with pytest.raises(nudge.SettingsError, match="stall_progress"):
         nudge.simulate(scenes[:1], "constant_velocity", stall_progress=-0.1)
+    for bad_crawl in (1.5, -0.1, float("nan")):
+        with pytest.raises(nudge.SettingsError, match="crawl_fraction"):
+            nudge.simulate(scenes[:1], "constant_velocity", crawl_fraction=bad_crawl)
     with pytest.raises(nudge.InputError, match="threads"):
         nudge.simulate(scenes[:1], "constant_velocity", threads=0)
     with pytest.raises(nudge.InputError, match="runs"):
