@@ -241,50 +241,81 @@ fn lane_change_in_idm_world_on_real_scene() {
     }
 }
 
-/// The real scene `name` with every other vehicle replaced by a convoy in the seeded target
-/// lane: vehicles of 4.5 m every `spacing` metres alongside the ego at the ego's speed, no
-/// logged future (they keep their speed).
-fn convoy_scene(name: &str, seed: u64, spacing: f64) -> (Scenario, f64, f64) {
-    let base = scene(name);
-    let lane = target_lane(
-        &base,
-        seed,
-        &PlannerSettings::default(),
-        &SimConfig::default(),
-    )
-    .unwrap();
-    let y_lane = base.lane_centres[lane];
-    let p = base.position(0, 7);
-    let v = base.speed[0];
-    let offsets: Vec<f64> = (-3..=3).map(|k| f64::from(k) * spacing).collect();
-    let n = 1 + offsets.len();
+/// The real scene `base` (its road, lanes and ego size) with the ego at its last observed x,
+/// lateral position `ego.0` and speed `ego.1` (m, m/s), and in place of every other vehicle
+/// `others`: 4.5 m × 1.8 m vehicles at (dx from the ego, y, speed) (m, m, m/s), all driving
+/// straight at constant speed over the 8 observed steps, with no logged future (in log
+/// replay they keep their speed).
+fn synthetic_scene(
+    base: &Scenario,
+    name: &str,
+    ego: (f64, f64),
+    others: &[(f64, f64, f64)],
+) -> Scenario {
+    let x0 = base.position(0, 7)[0];
+    let n = 1 + others.len();
     let mut history = Vec::with_capacity(n * 16);
-    for t in 0..8 {
-        let back = f64::from(7 - t) * 0.3 * v;
-        history.extend_from_slice(&[p[0] - back, p[1]]);
-    }
-    for dx in &offsets {
+    for &(dx, y, v) in std::iter::once(&(0.0, ego.0, ego.1)).chain(others) {
         for t in 0..8 {
             let back = f64::from(7 - t) * 0.3 * v;
-            history.extend_from_slice(&[p[0] + dx - back, y_lane]);
+            history.extend_from_slice(&[x0 + dx - back, y]);
         }
     }
     let mut size = vec![base.size[0]];
-    size.extend(std::iter::repeat_n([4.5, 1.8], offsets.len()));
-    let sc = Scenario {
-        name: format!("{name}-convoy"),
+    size.extend(std::iter::repeat_n([4.5, 1.8], others.len()));
+    let mut speed = vec![ego.1];
+    speed.extend(others.iter().map(|o| o.2));
+    Scenario {
+        name: name.to_string(),
         n_agents: n,
         history,
         heading: vec![0.0; n],
-        speed: vec![v; n],
+        speed,
         size,
         n_future: base.n_future,
         future: vec![0.0; n * base.n_future * 2],
         future_valid: vec![false; n * base.n_future],
         agent_ids: (0..n as i64).collect(),
         ..base.clone()
+    }
+}
+
+/// The centres of the seeded target lane and of the ego's own lane of scene `base` (m).
+fn target_and_own(base: &Scenario, seed: u64) -> (f64, f64) {
+    let lane = target_lane(
+        base,
+        seed,
+        &PlannerSettings::default(),
+        &SimConfig::default(),
+    )
+    .unwrap();
+    (base.lane_centres[lane], base.lane_centres[base.ego_lane])
+}
+
+/// One log-replay run of `sc` under `settings` and `cfg` (its world set to log replay) with
+/// the constant-velocity predictor, seed 0.
+fn log_replay_run(sc: &Scenario, settings: &PlannerSettings, cfg: SimConfig) -> RunRecord {
+    let cfg = SimConfig {
+        world: World::LogReplay,
+        ..cfg
     };
-    (sc, y_lane, base.lane_centres[base.ego_lane])
+    let mut cv = ConstantVelocity::default();
+    simulate(sc, settings, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap()
+}
+
+/// The real scene `name` with every other vehicle replaced by a convoy in the seeded target
+/// lane: vehicles of 4.5 m every `spacing` metres alongside the ego at the ego's speed, no
+/// logged future (they keep their speed).
+fn convoy_scene(name: &str, seed: u64, spacing: f64) -> (Scenario, f64, f64) {
+    let base = scene(name);
+    let (y_lane, y_own) = target_and_own(&base, seed);
+    let v = base.speed[0];
+    let convoy: Vec<(f64, f64, f64)> = (-3..=3)
+        .map(|k| (f64::from(k) * spacing, y_lane, v))
+        .collect();
+    let ego_y = base.position(0, 7)[1];
+    let sc = synthetic_scene(&base, &format!("{name}-convoy"), (ego_y, v), &convoy);
+    (sc, y_lane, y_own)
 }
 
 /// The convergence rules of the ADMM loop (`z_safe_step`, `z_rollout_trial`, `relinearise`,
@@ -315,13 +346,11 @@ fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
     ];
     for (abort_after, settings, stall_progress) in arms {
         let cfg = SimConfig {
-            world: World::LogReplay,
             abort_after,
             stall_progress,
             ..SimConfig::default()
         };
-        let mut cv = ConstantVelocity::default();
-        let rec = simulate(&sc, &settings, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap();
+        let rec = log_replay_run(&sc, &settings, cfg);
         assert!(!rec.collision, "collision with abort_after {abort_after}");
         assert!(!rec.success, "a lane change through a closed convoy");
         if abort_after == 0 {
@@ -377,20 +406,10 @@ fn an_ego_starting_across_the_line_aborts_at_once() {
     }
     let run = |start_abort_after: usize| {
         let cfg = SimConfig {
-            world: World::LogReplay,
             start_abort_after,
             ..SimConfig::default()
         };
-        let mut cv = ConstantVelocity::default();
-        simulate(
-            &sc,
-            &PlannerSettings::default(),
-            &cfg,
-            0,
-            &mut cv,
-            WorldModel::LogReplay,
-        )
-        .unwrap()
+        log_replay_run(&sc, &PlannerSettings::default(), cfg)
     };
     let (plain, start) = (run(0), run(1));
     for rec in [&plain, &start] {
@@ -418,51 +437,17 @@ fn an_ego_starting_across_the_line_aborts_at_once() {
     assert!(start.aborts >= 1);
 }
 
-/// The real scene `name` with its ego crawling at `v_ego` (m/s) in its own lane and three
-/// vehicles in the seeded target lane moving at `v_flow` (m/s), 40–50 m ahead of it, no logged
-/// future (they keep their speed and soon leave the 50 m flow range).
+/// The real scene `name` with its ego crawling at `v_ego` (m/s) at its own lane's centre and
+/// three vehicles in the seeded target lane moving at `v_flow` (m/s), 40–50 m ahead of it, no
+/// logged future (they keep their speed and soon leave the 50 m flow range).
 fn crawl_scene(name: &str, seed: u64, v_ego: f64, v_flow: f64) -> (Scenario, f64) {
     let base = scene(name);
-    let lane = target_lane(
-        &base,
-        seed,
-        &PlannerSettings::default(),
-        &SimConfig::default(),
-    )
-    .unwrap();
-    let y_lane = base.lane_centres[lane];
-    let y_own = base.lane_centres[base.ego_lane];
-    let x0 = base.position(0, 7)[0];
-    let ahead = [40.0, 45.0, 50.0];
-    let n = 1 + ahead.len();
-    let mut history = Vec::with_capacity(n * 16);
-    for t in 0..8 {
-        let back = f64::from(7 - t) * 0.3 * v_ego;
-        history.extend_from_slice(&[x0 - back, y_own]);
-    }
-    for dx in ahead {
-        for t in 0..8 {
-            let back = f64::from(7 - t) * 0.3 * v_flow;
-            history.extend_from_slice(&[x0 + dx - back, y_lane]);
-        }
-    }
-    let mut size = vec![base.size[0]];
-    size.extend(std::iter::repeat_n([4.5, 1.8], ahead.len()));
-    let mut speed = vec![v_ego];
-    speed.extend(std::iter::repeat_n(v_flow, ahead.len()));
-    let sc = Scenario {
-        name: format!("{name}-crawl"),
-        n_agents: n,
-        history,
-        heading: vec![0.0; n],
-        speed,
-        size,
-        n_future: base.n_future,
-        future: vec![0.0; n * base.n_future * 2],
-        future_valid: vec![false; n * base.n_future],
-        agent_ids: (0..n as i64).collect(),
-        ..base.clone()
-    };
+    let (y_lane, y_own) = target_and_own(&base, seed);
+    let flow: Vec<(f64, f64, f64)> = [40.0, 45.0, 50.0]
+        .iter()
+        .map(|&dx| (dx, y_lane, v_flow))
+        .collect();
+    let sc = synthetic_scene(&base, &format!("{name}-crawl"), (y_own, v_ego), &flow);
     (sc, y_lane)
 }
 
@@ -475,20 +460,10 @@ fn a_crawling_ego_keeps_up_with_the_target_lanes_flow() {
     let (sc, y_target) = crawl_scene("us101-11_1-t02.1-ego144", 0, 1.5, 10.0);
     let run = |crawl_fraction: f64| {
         let cfg = SimConfig {
-            world: World::LogReplay,
             crawl_fraction,
             ..SimConfig::default()
         };
-        let mut cv = ConstantVelocity::default();
-        simulate(
-            &sc,
-            &PlannerSettings::default(),
-            &cfg,
-            0,
-            &mut cv,
-            WorldModel::LogReplay,
-        )
-        .unwrap()
+        log_replay_run(&sc, &PlannerSettings::default(), cfg)
     };
     assert_eq!(SimConfig::default().crawl_fraction, 0.5);
     let (off, on) = (run(0.0), run(SimConfig::default().crawl_fraction));

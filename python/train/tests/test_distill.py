@@ -107,11 +107,8 @@ def test_cli_writes_what_generate_writes_and_prints_statistics(tmp_path: Path, s
     assert "| split | scenes done |" in text[end:]
 
 
-def test_rerun_skips_complete_shards_and_regenerates_missing(tmp_path: Path, scenes_root: Path,
-                                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    cfg = _cfg(tmp_path / "d", scenes_root)
-    generate(cfg, log=lambda _: None)
-    first = _files(cfg.out)
+def _count_shards(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Records the file of every shard computed from now on (in the returned list)."""
     calls: list[str] = []
     real = gen_mod.compute_shard
 
@@ -120,6 +117,15 @@ def test_rerun_skips_complete_shards_and_regenerates_missing(tmp_path: Path, sce
         return real(spec, *a, **k)
 
     monkeypatch.setattr(gen_mod, "compute_shard", counting)
+    return calls
+
+
+def test_rerun_skips_complete_shards_and_regenerates_missing(tmp_path: Path, scenes_root: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = _cfg(tmp_path / "d", scenes_root)
+    generate(cfg, log=lambda _: None)
+    first = _files(cfg.out)
+    calls = _count_shards(monkeypatch)
     generate(cfg, log=lambda _: None)
     assert calls == []
     victim = sorted(first)[0]
@@ -142,14 +148,7 @@ def test_closed_loop_defaults_are_part_of_the_content_key(tmp_path: Path, scenes
     first = _files(cfg.out)
     manifest = json.loads((cfg.out / "manifest.json").read_text())
     assert manifest["sim_config"] == nudge.SimConfig.default().to_dict()
-    calls: list[str] = []
-    real = gen_mod.compute_shard
-
-    def counting(spec, *a, **k):  # type: ignore[no-untyped-def]
-        calls.append(spec.file)
-        return real(spec, *a, **k)
-
-    monkeypatch.setattr(gen_mod, "compute_shard", counting)
+    calls = _count_shards(monkeypatch)
     other = nudge.SimConfig.default().replace(crawl_fraction=0.0)
     monkeypatch.setattr(gen_mod.nudge.SimConfig, "default", staticmethod(lambda: other))
     generate(cfg, log=lambda _: None)
