@@ -432,7 +432,8 @@ def simulate(
       predictor list[str], world list[str], n_agents i64, target_lane i64 (-1 on error),
       y_target f64 (NaN on error), success bool (settled without any collision),
       steps_to_target i64 (-1 = never), collision bool, aborts i64, n_steps i64,
-      collisions_at_fault i64, collisions_not_at_fault i64, start_overhang f64 (m),
+      collisions_at_fault i64, collisions_not_at_fault i64, collisions_at_fault_nuplan i64
+      (at fault under nuPlan's own rule, for comparison), start_overhang f64 (m),
       off_road_steps i64, straddle_steps i64, steps_to_lane i64 (-1 = never), slow_steps i64,
       slow_planned_steps i64, min_ttc f64 (s, inf = nobody closed in), progress f64 (m),
       progress_ratio f64 (NaN = no log), max_abs_jerk, rms_jerk f64 (m/s^3),
@@ -458,7 +459,10 @@ def simulate(
     - collisions (one row per collision event): run i64, step i64, other i64 (agent index),
       other_id i64 (source vehicle id), at_fault bool, other_behind bool, rear_hit bool,
       ego_in_lane bool, ego_accel f64, dx, dy f64 (other minus ego, m), ego_heading,
-      other_heading f64 (rad), ego_v, other_v f64 (m/s), free_gap f64 (m);
+      other_heading f64 (rad), ego_v, other_v f64 (m/s), nuplan_type list[str] (nuPlan's
+      collision type: "STOPPED_EGO_COLLISION", "STOPPED_TRACK_COLLISION", "ACTIVE_REAR_COLLISION",
+      "ACTIVE_FRONT_COLLISION", "ACTIVE_LATERAL_COLLISION"), nuplan_at_fault bool (nuPlan's rule),
+      free_gap f64 (m);
     - examples (every distinct candidate the planning predictor evaluated, float32 m):
       history [H, 8, 2], context_offsets i64 [C + 1], context_run i64 [C],
       example_context i64 [E], candidate [E, T, 2], prediction [P, T, 2],

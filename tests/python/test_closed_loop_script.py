@@ -39,6 +39,11 @@ def test_chunks_hold_every_pair_and_agree_with_a_direct_simulation(repo: Path, t
     s = summarise(c, 30, n_boot=200)
     assert s["runs"] == 6 and s["success"][0] == np.mean(direct["runs"]["success"])
     assert s["at_fault"][0] == int(direct["runs"]["collisions_at_fault"].sum())
+    assert s["at_fault_nuplan"][0] == int(direct["runs"]["collisions_at_fault_nuplan"].sum())
+    # The run column counts the collision rows nuPlan's rule blames on the ego.
+    blamed = np.bincount(np.asarray(direct["collisions"]["run"], dtype=np.int64)[
+        np.asarray(direct["collisions"]["nuplan_at_fault"], dtype=bool)], minlength=6)
+    np.testing.assert_array_equal(direct["runs"]["collisions_at_fault_nuplan"], blamed)
     assert s["straddle_s"] == direct["runs"]["straddle_steps"].mean() * nudge.DT
     ttt = np.where(direct["runs"]["steps_to_target"] >= 0, direct["runs"]["steps_to_target"], 30) * nudge.DT
     assert abs(s["time_to_target"] - ttt.mean()) < 1e-12

@@ -13,7 +13,7 @@ use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus};
 
 /// Run columns, in order (one row per run, failed runs included). The metric columns are
 /// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
-pub const RUN_COLUMNS: [&str; 40] = [
+pub const RUN_COLUMNS: [&str; 41] = [
     "scenario",
     "scene_index",
     "seed",
@@ -29,6 +29,7 @@ pub const RUN_COLUMNS: [&str; 40] = [
     "n_steps",
     "collisions_at_fault",
     "collisions_not_at_fault",
+    "collisions_at_fault_nuplan",
     "start_overhang",
     "off_road_steps",
     "straddle_steps",
@@ -100,7 +101,7 @@ pub const STEP_COLUMNS: [&str; 35] = [
 
 /// Collision columns, in order (one row per collision event of every run that ran; the
 /// fields of [`crate::sim::metrics::Collision`] and the other vehicle's source id).
-pub const COLLISION_COLUMNS: [&str; 16] = [
+pub const COLLISION_COLUMNS: [&str; 18] = [
     "run",
     "step",
     "other",
@@ -116,6 +117,8 @@ pub const COLLISION_COLUMNS: [&str; 16] = [
     "other_heading",
     "ego_v",
     "other_v",
+    "nuplan_type",
+    "nuplan_at_fault",
     "free_gap",
 ];
 
@@ -301,6 +304,9 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
         ),
         count("collisions_at_fault", |m| m.collisions_at_fault),
         count("collisions_not_at_fault", |m| m.collisions_not_at_fault),
+        count("collisions_at_fault_nuplan", |m| {
+            m.collisions_at_fault_nuplan
+        }),
         float("start_overhang", |m| m.start_overhang),
         count("off_road_steps", |m| m.off_road_steps),
         count("straddle_steps", |m| m.straddle_steps),
@@ -487,6 +493,16 @@ pub fn collision_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
         ("other_heading", float(&|c| c.other_heading)),
         ("ego_v", float(&|c| c.ego_v)),
         ("other_v", float(&|c| c.other_v)),
+        (
+            "nuplan_type",
+            Column::Text(
+                events
+                    .iter()
+                    .map(|(_, _, c)| c.nuplan_type.as_str().to_string())
+                    .collect(),
+            ),
+        ),
+        ("nuplan_at_fault", flag(&|c| c.nuplan_at_fault)),
         (
             "free_gap",
             Column::Float(events.iter().map(|(_, r, _)| r.metrics.free_gap).collect()),

@@ -15,6 +15,14 @@
 //!   the road, [`wholly_in_one_lane`]), and (c) the ego's applied acceleration at that step is
 //!   ≥ −`fault_brake_limit` ([`crate::SimConfig::fault_brake_limit`], 3 m/s²); otherwise it
 //!   is at fault. A run with any collision is never a success.
+//! * **nuPlan's own classification, beside it** ([`nuplan_collision_type`]): every event is
+//!   also typed as nuplan-devkit types it (`no_ego_at_fault_collisions`) and judged by its
+//!   rule ([`NuplanCollision::at_fault`]), to compare with numbers reported under nuPlan. It
+//!   differs from the rule above in two ways: a vehicle coming from behind (its centre more
+//!   than 150° off the ego's heading, seen from the ego's rear axle) is never the ego's fault,
+//!   however hard the ego braked; and a side contact with the ego wholly inside one lane is
+//!   not the ego's fault. It is stricter in one: hitting a stopped vehicle is always the
+//!   ego's fault.
 //! * **Off-road** ([`road_excess`]): a step is off-road when a corner of the ego's box lies
 //!   beyond the outermost lane bounds by more than the ego's own overhang at the start (real
 //!   egos start up to a few decimetres over the edge) plus [`OFF_ROAD_MARGIN_M`].
@@ -233,13 +241,132 @@ pub struct Collision {
     pub ego_v: f64,
     /// The other's speed along the road (m/s).
     pub other_v: f64,
+    /// The event's type under nuPlan's classification ([`nuplan_collision_type`]).
+    pub nuplan_type: NuplanCollision,
+    /// The ego is at fault under nuPlan's rule ([`NuplanCollision::at_fault`]).
+    pub nuplan_at_fault: bool,
+}
+
+/// A collision's type as nuplan-devkit classifies it (`no_ego_at_fault_collisions`), checked
+/// in this order ([`nuplan_collision_type`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum NuplanCollision {
+    /// The ego's speed is at most [`NUPLAN_STOPPED_MPS`].
+    StoppedEgo,
+    /// The other's speed is at most [`NUPLAN_STOPPED_MPS`].
+    StoppedTrack,
+    /// The other's centre is more than [`NUPLAN_BEHIND_DEG`] off the ego's heading, seen from
+    /// the ego's rear axle.
+    ActiveRear,
+    /// The ego's front edge (its bumper, corner to corner) touches the other's box.
+    ActiveFront,
+    /// Any other contact.
+    ActiveLateral,
+}
+
+impl NuplanCollision {
+    /// The type's name as nuPlan spells it (`"STOPPED_EGO_COLLISION"`, ...).
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::StoppedEgo => "STOPPED_EGO_COLLISION",
+            Self::StoppedTrack => "STOPPED_TRACK_COLLISION",
+            Self::ActiveRear => "ACTIVE_REAR_COLLISION",
+            Self::ActiveFront => "ACTIVE_FRONT_COLLISION",
+            Self::ActiveLateral => "ACTIVE_LATERAL_COLLISION",
+        }
+    }
+
+    /// nuPlan's rule: the ego is at fault for a front collision and for one with a stopped
+    /// vehicle, and for a lateral one unless it is wholly inside one lane (`ego_in_lane`;
+    /// nuPlan: in multiple lanes or off the drivable area); never for a rear collision nor
+    /// while stopped.
+    #[must_use]
+    pub fn at_fault(self, ego_in_lane: bool) -> bool {
+        match self {
+            Self::StoppedTrack | Self::ActiveFront => true,
+            Self::ActiveLateral => !ego_in_lane,
+            Self::StoppedEgo | Self::ActiveRear => false,
+        }
+    }
+}
+
+/// nuPlan's speed (m/s) at or below which a vehicle counts as stopped in a collision.
+pub const NUPLAN_STOPPED_MPS: f64 = 0.05;
+/// nuPlan's angle (degrees) off the ego's heading beyond which another vehicle is behind it.
+pub const NUPLAN_BEHIND_DEG: f64 = 150.0;
+
+/// The type of a contact between the ego (`ego`, speed `ego_v` (m/s), its rear axle
+/// `rear_axle` metres behind its box's centre along its heading) and `vehicle` under nuPlan's
+/// classification, in nuPlan's order: the ego stopped, the other stopped (its speed along the
+/// road), the other behind (the angle between the ego's heading and the direction from the
+/// rear axle to the other's centre above [`NUPLAN_BEHIND_DEG`]), the ego's front edge touching
+/// the other's box, else lateral.
+#[must_use]
+pub fn nuplan_collision_type(
+    ego: &OrientedBox,
+    ego_v: f64,
+    rear_axle: f64,
+    vehicle: &Vehicle,
+) -> NuplanCollision {
+    let (s, c) = ego.heading.sin_cos();
+    let axle = [ego.x - rear_axle * c, ego.y - rear_axle * s];
+    let to_other = [vehicle.bbox.x - axle[0], vehicle.bbox.y - axle[1]];
+    let cos_angle = (to_other[0] * c + to_other[1] * s) / to_other[0].hypot(to_other[1]);
+    let behind = cos_angle < NUPLAN_BEHIND_DEG.to_radians().cos();
+    let [front_left, front_right, _, _] = corners(ego);
+    if ego_v.abs() <= NUPLAN_STOPPED_MPS {
+        NuplanCollision::StoppedEgo
+    } else if vehicle.vx.abs() <= NUPLAN_STOPPED_MPS {
+        NuplanCollision::StoppedTrack
+    } else if behind {
+        NuplanCollision::ActiveRear
+    } else if segment_touches_box(front_left, front_right, &vehicle.bbox) {
+        NuplanCollision::ActiveFront
+    } else {
+        NuplanCollision::ActiveLateral
+    }
+}
+
+/// Whether the segment from `a` to `b` (m) touches box `bx` (closed): the segment clipped to
+/// the box in the box's frame (Liang–Barsky) is not empty.
+#[must_use]
+pub fn segment_touches_box(a: [f64; 2], b: [f64; 2], bx: &OrientedBox) -> bool {
+    let (s, c) = bx.heading.sin_cos();
+    let local = |p: [f64; 2]| {
+        let (dx, dy) = (p[0] - bx.x, p[1] - bx.y);
+        [dx * c + dy * s, -dx * s + dy * c]
+    };
+    let (p, q) = (local(a), local(b));
+    let d = [q[0] - p[0], q[1] - p[1]];
+    let half = [0.5 * bx.length, 0.5 * bx.width];
+    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
+    for k in 0..2 {
+        // −half ≤ p + t·d ≤ half along axis k.
+        for (num, den) in [(p[k] + half[k], -d[k]), (half[k] - p[k], d[k])] {
+            if den == 0.0 {
+                if num < 0.0 {
+                    return false;
+                }
+            } else {
+                let t = num / den;
+                if den < 0.0 {
+                    t0 = t0.max(t);
+                } else {
+                    t1 = t1.min(t);
+                }
+            }
+        }
+    }
+    t0 <= t1
 }
 
 /// Classifies the collision starting at `step` between the ego (`ego`, speed `ego_v` (m/s),
 /// applied acceleration `ego_accel` (m/s²)) and agent `other` (`vehicle`) on a road of lane
 /// `bounds`: not at fault only when (a) the other is behind and hits the ego's rear, (b) the
 /// ego is wholly inside one lane (road edges widened by `edge_tolerance`, m) and (c)
-/// `ego_accel` ≥ −`brake_limit` (m/s²); at fault otherwise.
+/// `ego_accel` ≥ −`brake_limit` (m/s²); at fault otherwise. Also typed and judged by nuPlan's
+/// rule ([`nuplan_collision_type`], the ego's rear axle `rear_axle` m behind its centre).
 #[allow(clippy::too_many_arguments)]
 #[must_use]
 pub fn classify_collision(
@@ -252,6 +379,7 @@ pub fn classify_collision(
     bounds: &[f64],
     edge_tolerance: f64,
     brake_limit: f64,
+    rear_axle: f64,
 ) -> Collision {
     let o = &vehicle.bbox;
     let (dx, dy) = (o.x - ego.x, o.y - ego.y);
@@ -259,6 +387,7 @@ pub fn classify_collision(
     let rear_hit = other_behind && dy.abs() < 0.5 * (ego.width + o.width);
     let ego_in_lane = wholly_in_one_lane(ego, bounds, edge_tolerance);
     let not_at_fault = rear_hit && ego_in_lane && ego_accel >= -brake_limit;
+    let nuplan_type = nuplan_collision_type(ego, ego_v, rear_axle, vehicle);
     Collision {
         step,
         other,
@@ -273,6 +402,8 @@ pub fn classify_collision(
         other_heading: o.heading,
         ego_v,
         other_v: vehicle.vx,
+        nuplan_type,
+        nuplan_at_fault: nuplan_type.at_fault(ego_in_lane),
     }
 }
 
@@ -543,6 +674,9 @@ pub struct RunMetrics {
     pub collisions_at_fault: usize,
     /// Collision events with the ego not at fault.
     pub collisions_not_at_fault: usize,
+    /// Collision events with the ego at fault under nuPlan's rule
+    /// ([`NuplanCollision::at_fault`]; beside `collisions_at_fault`, for comparison).
+    pub collisions_at_fault_nuplan: usize,
     /// The ego's overhang beyond the road's edge at the start (m, ≥ 0).
     pub start_overhang: f64,
     /// Steps off the road.
@@ -622,6 +756,8 @@ pub struct RunObserver {
     start: [f64; 4],
     start_overhang: f64,
     brake_limit: f64,
+    /// The ego's rear axle behind its centre (m), for nuPlan's classification.
+    rear_axle: f64,
     free_gap: f64,
     /// The log's ego x per future step (1-based index k − 1), `None` where not valid.
     log_x: Vec<Option<f64>>,
@@ -636,9 +772,10 @@ pub struct RunObserver {
 
 impl RunObserver {
     /// The observer of a run of scene `sc` towards lane `target_lane` with the at-fault
-    /// braking limit `brake_limit` (m/s²); the ego starts at the scene's last observation.
+    /// braking limit `brake_limit` (m/s²) and the ego's rear axle `rear_axle` (m) behind its
+    /// centre (the planner's `l_r`); the ego starts at the scene's last observation.
     #[must_use]
-    pub fn new(sc: &Scenario, target_lane: usize, brake_limit: f64) -> Self {
+    pub fn new(sc: &Scenario, target_lane: usize, brake_limit: f64, rear_axle: f64) -> Self {
         let p = sc.position(0, T_OBS - 1);
         let start = [p[0], p[1], sc.heading[0], sc.speed[0]];
         let b = &sc.lane_bounds;
@@ -653,6 +790,7 @@ impl RunObserver {
             start,
             start_overhang: road_excess(&ego_box(start, sc.size[0]), b).max(0.0),
             brake_limit,
+            rear_axle,
             free_gap: free_gap(sc, target_lane),
             log_x: (1..=sc.n_future)
                 .map(|k| sc.future_at(0, k).map(|q| q[0]))
@@ -699,6 +837,7 @@ impl RunObserver {
                     &self.bounds,
                     tolerance,
                     self.brake_limit,
+                    self.rear_axle,
                 ));
             }
         }
@@ -754,6 +893,11 @@ impl RunObserver {
         let mut m = RunMetrics {
             collisions_at_fault: at_fault,
             collisions_not_at_fault: self.collisions.len() - at_fault,
+            collisions_at_fault_nuplan: self
+                .collisions
+                .iter()
+                .filter(|c| c.nuplan_at_fault)
+                .count(),
             start_overhang: self.start_overhang,
             off_road_steps: count(&|m| m.off_road),
             straddle_steps: count(&|m| m.straddle),

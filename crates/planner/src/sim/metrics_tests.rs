@@ -78,7 +78,7 @@ fn off_road_and_straddle_by_hand_geometry() {
 fn collisions_are_classified_by_the_stated_rule() {
     let ego = car(0.0, 0.0, 0.0, 20.0).bbox;
     let classify = |other: &Vehicle, ego: &OrientedBox, accel: f64| {
-        classify_collision(3, ego, 20.0, accel, 5, other, &BOUNDS, 0.1, 3.0)
+        classify_collision(3, ego, 20.0, accel, 5, other, &BOUNDS, 0.1, 3.0, 1.4)
     };
     // Rear-ended in its lane while braking gently: not at fault.
     let behind = car(-3.9, 0.2, 0.0, 25.0);
@@ -106,6 +106,105 @@ fn collisions_are_classified_by_the_stated_rule() {
     assert!(turned.overlaps(&side.bbox));
     let c = classify(&side, &turned, 0.0);
     assert!(c.other_behind && !c.rear_hit && c.at_fault);
+}
+
+/// nuPlan's types and rule on hand geometry: ego 4 m × 2 m at the origin heading along the
+/// road at 20 m/s, its rear axle 1.4 m behind its centre (at x = −1.4), its front edge x = 2.
+#[test]
+fn collisions_are_also_typed_and_judged_as_nuplan_does() {
+    let ego = car(0.0, 0.0, 0.0, 20.0).bbox;
+    let typed = |other: &Vehicle, ego: &OrientedBox, v: f64| {
+        let c = classify_collision(3, ego, v, 0.0, 5, other, &BOUNDS, 0.1, 3.0, 1.4);
+        assert_eq!(c.nuplan_type, nuplan_collision_type(ego, v, 1.4, other));
+        (c.nuplan_type, c.nuplan_at_fault, c.at_fault)
+    };
+    use NuplanCollision::*;
+    // Rear-ended in its lane: the other's centre at (−3.9, 0.2), from the axle (−2.5, 0.2),
+    // 175° off the heading: rear, not at fault either way.
+    let behind = car(-3.9, 0.2, 0.0, 25.0);
+    assert_eq!(typed(&behind, &ego, 20.0), (ActiveRear, false, false));
+    // The same while the ego stands (0.05 m/s at most): stopped ego; a stopped other ahead of
+    // the ego's bumper: stopped track, at fault.
+    assert_eq!(typed(&behind, &ego, 0.05), (StoppedEgo, false, false));
+    let parked = car(3.9, 0.0, 0.0, 0.0);
+    assert_eq!(typed(&parked, &ego, 20.0), (StoppedTrack, true, true));
+    // Running into a moving car ahead: its box (x 1.9..5.9) holds the front edge: front.
+    let ahead = car(3.9, 0.0, 0.0, 10.0);
+    assert_eq!(typed(&ahead, &ego, 20.0), (ActiveFront, true, true));
+    // A car cutting in from behind-left into the side of the turned ego (ψ 0.3, wholly inside
+    // lane 0: lateral extent ±1.546 within ±1.75): from the axle (−1.337, −0.414) its centre
+    // (−1, 2.05) lies 65° off the heading and the bumper (x ≥ 1.61) is clear of its box
+    // (x ≤ 1): lateral, not at fault under nuPlan, at fault under the stated rule (no rear hit).
+    let side = car(-1.0, 2.05, 0.0, 25.0);
+    let turned = car(0.0, 0.0, 0.3, 20.0).bbox;
+    assert!(turned.overlaps(&side.bbox) && wholly_in_one_lane(&turned, &BOUNDS, 0.1));
+    assert_eq!(typed(&side, &turned, 20.0), (ActiveLateral, false, true));
+    // The same side contact with the ego straddling the line at 1.75: at fault either way.
+    let straddling = car(0.0, 1.6, 0.0, 20.0).bbox;
+    let beside = car(-0.5, 3.55, 0.0, 20.0);
+    assert!(straddling.overlaps(&beside.bbox));
+    assert_eq!(
+        typed(&beside, &straddling, 20.0),
+        (ActiveLateral, true, true)
+    );
+    // 1 m further forward the other's box (x −1.5..2.5, y 2.55..4.55) holds the bumper's end
+    // (x 2, y 2.6): front.
+    let beside_front = car(0.5, 3.55, 0.0, 20.0);
+    assert_eq!(typed(&beside_front, &straddling, 20.0).0, ActiveFront);
+    // Exactly 150° off the heading is not behind (nuPlan: strictly more).
+    let at_150 = car(
+        -1.4 - 150f64.to_radians().cos().abs() * 2.0,
+        2.0 * 0.5,
+        0.0,
+        20.0,
+    );
+    assert!(at_150.bbox.x < -1.4 && typed(&at_150, &ego, 20.0).0 != ActiveRear);
+    let names: Vec<&str> = [
+        StoppedEgo,
+        StoppedTrack,
+        ActiveRear,
+        ActiveFront,
+        ActiveLateral,
+    ]
+    .iter()
+    .map(|t| t.as_str())
+    .collect();
+    assert_eq!(
+        names,
+        [
+            "STOPPED_EGO_COLLISION",
+            "STOPPED_TRACK_COLLISION",
+            "ACTIVE_REAR_COLLISION",
+            "ACTIVE_FRONT_COLLISION",
+            "ACTIVE_LATERAL_COLLISION"
+        ]
+    );
+}
+
+proptest::proptest! {
+    /// The clipped segment test against dense sampling of the segment (a point is in the
+    /// box when its coordinates in the box's frame are within the half extents).
+    #[test]
+    fn a_segment_touches_a_box_where_its_points_do(
+        a in proptest::array::uniform2(-6.0f64..6.0),
+        b in proptest::array::uniform2(-6.0f64..6.0),
+        heading in -1.5f64..1.5,
+    ) {
+        let bx = OrientedBox { x: 0.5, y: -0.3, heading, length: 4.0, width: 2.0 };
+        let (s, c) = heading.sin_cos();
+        let inside = |t: f64, shrink: f64| {
+            let p = [a[0] + t * (b[0] - a[0]) - bx.x, a[1] + t * (b[1] - a[1]) - bx.y];
+            (p[0] * c + p[1] * s).abs() <= 2.0 - shrink && (-p[0] * s + p[1] * c).abs() <= 1.0 - shrink
+        };
+        let n = 4000;
+        // A point well inside: touches; no point even near: does not (the sampling step is
+        // below 0.005 m, the margin 0.01 m).
+        let deep = (0..=n).any(|k| inside(f64::from(k) / f64::from(n), 0.01));
+        let near = (0..=n).any(|k| inside(f64::from(k) / f64::from(n), -0.01));
+        let touches = segment_touches_box(a, b, &bx);
+        if deep { proptest::prop_assert!(touches); }
+        if !near { proptest::prop_assert!(!touches); }
+    }
 }
 
 proptest::proptest! {
@@ -308,7 +407,7 @@ fn the_observer_judges_a_lane_change_run() {
     // The ego starts 0.3 m over the right edge (its 1 m half width below −1.75: y = −1.05),
     // drives 2.7 m per step and moves 1 m left per step up to lane 1's centre (3.5 m).
     let sc = two_lane_scene(-1.05, 4);
-    let mut obs = RunObserver::new(&sc, 1, 3.0);
+    let mut obs = RunObserver::new(&sc, 1, 3.0, 1.4);
     assert!((obs.off_road_tolerance() - 0.4).abs() < 1e-12);
     let others_at = |k: usize| {
         let d = 3.0 * k as f64;
@@ -347,7 +446,7 @@ fn the_observer_judges_a_lane_change_run() {
 #[test]
 fn one_event_per_contact_and_off_road_beyond_the_tolerance() {
     let sc = two_lane_scene(0.0, 6);
-    let mut obs = RunObserver::new(&sc, 1, 3.0);
+    let mut obs = RunObserver::new(&sc, 1, 3.0, 1.4);
     // Steps 0-1: a car behind rams the ego (two steps of contact, one event); step 2: apart;
     // step 3: contact again (a second event), with the ego off the road.
     let ego = |y: f64| [0.0, y, 0.0, 10.0];
@@ -376,7 +475,7 @@ fn heading_and_overshoot_of_a_run() {
     // Target lane 1 (centre 3.5) to the left of the ego at y = 0: the ego swings to 3.9 m at
     // heading 0.12 rad, comes back to 3.5 m turned −0.05 rad.
     let sc = two_lane_scene(0.0, 6);
-    let mut obs = RunObserver::new(&sc, 1, 3.0);
+    let mut obs = RunObserver::new(&sc, 1, 3.0, 1.4);
     for (k, (y, psi)) in [(1.5, 0.1), (3.9, 0.12), (3.5, -0.05)]
         .into_iter()
         .enumerate()
@@ -389,7 +488,7 @@ fn heading_and_overshoot_of_a_run() {
     // To the right (target lane 0 from y = 3.5): overshooting means going below 0.
     let mut sc = two_lane_scene(3.5, 6);
     sc.ego_lane = 1;
-    let mut obs = RunObserver::new(&sc, 0, 3.0);
+    let mut obs = RunObserver::new(&sc, 0, 3.0, 1.4);
     let _ = obs.observe(0, [3.0, -0.25, 0.0, 10.0], 0.0, 10.0, &[]);
     let (_, m) = obs.finish(false);
     assert!((m.max_overshoot - 0.25).abs() < 1e-12);

@@ -428,7 +428,7 @@ pub fn simulate_with(
         .with_start_abort(cfg.start_abort_after, p0[1])
         .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0])
         .with_crawl_reference(cfg.crawl_fraction),
-        observer: RunObserver::new(sc, lane, cfg.fault_brake_limit),
+        observer: RunObserver::new(sc, lane, cfg.fault_brake_limit, settings.l_r),
         trace: control.trace,
     };
     let mut rec = RunRecord {

@@ -288,6 +288,7 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
     ok = np.array([e is None for e in chunk.runs["error"]])
     scen = np.asarray(chunk.runs["scenario"])[ok]
     f = {k: _arr(chunk, k)[ok] for k in ("success", "collisions_at_fault", "collisions_not_at_fault",
+                                           "collisions_at_fault_nuplan",
                                            "off_road_steps", "straddle_steps", "slow_steps", "slow_planned_steps",
                                            "min_ttc", "max_abs_jerk", "max_abs_lat_accel", "max_abs_yaw_rate",
                                            "comfortable", "progress_ratio", "score", "n_steps", "start_overhang",
@@ -310,6 +311,8 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
         "success": cluster_bootstrap(f["success"], scen, n_boot=n_boot) if n else (math.nan,) * 3,
         "at_fault": (int(f["collisions_at_fault"].sum()), int((f["collisions_at_fault"] > 0).sum())),
         "not_at_fault": (int(f["collisions_not_at_fault"].sum()), int((f["collisions_not_at_fault"] > 0).sum())),
+        "at_fault_nuplan": (int(f["collisions_at_fault_nuplan"].sum()),
+                            int((f["collisions_at_fault_nuplan"] > 0).sum())),
         "off_road": (int(f["off_road_steps"].sum()), int((f["off_road_steps"] > 0).sum())),
         "straddle_s": float(f["straddle_steps"].mean() * nudge.DT) if n else math.nan,
         "slow": (int(f["slow_steps"].sum()), int((f["slow_steps"] > 0).sum())),
@@ -400,6 +403,14 @@ rule is documented) and reach Python and the CLI as the same columns.
   below half the sum of the widths), (b) the ego is wholly inside one lane (its box spans no lane
   line and is on the road) and (c) its applied acceleration is ≥ −{brake:g} m/s² (`fault_brake_limit`);
   otherwise it is at fault.
+- **nuPlan's own rule, beside it** (for comparison with results reported under nuPlan; never used
+  for success or the score): every event is also typed as nuplan-devkit's
+  `no_ego_at_fault_collisions` types it, in its order: the ego stopped (speed ≤ 0.05 m/s), the other
+  stopped, the other behind (its centre more than 150° off the ego's heading seen from the ego's rear
+  axle, `l_r` behind its centre), the ego's front edge touching the other's box (front), else lateral;
+  the ego is at fault for a front collision, one with a stopped vehicle, and a lateral one unless it
+  is wholly inside one lane. Unlike the rule above, nuPlan never blames the ego for a vehicle coming
+  from behind, however hard the ego braked, nor for a side contact inside its lane.
 - **Off-road steps**: a corner of the ego's box beyond the outermost lane bounds by more than the
   ego's own overhang at the start plus 0.1 m.
 - **Straddle time**: steps whose ego box spans a lane line (× 0.3 s).
@@ -493,11 +504,11 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         "## Results per world and planner",
         "",
         "| world | planner | runs (scenes) | success % [95 % CI] | collisions at fault: events (runs) | "
-        "not at fault | off-road steps (runs) | straddle s / run | slow steps executed (runs) | planned (runs) | "
+        "not at fault | at fault under nuPlan's rule | off-road steps (runs) | straddle s / run | slow steps executed (runs) | planned (runs) | "
         "min TTC median s (runs ≤ 0.95 s) | comfortable % | max jerk / lat acc / yaw rate, median (max) | "
         "max abs heading rad, median (max) | overshoot m, max (runs > tol) | "
         "time to target s | time to lane s | progress vs log | score [95 % CI] | planning ms median (p90) |",
-        "|" + "---|" * 20,
+        "|" + "---|" * 21,
     ]
     summaries = {}
     for c in chunks:
@@ -507,6 +518,7 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         lines.append(
             f"| {c.arm.world} | {c.arm.label(many)} | {s['runs']}{err} ({s['scenes']}) | {_ci(s['success'])} | "
             f"{s['at_fault'][0]} ({s['at_fault'][1]}) | {s['not_at_fault'][0]} ({s['not_at_fault'][1]}) | "
+            f"{s['at_fault_nuplan'][0]} ({s['at_fault_nuplan'][1]}) | "
             f"{s['off_road'][0]} ({s['off_road'][1]}) | {_f(s['straddle_s'])} | {s['slow'][0]} ({s['slow'][1]}) | "
             f"{s['slow_planned'][0]} ({s['slow_planned'][1]}) | {_f(s['min_ttc_median'])} ({s['ttc_below']}) | "
             f"{_f(100 * s['comfortable'], 1)} | {_f(s['jerk_median'], 1)} / {_f(s['lat_median'])} / "
@@ -518,7 +530,8 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
     for c in chunks:
         s = summaries[c.arm]
         key.append(f"- **{c.arm.world} world, {c.arm.label(many)}**: success {_ci(s['success'])} %, "
-                   f"{s['at_fault'][0]} at-fault and {s['not_at_fault'][0]} not-at-fault collisions, "
+                   f"{s['at_fault'][0]} at-fault and {s['not_at_fault'][0]} not-at-fault collisions "
+                   f"({s['at_fault_nuplan'][0]} at fault under nuPlan's rule), "
                    f"off the road in {s['off_road'][1]} of {s['runs']} runs, slow in a live lane in {s['slow'][1]} "
                    f"runs (planned in {s['slow_planned'][1]}), score {s['score'][0]:.3f}.")
     lines[lines.index("@SUMMARY@")] = "## Summary\n\n" + "\n".join(key) + "\n"
@@ -582,7 +595,7 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
               "dx, dy: the other vehicle's centre minus the ego's (m); ψ: headings (rad); v: speeds (m/s); "
               "a: the ego's applied acceleration (m/s²).", "",
               "| world | planner | scene | seed | step | other (id) | at fault | dx | dy | ψ ego / other | "
-              "v ego / other | a | why |", "|" + "---|" * 13]
+              "v ego / other | a | why | nuPlan type (at fault) |", "|" + "---|" * 14]
     any_collision = False
     for c in chunks:
         cols = c.collisions
@@ -594,9 +607,10 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
                 f"| {c.arm.world} | {c.arm.label(many)} | {c.runs['scenario'][r]} | {c.runs['seed'][r]} | "
                 f"{row['step']} | {row['other']} ({row['other_id']}) | {'yes' if row['at_fault'] else 'no'} | "
                 f"{row['dx']:+.2f} | {row['dy']:+.2f} | {row['ego_heading']:+.3f} / {row['other_heading']:+.3f} | "
-                f"{row['ego_v']:.1f} / {row['other_v']:.1f} | {row['ego_accel']:+.2f} | {explain(row, brake)} |")
+                f"{row['ego_v']:.1f} / {row['other_v']:.1f} | {row['ego_accel']:+.2f} | {explain(row, brake)} | "
+                f"{row['nuplan_type']} ({'yes' if row['nuplan_at_fault'] else 'no'}) |")
     if not any_collision:
-        lines.append("| - | - | - | - | - | - | - | - | - | - | - | - | no collision |")
+        lines.append("| - | - | - | - | - | - | - | - | - | - | - | - | no collision | - |")
     return "\n".join(lines) + "\n"
 
 
