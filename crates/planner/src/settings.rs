@@ -301,8 +301,10 @@ pub struct PlannerSettings {
     /// Govern every candidate's steering to the heading bounds before its roll-out is checked:
     /// at each step the steering nearest to the candidate's, within the box and rate bounds,
     /// from which the heading stays within the bound for the rest of the horizon on the exact
-    /// model even when the steering is then unwound as fast as the rate allows (the plan
-    /// carries the governed steering; a sequence whose roll-out keeps the bound is unchanged).
+    /// model when the steering is then unwound as fast as the rate allows at the fastest
+    /// speeds `a_max` allows (so a later plan that brakes less can still unwind in time; the
+    /// plan carries the governed steering, and a sequence every step of which passes this test
+    /// is unchanged).
     /// Without it the ADMM inputs keep the bound on the linearised dynamics only:
     /// their roll-out can pass it by a few milliradians, which sends the step to the repairs,
     /// and a plan that nothing admissible beats is returned past it (0.2011 rad once in 4050

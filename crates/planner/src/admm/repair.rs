@@ -235,6 +235,7 @@ impl Repairer<'_, '_> {
                 &self.lp.start,
                 &mut delta,
                 &accel,
+                self.lp.accel_box.hi,
                 self.lp.delta_box,
                 lower,
                 upper,
