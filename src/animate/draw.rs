@@ -75,31 +75,9 @@ pub fn clip_segment(c: &Canvas, a: [f64; 2], b: [f64; 2]) -> Option<([f64; 2], [
         [-2.0, -2.0],
         [f64::from(c.width()) + 2.0, f64::from(c.height()) + 2.0],
     );
-    let d = [b[0] - a[0], b[1] - a[1]];
-    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
-    for axis in 0..2 {
-        for (p, q) in [
-            (-d[axis], a[axis] - lo[axis]),
-            (d[axis], hi[axis] - a[axis]),
-        ] {
-            if p == 0.0 {
-                if q < 0.0 {
-                    return None;
-                }
-            } else {
-                let r = q / p;
-                if p < 0.0 {
-                    t0 = t0.max(r);
-                } else {
-                    t1 = t1.min(r);
-                }
-            }
-        }
-    }
-    (t0 <= t1).then(|| {
-        let at = |t: f64| [a[0] + t * d[0], a[1] + t * d[1]];
-        (at(t0), at(t1))
-    })
+    let (t0, t1) = nudge_planner::clip_segment_to_box(a, b, lo, hi)?;
+    let at = |t: f64| [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+    Some((at(t0), at(t1)))
 }
 
 /// The road surface between its edges, the edges as solid lines and the inner lane

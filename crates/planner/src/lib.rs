@@ -42,7 +42,7 @@ pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
     Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, axis_scales, bounding_half_extents,
-    box_separation, motion_axis, motion_direction, motion_heading,
+    box_separation, clip_segment_to_box, motion_axis, motion_direction, motion_heading,
 };
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::{PlannerSettings, SafetyGeometry};

@@ -7,6 +7,38 @@ pub const MAX_MOTION_HEADING: f64 = 0.5;
 /// below it the fallback heading is used.
 pub const MIN_MOTION_DX: f64 = 0.3;
 
+/// The part of the segment `a` + t·(`b` − `a`), t ∈ [0, 1], inside the axis-aligned box
+/// [`lo`, `hi`] (closed), as its parameter interval (t0, t1) (Liang–Barsky); `None` when no
+/// point of the segment is inside.
+#[must_use]
+pub fn clip_segment_to_box(
+    a: [f64; 2],
+    b: [f64; 2],
+    lo: [f64; 2],
+    hi: [f64; 2],
+) -> Option<(f64, f64)> {
+    let d = [b[0] - a[0], b[1] - a[1]];
+    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
+    for axis in 0..2 {
+        // lo ≤ a + t·d ≤ hi along this axis: p·t ≤ q for both sides.
+        for (p, q) in [
+            (-d[axis], a[axis] - lo[axis]),
+            (d[axis], hi[axis] - a[axis]),
+        ] {
+            if p == 0.0 {
+                if q < 0.0 {
+                    return None;
+                }
+            } else if p < 0.0 {
+                t0 = t0.max(q / p);
+            } else {
+                t1 = t1.min(q / p);
+            }
+        }
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
 /// Heading (rad) of the motion from `from` to `to` (positions in metres), clamped to
 /// ±[`MAX_MOTION_HEADING`]; `fallback` when the forward displacement is at most
 /// [`MIN_MOTION_DX`] (stopped, or moving backwards through noise).

@@ -57,7 +57,7 @@
 use nudge_predictor::{DT, T_OBS};
 use serde::{Deserialize, Serialize};
 
-use crate::safety::{OrientedBox, motion_heading};
+use crate::safety::{OrientedBox, clip_segment_to_box, motion_heading};
 use crate::scenario::Scenario;
 
 /// Tolerance (m) added to the ego's own overhang at the start before a step counts as
@@ -329,7 +329,7 @@ pub fn nuplan_collision_type(
 }
 
 /// Whether the segment from `a` to `b` (m) touches box `bx` (closed): the segment clipped to
-/// the box in the box's frame (Liang–Barsky) is not empty.
+/// the box in the box's frame ([`clip_segment_to_box`]) is not empty.
 #[must_use]
 pub fn segment_touches_box(a: [f64; 2], b: [f64; 2], bx: &OrientedBox) -> bool {
     let (s, c) = bx.heading.sin_cos();
@@ -337,28 +337,8 @@ pub fn segment_touches_box(a: [f64; 2], b: [f64; 2], bx: &OrientedBox) -> bool {
         let (dx, dy) = (p[0] - bx.x, p[1] - bx.y);
         [dx * c + dy * s, -dx * s + dy * c]
     };
-    let (p, q) = (local(a), local(b));
-    let d = [q[0] - p[0], q[1] - p[1]];
     let half = [0.5 * bx.length, 0.5 * bx.width];
-    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
-    for k in 0..2 {
-        // −half ≤ p + t·d ≤ half along axis k.
-        for (num, den) in [(p[k] + half[k], -d[k]), (half[k] - p[k], d[k])] {
-            if den == 0.0 {
-                if num < 0.0 {
-                    return false;
-                }
-            } else {
-                let t = num / den;
-                if den < 0.0 {
-                    t0 = t0.max(t);
-                } else {
-                    t1 = t1.min(t);
-                }
-            }
-        }
-    }
-    t0 <= t1
+    clip_segment_to_box(local(a), local(b), [-half[0], -half[1]], half).is_some()
 }
 
 /// Classifies the collision starting at `step` between the ego (`ego`, speed `ego_v` (m/s),
