@@ -43,7 +43,10 @@ pub const MAX_STEP: f64 = 30.0;
 /// Largest distance the ego may move in one step of a candidate (m). Candidates are the
 /// planner's hypothetical trial points, not observed motion, so this is the networks'
 /// representable range (agreement with the f64 reference ≤ 6e-6 m at 1 km per step), not a
-/// physical bound: an optimiser step that overshoots gets a prediction, not an error.
+/// physical bound: an optimiser step that overshoots gets a prediction, not an error. ADMM's
+/// trial points can still overshoot it (by 1.05 km in one step on a train-split closed-loop
+/// run with `heading_max` 0.15): the planner checks every candidate with
+/// [`check_candidates`] first and judges one beyond it unsafe without a prediction.
 pub const MAX_CANDIDATE_STEP: f64 = 1000.0;
 /// Largest distance between two agents at the last observed step (m).
 pub const MAX_AGENT_OFFSET: f64 = 1000.0;
@@ -126,12 +129,14 @@ pub(crate) fn check_history(positions: &[f64], n: usize) -> Result<()> {
 }
 
 /// Checks finite candidates `[batch, horizon, 2]`: coordinates and per-step displacements,
-/// step 1 measured from the ego's last observed position `ego_last`.
-pub(crate) fn check_candidates(
-    candidates: &[f64],
-    horizon: usize,
-    ego_last: [f64; 2],
-) -> Result<()> {
+/// step 1 measured from the ego's last observed position `ego_last` (m). Every predictor runs
+/// this on its input; a caller may run it first to keep a trial point the predictors would
+/// refuse away from them.
+///
+/// # Errors
+/// [`PredictorError::InputOutOfRange`] naming the candidate and step: a coordinate beyond
+/// [`MAX_ABS_POSITION`] or a step longer than [`MAX_CANDIDATE_STEP`].
+pub fn check_candidates(candidates: &[f64], horizon: usize, ego_last: [f64; 2]) -> Result<()> {
     for (b, cand) in candidates.chunks_exact(2 * horizon).enumerate() {
         let mut prev = ego_last;
         for (k, p) in cand.chunks_exact(2).enumerate() {

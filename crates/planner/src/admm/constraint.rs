@@ -449,6 +449,18 @@ pub(crate) struct Evaluation {
 }
 
 impl Evaluation {
+    /// A candidate that got no prediction (the budget is spent, or the predictors would
+    /// refuse it): unsafe at every threshold, and worse than any evaluated candidate.
+    pub(crate) fn not_evaluated() -> Self {
+        Self {
+            min_b: Some(f64::NEG_INFINITY),
+            violation: f64::INFINITY,
+            path_min_b: Some(f64::NEG_INFINITY),
+            path_violation: f64::INFINITY,
+            overlap: f64::INFINITY,
+        }
+    }
+
     /// Safe at `threshold`: nothing checked, or min b > threshold.
     pub(crate) fn is_safe(&self, threshold: f64) -> bool {
         self.min_b.is_none_or(|b| b > threshold)
@@ -486,6 +498,13 @@ pub(crate) struct SafetyEval<'c> {
     keep_lane: Option<KeepLane>,
     /// Count [`Evaluation::overlap`] (`PlannerSettings::contact_first`).
     pub count_overlap: bool,
+    /// The ego's last observed position (road frame, m), the origin of the predictors'
+    /// candidate range: when set, a candidate they would refuse (non-finite, or beyond
+    /// `nudge_predictor::limits::check_candidates`) is never passed to the predictor and is
+    /// not safe ([`SafetyEval::eval`]).
+    pub ego_last: Option<[f64; 2]>,
+    /// Candidates judged not safe because the predictors would refuse them.
+    pub refused: usize,
 }
 
 /// The keep-lane path `[T, 2]` (road frame, m) the predictor sees when the reaction is
@@ -599,6 +618,8 @@ impl<'c> SafetyEval<'c> {
             budget: Budget::unlimited(),
             keep_lane: None,
             count_overlap: false,
+            ego_last: None,
+            refused: 0,
         }
     }
 
@@ -617,6 +638,18 @@ impl<'c> SafetyEval<'c> {
     #[cfg(test)]
     pub(crate) fn prediction(&self) -> &[f64] {
         &self.prediction
+    }
+
+    /// The current candidate is one the predictors accept (finite, and within
+    /// `nudge_predictor::limits::check_candidates` from [`SafetyEval::ego_last`]); always
+    /// true without `ego_last`. An optimiser's trial point can overshoot by kilometres when
+    /// ADMM's duals grow over a call whose dynamics cannot be met; it gets no prediction.
+    fn representable(&self) -> bool {
+        self.ego_last.is_none_or(|last| {
+            self.candidate.iter().all(|c| c.is_finite())
+                && nudge_predictor::limits::check_candidates(&self.candidate, self.horizon, last)
+                    .is_ok()
+        })
     }
 
     /// Fills `prediction` for the current candidate: the predictor on the candidate, or with
@@ -675,13 +708,12 @@ impl<'c> SafetyEval<'c> {
         if self.budget.spent(self.calls) {
             self.budget.exhausted = true;
             self.rows.clear();
-            return Ok(Evaluation {
-                min_b: Some(f64::NEG_INFINITY),
-                violation: f64::INFINITY,
-                path_min_b: Some(f64::NEG_INFINITY),
-                path_violation: f64::INFINITY,
-                overlap: f64::INFINITY,
-            });
+            return Ok(Evaluation::not_evaluated());
+        }
+        if self.keep_lane.is_none() && !self.representable() {
+            self.refused += 1;
+            self.rows.clear();
+            return Ok(Evaluation::not_evaluated());
         }
         self.predict(predictor)?;
         let mut min_b = f64::INFINITY;

@@ -451,6 +451,57 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
     assert_eq!(plan.rollout_min_safety, plan.min_safety);
 }
 
+/// A candidate the predictors would refuse (a step longer than
+/// `nudge_predictor::limits::MAX_CANDIDATE_STEP` from the ego's last observed position, or a
+/// non-finite state) is never passed to the predictor and is not safe; one in range is
+/// predicted; without `ego_last` the predictor gets every candidate and refuses that one with
+/// its typed error (what ended a closed-loop run whose ADMM overshot by 1 km in one step).
+#[test]
+fn a_candidate_the_predictors_refuse_is_unsafe_and_never_predicted() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = car_behind_in_target_lane();
+    let p = problem(&h, &sizes, 12.0);
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let mut cv = ConstantVelocity::default();
+    cv.set_scene(&h).unwrap();
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    safety.ego_last = Some(h.at(0, T_OBS - 1));
+    let near: Vec<State> = (1..=6)
+        .map(|k| State::new(3.6 * k as f64, 0.0, 0.0, 12.0))
+        .collect();
+    let e = safety.eval(&mut cv, &near).unwrap();
+    assert!(e.is_safe(s.safety_min), "{e:?}");
+    assert_eq!((safety.calls, safety.refused), (1, 0));
+
+    let mut far = near.clone();
+    far[3][0] = far[2][0] + nudge_predictor::limits::MAX_CANDIDATE_STEP + 1.0;
+    let world: Vec<f64> = far
+        .iter()
+        .flat_map(|z| [z[0] + lp.origin[0], z[1] + lp.origin[1]])
+        .collect();
+    assert!(
+        cv.predict(&world, &mut [0.0; 12]).is_err(),
+        "the predictor refuses it"
+    );
+    let e = safety.eval(&mut cv, &far).unwrap();
+    assert!(!e.is_safe(s.safety_min), "{e:?}");
+    assert_eq!(e, Evaluation::not_evaluated());
+    assert_eq!((safety.calls, safety.refused), (1, 1));
+
+    let mut nan = near.clone();
+    nan[2][1] = f64::NAN;
+    assert!(!safety.eval(&mut cv, &nan).unwrap().is_safe(s.safety_min));
+    assert_eq!((safety.calls, safety.refused), (1, 2));
+
+    safety.ego_last = None;
+    let refused = safety.eval(&mut cv, &far);
+    assert!(
+        matches!(refused, Err(PlannerError::Predictor(_))),
+        "{refused:?}"
+    );
+}
+
 /// The repairs alone: backtracking returns the first safe pull towards the nominal, the
 /// fallback the best by rank, both checked on their roll-outs.
 #[test]
