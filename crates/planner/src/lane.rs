@@ -245,18 +245,10 @@ impl LaneChange {
     /// else `min(base, v − gap_speed)` but no lower than `base − gap_speed` nor 0 (let it pass
     /// without braking towards a standstill behind a slowing vehicle); `base` otherwise. The
     /// caller bounds the result by the planner's `v_max`.
+    #[must_use]
     pub fn v_ref(&mut self, base: f64, ego: [f64; 4], others: &[Neighbour], horizon_s: f64) -> f64 {
-        let slot = usize::from(self.hold > 0);
-        if let Some(flow) = self.flow(ego[0], others) {
-            self.seen_flow[slot] = Some(flow);
-        }
-        let base = match self.seen_flow[slot] {
-            Some(flow) if self.crawl_fraction > 0.0 => {
-                self.crawling |= base < self.crawl_fraction * flow;
-                if self.crawling { base.max(flow) } else { base }
-            }
-            _ => base,
-        };
+        let base = self.crawl_reference(base, ego[0], others);
+
         if self.gap_speed <= 0.0 || self.hold > 0 || (ego[1] - self.y_target).abs() <= self.inside {
             return base;
         }
@@ -277,6 +269,24 @@ impl LaneChange {
                 .max(base - self.gap_speed)
                 .max(0.0)
         }
+    }
+
+    /// The crawl reference of [`LaneChange::v_ref`]: `base` (m/s), or at least the goal lane's
+    /// flow once the ego is crawling; the flow (of the vehicles `others` around `ego_x`, m) is
+    /// looked up only with the crawl reference on.
+    fn crawl_reference(&mut self, base: f64, ego_x: f64, others: &[Neighbour]) -> f64 {
+        if self.crawl_fraction <= 0.0 {
+            return base;
+        }
+        let slot = usize::from(self.hold > 0);
+        if let Some(flow) = self.flow(ego_x, others) {
+            self.seen_flow[slot] = Some(flow);
+        }
+        let Some(flow) = self.seen_flow[slot] else {
+            return base;
+        };
+        self.crawling |= base < self.crawl_fraction * flow;
+        if self.crawling { base.max(flow) } else { base }
     }
 
     /// Turns on the stalled-change abort: a step with less than `stall_progress` (m) of

@@ -361,7 +361,9 @@ pub struct PlannerSettings {
     /// call; a plan that breaks it is not admissible, and among inadmissible fallbacks its
     /// violation (m) ranks like a bound excess. Off by default: at 2 s it removed the
     /// log-replay at-fault collisions it targets but lowered success in every world on
-    /// validation (`docs/results/follower_gap.md`).
+    /// validation; at 1 s with a 0.5 m clearance, measured again with the planner of December
+    /// 2026, validation had no at-fault run left for it to remove and it lost 29 runs and
+    /// gained 19 over the six arms (`docs/results/follower_gap.md`).
     pub follower_ttc: f64,
     /// Bumper gap (m) every follower of the follower-gap rule must keep behind the ego, however
     /// slow it is.
