@@ -204,6 +204,7 @@ class PlanResult(TypedDict, total=False):
     cost: float
     iterations: int
     predictor_calls: int
+    refused_candidates: int  # candidates outside the predictors' range, judged unsafe unpredicted
     qp_solves: int
     primal_residual: float
     change_residual: float

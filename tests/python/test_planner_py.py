@@ -87,6 +87,7 @@ def test_plan_scenario_and_raw_arrays_agree(teacher: nudge.Predictor, scenario: 
     _check_plan(p1, ego, s)
     assert p1["target_lane"] == scenario.target_lane(3)
     assert p1["predictor_calls"] > 0
+    assert p1["refused_candidates"] == 0
     p2 = nudge.Planner(s, teacher).plan(scenario.history, scenario.size, ego, p1["y_target"],
                                        float(scenario.speed[0]), scenario.road)
     for k in ("states", "delta", "accel"):

@@ -23,7 +23,7 @@ MAX_STEP = 30.0  # m per 0.3 s step (nudge_predictor::limits::MAX_STEP)
 STATUSES = {"Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback",
             "SolverFailed"}
 PLAN_KEYS = ("delta", "accel", "states", "admm_states")
-SCALAR_KEYS = ("cost", "iterations", "predictor_calls", "qp_solves", "primal_residual",
+SCALAR_KEYS = ("cost", "iterations", "predictor_calls", "refused_candidates", "qp_solves", "primal_residual",
                "change_residual", "min_safety", "rollout_min_safety", "checked", "status")
 
 

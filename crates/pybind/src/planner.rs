@@ -62,6 +62,7 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
     d.set_item("cost", plan.cost)?;
     d.set_item("iterations", plan.iterations)?;
     d.set_item("predictor_calls", plan.predictor_calls)?;
+    d.set_item("refused_candidates", plan.refused_candidates)?;
     d.set_item("qp_solves", plan.qp_solves)?;
     d.set_item("primal_residual", plan.primal_residual)?;
     d.set_item("change_residual", plan.change_residual)?;
@@ -188,7 +189,7 @@ impl PyPlanner {
     /// `road` = (right, left) edge y (m), previous inputs `last_delta` (rad), `last_accel`
     /// (m/s²), `y_retreat` (m or None: the lane centre the fallbacks may steer back to,
     /// `PlanningProblem::y_retreat`). Returns a dict: `delta` `[T]`, `accel` `[T]`, `states` `[T, 4]`, `cost`,
-    /// `iterations`, `predictor_calls`, `qp_solves`, `primal_residual`, `change_residual`,
+    /// `iterations`, `predictor_calls`, `refused_candidates`, `qp_solves`, `primal_residual`, `change_residual`,
     /// `min_safety` and `rollout_min_safety` (float or None), `checked`, `status` (a
     /// `PlanStatus` name), `solver_failure` (`(qp, clarabel_status)` for `"SolverFailed"`,
     /// else None), `timings` (dict, seconds), `lane_violation` (None, or a dict `step`,

@@ -413,7 +413,8 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 /// **Trial points the predictors refuse.** Every candidate is checked against the predictors'
 /// input range (`nudge_predictor::limits::check_candidates` from the ego's last observed
 /// position: finite, at most 1 km per step) before the predictor sees it; one outside gets no
-/// prediction and is not safe, as after a spent budget. ADMM's duals grow over a call whose
+/// prediction and is not safe, as after a spent budget, and is counted in
+/// [`Plan::refused_candidates`]. ADMM's duals grow over a call whose
 /// linearised dynamics the bounded inputs cannot meet, and Z's trial points then overshoot: on
 /// one train-split closed-loop run (`heading_max` 0.15) a Z-update tried a point 1.05 km from
 /// the previous one, and the predictor's error ended the run. The roll-outs of the execution
@@ -613,7 +614,7 @@ impl Planner {
             follower_gap: follower_gap::FollowerGap::new(problem, s),
         };
         let finished = check_execution(&mut repairer, admm)?;
-        let counts = (safety.calls, constraint.vehicles().len());
+        let counts = (safety.calls, constraint.vehicles().len(), safety.refused);
         let (mut plan, warm) = finished.into_plan(s, &lp, counts, timings);
         self.warm = Some(warm);
         plan.timings.total_s = start.elapsed().as_secs_f64();
@@ -878,12 +879,12 @@ impl Finished {
     }
 
     /// The plan in the road frame and the next call's warm start; `counts` = (predictor
-    /// calls, checked vehicles).
+    /// calls, checked vehicles, refused candidates).
     fn into_plan(
         self,
         s: &PlannerSettings,
         lp: &LinearisedProblem,
-        counts: (usize, usize),
+        counts: (usize, usize, usize),
         timings: PhaseTimings,
     ) -> (Plan, WarmStart) {
         let mut residual = vec![State::zeros(); lp.horizon];
@@ -898,6 +899,7 @@ impl Finished {
             accel: self.accel.clone(),
             iterations: self.iterations,
             predictor_calls: counts.0,
+            refused_candidates: counts.2,
             qp_solves: self.qp_solves,
             change_residual: self.change_residual,
             min_safety: self.min_b,

@@ -412,6 +412,10 @@ pub struct Plan {
     pub iterations: usize,
     /// Predictor calls (one candidate each; at most one with `ablate_reaction`).
     pub predictor_calls: usize,
+    /// Candidates judged not safe without a predictor call because the predictors would
+    /// refuse them (non-finite, or beyond `nudge_predictor::limits::check_candidates`: an
+    /// ADMM trial point that overshot by over 1 km in one step); 0 in an ordinary call.
+    pub refused_candidates: usize,
     /// Clarabel solves (retries included).
     pub qp_solves: usize,
     /// Final primal residual ‖F(Δ, α, Z)‖∞.

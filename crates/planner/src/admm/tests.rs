@@ -451,6 +451,32 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
     assert_eq!(plan.rollout_min_safety, plan.min_safety);
 }
 
+/// Through the whole call: an ego whose measured state lies 1,040 m ahead of its last
+/// observed position (beside a car 995 m ahead, within the check range) gets a plan whose
+/// every candidate the predictors would refuse. None is passed to the predictor; each is
+/// counted in `refused_candidates` and none is safe, where the predictor's error used to end
+/// the call.
+#[test]
+fn a_call_whose_candidates_the_predictors_refuse_returns_an_unsafe_plan() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = scene(12.0, 0.0, &[(995.0, 0.0, 12.0)]);
+    let p = PlanningProblem {
+        ego: EgoState {
+            x: 1040.0,
+            y: 0.0,
+            psi: 0.0,
+            v: 12.0,
+        },
+        ..problem(&h, &sizes, 12.0)
+    };
+    let mut cv = ConstantVelocity::default();
+    let plan = Planner::new(s).unwrap().plan(&p, &mut cv).unwrap();
+    assert_eq!(plan.predictor_calls, 0, "{plan:?}");
+    assert!(plan.refused_candidates > 0, "{plan:?}");
+    assert_eq!(plan.status, PlanStatus::Unsafe);
+    assert_eq!(plan.min_safety, Some(f64::NEG_INFINITY));
+}
+
 /// A candidate the predictors would refuse (a step longer than
 /// `nudge_predictor::limits::MAX_CANDIDATE_STEP` from the ego's last observed position, or a
 /// non-finite state) is never passed to the predictor and is not safe; one in range is
