@@ -436,7 +436,8 @@ def simulate(
       collisions_at_fault i64, collisions_not_at_fault i64, collisions_at_fault_nuplan i64
       (at fault under nuPlan's own rule, for comparison), start_overhang f64 (m),
       off_road_steps i64, straddle_steps i64, steps_to_lane i64 (-1 = never), slow_steps i64,
-      slow_planned_steps i64, min_ttc f64 (s, inf = nobody closed in), progress f64 (m),
+      slow_planned_steps i64, slow_planned_free_steps i64 (of those, with the road ahead free:
+      nobody in the ego's path within 2 s of headway), min_ttc f64 (s, inf = nobody closed in), progress f64 (m),
       progress_ratio f64 (NaN = no log), max_abs_jerk, rms_jerk f64 (m/s^3),
       max_abs_lat_accel, rms_lat_accel f64 (m/s^2), max_abs_yaw_rate, rms_yaw_rate f64
       (rad/s), max_abs_yaw_accel f64 (rad/s^2), min_accel, max_accel f64 (m/s^2),
@@ -454,7 +455,9 @@ def simulate(
       lane_violation i64 (plan step 1..T of the applied plan's first state in a lane that has
       not begun or has ended; -1 = none),
       road_excess f64 (m), off_road bool, straddle bool, in_target_lane bool, traffic_v f64
-      (NaN = no traffic), slow bool, slow_planned bool, ttc f64 (inf = none), progress f64,
+      (NaN = no traffic), slow bool, slow_planned bool, lead_gap f64 (m, bumper gap to the
+      nearest vehicle ahead in the ego's path; inf = none), slow_planned_free bool
+      (slow_planned with the road ahead free), ttc f64 (inf = none), progress f64,
       jerk f64 (NaN at the first step), yaw_rate f64, lat_accel f64, yaw_accel f64;
       plus ego f64 [S, 4] = (x, y, psi, v);
     - collisions (one row per collision event): run i64, step i64, other i64 (agent index),

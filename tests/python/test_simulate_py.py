@@ -243,6 +243,11 @@ def test_idm_world_is_seeded_and_its_metrics_are_consistent(scenes: list[Path]) 
         assert runs["straddle_steps"][r] == steps["straddle"][m].sum()
         assert runs["slow_steps"][r] == steps["slow"][m].sum()
         assert runs["slow_planned_steps"][r] == steps["slow_planned"][m].sum()
+        assert runs["slow_planned_free_steps"][r] == steps["slow_planned_free"][m].sum()
+        # On a free road: nobody in the path within 2 s at the faster of the ego and the traffic.
+        speed = np.fmax(steps["v"][m], steps["traffic_v"][m])
+        free = steps["lead_gap"][m] >= 2.0 * speed
+        np.testing.assert_array_equal(steps["slow_planned_free"][m], steps["slow_planned"][m] & free)
         assert runs["min_ttc"][r] == steps["ttc"][m].min()
         assert runs["progress"][r] == steps["progress"][m][-1]
         inside = np.flatnonzero(steps["in_target_lane"][m])

@@ -66,6 +66,8 @@ def _summary(success: float, at_fault: int, off_road: int) -> dict:
 def test_before_after_marks_what_changed_and_lists_missing_arms() -> None:
     before = {"teacher/student/default": _summary(0.8, 2, 3), "idm/teacher/default": _summary(0.9, 0, 0)}
     after = {"teacher/student/default": _summary(0.9, 0, 0), "log_replay/student/default": _summary(0.7, 1, 0)}
+    # Only the newer summary counts plans ending slow on a free road; the older one shows "-".
+    after["teacher/student/default"]["slow_planned_free"] = [0, 0]
     text = closed_loop.before_after(before, after, "the planner at commit abc")
     rows = {line.split(" | ")[0] + "/" + line.split(" | ")[1]: line for line in text.splitlines()
             if line.startswith("| ") and not line.startswith("| world")}
@@ -73,6 +75,7 @@ def test_before_after_marks_what_changed_and_lists_missing_arms() -> None:
     row = rows["| teacher/student"]
     assert "80.0 [70.0, 85.0] → **90.0 [80.0, 95.0]**" in row
     assert "2 (2) → **0 (0)**" in row and "3 → **0**" in row
+    assert "0 (1; -) → **0 (1; 0)**" in row
     assert "| 9 |" in row and "0.88" in row and "→ **0.88" not in row  # unchanged cells are written once
     assert "(no before)" in rows["| log_replay/student"]
     assert "(before only)" in rows["| idm/teacher"]

@@ -13,7 +13,7 @@ use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus};
 
 /// Run columns, in order (one row per run, failed runs included). The metric columns are
 /// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
-pub const RUN_COLUMNS: [&str; 41] = [
+pub const RUN_COLUMNS: [&str; 42] = [
     "scenario",
     "scene_index",
     "seed",
@@ -36,6 +36,7 @@ pub const RUN_COLUMNS: [&str; 41] = [
     "steps_to_lane",
     "slow_steps",
     "slow_planned_steps",
+    "slow_planned_free_steps",
     "min_ttc",
     "progress",
     "progress_ratio",
@@ -61,7 +62,7 @@ pub const RUN_COLUMNS: [&str; 41] = [
 /// columns are those of [`crate::sim::metrics::StepMetrics`]; `lane_violation` is the plan
 /// step (1..T) of the applied plan's first state in a lane that has not begun or has ended
 /// ([`crate::Plan::lane_violation`]), −1 when none.
-pub const STEP_COLUMNS: [&str; 35] = [
+pub const STEP_COLUMNS: [&str; 37] = [
     "run",
     "step",
     "mpc_s",
@@ -91,6 +92,8 @@ pub const STEP_COLUMNS: [&str; 35] = [
     "traffic_v",
     "slow",
     "slow_planned",
+    "lead_gap",
+    "slow_planned_free",
     "ttc",
     "progress",
     "jerk",
@@ -320,6 +323,7 @@ pub fn run_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
         ),
         count("slow_steps", |m| m.slow_steps),
         count("slow_planned_steps", |m| m.slow_planned_steps),
+        count("slow_planned_free_steps", |m| m.slow_planned_free_steps),
         float("min_ttc", |m| m.min_ttc.unwrap_or(f64::INFINITY)),
         float("progress", |m| m.progress),
         float("progress_ratio", |m| m.progress_ratio.unwrap_or(f64::NAN)),
@@ -431,6 +435,11 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
         ),
         ("slow", flag(&|s| s.metrics.slow)),
         ("slow_planned", flag(&|s| s.metrics.slow_planned)),
+        (
+            "lead_gap",
+            float(&|s| s.metrics.lead_gap.unwrap_or(f64::INFINITY)),
+        ),
+        ("slow_planned_free", flag(&|s| s.metrics.slow_planned_free)),
         ("ttc", float(&|s| s.metrics.ttc.unwrap_or(f64::INFINITY))),
         ("progress", float(&|s| s.metrics.progress)),
         (
@@ -554,8 +563,9 @@ pub struct Summary {
     pub start_overhang_runs: usize,
     /// Steps straddling a lane line.
     pub straddle_steps: usize,
-    /// Steps slow in a live lane: executed, planned.
-    pub slow_steps: (usize, usize),
+    /// Steps slow in a live lane: executed, planned, planned on a free road
+    /// ([`crate::sim::metrics::StepMetrics::slow_planned_free`]).
+    pub slow_steps: (usize, usize, usize),
     /// Smallest time to collision over every run (s; +∞ when nobody closed in).
     pub min_ttc: f64,
     /// Runs within every comfort limit.
@@ -619,6 +629,7 @@ impl Summary {
             slow_steps: (
                 metrics().map(|m| m.slow_steps).sum(),
                 metrics().map(|m| m.slow_planned_steps).sum(),
+                metrics().map(|m| m.slow_planned_free_steps).sum(),
             ),
             min_ttc: metrics()
                 .filter_map(|m| m.min_ttc)
@@ -705,8 +716,8 @@ impl fmt::Display for Summary {
         )?;
         writeln!(
             f,
-            "steps slow in a live lane: executed {}, planned {}; min time to collision {:.2} s",
-            self.slow_steps.0, self.slow_steps.1, self.min_ttc
+            "steps slow in a live lane: executed {}, planned {} (on a free road {}); min time to collision {:.2} s",
+            self.slow_steps.0, self.slow_steps.1, self.slow_steps.2, self.min_ttc
         )?;
         writeln!(
             f,
@@ -826,8 +837,14 @@ pub fn step_listing(r: &RunRecord) -> String {
     );
     let _ = writeln!(
         s,
-        "off-road steps {}, straddling {}, slow {} (planned {}), progress {:.1} m, score {:.3}",
-        m.off_road_steps, m.straddle_steps, m.slow_steps, m.slow_planned_steps, m.progress, m.score
+        "off-road steps {}, straddling {}, slow {} (planned {}, on a free road {}), progress {:.1} m, score {:.3}",
+        m.off_road_steps,
+        m.straddle_steps,
+        m.slow_steps,
+        m.slow_planned_steps,
+        m.slow_planned_free_steps,
+        m.progress,
+        m.score
     );
     s
 }

@@ -70,6 +70,11 @@ pub const SLOW_FRACTION: f64 = 0.3;
 pub const TRAFFIC_RANGE_M: f64 = 50.0;
 /// The surrounding traffic is live when its median speed exceeds this (m/s).
 pub const LIVE_TRAFFIC_MPS: f64 = 3.0;
+/// The road ahead of the ego is free when the nearest vehicle in its path ([`lead_gap`]) is
+/// at least this time headway (s) ahead at the faster of the ego's speed and the surrounding
+/// traffic's: the two-second rule of driver handbooks. A plan that ends slow while a vehicle
+/// is closer than that answers a queue, not a free-flowing road ([`road_free`]).
+pub const FREE_ROAD_HEADWAY_S: f64 = 2.0;
 /// A missing vehicle ahead of or behind the ego in the target lane counts at this distance
 /// (m) along the road (the scenes hold the neighbours within 60 m).
 pub const FREE_GAP_RANGE_M: f64 = 60.0;
@@ -446,6 +451,72 @@ pub fn min_ttc_ahead(ego: &OrientedBox, ego_vx: f64, others: &[Vehicle]) -> Opti
     best
 }
 
+/// The bumper gap (m) from the ego's box to the nearest vehicle ahead in its path: how far the
+/// ego's box can move along the road (+x) before it first touches the other's box, over the
+/// vehicles whose centre is ahead of the ego's and that it would touch ([`sweep_gap`]); the
+/// other's rear-most x minus the ego's front-most x (≤ 0) for one the ego already overlaps;
+/// `None` when no vehicle is ahead in the path.
+#[must_use]
+pub fn lead_gap(ego: &OrientedBox, others: &[Vehicle]) -> Option<f64> {
+    let front = longitudinal_extent(ego).1;
+    others
+        .iter()
+        .filter(|o| o.bbox.x > ego.x)
+        .filter_map(|o| {
+            if ego.overlaps(&o.bbox) {
+                Some((longitudinal_extent(&o.bbox).0 - front).min(0.0))
+            } else {
+                sweep_gap(ego, &o.bbox)
+            }
+        })
+        .fold(None, |best: Option<f64>, g| {
+            Some(best.map_or(g, |b| b.min(g)))
+        })
+}
+
+/// How far (m) box `a` moves along +x before it first touches box `b` (they do not overlap
+/// now); `None` when it never does. First contact of two convex boxes in translation is a
+/// corner of one on an edge of the other: the nearest entry of a corner of `a` moving +x into
+/// `b`, or of a corner of `b` moving −x into `a`.
+#[must_use]
+pub fn sweep_gap(a: &OrientedBox, b: &OrientedBox) -> Option<f64> {
+    let reach = longitudinal_extent(b).1 - longitudinal_extent(a).0;
+    if reach.is_nan() || reach <= 0.0 {
+        return None;
+    }
+    let entry = |p: [f64; 2], dir: f64, bx: &OrientedBox| {
+        let (s, c) = bx.heading.sin_cos();
+        let local = |q: [f64; 2]| {
+            let (dx, dy) = (q[0] - bx.x, q[1] - bx.y);
+            [dx * c + dy * s, -dx * s + dy * c]
+        };
+        let half = [0.5 * bx.length, 0.5 * bx.width];
+        let end = [p[0] + dir * reach, p[1]];
+        clip_segment_to_box(local(p), local(end), [-half[0], -half[1]], half)
+            .map(|(t0, _)| t0 * reach)
+    };
+    corners(a)
+        .into_iter()
+        .filter_map(|p| entry(p, 1.0, b))
+        .chain(corners(b).into_iter().filter_map(|q| entry(q, -1.0, a)))
+        .fold(None, |best: Option<f64>, g| {
+            Some(best.map_or(g, |m| m.min(g)))
+        })
+}
+
+/// Whether the road ahead of an ego at speed `v` (m/s) is free: no vehicle ahead in its path
+/// (`lead_gap` `None`), or one at least [`FREE_ROAD_HEADWAY_S`] × max(`v`, `traffic`) ahead
+/// (m; `traffic` the surrounding traffic's speed, m/s, when there is any). Non-finite inputs
+/// never make the road free.
+#[must_use]
+pub fn road_free(lead_gap: Option<f64>, v: f64, traffic: Option<f64>) -> bool {
+    let traffic = traffic.unwrap_or(v);
+    if !v.is_finite() || !traffic.is_finite() {
+        return false;
+    }
+    lead_gap.is_none_or(|g| g >= FREE_ROAD_HEADWAY_S * v.max(traffic))
+}
+
 /// The median (mean of the two middle values for an even count); `None` when empty.
 #[must_use]
 pub fn median(values: &[f64]) -> Option<f64> {
@@ -569,6 +640,13 @@ pub struct StepMetrics {
     pub slow: bool,
     /// The speed at the end of the applied plan is slow in live traffic.
     pub slow_planned: bool,
+    /// Bumper gap to the nearest vehicle ahead in the ego's path ([`lead_gap`], m).
+    #[serde(default)]
+    pub lead_gap: Option<f64>,
+    /// `slow_planned` while the road ahead is free ([`road_free`] at the ego's speed after the
+    /// step): a planned standstill in a live lane on a free-flowing road.
+    #[serde(default)]
+    pub slow_planned_free: bool,
     /// Time to collision with the vehicle ahead ([`min_ttc_ahead`], s).
     pub ttc: Option<f64>,
     /// The ego's x minus its start x (m).
@@ -669,6 +747,9 @@ pub struct RunMetrics {
     pub slow_steps: usize,
     /// Steps whose applied plan ended slow in a live lane.
     pub slow_planned_steps: usize,
+    /// Of those, the steps at which the road ahead was free ([`StepMetrics::slow_planned_free`]).
+    #[serde(default)]
+    pub slow_planned_free_steps: usize,
     /// Smallest time to collision over the run (s); `None` when nobody ahead closed in.
     pub min_ttc: Option<f64>,
     /// The ego's progress along the road over the run (m).
@@ -824,6 +905,8 @@ impl RunObserver {
         self.touching.clone_from(&touching);
         let excess = road_excess(&b, &self.bounds);
         let traffic_v = traffic_speed(&b, others, &self.bounds);
+        let lead = lead_gap(&b, others);
+        let slow_planned = is_slow(v_planned, traffic_v);
         let kin = kinematics(self.previous, ego, accel, self.previous_inputs);
         self.previous = ego;
         self.previous_inputs = Some((accel, kin.yaw_rate));
@@ -834,7 +917,9 @@ impl RunObserver {
             in_target_lane: self.target.0 <= ego[1] && ego[1] < self.target.1,
             traffic_v,
             slow: is_slow(ego[3], traffic_v),
-            slow_planned: is_slow(v_planned, traffic_v),
+            slow_planned,
+            lead_gap: lead,
+            slow_planned_free: slow_planned && road_free(lead, ego[3], traffic_v),
             ttc: min_ttc_ahead(&b, ego[3] * ego[2].cos(), others),
             progress: ego[0] - self.start[0],
             kinematics: kin,
@@ -888,6 +973,7 @@ impl RunObserver {
                 .map(|k| k + 1),
             slow_steps: count(&|m| m.slow),
             slow_planned_steps: count(&|m| m.slow_planned),
+            slow_planned_free_steps: count(&|m| m.slow_planned_free),
             min_ttc,
             progress,
             progress_ratio,

@@ -286,6 +286,110 @@ fn slow_steps_need_live_traffic_in_the_ego_lane_else_next_to_it() {
 }
 
 #[test]
+fn lead_gap_is_where_the_advanced_ego_first_touches_the_car_ahead() {
+    let ego = car(0.0, 0.0, 0.0, 10.0).bbox;
+    // In the path: 0.8 m to the side (boxes overlap laterally) and turned 0.2 rad.
+    let ahead = car(25.0, 0.8, 0.2, 10.0);
+    let gap = lead_gap(&ego, &[ahead]).expect("a car ahead");
+    // Independent truth: advance the ego along the road until its box first overlaps the
+    // other's (separating-axis test).
+    let touches = |d: f64| {
+        let mut e = ego;
+        e.x += d;
+        e.overlaps(&ahead.bbox)
+    };
+    assert!(!touches(gap - 1e-6) && touches(gap + 1e-6), "gap {gap}");
+    // Not in the path: the next lane, a car behind; none ahead at all gives None.
+    let aside = [car(10.0, 3.5, 0.0, 0.0), car(-10.0, 0.0, 0.0, 0.0)];
+    assert_eq!(lead_gap(&ego, &aside), None);
+    // The nearer of two cars ahead; ≤ 0 once they overlap along the road.
+    let two = [ahead, car(12.0, -0.5, 0.0, 0.0)];
+    assert!((lead_gap(&ego, &two).expect("ahead") - 8.0).abs() < 1e-12);
+    assert!(lead_gap(&ego, &[car(3.0, 0.0, 0.0, 0.0)]).expect("ahead") <= 0.0);
+}
+
+proptest::proptest! {
+    /// The sweep gap against the separating-axis test on the ego advanced along the road:
+    /// apart just before it, touching just after it; never touching on a fine grid when there
+    /// is none.
+    #[test]
+    fn the_sweep_gap_is_the_first_touch_of_the_advanced_box(
+        x in 5.0f64..30.0,
+        y in -4.0f64..4.0,
+        heading in -1.2f64..1.2,
+        ego_heading in -0.3f64..0.3,
+    ) {
+        let ego = OrientedBox { x: 0.0, y: 0.0, heading: ego_heading, length: 4.5, width: 1.9 };
+        let other = OrientedBox { x, y, heading, length: 5.0, width: 2.0 };
+        proptest::prop_assume!(!ego.overlaps(&other));
+        let touches = |d: f64| {
+            let mut e = ego;
+            e.x += d;
+            e.overlaps(&other)
+        };
+        match sweep_gap(&ego, &other) {
+            Some(g) => {
+                proptest::prop_assert!(g >= 0.0);
+                proptest::prop_assert!(!touches(g - 1e-6) && touches(g + 1e-6), "gap {}", g);
+            }
+            None => {
+                for k in 0..=800 {
+                    proptest::prop_assert!(!touches(0.05 * f64::from(k)));
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn the_road_is_free_beyond_two_seconds_of_headway() {
+    // At the faster of the ego (8 m/s) and the traffic (10 m/s): 20 m.
+    assert!(road_free(Some(20.0), 8.0, Some(10.0)));
+    assert!(!road_free(Some(19.9), 8.0, Some(10.0)));
+    // The ego faster than the traffic: its own speed (15 m/s: 30 m).
+    assert!(!road_free(Some(29.0), 15.0, Some(10.0)) && road_free(Some(30.0), 15.0, None));
+    // Nobody ahead: free; overlapping: never.
+    assert!(road_free(None, 12.0, Some(10.0)) && !road_free(Some(-0.5), 0.0, Some(10.0)));
+    // Nothing non-finite makes the road free.
+    assert!(!road_free(Some(50.0), f64::NAN, Some(10.0)));
+    assert!(!road_free(None, f64::NAN, None));
+    assert!(!road_free(Some(f64::NAN), 8.0, Some(10.0)));
+}
+
+#[test]
+fn a_planned_standstill_counts_as_on_a_free_road_only_without_a_queue_ahead() {
+    let sc = two_lane_scene(0.0, 6);
+    let mut obs = RunObserver::new(&sc, 1, 3.0, 1.4);
+    // Live traffic in the ego's lane at 10 m/s (one car behind, out of contact), and the ego
+    // at 10 m/s planning to end at 1 m/s (< 0.3 × 10): slow, planned.
+    let behind = car(-30.0, 0.0, 0.0, 10.0);
+    // Step 0: a car 10 m ahead (bumper gap 6 m < 2 s × 10 m/s): a queue, not a free road.
+    let (m0, _, _) = obs.observe(
+        0,
+        [0.0, 0.0, 0.0, 10.0],
+        -5.0,
+        1.0,
+        &[behind, car(10.0, 0.0, 0.0, 10.0)],
+    );
+    assert!(m0.slow_planned && !m0.slow_planned_free);
+    assert!((m0.lead_gap.expect("ahead") - 6.0).abs() < 1e-12);
+    // Step 1: the car ahead 30 m on (bumper gap 26 m ≥ 20 m): free.
+    let (m1, _, _) = obs.observe(
+        1,
+        [0.0, 0.0, 0.0, 10.0],
+        -5.0,
+        1.0,
+        &[behind, car(30.0, 0.0, 0.0, 10.0)],
+    );
+    assert!(m1.slow_planned && m1.slow_planned_free);
+    // Step 2: nobody ahead, and the plan keeps speed: neither.
+    let (m2, _, _) = obs.observe(2, [0.0, 0.0, 0.0, 10.0], 0.0, 10.0, &[behind]);
+    assert!(!m2.slow_planned && !m2.slow_planned_free && m2.lead_gap.is_none());
+    let (_, m) = obs.finish(false);
+    assert_eq!((m.slow_planned_steps, m.slow_planned_free_steps), (2, 1));
+}
+
+#[test]
 fn kinematics_and_comfort_by_hand() {
     let dt = DT;
     let k0 = kinematics([0.0, 0.0, 0.0, 10.0], [3.0, 0.0, 0.03, 12.0], 1.0, None);

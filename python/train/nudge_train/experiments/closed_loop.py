@@ -47,6 +47,12 @@ STRATA = ("dense", "medium", "sparse")
 STEP_KEEP = ("run", "mpc_s", "status", "cost")
 """Step columns kept in the cache (the run columns hold every per-step metric's count)."""
 
+RUN_NEEDED = ("success", "collisions_at_fault", "collisions_not_at_fault", "collisions_at_fault_nuplan",
+              "off_road_steps", "straddle_steps", "slow_steps", "slow_planned_steps", "slow_planned_free_steps",
+              "min_ttc", "max_abs_jerk", "max_abs_lat_accel", "max_abs_yaw_rate", "comfortable", "progress_ratio",
+              "score", "n_steps", "start_overhang", "max_abs_heading", "max_overshoot")
+"""Run columns the summary reads; a cached part written without one of them is recomputed."""
+
 
 @dataclass(frozen=True)
 class Arm:
@@ -240,6 +246,9 @@ def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: AN
                 elif data is not None and any(k not in data.get("steps", {}) for k in STEP_KEEP):
                     log(f"  {file}: written without the step columns {list(STEP_KEEP)}, recomputing")
                     data = None
+                elif data is not None and any(k not in data.get("runs", {}) for k in RUN_NEEDED):
+                    log(f"  {file}: written without the run columns {list(RUN_NEEDED)}, recomputing")
+                    data = None
             if data is None:
                 t0 = time.perf_counter()
                 res = nudge.simulate([scenes[i] for i in part], planner, scene_seeds=[scene_seeds[i] for i in part],
@@ -287,12 +296,7 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
     ``overshoot_tol`` (m): runs whose centre went farther beyond the target centre are counted."""
     ok = np.array([e is None for e in chunk.runs["error"]])
     scen = np.asarray(chunk.runs["scenario"])[ok]
-    f = {k: _arr(chunk, k)[ok] for k in ("success", "collisions_at_fault", "collisions_not_at_fault",
-                                           "collisions_at_fault_nuplan",
-                                           "off_road_steps", "straddle_steps", "slow_steps", "slow_planned_steps",
-                                           "min_ttc", "max_abs_jerk", "max_abs_lat_accel", "max_abs_yaw_rate",
-                                           "comfortable", "progress_ratio", "score", "n_steps", "start_overhang",
-                                           "max_abs_heading", "max_overshoot")}
+    f = {k: _arr(chunk, k)[ok] for k in RUN_NEEDED}
     ttt = time_to_target(chunk, budget_steps)[ok]
     ttl = time_to_target(chunk, budget_steps, "steps_to_lane")[ok]
     n = int(ok.sum())
@@ -317,6 +321,7 @@ def summarise(chunk: Chunk, budget_steps: int, n_boot: int = BOOTSTRAP, overshoo
         "straddle_s": float(f["straddle_steps"].mean() * nudge.DT) if n else math.nan,
         "slow": (int(f["slow_steps"].sum()), int((f["slow_steps"] > 0).sum())),
         "slow_planned": (int(f["slow_planned_steps"].sum()), int((f["slow_planned_steps"] > 0).sum())),
+        "slow_planned_free": (int(f["slow_planned_free_steps"].sum()), int((f["slow_planned_free_steps"] > 0).sum())),
         "min_ttc_median": med(ttc), "ttc_below": int((ttc <= 0.95).sum()),
         "comfortable": float(f["comfortable"].mean()) if n else math.nan,
         "jerk_median": med(f["max_abs_jerk"]), "lat_median": med(f["max_abs_lat_accel"]),
@@ -417,6 +422,11 @@ rule is documented) and reach Python and the CLI as the same columns.
 - **Slow steps in a live lane**: the ego's speed is below 0.3 × the median speed of the other
   vehicles within 50 m along the road in its lane (else in the adjacent lanes) while that median
   exceeds 3 m/s; *executed* (speed after the step) and *planned* (the applied plan's last speed).
+  A planned one is **on a free road** when nothing is in the ego's path within 2 s of headway at the
+  faster of its speed and the traffic's (the two-second rule): the bumper gap, how far the ego's box
+  can move along the road before it touches the nearest box ahead, is at least 2 s × that speed or
+  there is no such box. A plan ending slow behind a nearer vehicle answers a queue; one on a free
+  road is the standstill in a live lane the planner must never plan.
 - **Min TTC**: per step, over the vehicles ahead whose lateral extent overlaps the ego's, bumper gap /
   closing speed along the road; per run the minimum (runs where nobody closed in have none).
 - **Comfort**: longitudinal jerk from the applied accelerations, yaw rate and lateral acceleration
@@ -505,10 +515,11 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         "",
         "| world | planner | runs (scenes) | success % [95 % CI] | collisions at fault: events (runs) | "
         "not at fault | at fault under nuPlan's rule | off-road steps (runs) | straddle s / run | slow steps executed (runs) | planned (runs) | "
+        "planned on a free road (runs) | "
         "min TTC median s (runs ≤ 0.95 s) | comfortable % | max jerk / lat acc / yaw rate, median (max) | "
         "max abs heading rad, median (max) | overshoot m, max (runs > tol) | "
         "time to target s | time to lane s | progress vs log | score [95 % CI] | planning ms median (p90) |",
-        "|" + "---|" * 21,
+        "|" + "---|" * 22,
     ]
     summaries = {}
     for c in chunks:
@@ -520,7 +531,8 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
             f"{s['at_fault'][0]} ({s['at_fault'][1]}) | {s['not_at_fault'][0]} ({s['not_at_fault'][1]}) | "
             f"{s['at_fault_nuplan'][0]} ({s['at_fault_nuplan'][1]}) | "
             f"{s['off_road'][0]} ({s['off_road'][1]}) | {_f(s['straddle_s'])} | {s['slow'][0]} ({s['slow'][1]}) | "
-            f"{s['slow_planned'][0]} ({s['slow_planned'][1]}) | {_f(s['min_ttc_median'])} ({s['ttc_below']}) | "
+            f"{s['slow_planned'][0]} ({s['slow_planned'][1]}) | "
+            f"{s['slow_planned_free'][0]} ({s['slow_planned_free'][1]}) | {_f(s['min_ttc_median'])} ({s['ttc_below']}) | "
             f"{_f(100 * s['comfortable'], 1)} | {_f(s['jerk_median'], 1)} / {_f(s['lat_median'])} / "
             f"{_f(s['yaw_median'], 3)} ({_f(s['jerk_max'], 1)} / {_f(s['lat_max'])} / {_f(s['yaw_max'], 3)}) | "
             f"{_f(s['heading'][0], 3)} ({_f(s['heading'][1], 3)}) | {_f(s['overshoot'][0])} ({s['overshoot'][1]}) | "
@@ -533,7 +545,8 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
                    f"{s['at_fault'][0]} at-fault and {s['not_at_fault'][0]} not-at-fault collisions "
                    f"({s['at_fault_nuplan'][0]} at fault under nuPlan's rule), "
                    f"off the road in {s['off_road'][1]} of {s['runs']} runs, slow in a live lane in {s['slow'][1]} "
-                   f"runs (planned in {s['slow_planned'][1]}), score {s['score'][0]:.3f}.")
+                   f"runs (planned in {s['slow_planned'][1]}, on a free road in {s['slow_planned_free'][1]}), "
+                   f"score {s['score'][0]:.3f}.")
     lines[lines.index("@SUMMARY@")] = "## Summary\n\n" + "\n".join(key) + "\n"
     lines += ["", "Planner status per step: " + "; ".join(
         f"{c.arm.world}/{c.arm.label(many)}: " + ", ".join(f"{k} {v}" for k, v in summaries[c.arm]["status"].items())
@@ -615,7 +628,7 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
 
 
 BEFORE_COLUMNS = ("runs", "success % [95 % CI]", "at-fault events (runs)", "not at fault (runs)", "runs off the road",
-                  "slow executed (planned) runs", "max abs heading rad, median (max)",
+                  "slow executed (planned; on a free road) runs", "max abs heading rad, median (max)",
                   "overshoot max m (runs > 0.3 m)", "score", "planning ms median (p90)")
 
 
@@ -624,7 +637,8 @@ def _before_after_cells(s: dict) -> tuple[str, ...]:
     `BEFORE_COLUMNS`."""
     return (str(s["runs"]), _ci(tuple(s["success"])), f"{s['at_fault'][0]} ({s['at_fault'][1]})",
             f"{s['not_at_fault'][0]} ({s['not_at_fault'][1]})", str(s["off_road"][1]),
-            f"{s['slow'][1]} ({s['slow_planned'][1]})", f"{s['heading'][0]:.3f} ({s['heading'][1]:.3f})",
+            f"{s['slow'][1]} ({s['slow_planned'][1]}; {s['slow_planned_free'][1] if 'slow_planned_free' in s else '-'})",
+            f"{s['heading'][0]:.3f} ({s['heading'][1]:.3f})",
             f"{s['overshoot'][0]:.2f} ({s['overshoot'][1]})", f"{s['score'][0]:.3f}",
             f"{s['mpc_ms'][0]:.1f} ({s['mpc_ms'][1]:.1f})")
 
