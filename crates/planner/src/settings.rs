@@ -234,8 +234,9 @@ pub struct PlannerSettings {
     /// `v_ref`, in [0, 1]; 0: off). When no plan is admissible, a candidate whose path is clear
     /// and that ends at or above `fallback_speed_floor` · `v_ref` beats every other candidate
     /// (among themselves, and among the rest, the least total violation wins as without it).
-    /// Its path is clear when it is within the state bounds, keeps the follower-gap rule (when
-    /// on) and its only safety violations come from vehicles **beside** the ego: the lateral
+    /// Its path is clear when it is within the state bounds (up to `bounds_slack`, as for
+    /// `bounds_first`), keeps the follower-gap rule (when on) and its only safety violations
+    /// come from vehicles **beside** the ego: the lateral
     /// distance of the centres is at least the sum of the half widths of their road-aligned
     /// bounding boxes plus `margin_y`, so the boxes cannot touch at any offset along the road. Without it the least total violation
     /// wins, and a vehicle passing in the next lane, inside the ellipse but never able to
@@ -271,9 +272,9 @@ pub struct PlannerSettings {
     /// by 1.5 cm was turned into the car beside it instead (at-fault runs 0 → 2 in the
     /// teacher world, 1 → 3 in idm; `docs/results/long_egos.md`).
     pub bounds_first: bool,
-    /// Slack of the `bounds_first` test (Σ over the horizon of the state-bound excess, m, rad
-    /// and m/s mixed as in the total violation): a candidate whose excess is at most this
-    /// counts as within the bounds. 0: only an excess of 0 (up to rounding) does. On
+    /// Slack of the `bounds_first` test and of the path test of `fallback_speed_floor` (Σ over
+    /// the horizon of the state-bound excess, m, rad and m/s mixed as in the total violation):
+    /// a candidate whose excess is at most this counts as within the bounds. 0: only an excess of 0 (up to rounding) does. On
     /// validation a 19.8 m truck's contact-free fallbacks left its lateral band by 1.5 cm and
     /// lost to a turn into the car beside it; the swerves `bounds_first` is for leave the
     /// bounds by tenths of a radian and metres. 0.05 by default.

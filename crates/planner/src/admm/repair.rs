@@ -81,7 +81,8 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 /// (safety violation + [`EXCESS_WEIGHT`] × state-bound excess); any admissible one beats
 /// every other. With a positive `PlannerSettings::fallback_speed_floor`, an inadmissible one
 /// whose path is clear (no violation from a vehicle that is not beside the ego,
-/// [`super::SafetyConstraint::beside`], and no state-bound excess) and that ends at or above
+/// [`super::SafetyConstraint::beside`], and a state-bound excess of at most
+/// `PlannerSettings::bounds_slack`) and that ends at or above
 /// the floor beats every other inadmissible one: a vehicle whose box cannot touch the ego's
 /// never calls for braking towards a standstill. With `PlannerSettings::edge_first`, among
 /// inadmissible ones the smaller road-edge excess wins before anything else (an ego that
@@ -295,7 +296,7 @@ impl Repairer<'_, '_> {
             let floor = self.s.fallback_speed_floor;
             let v_end = rollout.last().map_or(self.lp.start[3], |z| z[3]);
             let clear = floor > 0.0
-                && excess <= EXCESS_TOLERANCE
+                && excess <= self.s.bounds_slack.max(EXCESS_TOLERANCE)
                 && gap_violation <= EXCESS_TOLERANCE
                 && safety_violation(e.path_min_b, e.path_violation, self.s.safety_min) == 0.0
                 && v_end >= floor * self.lp.reference[3];

@@ -1417,6 +1417,73 @@ fn a_vehicle_passing_beside_does_not_brake_the_ego_to_a_standstill() {
     );
 }
 
+/// The speed floor's path test takes "within the state bounds" as `bounds_first` does: up to
+/// `bounds_slack`. The ego, changing lanes to the left (its corridor's lower bound is its
+/// start y), heads 2 mrad to the right while a wide vehicle passes 3.3 m to its left in the
+/// target lane, inside the ellipse but never able to touch it. Holding its speed and
+/// realigning with the road dips the ego millimetres below the corridor on the way: within the slack that fallback's path is clear and it beats braking
+/// at a_min, which the least total violation prefers. Taken strictly (slack 0, the rule
+/// before), its path is not clear and braking wins.
+#[test]
+fn the_speed_floor_takes_the_bounds_within_their_slack() {
+    let v = 10.0;
+    let (h, mut sizes) = scene(v, -0.5, &[(-3.0, 2.8, 14.0)]);
+    sizes[1] = [5.0, 2.6];
+    let mut p = problem(&h, &sizes, v);
+    p.ego.y = -0.5;
+    p.ego.psi = -0.002;
+    let ranks = |slack: f64| {
+        let s = PlannerSettings {
+            bounds_slack: slack,
+            ..PlannerSettings::default()
+        };
+        let m = model(&s);
+        let lp = LinearisedProblem::new(&s, &m, None, &p);
+        let constraint = SafetyConstraint::new(&p, &s);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut cv = ConstantVelocity::default();
+        cv.set_scene(&h).unwrap();
+        let mut r = Repairer {
+            s: &s,
+            model: &m,
+            lp: &lp,
+            safety: &mut safety,
+            predictor: &mut cv,
+            contingency: None,
+            follower_gap: None,
+        };
+        let mut check = |a: f64| {
+            let accel = vec![a; 6];
+            let delta = super::repair::align_with_road(&m, &lp.start, &accel, lp.delta_box);
+            let c = r.check(delta, accel).unwrap();
+            let excess = lp.bound_excess(&c.rollout);
+            (c, excess)
+        };
+        let (hold, hold_excess) = check(0.0);
+        let (brake, _) = check(s.a_min);
+        (hold, hold_excess, brake, s.bounds_slack)
+    };
+    let (hold, excess, brake, slack) = ranks(PlannerSettings::default().bounds_slack);
+    assert!(
+        !hold.predicted_safe && !brake.predicted_safe,
+        "both are inside the ellipse"
+    );
+    assert!(
+        excess > 0.0 && excess <= slack,
+        "holding leaves the corridor by {excess} (slack {slack})"
+    );
+    assert!(
+        brake.rank.value < hold.rank.value,
+        "braking has the smaller total violation: {} vs {}",
+        brake.rank.value,
+        hold.rank.value
+    );
+    assert!(hold.rank.clear && !brake.rank.clear);
+    assert!(hold.rank.beats(&brake.rank));
+    let (hold, _, brake, _) = ranks(0.0);
+    assert!(!hold.rank.clear && brake.rank.beats(&hold.rank));
+}
+
 /// A 19.8 m truck in its lane's centre at 18.6 m/s, a car 26 m ahead at 10 m/s, and a car
 /// beside its tail in the lane to its right (centres 8 m apart along the road, 2.6 m across:
 /// 0.3 m between the boxes), changing left. Nothing is admissible.
