@@ -209,6 +209,25 @@ fn repairs_only() -> PlannerSettings {
     }
 }
 
+/// A repairer of the call on `lp` without the contingency and follower-gap rules.
+fn plain_repairer<'a, 'c>(
+    s: &'a PlannerSettings,
+    model: &'a Bicycle,
+    lp: &'a LinearisedProblem,
+    safety: &'a mut SafetyEval<'c>,
+    predictor: &'a mut dyn Predictor,
+) -> Repairer<'a, 'c> {
+    Repairer {
+        s,
+        model,
+        lp,
+        safety,
+        predictor,
+        contingency: None,
+        follower_gap: None,
+    }
+}
+
 /// The bicycle of the settings `s`.
 pub(super) fn model(s: &PlannerSettings) -> Bicycle {
     Bicycle {
@@ -565,15 +584,7 @@ fn repairer_checks_every_candidate_on_its_rollout() {
     let mut gate = Gate::new(0, limit);
     gate.set_scene(&h).unwrap();
     let m = model(&s);
-    let mut r = Repairer {
-        s: &s,
-        model: &m,
-        lp: &lp,
-        safety: &mut safety,
-        predictor: &mut gate,
-        contingency: None,
-        follower_gap: None,
-    };
+    let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
     let c = r.check(steer.clone(), vec![0.0; 6]).unwrap();
     assert!(!c.rank.safe && c.min_b == Some(-1.0), "{:?}", c.min_b);
     assert!(
@@ -1456,15 +1467,7 @@ fn the_speed_floor_takes_the_bounds_within_their_slack() {
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
         let mut cv = ConstantVelocity::default();
         cv.set_scene(&h).unwrap();
-        let mut r = Repairer {
-            s: &s,
-            model: &m,
-            lp: &lp,
-            safety: &mut safety,
-            predictor: &mut cv,
-            contingency: None,
-            follower_gap: None,
-        };
+        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut cv);
         let mut check = |a: f64| {
             let accel = vec![a; 6];
             let delta = super::repair::align_with_road(&m, &lp.start, &accel, lp.delta_box);
@@ -1959,15 +1962,7 @@ fn the_fallback_brakes_then_holds_when_that_stops_short() {
     let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
     let mut gate = Gate::ahead(limit);
     gate.set_scene(&h).unwrap();
-    let mut r = Repairer {
-        s: &s,
-        model: &m,
-        lp: &lp,
-        safety: &mut safety,
-        predictor: &mut gate,
-        contingency: None,
-        follower_gap: None,
-    };
+    let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
     // Of the constants only a_min ends short of the gate; of the others the longer brake.
     for (i, a) in profiles.iter().enumerate() {
         let c = r.check(zero_steer.clone(), a.clone()).unwrap();
