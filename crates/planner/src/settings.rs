@@ -200,11 +200,12 @@ pub struct PlannerSettings {
     pub z_cuts: usize,
     /// Start the ADMM loop from the best safe simple candidate when the nominal (the shifted
     /// previous plan) is unsafe: the fallbacks' keep-lane and steer-towards-the-goal input
-    /// sequences at constant accelerations ([`crate::Planner`]), whose roll-outs (clamped into
-    /// the state bounds) are checked by the predictor at the Z-update's threshold; the safe
-    /// one with the least cost J becomes the starting inputs and Z. Without it the loop starts
-    /// in the feasibility restoration and rarely reaches an admissible roll-out within
-    /// `max_iter`.
+    /// sequences at their acceleration profiles (constant, and with `fallback_brake_hold`
+    /// braking for part of the horizon, then holding; [`crate::Planner`]), whose roll-outs
+    /// (clamped into the state bounds) are checked by the predictor at the Z-update's
+    /// threshold; the safe one with the least cost J becomes the starting inputs and Z.
+    /// Without it the loop starts in the feasibility restoration and rarely reaches an
+    /// admissible roll-out within `max_iter`.
     pub safe_start: bool,
     /// Re-tightenings of the Z-update's threshold per call (0: off). When the loop converges
     /// but the predictor finds the nonlinear roll-out of the inputs unsafe (b ≤ `safety_min`),
@@ -242,6 +243,17 @@ pub struct PlannerSettings {
     /// wins, and a vehicle passing in the next lane, inside the ellipse but never able to
     /// touch the ego, has the ego brake towards a standstill in its own live lane.
     pub fallback_speed_floor: f64,
+    /// Add two "brake, then hold" acceleration profiles to the fallbacks' constant ones (0,
+    /// a_min/2, a_min, a_max/2): a_min for the first ⌈T/3⌉ or ⌈2T/3⌉ steps, then 0, within the
+    /// jerk bound; each with the keep-lane, steer-to-the-goal and retreat steering, ranked like
+    /// the others (and among the safe start's candidates). Off by default: measured on 600
+    /// training scenes × 3 seeds (student planner, paired; `docs/results/planned_slow.md`) it
+    /// cuts runs that plan a slow step on a free road (3 → 1, 10 → 9, 14 → 11 in the teacher,
+    /// IDM and log-replay worlds) with no significant change in success (McNemar p ≥ 0.24),
+    /// but adds runs slow in a live lane (14 → 20, 26 → 29, 22 → 30) and at-fault collisions
+    /// in log replay (17 → 19 runs, 22 → 30 events); taking them only when admissible was
+    /// worse (teacher world 1591 → 1585 of 1800 successes, 6 lost and none gained).
+    pub fallback_brake_hold: bool,
     /// Rank the road-edge excess first among fallbacks without an admissible plan: the
     /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
     /// horizon, m) wins before the speed floor and the total violation (which otherwise
@@ -450,6 +462,7 @@ impl Default for PlannerSettings {
             warm_start_dual: false,
             rollout_check: true,
             fallback_speed_floor: 0.5,
+            fallback_brake_hold: false,
             edge_first: true,
             contact_first: true,
             bounds_first: true,

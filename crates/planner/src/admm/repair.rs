@@ -442,25 +442,46 @@ fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> 
     out
 }
 
+/// The acceleration profiles `[T]` (m/s²) of the fallback, in order, each within the box and
+/// jerk bounds ([`repair_box_rate`]): the constants 0, a_min/2, a_min, a_max/2; then, with
+/// `fallback_brake_hold`, "brake, then hold": a_min for the first k steps and 0 after, for
+/// k = ⌈T/3⌉ and ⌈2T/3⌉ (those below T, once each), which shed part of the speed and keep
+/// the rest.
+pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<Vec<f64>> {
+    let t = lp.horizon;
+    let mut profiles: Vec<Vec<f64>> = [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
+        .into_iter()
+        .map(|a_cmd| vec![a_cmd; t])
+        .collect();
+    if s.fallback_brake_hold {
+        let mut brake_steps = vec![t.div_ceil(3), (2 * t).div_ceil(3)];
+        brake_steps.dedup();
+        for k in brake_steps.into_iter().filter(|&k| k > 0 && k < t) {
+            profiles.push((0..t).map(|i| if i < k { s.a_min } else { 0.0 }).collect());
+        }
+    }
+    for a in &mut profiles {
+        repair_box_rate(a, lp.accel_box);
+    }
+    profiles
+}
+
 /// The simple input sequences of the fallback besides the nominal, in order: for each
-/// constant acceleration 0, a_min/2, a_min, a_max/2 (within the jerk bound),
-/// [`align_with_road`], then [`steer_towards`] the lateral goal; then, when the ego's lane
-/// really ends ahead, the [`stop_inputs`].
+/// profile of [`fallback_accels`], [`align_with_road`], then [`steer_towards`] the lateral
+/// goal; then, when the ego's lane really ends ahead, the [`stop_inputs`].
 pub(crate) fn simple_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
     lp: &LinearisedProblem,
 ) -> Vec<(Vec<f64>, Vec<f64>)> {
-    let t = lp.horizon;
-    let mut inputs = Vec::with_capacity(8);
-    for a_cmd in [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max] {
-        let mut a = vec![a_cmd; t];
-        repair_box_rate(&mut a, lp.accel_box);
+    let profiles = fallback_accels(s, lp);
+    let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
+    let mut inputs = Vec::with_capacity(2 * profiles.len() + 3);
+    for a in profiles {
         inputs.push((
             align_with_road(model, &lp.start, &a, lp.delta_box),
             a.clone(),
         ));
-        let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
         let d = steer_towards(
             model,
             &lp.start,
@@ -528,8 +549,7 @@ pub(crate) fn stop_accels(s: &PlannerSettings, lp: &LinearisedProblem, line: f64
 }
 
 /// The retreat sequences of the fallback (none when the problem has no retreat lane): for
-/// each constant acceleration of [`simple_inputs`], [`steer_towards`] the retreat lane's
-/// centre.
+/// each profile of [`fallback_accels`], [`steer_towards`] the retreat lane's centre.
 pub(crate) fn retreat_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
@@ -543,11 +563,9 @@ pub(crate) fn retreat_inputs(
         .iter()
         .map(|u| u[2])
         .fold(f64::INFINITY, f64::min);
-    [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
+    fallback_accels(s, lp)
         .into_iter()
-        .map(|a_cmd| {
-            let mut a = vec![a_cmd; lp.horizon];
-            repair_box_rate(&mut a, lp.accel_box);
+        .map(|a| {
             let d = steer_towards(model, &lp.start, &a, retreat.y, max_heading, lp.delta_box);
             (d, a)
         })

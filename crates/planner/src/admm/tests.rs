@@ -8,7 +8,7 @@ use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 use super::constraint::{Evaluation, SafetyEval};
 use super::inputs::{Input, InputQps};
 use super::linearised::LinearisedProblem;
-use super::repair::{Repairer, retreat_inputs, simple_inputs};
+use super::repair::{Repairer, fallback_accels, retreat_inputs, simple_inputs};
 use super::restoration::restore;
 use super::workspace::{CurrentSafety, Iterates, Workspace, mat_vec};
 use super::z_update::Lagrangian;
@@ -53,13 +53,16 @@ pub(super) fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> Plan
 
 /// Predicts every other agent at constant velocity from its last observed motion (always safe
 /// for the car 40 m behind at the ego's speed) until `strict_from` calls have been made; from
-/// then on, whenever the candidate's last lateral position exceeds `y_limit`, it predicts
+/// then on, whenever the candidate's last lateral position (longitudinal with
+/// [`Gate::ahead`]) exceeds `limit`, it predicts
 /// agent 1 chasing the candidate at 29 m per step (a plausible prediction: the planner refuses
 /// motions beyond 30 m per step), so that it sits on top of the candidate (b = −1) from the
 /// step it catches up.
 struct Gate {
     strict_from: usize,
-    y_limit: f64,
+    limit: f64,
+    /// The coordinate of the candidate's last position that is gated: 0 (x) or 1 (y).
+    axis: usize,
     /// Last two observed positions of every agent.
     last: Vec<[[f64; 2]; 2]>,
     calls: usize,
@@ -69,9 +72,19 @@ impl Gate {
     fn new(strict_from: usize, y_limit: f64) -> Self {
         Self {
             strict_from,
-            y_limit,
+            limit: y_limit,
+            axis: 1,
             last: Vec::new(),
             calls: 0,
+        }
+    }
+
+    /// Gated on the candidate's last longitudinal position beyond `x_limit` from the first
+    /// call.
+    fn ahead(x_limit: f64) -> Self {
+        Self {
+            axis: 0,
+            ..Self::new(0, x_limit)
         }
     }
 }
@@ -88,7 +101,7 @@ impl Predictor for Gate {
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
-        let blocked = self.calls >= self.strict_from && candidates[11] > self.y_limit;
+        let blocked = self.calls >= self.strict_from && candidates[10 + self.axis] > self.limit;
         self.calls += 1;
         let chase = |k: usize| [candidates[2 * k], candidates[2 * k + 1]];
         predict_others(
@@ -193,6 +206,25 @@ fn repairs_only() -> PlannerSettings {
         overshoot_max: 100.0,
         brake_decel: 0.0,
         ..PlannerSettings::default()
+    }
+}
+
+/// A repairer of the call on `lp` without the contingency and follower-gap rules.
+fn plain_repairer<'a, 'c>(
+    s: &'a PlannerSettings,
+    model: &'a Bicycle,
+    lp: &'a LinearisedProblem,
+    safety: &'a mut SafetyEval<'c>,
+    predictor: &'a mut dyn Predictor,
+) -> Repairer<'a, 'c> {
+    Repairer {
+        s,
+        model,
+        lp,
+        safety,
+        predictor,
+        contingency: None,
+        follower_gap: None,
     }
 }
 
@@ -552,15 +584,7 @@ fn repairer_checks_every_candidate_on_its_rollout() {
     let mut gate = Gate::new(0, limit);
     gate.set_scene(&h).unwrap();
     let m = model(&s);
-    let mut r = Repairer {
-        s: &s,
-        model: &m,
-        lp: &lp,
-        safety: &mut safety,
-        predictor: &mut gate,
-        contingency: None,
-        follower_gap: None,
-    };
+    let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
     let c = r.check(steer.clone(), vec![0.0; 6]).unwrap();
     assert!(!c.rank.safe && c.min_b == Some(-1.0), "{:?}", c.min_b);
     assert!(
@@ -1443,15 +1467,7 @@ fn the_speed_floor_takes_the_bounds_within_their_slack() {
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
         let mut cv = ConstantVelocity::default();
         cv.set_scene(&h).unwrap();
-        let mut r = Repairer {
-            s: &s,
-            model: &m,
-            lp: &lp,
-            safety: &mut safety,
-            predictor: &mut cv,
-            contingency: None,
-            follower_gap: None,
-        };
+        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut cv);
         let mut check = |a: f64| {
             let accel = vec![a; 6];
             let delta = super::repair::align_with_road(&m, &lp.start, &accel, lp.delta_box);
@@ -1874,4 +1890,87 @@ fn the_heading_governor_adopts_the_optimisers_plan() {
         assert!((0..4).all(|j| (z[j] - r[j]).abs() < 1e-9), "{z:?} vs {r:?}");
         assert!(z[2].abs() <= s.heading_max + 1e-12, "{z:?}");
     }
+}
+
+/// The acceleration profiles of the fallback: the four constants, and with
+/// `fallback_brake_hold` a_min for ⌈T/3⌉ and ⌈2T/3⌉ steps followed by 0, each the fastest the
+/// jerk bound allows towards its target (from the last applied acceleration 0): written out
+/// by hand for T = 6. The simple and retreat sequences take theirs from them.
+#[test]
+fn the_fallback_profiles_brake_then_hold_within_the_jerk_bound() {
+    let mut s = PlannerSettings::default();
+    let (h, sizes) = scene(12.0, 1.6, &[(-40.0, 3.7, 12.0)]);
+    let mut p = problem(&h, &sizes, 12.0);
+    p.ego.y = 1.6;
+    p.y_retreat = Some(0.0);
+    assert_eq!((s.a_min, s.a_max, s.da_max), (-5.0, 3.0, 1.5));
+    let constants: Vec<Vec<f64>> = vec![
+        vec![0.0; 6],
+        vec![-1.5, -2.5, -2.5, -2.5, -2.5, -2.5],
+        vec![-1.5, -3.0, -4.5, -5.0, -5.0, -5.0],
+        vec![1.5; 6],
+    ];
+    let brake_hold: Vec<Vec<f64>> = vec![
+        vec![-1.5, -3.0, -1.5, 0.0, 0.0, 0.0],
+        vec![-1.5, -3.0, -4.5, -5.0, -3.5, -2.0],
+    ];
+    let accels =
+        |inputs: Vec<Inputs>| -> Vec<Vec<f64>> { inputs.into_iter().map(|(_, a)| a).collect() };
+    for on in [false, true] {
+        s.fallback_brake_hold = on;
+        let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+        let mut want = constants.clone();
+        if on {
+            want.extend(brake_hold.iter().cloned());
+        }
+        assert_eq!(fallback_accels(&s, &lp), want);
+        // Twice each (aligned with the road, towards the goal), in their order; once each
+        // towards the retreat.
+        let twice: Vec<Vec<f64>> = want.iter().flat_map(|a| [a.clone(), a.clone()]).collect();
+        assert_eq!(accels(simple_inputs(&s, &model(&s), &lp)), twice);
+        assert_eq!(accels(retreat_inputs(&s, &model(&s), &lp)), want);
+    }
+}
+
+/// A gate ahead of the ego, placed so that of the constant profiles only a_min ends short of
+/// it: the fallback no longer has only the full brake to choose; it takes "brake, then hold"
+/// (a_min for 4 of 6 steps), which also ends short of it and keeps more speed. Independent
+/// check: a candidate is safe iff its road-aligned roll-out ends short of the gate.
+#[test]
+fn the_fallback_brakes_then_holds_when_that_stops_short() {
+    let s = PlannerSettings {
+        fallback_brake_hold: true,
+        ..repairs_only()
+    };
+    let m = model(&s);
+    let (h, sizes) = car_behind_in_target_lane();
+    let mut p = problem(&h, &sizes, 12.0);
+    p.y_target = 0.0;
+    let lp = LinearisedProblem::new(&s, &m, None, &p);
+    let zero_steer = vec![0.0; 6];
+    let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5];
+    let profiles = fallback_accels(&s, &lp);
+    let (half, full, brake_hold) = (&profiles[1], &profiles[2], &profiles[5]);
+    let (end_half, end_full, end_hold) = (end(half), end(full), end(brake_hold));
+    assert!(end_full[0] < end_hold[0] && end_hold[0] < end_half[0]);
+    assert!(
+        end_hold[3] > end_full[3] + 1.0,
+        "{end_hold:?} vs {end_full:?}"
+    );
+    let limit = 0.5 * (end_hold[0] + end_half[0]);
+    let constraint = SafetyConstraint::new(&p, &s);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    let mut gate = Gate::ahead(limit);
+    gate.set_scene(&h).unwrap();
+    let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
+    // Of the constants only a_min ends short of the gate; of the others the longer brake.
+    for (i, a) in profiles.iter().enumerate() {
+        let c = r.check(zero_steer.clone(), a.clone()).unwrap();
+        assert_eq!(c.rollout[5][0] <= limit, i == 2 || i == 5, "profile {i}");
+        assert_eq!(c.rank.safe, c.rollout[5][0] <= limit, "profile {i}: {a:?}");
+    }
+    let best = r.best_fallback().unwrap();
+    assert!(best.rank.safe);
+    assert_eq!(&best.accel, brake_hold);
+    assert!(best.rollout[5][3] > end_full[3] + 1.0);
 }
