@@ -337,13 +337,20 @@ pub fn nuplan_collision_type(
 /// the box in the box's frame ([`clip_segment_to_box`]) is not empty.
 #[must_use]
 pub fn segment_touches_box(a: [f64; 2], b: [f64; 2], bx: &OrientedBox) -> bool {
+    segment_in_box(a, b, bx).is_some()
+}
+
+/// The part of the segment `a` + t·(`b` − `a`) (m), t ∈ [0, 1], inside box `bx` (closed), as
+/// its parameter interval (t0, t1): [`clip_segment_to_box`] in the box's frame; `None` when no
+/// point of the segment is inside.
+fn segment_in_box(a: [f64; 2], b: [f64; 2], bx: &OrientedBox) -> Option<(f64, f64)> {
     let (s, c) = bx.heading.sin_cos();
     let local = |p: [f64; 2]| {
         let (dx, dy) = (p[0] - bx.x, p[1] - bx.y);
         [dx * c + dy * s, -dx * s + dy * c]
     };
     let half = [0.5 * bx.length, 0.5 * bx.width];
-    clip_segment_to_box(local(a), local(b), [-half[0], -half[1]], half).is_some()
+    clip_segment_to_box(local(a), local(b), [-half[0], -half[1]], half)
 }
 
 /// Classifies the collision starting at `step` between the ego (`ego`, speed `ego_v` (m/s),
@@ -485,15 +492,7 @@ pub fn sweep_gap(a: &OrientedBox, b: &OrientedBox) -> Option<f64> {
         return None;
     }
     let entry = |p: [f64; 2], dir: f64, bx: &OrientedBox| {
-        let (s, c) = bx.heading.sin_cos();
-        let local = |q: [f64; 2]| {
-            let (dx, dy) = (q[0] - bx.x, q[1] - bx.y);
-            [dx * c + dy * s, -dx * s + dy * c]
-        };
-        let half = [0.5 * bx.length, 0.5 * bx.width];
-        let end = [p[0] + dir * reach, p[1]];
-        clip_segment_to_box(local(p), local(end), [-half[0], -half[1]], half)
-            .map(|(t0, _)| t0 * reach)
+        segment_in_box(p, [p[0] + dir * reach, p[1]], bx).map(|(t0, _)| t0 * reach)
     };
     corners(a)
         .into_iter()
