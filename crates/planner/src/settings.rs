@@ -254,6 +254,22 @@ pub struct PlannerSettings {
     /// in log replay (17 → 19 runs, 22 → 30 events); taking them only when admissible was
     /// worse (teacher world 1591 → 1585 of 1800 successes, 6 lost and none gained).
     pub fallback_brake_hold: bool,
+    /// Rank inadmissible candidates by their worst case over two predictions: the planning
+    /// predictor's and a constant-velocity one (every other vehicle keeps its last observed
+    /// displacement per step and does not react). An inadmissible candidate's predicted box
+    /// overlap (`contact_first`) and safety violation are then each the larger of the two, so
+    /// when nothing is admissible the fallback does not count on a yield the planning model
+    /// expects but the traffic may not give. Admissibility is unchanged (the planning
+    /// predictor alone decides it), so this only changes which plan is applied at steps
+    /// without an admissible one. One constant-velocity evaluation per inadmissible candidate
+    /// (no network call; not counted in `predictor_calls` or `budget_calls`). Off by default:
+    /// on 600 training scenes × 3 seeds (student planner, paired;
+    /// `docs/results/follower_gap.md`) it left the log-replay at-fault runs at 17 → 19 (22
+    /// events either way) with no significant change in success in any world (McNemar
+    /// p ≥ 0.30), and added runs slow in a live lane (14 → 26, 26 → 28, 22 → 27 in the
+    /// teacher, IDM and log-replay worlds): in a queue the follower's constant velocity runs
+    /// into the ego, so the fallback accelerates towards the vehicle ahead.
+    pub fallback_nonreactive: bool,
     /// Rank the road-edge excess first among fallbacks without an admissible plan: the
     /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
     /// horizon, m) wins before the speed floor and the total violation (which otherwise
@@ -463,6 +479,7 @@ impl Default for PlannerSettings {
             rollout_check: true,
             fallback_speed_floor: 0.5,
             fallback_brake_hold: false,
+            fallback_nonreactive: false,
             edge_first: true,
             contact_first: true,
             bounds_first: true,

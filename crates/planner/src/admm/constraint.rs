@@ -680,6 +680,24 @@ impl<'c> SafetyEval<'c> {
         self.threshold = threshold;
     }
 
+    /// [`SafetyEval::eval`] of `z` against a second, non-reactive `predictor` (constant
+    /// velocity, `PlannerSettings::fallback_nonreactive`): every candidate is predicted
+    /// (the ablation's keep-lane path is bypassed), and neither the predictor-call count
+    /// nor the refused count changes. Leaves `rows`, the gradient and the prediction to this
+    /// evaluation, so callers take the planning predictor's rows first.
+    pub(crate) fn eval_nonreactive(
+        &mut self,
+        predictor: &mut dyn Predictor,
+        z: &[State],
+    ) -> Result<Evaluation, PlannerError> {
+        let keep_lane = self.keep_lane.take();
+        let (calls, refused) = (self.calls, self.refused);
+        let e = self.eval(predictor, z);
+        self.keep_lane = keep_lane;
+        (self.calls, self.refused) = (calls, refused);
+        e
+    }
+
     /// Evaluates the candidate states `z` (`[T]`, this call's frame); no predictor call when
     /// nothing is checked.
     pub(crate) fn eval(

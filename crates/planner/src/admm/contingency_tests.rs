@@ -183,6 +183,7 @@ fn a_nudge_is_admissible_only_with_a_safe_retreat() {
             predictor: &mut predictor,
             contingency: Contingency::new(&s, &lp),
             follower_gap: None,
+            nonreactive: None,
         };
         let c = r.check(d.clone(), a.clone()).unwrap();
         let calls = r.safety.calls;

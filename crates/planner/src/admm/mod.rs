@@ -47,13 +47,15 @@ mod convergence_tests;
 #[cfg(test)]
 mod follower_gap_tests;
 #[cfg(test)]
+mod nonreactive_tests;
+#[cfg(test)]
 mod projection_tests;
 #[cfg(test)]
 mod tests;
 
 use std::time::Instant;
 
-use nudge_predictor::{Checked, Predictor};
+use nudge_predictor::{Checked, ConstantVelocity, Predictor};
 
 use crate::error::PlannerError;
 use crate::model::{Bicycle, State};
@@ -604,6 +606,7 @@ impl Planner {
         // Execution check: the roll-out of (Δ, α), repaired when unsafe; it may use the calls
         // the budget held back.
         safety.budget.reserve = 0;
+        let mut nonreactive = nonreactive_predictor(s, &constraint, problem, lp.horizon)?;
         let mut repairer = Repairer {
             s,
             model: &self.model,
@@ -612,6 +615,7 @@ impl Planner {
             predictor,
             contingency: contingency::Contingency::new(s, &lp),
             follower_gap: follower_gap::FollowerGap::new(problem, s),
+            nonreactive: nonreactive.as_mut().map(|p| p as &mut dyn Predictor),
         };
         let finished = check_execution(&mut repairer, admm)?;
         let counts = (safety.calls, constraint.vehicles().len(), safety.refused);
@@ -756,6 +760,23 @@ impl AdmmResult {
             stop,
         }
     }
+}
+
+/// The constant-velocity predictor, set to the problem's scene, that inadmissible candidates
+/// are also ranked against (`PlannerSettings::fallback_nonreactive`); `None` when the rule
+/// is off or nothing is checked.
+fn nonreactive_predictor(
+    s: &PlannerSettings,
+    constraint: &SafetyConstraint,
+    problem: &PlanningProblem<'_>,
+    horizon: usize,
+) -> Result<Option<ConstantVelocity>, PlannerError> {
+    if !s.fallback_nonreactive || constraint.vehicles().is_empty() {
+        return Ok(None);
+    }
+    let mut cv = ConstantVelocity::new(horizon)?;
+    cv.set_scene(problem.history)?;
+    Ok(Some(cv))
 }
 
 /// The execution check of the ADMM result (see [`repair`]). The plan's states are always the

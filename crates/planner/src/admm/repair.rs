@@ -39,7 +39,7 @@ use crate::model::{Bicycle, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
 
-use super::constraint::{SafetyEval, SafetyRow};
+use super::constraint::{Evaluation, SafetyEval, SafetyRow};
 use super::contingency::Contingency;
 use super::follower_gap::FollowerGap;
 use super::heading::govern_heading;
@@ -185,6 +185,15 @@ pub(crate) struct Violations {
     pub edge: f64,
 }
 
+/// What an inadmissible candidate's safety ranks by ([`Repairer::worst_case`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct WorstCase {
+    /// Safety violation (units of b, as [`Violations::value`] without the bound excess).
+    violation: f64,
+    /// Predicted box overlap (m).
+    contact: f64,
+}
+
 /// The lateral goal whose state bounds a candidate is checked within.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Goal {
@@ -205,6 +214,9 @@ pub(crate) struct Repairer<'a, 'c> {
     pub contingency: Option<Contingency>,
     /// The follower-gap rule of the call (`None` when it does not apply).
     pub follower_gap: Option<FollowerGap>,
+    /// The non-reactive predictor inadmissible candidates are also ranked against
+    /// (`PlannerSettings::fallback_nonreactive`; `None` when off or nothing is checked).
+    pub nonreactive: Option<&'a mut dyn Predictor>,
 }
 
 impl Repairer<'_, '_> {
@@ -293,6 +305,7 @@ impl Repairer<'_, '_> {
                 edge: 0.0,
             }
         } else {
+            let worst = self.worst_case(&rollout, &e)?;
             let floor = self.s.fallback_speed_floor;
             let v_end = rollout.last().map_or(self.lp.start[3], |z| z[3]);
             let clear = floor > 0.0
@@ -305,10 +318,9 @@ impl Repairer<'_, '_> {
                 &Violations {
                     unbegun,
                     clear,
-                    value: safety_violation(e.min_b, e.violation, self.s.safety_min)
-                        + EXCESS_WEIGHT * (excess + gap_violation),
+                    value: worst.violation + EXCESS_WEIGHT * (excess + gap_violation),
                     bound_excess: excess,
-                    contact: e.overlap,
+                    contact: worst.contact,
                     edge: self.edge_rank(&rollout),
                 },
             )
@@ -323,6 +335,30 @@ impl Repairer<'_, '_> {
             rank,
             rows,
         })
+    }
+
+    /// The safety violation (units of b) and predicted box overlap (m) an inadmissible
+    /// `rollout` ranks by: those of `learned`, the planning predictor's evaluation, or with
+    /// `PlannerSettings::fallback_nonreactive` each the larger of that and the non-reactive
+    /// predictor's.
+    fn worst_case(
+        &mut self,
+        rollout: &[State],
+        learned: &Evaluation,
+    ) -> Result<WorstCase, PlannerError> {
+        let mut worst = WorstCase {
+            violation: safety_violation(learned.min_b, learned.violation, self.s.safety_min),
+            contact: learned.overlap,
+        };
+        if let Some(p) = self.nonreactive.as_deref_mut() {
+            let e = self.safety.eval_nonreactive(p, rollout)?;
+            worst.violation =
+                worst
+                    .violation
+                    .max(safety_violation(e.min_b, e.violation, self.s.safety_min));
+            worst.contact = worst.contact.max(e.overlap);
+        }
+        Ok(worst)
     }
 
     /// The road-edge excess an inadmissible `rollout` ranks by first (m): its

@@ -225,6 +225,7 @@ fn plain_repairer<'a, 'c>(
         predictor,
         contingency: None,
         follower_gap: None,
+        nonreactive: None,
     }
 }
 
