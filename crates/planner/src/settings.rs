@@ -124,7 +124,9 @@ pub struct PlannerSettings {
     /// default: on validation the boxes lowered success (`docs/results/nudge_safety.md`).
     pub safety_geometry: SafetyGeometry,
     /// Longest slice of the ego (m) one safety ellipse covers; 0: off (one ellipse for the
-    /// whole ego). With `safety_geometry` = `ellipse` and an ego longer than this, the ego is
+    /// whole ego); otherwise at least 0.5 m ([`Self::MIN_EGO_SEGMENT_LENGTH`]), and an ego
+    /// needing more than 64 slices ([`Self::MAX_EGO_SEGMENTS`]) is refused with a typed error.
+    /// With `safety_geometry` = `ellipse` and an ego longer than this, the ego is
     /// cut along its heading into k = ⌈length / `ego_segment_length`⌉ equal slices and b_i is
     /// the smallest of the k ellipses of [`crate::safety::Ellipse::oriented`], each sized by
     /// one slice (length / k) and centred on it. The √2 ellipse of one long box reaches
@@ -706,6 +708,13 @@ impl PlannerSettings {
     pub const MAX_HORIZON: usize = nudge_predictor::MAX_HORIZON;
     /// Largest ADMM iteration count accepted.
     pub const MAX_ITER: usize = 10_000;
+    /// Shortest non-zero `ego_segment_length` accepted (m): finer slices than this add safety
+    /// evaluations, not accuracy (the ellipse's margins are tens of centimetres).
+    pub const MIN_EGO_SEGMENT_LENGTH: f64 = 0.5;
+    /// Most slices one ego may be cut into (`ego_segment_length`): a plausible 30 m vehicle
+    /// in slices of [`Self::MIN_EGO_SEGMENT_LENGTH`] needs 60. A longer ego is a
+    /// [`crate::PlannerError::BadProblem`] naming `sizes`.
+    pub const MAX_EGO_SEGMENTS: usize = 64;
 
     /// The value of numeric field `field` as f64 (`None` for a boolean or unknown name).
     #[must_use]
@@ -795,6 +804,14 @@ impl PlannerSettings {
                 field: "a_max",
                 value: format!("{}", self.a_max),
                 reason: "must be > a_min (empty acceleration bounds)",
+            });
+        }
+        if self.ego_segment_length != 0.0 && self.ego_segment_length < Self::MIN_EGO_SEGMENT_LENGTH
+        {
+            return Err(SettingsError::Invalid {
+                field: "ego_segment_length",
+                value: format!("{}", self.ego_segment_length),
+                reason: "must be 0 (off) or at least MIN_EGO_SEGMENT_LENGTH = 0.5 m",
             });
         }
         if self.ellipse_lateral_scale != 0.0

@@ -311,6 +311,47 @@ fn bad_problems_are_typed_errors() {
     ));
 }
 
+/// The ego's safety slices are bounded: at the finest accepted slice length a 32 m ego needs
+/// exactly `MAX_EGO_SEGMENTS` = 64 slices and plans; 32.01 m needs 65 and is refused naming
+/// `sizes` (not cut into an unbounded number of ellipses); with the box geometry (no slices)
+/// the same ego plans.
+#[test]
+fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
+    use nudge_planner::settings::SafetyGeometry;
+    let fine = PlannerSettings {
+        ego_segment_length: PlannerSettings::MIN_EGO_SEGMENT_LENGTH,
+        ..PlannerSettings::default()
+    };
+    let at_most = PlannerSettings::MAX_EGO_SEGMENTS as f64 * fine.ego_segment_length;
+    let (h, mut sizes) = scene(12.0, 0.0, &[(40.0, 3.7, 12.0)]);
+    let mut cv = ConstantVelocity::default();
+    sizes[0][0] = at_most;
+    let plan = Planner::new(fine.clone())
+        .unwrap()
+        .plan(&problem(&h, &sizes, 12.0, 0.0, 3.7), &mut cv)
+        .unwrap();
+    assert!(plan.states.iter().flatten().all(|v| v.is_finite()));
+    sizes[0][0] = at_most + 0.01;
+    match Planner::new(fine.clone())
+        .unwrap()
+        .plan(&problem(&h, &sizes, 12.0, 0.0, 3.7), &mut cv)
+    {
+        Err(PlannerError::BadProblem {
+            field: "sizes",
+            reason,
+        }) => assert!(reason.contains("MAX_EGO_SEGMENTS"), "{reason}"),
+        other => panic!("a {} m ego in 0.5 m slices: {other:?}", sizes[0][0]),
+    }
+    let boxes = PlannerSettings {
+        safety_geometry: SafetyGeometry::Boxes,
+        ..fine
+    };
+    Planner::new(boxes)
+        .unwrap()
+        .plan(&problem(&h, &sizes, 12.0, 0.0, 3.7), &mut cv)
+        .unwrap();
+}
+
 proptest! {
     #![proptest_config(ProptestConfig {
         cases: 16,

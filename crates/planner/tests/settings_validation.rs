@@ -208,3 +208,21 @@ fn a_lateral_scale_must_exceed_the_scale_over_root_two() {
             .unwrap_or_else(|e| panic!("ellipse_lateral_scale = {v} refused: {e}"));
     }
 }
+
+/// A slice length between 0 (off) and `MIN_EGO_SEGMENT_LENGTH` would cut the ego into an
+/// unbounded number of safety ellipses (1e-300 m: ⌈4.8 / 1e-300⌉ slices, a hang the fuzzer
+/// found): refused, naming the field; 0 and the minimum itself are accepted.
+#[test]
+fn an_ego_slice_is_off_or_at_least_the_minimum_length() {
+    let min = PlannerSettings::MIN_EGO_SEGMENT_LENGTH;
+    for v in [1e-300, 1e-9, 0.1, min * (1.0 - 1e-9)] {
+        let err = PlannerSettings::from_json(&with("ego_segment_length", json!(v)))
+            .err()
+            .unwrap_or_else(|| panic!("ego_segment_length = {v} accepted"));
+        assert!(err.to_string().contains("`ego_segment_length`"), "{err}");
+    }
+    for v in [0.0, min, 6.0, 100.0] {
+        PlannerSettings::from_json(&with("ego_segment_length", json!(v)))
+            .unwrap_or_else(|e| panic!("ego_segment_length = {v} refused: {e}"));
+    }
+}

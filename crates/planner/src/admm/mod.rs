@@ -60,7 +60,7 @@ use nudge_predictor::{Checked, ConstantVelocity, Predictor};
 use crate::error::PlannerError;
 use crate::model::{Bicycle, State};
 use crate::qp::QpFailure;
-use crate::settings::PlannerSettings;
+use crate::settings::{PlannerSettings, SafetyGeometry};
 
 pub use constraint::{BindingVehicle, CheckedVehicle, SafetyConstraint};
 pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
@@ -520,8 +520,10 @@ impl Planner {
     /// [`PlanStatus::SolverFailed`] with a checked fallback plan.
     ///
     /// # Errors
-    /// [`PlannerError::BadProblem`] for a malformed problem, [`PlannerError::HorizonMismatch`]
-    /// when the predictor's horizon differs, [`PlannerError::Predictor`] when the predictor
+    /// [`PlannerError::BadProblem`] for a malformed problem or an ego that needs more than
+    /// [`PlannerSettings::MAX_EGO_SEGMENTS`] safety slices (field `sizes`),
+    /// [`PlannerError::HorizonMismatch`] when the predictor's horizon differs,
+    /// [`PlannerError::Predictor`] when the predictor
     /// rejects the scene or a candidate, or when a prediction is non-finite or implausible
     /// (every predictor's output is checked, see [`nudge_predictor::Checked`]).
     ///
@@ -625,13 +627,30 @@ impl Planner {
         Ok(plan)
     }
 
-    /// Checks the problem and the predictor's horizon.
+    /// Checks the problem, the number of ego slices it needs (at most
+    /// [`PlannerSettings::MAX_EGO_SEGMENTS`]) and the predictor's horizon.
     fn check(
         &self,
         problem: &PlanningProblem<'_>,
         predictor: &dyn Predictor,
     ) -> Result<(), PlannerError> {
         problem.check()?;
+        let s = &self.settings;
+        let ego_length = problem.sizes[0][0];
+        if s.safety_geometry == SafetyGeometry::Ellipse
+            && s.ego_segment_length > 0.0
+            && (ego_length / s.ego_segment_length).ceil() > PlannerSettings::MAX_EGO_SEGMENTS as f64
+        {
+            return Err(PlannerError::BadProblem {
+                field: "sizes",
+                reason: format!(
+                    "the ego (agent 0) of length {ego_length} m needs more than \
+                     MAX_EGO_SEGMENTS = {} slices of ego_segment_length = {} m",
+                    PlannerSettings::MAX_EGO_SEGMENTS,
+                    s.ego_segment_length
+                ),
+            });
+        }
         if predictor.horizon() != self.settings.horizon {
             return Err(PlannerError::HorizonMismatch {
                 predictor: predictor.horizon(),
