@@ -104,7 +104,7 @@ test-rust:
 test-examples: develop
 	$(CARGO) run --release --quiet --example plan_one_step
 	$(CARGO) run --release --quiet --example custom_predictor
-	$(CARGO) run --release --quiet --example fuzz -- --seconds 1 --tries 50 > /dev/null
+	$(CARGO) run --release --quiet --example fuzz -- --tries 50 > /dev/null
 	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
 	$(PY) examples/python_predictor.py
 
