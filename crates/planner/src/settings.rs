@@ -256,6 +256,17 @@ pub struct PlannerSettings {
     /// in log replay (17 → 19 runs, 22 → 30 events); taking them only when admissible was
     /// worse (teacher world 1591 → 1585 of 1800 successes, 6 lost and none gained).
     pub fallback_brake_hold: bool,
+    /// Add the constant a_max acceleration profile to the fallbacks' constant ones (0,
+    /// a_min/2, a_min, a_max/2), with the keep-lane, steer-to-the-goal and retreat steering,
+    /// ranked like the others: an escape forwards from a vehicle closing from behind or from
+    /// the side. Off by default: on 600 training scenes × 3 seeds (student planner, paired) it
+    /// gained success in the teacher world (1592 → 1609 of 1800, 1 lost, 18 gained) and cut
+    /// log-replay at-fault runs 17 → 15 (events 22 → 15), but on validation, where settings
+    /// are chosen, the teacher planner lost 6 runs and gained none in the teacher world
+    /// (270 → 264 of 300, McNemar p = 0.03): with nothing admissible the least-violating
+    /// candidate became accelerating past the target-lane gap, which left the ego beside the
+    /// traffic (`docs/results/fallback_escape.md`).
+    pub fallback_full_accel: bool,
     /// Rank inadmissible candidates by their worst case over two predictions: the planning
     /// predictor's and a constant-velocity one (every other vehicle keeps its last observed
     /// displacement per step and does not react). An inadmissible candidate's predicted box
@@ -481,6 +492,7 @@ impl Default for PlannerSettings {
             rollout_check: true,
             fallback_speed_floor: 0.5,
             fallback_brake_hold: false,
+            fallback_full_accel: false,
             fallback_nonreactive: false,
             edge_first: true,
             contact_first: true,

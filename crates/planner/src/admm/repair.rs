@@ -480,7 +480,7 @@ fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> 
 
 /// The acceleration profiles `[T]` (m/s²) of the fallback, in order, each within the box and
 /// jerk bounds ([`repair_box_rate`]): the constants 0, a_min/2, a_min, a_max/2; then, with
-/// `fallback_brake_hold`, "brake, then hold": a_min for the first k steps and 0 after, for
+/// `fallback_full_accel`, the constant a_max; then, with `fallback_brake_hold`, "brake, then hold": a_min for the first k steps and 0 after, for
 /// k = ⌈T/3⌉ and ⌈2T/3⌉ (those below T, once each), which shed part of the speed and keep
 /// the rest.
 pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<Vec<f64>> {
@@ -489,6 +489,9 @@ pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Ve
         .into_iter()
         .map(|a_cmd| vec![a_cmd; t])
         .collect();
+    if s.fallback_full_accel {
+        profiles.push(vec![s.a_max; t]);
+    }
     if s.fallback_brake_hold {
         let mut brake_steps = vec![t.div_ceil(3), (2 * t).div_ceil(3)];
         brake_steps.dedup();

@@ -63,6 +63,8 @@ struct Gate {
     limit: f64,
     /// The coordinate of the candidate's last position that is gated: 0 (x) or 1 (y).
     axis: usize,
+    /// Gate the candidates that end below the limit instead of beyond it.
+    below: bool,
     /// Last two observed positions of every agent.
     last: Vec<[[f64; 2]; 2]>,
     calls: usize,
@@ -74,6 +76,7 @@ impl Gate {
             strict_from,
             limit: y_limit,
             axis: 1,
+            below: false,
             last: Vec::new(),
             calls: 0,
         }
@@ -85,6 +88,15 @@ impl Gate {
         Self {
             axis: 0,
             ..Self::new(0, x_limit)
+        }
+    }
+
+    /// Gated on the candidate's last longitudinal position short of `x_limit` from the first
+    /// call: a vehicle closing from behind catches every candidate that does not get that far.
+    fn behind(x_limit: f64) -> Self {
+        Self {
+            below: true,
+            ..Self::ahead(x_limit)
         }
     }
 }
@@ -101,7 +113,13 @@ impl Predictor for Gate {
         Ok(())
     }
     fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
-        let blocked = self.calls >= self.strict_from && candidates[10 + self.axis] > self.limit;
+        let last = candidates[10 + self.axis];
+        let gated = if self.below {
+            last < self.limit
+        } else {
+            last > self.limit
+        };
+        let blocked = self.calls >= self.strict_from && gated;
         self.calls += 1;
         let chase = |k: usize| [candidates[2 * k], candidates[2 * k + 1]];
         predict_others(
@@ -478,8 +496,10 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
         plan.cost
     );
     assert!(plan.states[5][1] <= limit);
-    // Roll-out check, 3 backtracking steps, the nominal and 8 simple sequences.
-    assert_eq!(plan.predictor_calls, admm_calls + 1 + 3 + 9);
+    // Roll-out check, 3 backtracking steps, the nominal and two simple sequences per
+    // acceleration profile (the four constants, and a_max with `fallback_full_accel`).
+    let profiles = 4 + usize::from(s.fallback_full_accel);
+    assert_eq!(plan.predictor_calls, admm_calls + 1 + 3 + 1 + 2 * profiles);
     assert!(plan.min_safety.unwrap() > 0.0);
     assert_eq!(plan.rollout_min_safety, plan.min_safety);
 }
@@ -1214,9 +1234,9 @@ fn without_an_admissible_plan_the_fallback_may_cancel_the_change() {
     );
 }
 
-/// The fallback set steers towards the retreat lane too: for each of the four constant
-/// accelerations one sequence that ends nearer the retreat than it starts; none without a
-/// retreat lane.
+/// The fallback set steers towards the retreat lane too: for each acceleration profile (the
+/// four constants, and a_max with `fallback_full_accel`) one sequence that ends nearer the
+/// retreat than it starts; none without a retreat lane.
 #[test]
 fn the_fallback_set_includes_steering_back_to_the_retreat_lane() {
     let s = PlannerSettings::default();
@@ -1229,7 +1249,7 @@ fn the_fallback_set_includes_steering_back_to_the_retreat_lane() {
     p.y_retreat = Some(0.0);
     let lp = LinearisedProblem::new(&s, &m, None, &p);
     let back = retreat_inputs(&s, &m, &lp);
-    assert_eq!(back.len(), 4);
+    assert_eq!(back.len(), 4 + usize::from(s.fallback_full_accel));
     for (i, (d, a)) in back.iter().enumerate() {
         let end = rollout_world(&s, &p, d, a)[5][1];
         assert!(
@@ -1893,10 +1913,11 @@ fn the_heading_governor_adopts_the_optimisers_plan() {
     }
 }
 
-/// The acceleration profiles of the fallback: the four constants, and with
-/// `fallback_brake_hold` a_min for ⌈T/3⌉ and ⌈2T/3⌉ steps followed by 0, each the fastest the
-/// jerk bound allows towards its target (from the last applied acceleration 0): written out
-/// by hand for T = 6. The simple and retreat sequences take theirs from them.
+/// The acceleration profiles of the fallback: the four constants, with `fallback_full_accel`
+/// the constant a_max, and with `fallback_brake_hold` a_min for ⌈T/3⌉ and ⌈2T/3⌉ steps
+/// followed by 0, each the fastest the jerk bound allows towards its target (from the last
+/// applied acceleration 0): written out by hand for T = 6. The simple and retreat sequences
+/// take theirs from them.
 #[test]
 fn the_fallback_profiles_brake_then_hold_within_the_jerk_bound() {
     let mut s = PlannerSettings::default();
@@ -1915,13 +1936,18 @@ fn the_fallback_profiles_brake_then_hold_within_the_jerk_bound() {
         vec![-1.5, -3.0, -1.5, 0.0, 0.0, 0.0],
         vec![-1.5, -3.0, -4.5, -5.0, -3.5, -2.0],
     ];
+    let full = vec![1.5, 3.0, 3.0, 3.0, 3.0, 3.0];
     let accels =
         |inputs: Vec<Inputs>| -> Vec<Vec<f64>> { inputs.into_iter().map(|(_, a)| a).collect() };
-    for on in [false, true] {
-        s.fallback_brake_hold = on;
+    for (hold, escape) in [(false, false), (true, false), (false, true), (true, true)] {
+        s.fallback_brake_hold = hold;
+        s.fallback_full_accel = escape;
         let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
         let mut want = constants.clone();
-        if on {
+        if escape {
+            want.push(full.clone());
+        }
+        if hold {
             want.extend(brake_hold.iter().cloned());
         }
         assert_eq!(fallback_accels(&s, &lp), want);
@@ -1939,8 +1965,10 @@ fn the_fallback_profiles_brake_then_hold_within_the_jerk_bound() {
 /// check: a candidate is safe iff its road-aligned roll-out ends short of the gate.
 #[test]
 fn the_fallback_brakes_then_holds_when_that_stops_short() {
+    // The four constants and the two brake-then-hold profiles (indices 4 and 5).
     let s = PlannerSettings {
         fallback_brake_hold: true,
+        fallback_full_accel: false,
         ..repairs_only()
     };
     let m = model(&s);
@@ -1974,4 +2002,52 @@ fn the_fallback_brakes_then_holds_when_that_stops_short() {
     assert!(best.rank.safe);
     assert_eq!(&best.accel, brake_hold);
     assert!(best.rollout[5][3] > end_full[3] + 1.0);
+}
+
+/// A vehicle closing from behind catches every candidate that ends short of a line ahead,
+/// placed so that of the constant profiles only a_max (with `fallback_full_accel`) gets past
+/// it. Without the setting no fallback is safe (the least-violating one is applied); with it
+/// the fallback accelerates at a_max and is safe. Independent check: a candidate is safe iff
+/// its road-aligned roll-out ends beyond the line.
+#[test]
+fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
+    let (h, sizes) = car_behind_in_target_lane();
+    let zero_steer = vec![0.0; 6];
+    for on in [false, true] {
+        let s = PlannerSettings {
+            fallback_full_accel: on,
+            ..repairs_only()
+        };
+        let m = model(&s);
+        let mut p = problem(&h, &sizes, 12.0);
+        p.y_target = 0.0;
+        let lp = LinearisedProblem::new(&s, &m, None, &p);
+        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5];
+        let profiles = fallback_accels(&s, &lp);
+        assert_eq!(profiles.len(), if on { 5 } else { 4 });
+        let full = vec![1.5, 3.0, 3.0, 3.0, 3.0, 3.0];
+        assert_eq!(profiles.last() == Some(&full), on, "{profiles:?}");
+        // The line: between where a_max/2 and a_max end (both from the last acceleration 0).
+        let (end_half, end_full) = (end(&[1.5; 6]), end(&full));
+        assert!(
+            end_full[0] > end_half[0] + 1.0,
+            "{end_full:?} vs {end_half:?}"
+        );
+        let limit = 0.5 * (end_half[0] + end_full[0]);
+        let constraint = SafetyConstraint::new(&p, &s);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut gate = Gate::behind(limit);
+        gate.set_scene(&h).unwrap();
+        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
+        for a in &profiles {
+            let c = r.check(zero_steer.clone(), a.clone()).unwrap();
+            assert_eq!(c.rank.safe, c.rollout[5][0] >= limit, "{a:?}");
+        }
+        let best = r.best_fallback().unwrap();
+        assert_eq!(best.rank.safe, on, "{:?}", best.accel);
+        if on {
+            assert_eq!(best.accel, full);
+            assert!(best.rollout[5][0] >= limit);
+        }
+    }
 }
