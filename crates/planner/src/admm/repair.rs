@@ -480,9 +480,9 @@ fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> 
 
 /// The acceleration profiles `[T]` (m/s²) of the fallback, in order, each within the box and
 /// jerk bounds ([`repair_box_rate`]): the constants 0, a_min/2, a_min, a_max/2; then, with
-/// `fallback_full_accel`, the constant a_max; then, with `fallback_brake_hold`, "brake, then hold": a_min for the first k steps and 0 after, for
-/// k = ⌈T/3⌉ and ⌈2T/3⌉ (those below T, once each), which shed part of the speed and keep
-/// the rest.
+/// `fallback_full_accel`, the constant a_max; then, with `fallback_brake_hold`, "brake, then
+/// hold": a_min for the first k steps and 0 after, for k = ⌈T/3⌉ and ⌈2T/3⌉ (those below T,
+/// once each), which shed part of the speed and keep the rest.
 pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<Vec<f64>> {
     let t = lp.horizon;
     let mut profiles: Vec<Vec<f64>> = [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
