@@ -105,6 +105,7 @@ test-examples: develop
 	$(CARGO) run --release --quiet --example plan_one_step
 	$(CARGO) run --release --quiet --example custom_predictor
 	$(CARGO) run --release --quiet --example fuzz -- --tries 50 > /dev/null
+	$(CARGO) run --release --quiet --example avoidability -- assets/scenes/us101-11_1-t02.1-ego132.safetensors:0 > /dev/null
 	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
 	$(PY) examples/python_predictor.py
 

@@ -267,6 +267,19 @@ pub struct PlannerSettings {
     /// candidate became accelerating past the target-lane gap, which left the ego beside the
     /// traffic (`docs/results/fallback_escape.md`).
     pub fallback_full_accel: bool,
+    /// When no fallback above is admissible, also check the input lattice (blocks of two
+    /// steps, each changing the steering and the
+    /// acceleration by −, 0 or + their rate bounds per step, clipped to their boxes: up to
+    /// 9^⌈T/2⌉ sequences, 729 at T = 6), each on its own roll-out and prediction like every
+    /// fallback, and keep the best by the same rank. The log-replay oracle
+    /// (`crate::sim::oracle`) found every at-fault collision of the development runs avoidable
+    /// from a state 0.6–1.5 s before the contact where the planner already had nothing
+    /// admissible; the simple fallbacks miss the sequences that avoid it. Off by default: on
+    /// 600 training scenes × 3 seeds (student planner, paired) it raised the log-replay at-fault
+    /// runs 17 → 26 (events 22 → 34; with `fallback_nonreactive` as well 17 → 31) while
+    /// success barely moved there (1479 → 1480 of 1800), edging the ego into stop-and-go
+    /// queues when nothing is admissible (`docs/results/avoidability.md`).
+    pub fallback_lattice: bool,
     /// Rank inadmissible candidates by their worst case over two predictions: the planning
     /// predictor's and a constant-velocity one (every other vehicle keeps its last observed
     /// displacement per step and does not react). An inadmissible candidate's predicted box
@@ -493,6 +506,7 @@ impl Default for PlannerSettings {
             fallback_speed_floor: 0.5,
             fallback_brake_hold: false,
             fallback_full_accel: false,
+            fallback_lattice: false,
             fallback_nonreactive: false,
             edge_first: true,
             contact_first: true,

@@ -463,6 +463,27 @@ impl Repairer<'_, '_> {
                 best = c;
             }
         }
+        if self.s.fallback_lattice && !best.rank.safe {
+            best = self.best_of_lattice(best)?;
+        }
+        Ok(best)
+    }
+
+    /// The best by [`Rank`] of `best` and the [`lattice_inputs`] (the first on ties), stopping
+    /// at the first admissible one or when the budget is spent.
+    fn best_of_lattice(&mut self, mut best: Candidate) -> Result<Candidate, PlannerError> {
+        for (d, a) in lattice_inputs(self.lp) {
+            let c = self.check(d, a)?;
+            if c.rank.beats(&best.rank) {
+                best = c;
+                if best.rank.safe {
+                    break;
+                }
+            }
+            if self.safety.budget.exhausted {
+                break;
+            }
+        }
         Ok(best)
     }
 }
@@ -503,6 +524,65 @@ pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Ve
         repair_box_rate(a, lp.accel_box);
     }
     profiles
+}
+
+/// Steps each choice of the fallback's input lattice is held ([`lattice_inputs`]).
+pub(crate) const LATTICE_HOLD: usize = 2;
+
+/// The input lattice of the fallback (`PlannerSettings::fallback_lattice`): from the inputs
+/// applied last, every sequence `[T]` that in blocks of [`LATTICE_HOLD`] steps changes the
+/// steering by −, 0 or + its rate bound per step and the acceleration likewise, each clipped
+/// to its box (so within the box and rate bounds by construction); sequences equal after
+/// clipping appear once, in the order of the choices (holding first, then braking, then the
+/// rest). At most 9^⌈T/`LATTICE_HOLD`⌉.
+pub(crate) fn lattice_inputs(lp: &LinearisedProblem) -> Vec<(Vec<f64>, Vec<f64>)> {
+    const RATES: [(f64, f64); 9] = [
+        (0.0, 0.0),
+        (0.0, -1.0),
+        (-1.0, -1.0),
+        (1.0, -1.0),
+        (-1.0, 0.0),
+        (1.0, 0.0),
+        (0.0, 1.0),
+        (-1.0, 1.0),
+        (1.0, 1.0),
+    ];
+    let (db, ab) = (lp.delta_box, lp.accel_box);
+    let mut out: Vec<(Vec<f64>, Vec<f64>)> = vec![(Vec::new(), Vec::new())];
+    for start in (0..lp.horizon).step_by(LATTICE_HOLD) {
+        let steps = LATTICE_HOLD.min(lp.horizon - start);
+        let mut next = Vec::with_capacity(out.len() * RATES.len());
+        for (d, a) in &out {
+            let prev = (
+                d.last().copied().unwrap_or(db.prev.clamp(db.lo, db.hi)),
+                a.last().copied().unwrap_or(ab.prev.clamp(ab.lo, ab.hi)),
+            );
+            let mut firsts: Vec<(f64, f64)> = Vec::with_capacity(RATES.len());
+            for (rd, ra) in RATES {
+                let step = |p: (f64, f64)| {
+                    (
+                        (p.0 + rd * db.rate).clamp(db.lo, db.hi),
+                        (p.1 + ra * ab.rate).clamp(ab.lo, ab.hi),
+                    )
+                };
+                // Choices that clip to the same first inputs give the same block.
+                let first = step(prev);
+                if firsts.contains(&first) {
+                    continue;
+                }
+                firsts.push(first);
+                let (mut d, mut a, mut p) = (d.clone(), a.clone(), prev);
+                for _ in 0..steps {
+                    p = step(p);
+                    d.push(p.0);
+                    a.push(p.1);
+                }
+                next.push((d, a));
+            }
+        }
+        out = next;
+    }
+    out
 }
 
 /// The simple input sequences of the fallback besides the nominal, in order: for each

@@ -8,7 +8,7 @@ use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 use super::constraint::{Evaluation, SafetyEval};
 use super::inputs::{Input, InputQps};
 use super::linearised::LinearisedProblem;
-use super::repair::{Repairer, fallback_accels, retreat_inputs, simple_inputs};
+use super::repair::{Repairer, fallback_accels, lattice_inputs, retreat_inputs, simple_inputs};
 use super::restoration::restore;
 use super::workspace::{CurrentSafety, Iterates, Workspace, mat_vec};
 use super::z_update::Lagrangian;
@@ -2048,6 +2048,100 @@ fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
         if on {
             assert_eq!(best.accel, full);
             assert!(best.rollout[5][0] >= limit);
+        }
+    }
+}
+
+/// The fallback's input lattice keeps the box and rate bounds from the inputs applied last,
+/// holds no sequence twice, and holds the extreme ramps (full acceleration, full braking,
+/// full steering either way) and holding the inputs.
+#[test]
+fn the_lattice_keeps_the_input_bounds_and_holds_the_extreme_ramps() {
+    let (h, sizes) = car_behind_in_target_lane();
+    let s = repairs_only();
+    let m = model(&s);
+    let p = problem(&h, &sizes, 12.0);
+    let lp = LinearisedProblem::new(&s, &m, None, &p);
+    let lattice = lattice_inputs(&lp);
+    assert!(
+        lattice.len() > 300 && lattice.len() <= 729,
+        "{}",
+        lattice.len()
+    );
+    let (db, ab) = (lp.delta_box, lp.accel_box);
+    for (d, a) in &lattice {
+        assert_eq!((d.len(), a.len()), (6, 6));
+        let (mut pd, mut pa) = (db.prev, ab.prev);
+        for (&dk, &ak) in d.iter().zip(a) {
+            assert!(dk >= db.lo && dk <= db.hi && ak >= ab.lo && ak <= ab.hi);
+            assert!((dk - pd).abs() <= db.rate + 1e-12 && (ak - pa).abs() <= ab.rate + 1e-12);
+            (pd, pa) = (dk, ak);
+        }
+    }
+    for (i, x) in lattice.iter().enumerate() {
+        assert!(!lattice[i + 1..].contains(x), "sequence {i} twice");
+    }
+    // Written out from the bounds (δ: ±0.15 rad, 0.05 per step; a: −5..3 m/s², 1.5 per step),
+    // from the inputs (0, 0).
+    assert_eq!((db.prev, ab.prev), (0.0, 0.0));
+    let hold = (vec![0.0; 6], vec![0.0; 6]);
+    let full = (vec![0.0; 6], vec![1.5, 3.0, 3.0, 3.0, 3.0, 3.0]);
+    let brake = (vec![0.0; 6], vec![-1.5, -3.0, -4.5, -5.0, -5.0, -5.0]);
+    let left = (vec![0.05, 0.1, 0.15, 0.15, 0.15, 0.15], vec![0.0; 6]);
+    let right = (vec![-0.05, -0.1, -0.15, -0.15, -0.15, -0.15], vec![0.0; 6]);
+    assert_eq!(lattice[0], hold);
+    for want in [full, brake, left, right] {
+        assert!(
+            lattice.iter().any(|x| x.0 == want.0 && x.1 == want.1),
+            "{want:?}"
+        );
+    }
+}
+
+/// With nothing else admissible the lattice finds the escape: a vehicle closing from behind
+/// catches every candidate that ends short of a line only the full-acceleration ramp reaches.
+/// Without `fallback_lattice` (and without `fallback_full_accel`) no fallback is safe; with it
+/// the fallback is safe and ends beyond the line, within the input bounds. Independent check:
+/// every lattice sequence's safety is whether its own roll-out ends beyond the line.
+#[test]
+fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
+    let (h, sizes) = car_behind_in_target_lane();
+    for on in [false, true] {
+        let s = PlannerSettings {
+            fallback_lattice: on,
+            ..repairs_only()
+        };
+        let m = model(&s);
+        let mut p = problem(&h, &sizes, 12.0);
+        p.y_target = 0.0;
+        let lp = LinearisedProblem::new(&s, &m, None, &p);
+        let zero_steer = vec![0.0; 6];
+        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5];
+        let full = vec![1.5, 3.0, 3.0, 3.0, 3.0, 3.0];
+        let (end_half, end_full) = (end(&[1.5; 6]), end(&full));
+        let limit = 0.5 * (end_half[0] + end_full[0]);
+        let constraint = SafetyConstraint::new(&p, &s);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut gate = Gate::behind(limit);
+        gate.set_scene(&h).unwrap();
+        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
+        if on {
+            for (d, a) in lattice_inputs(&lp).into_iter().take(60) {
+                let c = r.check(d, a).unwrap();
+                assert_eq!(c.rank.safe, c.rollout[5][0] >= limit, "{:?}", c.accel);
+            }
+        }
+        let best = r.best_fallback().unwrap();
+        assert_eq!(best.rank.safe, on, "{:?}", best.accel);
+        if on {
+            assert!(best.rollout[5][0] >= limit);
+            let (mut pd, mut pa) = (lp.delta_box.prev, lp.accel_box.prev);
+            for (&dk, &ak) in best.delta.iter().zip(&best.accel) {
+                assert!(dk.abs() <= s.delta_max && ak >= s.a_min && ak <= s.a_max);
+                assert!((dk - pd).abs() <= s.ddelta_max + 1e-12);
+                assert!((ak - pa).abs() <= s.da_max + 1e-12);
+                (pd, pa) = (dk, ak);
+            }
         }
     }
 }

@@ -157,16 +157,29 @@ impl<'p> Mover<'p> {
             }
             Self::LogReplay => {
                 for (i, h) in observed.iter().enumerate().skip(1) {
-                    let p = sc.future_at(i, step + 1).unwrap_or_else(|| {
-                        let a = h[T_OBS - 2];
-                        let b = h[T_OBS - 1];
-                        [2.0 * b[0] - a[0], 2.0 * b[1] - a[1]]
-                    });
-                    moved.push(p);
+                    moved.push(logged_position(sc, i, h, step));
                 }
             }
             Self::Idm(traffic) => moved.extend(traffic.step(ego_from, ego_to)),
         }
         Ok(moved)
     }
+}
+
+/// Where the log puts `agent` after closed-loop step `step` (m): its logged position at future
+/// step `step + 1`, or, where the log has none, one more displacement at the velocity of its
+/// last two observed positions `observed` `[T_OBS]` (m). The one rule of log replay (the
+/// simulator's world and [`super::oracle::LoggedTraffic`]).
+#[must_use]
+pub fn logged_position(
+    sc: &Scenario,
+    agent: usize,
+    observed: &[[f64; 2]],
+    step: usize,
+) -> [f64; 2] {
+    sc.future_at(agent, step + 1).unwrap_or_else(|| {
+        let a = observed[T_OBS - 2];
+        let b = observed[T_OBS - 1];
+        [2.0 * b[0] - a[0], 2.0 * b[1] - a[1]]
+    })
 }

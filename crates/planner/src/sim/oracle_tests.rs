@@ -1,0 +1,244 @@
+//! The oracle against truths known without it: the stopping distance of the jerk-limited brake
+//! ramp (written out by hand), the simulator's own log-replay runs (the same states and the
+//! same contacts, step for step), and the bounds of every sequence it returns.
+#![allow(clippy::unwrap_used)]
+
+use std::collections::HashMap;
+
+use nudge_predictor::{ConstantVelocity, DT, T_OBS};
+
+use super::*;
+use crate::sim::{SimConfig, World, WorldModel, simulate};
+
+const SIZE: [f64; 2] = [4.5, 1.8];
+
+/// Vehicles `(x, y, v)` at the last observed step (agent 0 = the ego), each driving at
+/// constant speed along +x for its history and 45 logged steps, on lanes `bounds`.
+fn scene(agents: &[(f64, f64, f64)], bounds: &[f64]) -> Scenario {
+    let n = agents.len();
+    let n_future = 45;
+    let mut history = Vec::new();
+    let mut future = Vec::new();
+    for &(x, y, v) in agents {
+        for t in 0..T_OBS {
+            history.extend([x - v * DT * (T_OBS - 1 - t) as f64, y]);
+        }
+        for k in 1..=n_future {
+            future.extend([x + v * DT * k as f64, y]);
+        }
+    }
+    Scenario {
+        name: "oracle".to_string(),
+        n_agents: n,
+        history,
+        heading: vec![0.0; n],
+        speed: agents.iter().map(|a| a.2).collect(),
+        size: vec![SIZE; n],
+        n_future,
+        future,
+        future_valid: vec![true; n * n_future],
+        lane_centres: bounds.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect(),
+        lane_bounds: bounds.to_vec(),
+        ego_lane: 0,
+        agent_ids: (0..n as i64).collect(),
+        lane_extents: None,
+        metadata: HashMap::new(),
+    }
+}
+
+fn bicycle() -> Bicycle {
+    let s = PlannerSettings::default();
+    Bicycle {
+        l_f: s.l_f,
+        l_r: s.l_r,
+        dt: s.dt,
+    }
+}
+
+/// The distance (m) the ego covers from `v0` (m/s) under the hardest brake ramp the bounds
+/// allow from a = 0: a_k = max(a_min, −(k + 1)·da_max), the speed never below 0, one explicit
+/// Euler step of `dt` per step (the bicycle going straight).
+fn ramp_stopping_distance(v0: f64, s: &PlannerSettings) -> (f64, usize) {
+    let (mut v, mut x, mut k) = (v0, 0.0, 0);
+    while v > 0.0 {
+        let a = (-(k as f64 + 1.0) * s.da_max).max(s.a_min);
+        x += s.dt * v;
+        v = (v + s.dt * a).max(0.0);
+        k += 1;
+    }
+    (x, k)
+}
+
+/// An ego at 10 m/s on a one-lane road too narrow to pass a car stopped ahead: the collision
+/// is avoidable exactly when the car's rear lies beyond the ramp's stopping distance, for
+/// blocks of one and of two steps.
+#[test]
+fn a_car_stopped_ahead_is_avoidable_exactly_beyond_the_stopping_distance() {
+    let s = PlannerSettings::default();
+    let v0 = 10.0;
+    let (d, k_stop) = ramp_stopping_distance(v0, &s);
+    assert!(
+        d > 10.0 && d < 25.0 && k_stop < 12,
+        "{d} m in {k_stop} steps"
+    );
+    let bounds = [-1.75, 1.75];
+    for hold in [1, 2] {
+        let mut limits = OracleLimits::of(&s);
+        limits.hold = hold;
+        for (slack, avoidable) in [(0.05, true), (-0.05, false)] {
+            // Ego front at 2.25 m; the stopped car's rear at 2.25 + d + slack.
+            let xo = 2.25 + d + slack + 2.25;
+            let sc = scene(&[(0.0, 0.0, v0), (xo, 0.0, 0.0)], &bounds);
+            let traffic = LoggedTraffic::new(&sc, 20);
+            let world = OracleWorld {
+                bicycle: bicycle(),
+                size: SIZE,
+                bounds: &bounds,
+                road_tolerance: 0.1,
+                traffic: &traffic,
+            };
+            let start = OracleStart {
+                step: 0,
+                ego: [0.0, 0.0, 0.0, v0],
+                inputs: (0.0, 0.0),
+            };
+            let found = avoid(&world, &limits, &start, 14);
+            match (&found, avoidable) {
+                (Avoidance::Avoidable(inputs), true) => {
+                    assert_eq!(inputs.len(), 15);
+                    let (states, violation) = replay(&world, &limits, &start, inputs);
+                    assert_eq!(violation, None);
+                    // It stopped short of the car's rear.
+                    let last = states.last().unwrap();
+                    assert_eq!(last[3], 0.0);
+                    assert!(last[0] + 2.25 <= xo - 2.25);
+                }
+                (Avoidance::Unavoidable { nodes }, false) => assert!(*nodes > 1),
+                _ => panic!("hold {hold}, slack {slack}: {found:?}"),
+            }
+        }
+    }
+}
+
+/// Every sequence the oracle returns keeps the planner's box and rate bounds from the inputs
+/// it starts from, and replays without a violation.
+#[test]
+fn a_found_sequence_keeps_the_input_bounds_and_replays_clean() {
+    let s = PlannerSettings::default();
+    let limits = OracleLimits::of(&s);
+    let bounds = [-1.75, 1.75, 5.25];
+    // A car stopped 30 m ahead in the ego's lane, room beside it in lane 1.
+    let sc = scene(&[(0.0, 0.0, 12.0), (32.0, 0.0, 0.0)], &bounds);
+    let traffic = LoggedTraffic::new(&sc, 12);
+    let world = OracleWorld {
+        bicycle: bicycle(),
+        size: SIZE,
+        bounds: &bounds,
+        road_tolerance: 0.1,
+        traffic: &traffic,
+    };
+    let start = OracleStart {
+        step: 0,
+        ego: [0.0, 0.0, 0.0, 12.0],
+        inputs: (0.05, 1.0),
+    };
+    let Avoidance::Avoidable(inputs) = avoid(&world, &limits, &start, 10) else {
+        panic!("a free lane beside a stopped car leaves room");
+    };
+    let mut prev = start.inputs;
+    for &(d, a) in &inputs {
+        assert!(d.abs() <= s.delta_max && (s.a_min..=s.a_max).contains(&a));
+        assert!((d - prev.0).abs() <= s.ddelta_max + 1e-12);
+        assert!((a - prev.1).abs() <= s.da_max + 1e-12);
+        prev = (d, a);
+    }
+    let (states, violation) = replay(&world, &limits, &start, &inputs);
+    assert_eq!(violation, None);
+    assert!(states.iter().all(|z| z[2].abs() <= s.heading_max + 1e-12));
+}
+
+/// A search cut short says so.
+#[test]
+fn a_search_past_its_node_limit_is_undecided() {
+    let s = PlannerSettings::default();
+    let mut limits = OracleLimits::of(&s);
+    limits.max_nodes = 3;
+    let bounds = [-1.75, 1.75];
+    let sc = scene(&[(0.0, 0.0, 10.0), (60.0, 0.0, 0.0)], &bounds);
+    let traffic = LoggedTraffic::new(&sc, 20);
+    let world = OracleWorld {
+        bicycle: bicycle(),
+        size: SIZE,
+        bounds: &bounds,
+        road_tolerance: 0.1,
+        traffic: &traffic,
+    };
+    let start = OracleStart {
+        step: 0,
+        ego: [0.0, 0.0, 0.0, 10.0],
+        inputs: (0.0, 0.0),
+    };
+    // Ten blocks are needed; holding the inputs reaches the car at 60 m after 5 s (17 steps).
+    assert_eq!(
+        avoid(&world, &limits, &start, 19),
+        Avoidance::Undecided { nodes: 3 }
+    );
+    limits.max_nodes = OracleLimits::DEFAULT_MAX_NODES;
+    assert!(matches!(
+        avoid(&world, &limits, &start, 19),
+        Avoidance::Avoidable(_)
+    ));
+}
+
+/// The oracle's world is the simulator's: replaying a log-replay run's executed inputs from its
+/// start gives its recorded states bit for bit, and the logged traffic touches the ego at
+/// exactly the steps the run recorded a collision (here a run that is rear-ended by faster
+/// cars in both lanes).
+#[test]
+fn replaying_a_log_replay_run_gives_its_states_and_its_collisions() {
+    let bounds = [-1.75, 1.75, 5.25];
+    let sc = scene(
+        &[(0.0, 0.0, 10.0), (-22.0, 0.0, 24.0), (-20.0, 3.5, 24.0)],
+        &bounds,
+    );
+    let cfg = SimConfig {
+        world: World::LogReplay,
+        max_steps: 14,
+        ..SimConfig::default()
+    };
+    let s = PlannerSettings::default();
+    let mut cv = ConstantVelocity::default();
+    let run = simulate(&sc, &s, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap();
+    assert!(run.collision, "the fast cars catch the ego");
+    let traffic = LoggedTraffic::new(&sc, run.steps.len());
+    let b = bicycle();
+    let mut z = State::new(0.0, 0.0, 0.0, 10.0);
+    for (k, st) in run.steps.iter().enumerate() {
+        z = b.advance(&z, st.delta, st.accel);
+        assert_eq!([z[0], z[1], z[2], z[3]], st.ego, "step {k}");
+        let touching = !contacts(&ego_box(st.ego, SIZE), &traffic.steps[k]).is_empty();
+        assert_eq!(touching, st.collision, "step {k}");
+    }
+    // The first contact is where a replay of the executed inputs stops.
+    let first = run.steps.iter().position(|st| st.collision).unwrap();
+    let world = OracleWorld {
+        bicycle: b,
+        size: SIZE,
+        bounds: &bounds,
+        road_tolerance: f64::INFINITY,
+        traffic: &traffic,
+    };
+    let mut limits = OracleLimits::of(&s);
+    limits.heading_max = std::f64::consts::PI;
+    let start = OracleStart {
+        step: 0,
+        ego: [0.0, 0.0, 0.0, 10.0],
+        inputs: (0.0, 0.0),
+    };
+    let executed: Vec<(f64, f64)> = run.steps.iter().map(|st| (st.delta, st.accel)).collect();
+    let (_, violation) = replay(&world, &limits, &start, &executed);
+    assert!(
+        matches!(violation, Some(Violation::Contact { step, .. }) if step == first),
+        "{violation:?}, first collision at step {first}"
+    );
+}
