@@ -396,15 +396,23 @@ impl SafetyConstraint {
 }
 
 /// The slices k = ⌈`length` / `segment`⌉ (≥ 1) an ego `length` long (m) is cut into for the
-/// ellipse geometry; 1 when `segment` is 0 (off) or at least the length.
+/// ellipse geometry, as a float so that an absurd count can be compared with
+/// [`crate::PlannerSettings::MAX_EGO_SEGMENTS`] before any cast (`Planner::check`); 1 when
+/// `segment` is 0 (off) or at least the length.
+#[must_use]
+pub(crate) fn ego_slice_count(length: f64, segment: f64) -> f64 {
+    if segment > 0.0 && length > segment {
+        (length / segment).ceil()
+    } else {
+        1.0
+    }
+}
+
+/// [`ego_slice_count`] as a count, for a problem `Planner::check` has accepted (at most
+/// [`crate::PlannerSettings::MAX_EGO_SEGMENTS`]).
 #[must_use]
 pub(crate) fn ego_segments(length: f64, segment: f64) -> usize {
-    if segment > 0.0 && length > segment {
-        // Both finite and positive (validated settings and sizes): a small positive count.
-        (length / segment).ceil() as usize
-    } else {
-        1
-    }
+    ego_slice_count(length, segment) as usize
 }
 
 /// (|cos ψ|, |sin ψ|).

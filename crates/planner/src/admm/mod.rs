@@ -638,8 +638,8 @@ impl Planner {
         let s = &self.settings;
         let ego_length = problem.sizes[0][0];
         if s.safety_geometry == SafetyGeometry::Ellipse
-            && s.ego_segment_length > 0.0
-            && (ego_length / s.ego_segment_length).ceil() > PlannerSettings::MAX_EGO_SEGMENTS as f64
+            && constraint::ego_slice_count(ego_length, s.ego_segment_length)
+                > PlannerSettings::MAX_EGO_SEGMENTS as f64
         {
             return Err(PlannerError::BadProblem {
                 field: "sizes",
@@ -782,15 +782,17 @@ impl AdmmResult {
 }
 
 /// The constant-velocity predictor, set to the problem's scene, that inadmissible candidates
-/// are also ranked against (`PlannerSettings::fallback_nonreactive`); `None` when the rule
-/// is off or nothing is checked.
+/// are also ranked against (`PlannerSettings::fallback_nonreactive`) and lattice sequences
+/// must be clear under (`PlannerSettings::lattice_clear_nonreactive`); `None` when neither
+/// rule is on or nothing is checked.
 fn nonreactive_predictor(
     s: &PlannerSettings,
     constraint: &SafetyConstraint,
     problem: &PlanningProblem<'_>,
     horizon: usize,
 ) -> Result<Option<ConstantVelocity>, PlannerError> {
-    if !s.fallback_nonreactive || constraint.vehicles().is_empty() {
+    let wanted = s.fallback_nonreactive || (s.fallback_lattice && s.lattice_clear_nonreactive);
+    if !wanted || constraint.vehicles().is_empty() {
         return Ok(None);
     }
     let mut cv = ConstantVelocity::new(horizon)?;

@@ -215,7 +215,9 @@ pub(crate) struct Repairer<'a, 'c> {
     /// The follower-gap rule of the call (`None` when it does not apply).
     pub follower_gap: Option<FollowerGap>,
     /// The non-reactive predictor inadmissible candidates are also ranked against
-    /// (`PlannerSettings::fallback_nonreactive`; `None` when off or nothing is checked).
+    /// (`PlannerSettings::fallback_nonreactive`) and lattice sequences must be clear under
+    /// (`PlannerSettings::lattice_clear_nonreactive`); `None` when neither rule is on or
+    /// nothing is checked.
     pub nonreactive: Option<&'a mut dyn Predictor>,
 }
 
@@ -350,7 +352,7 @@ impl Repairer<'_, '_> {
             violation: safety_violation(learned.min_b, learned.violation, self.s.safety_min),
             contact: learned.overlap,
         };
-        if let Some(p) = self.nonreactive.as_deref_mut() {
+        if let (true, Some(p)) = (self.s.fallback_nonreactive, self.nonreactive.as_deref_mut()) {
             let e = self.safety.eval_nonreactive(p, rollout)?;
             worst.violation =
                 worst
@@ -470,11 +472,15 @@ impl Repairer<'_, '_> {
     }
 
     /// The best by [`Rank`] of `best` and the [`lattice_inputs`] (the first on ties), stopping
-    /// at the first admissible one or when the budget is spent.
+    /// at the first admissible one or when the budget is spent. With
+    /// `PlannerSettings::lattice_clear_nonreactive` a lattice sequence replaces the best only
+    /// when [`Self::clear_without_reaction`].
     fn best_of_lattice(&mut self, mut best: Candidate) -> Result<Candidate, PlannerError> {
         for (d, a) in lattice_inputs(self.lp) {
             let c = self.check(d, a)?;
-            if c.rank.beats(&best.rank) {
+            if c.rank.beats(&best.rank)
+                && (!self.s.lattice_clear_nonreactive || self.clear_without_reaction(&c.rollout)?)
+            {
                 best = c;
                 if best.rank.safe {
                     break;
@@ -485,6 +491,21 @@ impl Repairer<'_, '_> {
             }
         }
         Ok(best)
+    }
+
+    /// Whether `rollout`'s box overlaps no other vehicle's under the non-reactive
+    /// (constant-velocity) prediction, at any step: a sequence found by the lattice search
+    /// must not count on anybody making room. True when nothing is checked.
+    fn clear_without_reaction(&mut self, rollout: &[State]) -> Result<bool, PlannerError> {
+        let Some(p) = self.nonreactive.as_deref_mut() else {
+            return Ok(true);
+        };
+        let counted = self.safety.count_overlap;
+        self.safety.count_overlap = true;
+        let e = self.safety.eval_nonreactive(p, rollout);
+        self.safety.count_overlap = counted;
+        let e = e?;
+        Ok(e.min_b.is_none_or(f64::is_finite) && e.overlap <= EXCESS_TOLERANCE)
     }
 }
 

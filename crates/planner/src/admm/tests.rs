@@ -2145,3 +2145,104 @@ fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
         }
     }
 }
+
+/// A planning predictor by which agent 1 yields (it stays 60 m behind the candidate at every
+/// step) unless the candidate ends short of `limit` (m along the road): then it sits on the
+/// candidate's positions.
+struct YieldUnless {
+    limit: f64,
+}
+
+impl Predictor for YieldUnless {
+    fn name(&self) -> &'static str {
+        "yield-unless"
+    }
+    fn horizon(&self) -> usize {
+        6
+    }
+    fn set_scene(&mut self, _history: &History) -> nudge_predictor::Result<()> {
+        Ok(())
+    }
+    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+        let behind = if candidates[10] < self.limit {
+            0.0
+        } else {
+            60.0
+        };
+        for k in 0..6 {
+            out[2 * k] = candidates[2 * k] - behind;
+            out[2 * k + 1] = candidates[2 * k + 1];
+        }
+        Ok(())
+    }
+}
+
+/// `lattice_clear_nonreactive`: a car closes from behind in the ego's lane at 30 m/s. By the
+/// planning predictor it yields to any candidate that ends beyond a line only the
+/// full-acceleration ramp passes, and hits every other; at constant velocity it drives
+/// through the ego whatever the ego does. Without the rule the lattice's escape is taken as
+/// admissible, and its roll-out overlaps the car at constant velocity (checked with the boxes,
+/// independently of the planner). With the rule every lattice sequence the planning predictor
+/// admits is such a one (checked the same way), so none replaces the fallback and the plan is
+/// not admissible.
+#[test]
+fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_without_reaction() {
+    let (h, sizes) = scene(12.0, 0.0, &[(-12.0, 0.0, 30.0)]);
+    // The car at constant velocity after plan step k (1-based): 9 m per step from −12 m.
+    let hits = |s: &PlannerSettings, p: &PlanningProblem<'_>, d: &[f64], a: &[f64]| {
+        rollout_world(s, p, d, a).iter().enumerate().any(|(k, z)| {
+            let ego = crate::OrientedBox {
+                x: z[0],
+                y: z[1],
+                heading: z[2],
+                length: 4.5,
+                width: 1.9,
+            };
+            let car = crate::OrientedBox {
+                x: -12.0 + 9.0 * (k + 1) as f64,
+                y: 0.0,
+                heading: 0.0,
+                length: 4.5,
+                width: 1.9,
+            };
+            ego.overlaps(&car)
+        })
+    };
+    for clear in [false, true] {
+        let s = PlannerSettings {
+            fallback_lattice: true,
+            lattice_clear_nonreactive: clear,
+            ..repairs_only()
+        };
+        let m = model(&s);
+        let mut p = problem(&h, &sizes, 12.0);
+        p.y_target = 0.0;
+        let lp = LinearisedProblem::new(&s, &m, None, &p);
+        let zero_steer = vec![0.0; 6];
+        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
+        let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
+        let constraint = SafetyConstraint::new(&p, &s);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut planning = YieldUnless { limit };
+        let mut cv = ConstantVelocity::new(6).unwrap();
+        cv.set_scene(&h).unwrap();
+        let mut r = Repairer {
+            nonreactive: Some(&mut cv),
+            ..plain_repairer(&s, &m, &lp, &mut safety, &mut planning)
+        };
+        let admitted: Vec<(Vec<f64>, Vec<f64>)> = lattice_inputs(&lp)
+            .into_iter()
+            .filter_map(|(d, a)| {
+                let c = r.check(d, a).unwrap();
+                c.rank.safe.then_some((c.delta, c.accel))
+            })
+            .collect();
+        assert!(!admitted.is_empty());
+        assert!(admitted.iter().all(|(d, a)| hits(&s, &p, d, a)));
+        let best = r.best_fallback().unwrap();
+        assert_eq!(best.rank.safe, !clear, "{:?}", best.accel);
+        if !clear {
+            assert!(hits(&s, &p, &best.delta, &best.accel));
+        }
+    }
+}
