@@ -18,6 +18,8 @@ use nudge_planner::{
 use nudge_predictor::{ConstantVelocity, History, T_OBS};
 use proptest::prelude::*;
 
+mod logged;
+
 const DT: f64 = 0.3;
 /// Lane boundaries: acceleration lane 0 (y in [-1.85, 1.85]), main lane 1 ([1.85, 5.55]).
 const BOUNDS: [f64; 3] = [-1.85, 1.85, 5.55];
@@ -34,38 +36,10 @@ fn extent(begin: f64, end: f64, begins: bool, ends: bool) -> LaneExtent {
 }
 
 /// A scene of vehicles `(x, y, v)` at the last observed step (agent 0 = the ego), each driving
-/// at constant speed along +x for its history and `n_future` logged steps, on `BOUNDS` with the
-/// lane extents `extents` (`None`: schema 1).
+/// at constant speed along +x for its history and logged future, on `BOUNDS` with the lane
+/// extents `extents` (`None`: schema 1).
 fn scene(agents: &[(f64, f64, f64)], extents: Option<Vec<LaneExtent>>) -> Scenario {
-    let n = agents.len();
-    let n_future = 45;
-    let mut history = Vec::new();
-    let mut future = Vec::new();
-    for &(x, y, v) in agents {
-        for t in 0..T_OBS {
-            history.extend([x - v * DT * (T_OBS - 1 - t) as f64, y]);
-        }
-        for k in 1..=n_future {
-            future.extend([x + v * DT * k as f64, y]);
-        }
-    }
-    Scenario {
-        name: "synthetic-merge".to_string(),
-        n_agents: n,
-        history,
-        heading: vec![0.0; n],
-        speed: agents.iter().map(|a| a.2).collect(),
-        size: vec![[4.5, 1.9]; n],
-        n_future,
-        future,
-        future_valid: vec![true; n * n_future],
-        lane_centres: vec![0.0, 3.7],
-        lane_bounds: BOUNDS.to_vec(),
-        ego_lane: 0,
-        agent_ids: (0..n as i64).collect(),
-        lane_extents: extents,
-        metadata: HashMap::new(),
-    }
+    logged::logged_scene("synthetic-merge", agents, &BOUNDS, extents)
 }
 
 /// The acceleration lane ends for real at [`END`]; the main lane runs through.

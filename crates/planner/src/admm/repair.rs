@@ -550,6 +550,22 @@ pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Ve
 /// Steps each choice of the fallback's input lattice is held ([`lattice_inputs`]).
 pub(crate) const LATTICE_HOLD: usize = 2;
 
+/// The choices of one block of an input lattice ([`lattice_inputs`], and the log-replay
+/// oracle's `crate::sim::oracle::avoid`): the change per step of the steering and of the
+/// acceleration, in units of their rate bounds; holding the inputs first, then braking, then
+/// the rest.
+pub(crate) const LATTICE_RATES: [(f64, f64); 9] = [
+    (0.0, 0.0),
+    (0.0, -1.0),
+    (-1.0, -1.0),
+    (1.0, -1.0),
+    (-1.0, 0.0),
+    (1.0, 0.0),
+    (0.0, 1.0),
+    (-1.0, 1.0),
+    (1.0, 1.0),
+];
+
 /// The input lattice of the fallback (`PlannerSettings::fallback_lattice`): from the inputs
 /// applied last, every sequence `[T]` that in blocks of [`LATTICE_HOLD`] steps changes the
 /// steering by −, 0 or + its rate bound per step and the acceleration likewise, each clipped
@@ -557,29 +573,18 @@ pub(crate) const LATTICE_HOLD: usize = 2;
 /// clipping appear once, in the order of the choices (holding first, then braking, then the
 /// rest). At most 9^⌈T/`LATTICE_HOLD`⌉.
 pub(crate) fn lattice_inputs(lp: &LinearisedProblem) -> Vec<(Vec<f64>, Vec<f64>)> {
-    const RATES: [(f64, f64); 9] = [
-        (0.0, 0.0),
-        (0.0, -1.0),
-        (-1.0, -1.0),
-        (1.0, -1.0),
-        (-1.0, 0.0),
-        (1.0, 0.0),
-        (0.0, 1.0),
-        (-1.0, 1.0),
-        (1.0, 1.0),
-    ];
     let (db, ab) = (lp.delta_box, lp.accel_box);
     let mut out: Vec<(Vec<f64>, Vec<f64>)> = vec![(Vec::new(), Vec::new())];
     for start in (0..lp.horizon).step_by(LATTICE_HOLD) {
         let steps = LATTICE_HOLD.min(lp.horizon - start);
-        let mut next = Vec::with_capacity(out.len() * RATES.len());
+        let mut next = Vec::with_capacity(out.len() * LATTICE_RATES.len());
         for (d, a) in &out {
             let prev = (
                 d.last().copied().unwrap_or(db.prev.clamp(db.lo, db.hi)),
                 a.last().copied().unwrap_or(ab.prev.clamp(ab.lo, ab.hi)),
             );
-            let mut firsts: Vec<(f64, f64)> = Vec::with_capacity(RATES.len());
-            for (rd, ra) in RATES {
+            let mut firsts: Vec<(f64, f64)> = Vec::with_capacity(LATTICE_RATES.len());
+            for (rd, ra) in LATTICE_RATES {
                 let step = |p: (f64, f64)| {
                     (
                         (p.0 + rd * db.rate).clamp(db.lo, db.hi),

@@ -19,6 +19,7 @@
 //! the lattice avoids it, a strong indication rather than a proof for the continuum of inputs
 //! between; [`Avoidance::Undecided`] means the search hit [`OracleLimits::max_nodes`].
 
+use crate::admm::{LATTICE_HOLD, LATTICE_RATES};
 use crate::model::{Bicycle, State};
 use crate::scenario::Scenario;
 use crate::settings::PlannerSettings;
@@ -138,8 +139,8 @@ pub struct OracleLimits {
 }
 
 impl OracleLimits {
-    /// Blocks of two steps (0.6 s at the default `dt`).
-    pub const DEFAULT_HOLD: usize = 2;
+    /// Blocks of two steps (0.6 s at the default `dt`), as the planner's lattice fallback.
+    pub const DEFAULT_HOLD: usize = LATTICE_HOLD;
     /// At most two million blocks per search (a few seconds).
     pub const DEFAULT_MAX_NODES: usize = 2_000_000;
 
@@ -325,20 +326,6 @@ pub fn avoid(
     }
 }
 
-/// The lattice's rate choices per block, in units of (ddelta_max, da_max): holding the
-/// inputs first, then braking, then the rest.
-const RATES: [(f64, f64); 9] = [
-    (0.0, 0.0),
-    (0.0, -1.0),
-    (-1.0, -1.0),
-    (1.0, -1.0),
-    (-1.0, 0.0),
-    (1.0, 0.0),
-    (0.0, 1.0),
-    (-1.0, 1.0),
-    (1.0, 1.0),
-];
-
 /// The depth-first search of [`avoid`].
 struct Search<'w, 'a> {
     world: &'w OracleWorld<'a>,
@@ -365,8 +352,8 @@ impl Search<'_, '_> {
         self.nodes += 1;
         let l = self.limits;
         let steps = l.hold.max(1).min(self.until + 1 - step);
-        let mut tried: Vec<(f64, f64)> = Vec::with_capacity(RATES.len());
-        for (rd, ra) in RATES {
+        let mut tried: Vec<(f64, f64)> = Vec::with_capacity(LATTICE_RATES.len());
+        for (rd, ra) in LATTICE_RATES {
             let next = |p: (f64, f64)| {
                 (
                     (p.0 + rd * l.ddelta_max).clamp(-l.delta_max, l.delta_max),
@@ -403,7 +390,3 @@ impl Search<'_, '_> {
         Some(false)
     }
 }
-
-#[cfg(test)]
-#[path = "oracle_tests.rs"]
-mod tests;

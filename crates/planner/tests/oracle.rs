@@ -1,49 +1,27 @@
-//! The oracle against truths known without it: the stopping distance of the jerk-limited brake
-//! ramp (written out by hand), the simulator's own log-replay runs (the same states and the
-//! same contacts, step for step), and the bounds of every sequence it returns.
+//! The log-replay oracle (`nudge_planner::sim::oracle`) against truths known without it: the
+//! stopping distance of the jerk-limited brake ramp (written out by hand), the simulator's own
+//! log-replay runs (the same states and the same contacts, step for step), and the bounds of
+//! every sequence it returns.
 #![allow(clippy::unwrap_used)]
 
-use std::collections::HashMap;
+use nudge_planner::sim::metrics::{contacts, ego_box};
+use nudge_planner::sim::oracle::{
+    Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, Violation, avoid, replay,
+};
+use nudge_planner::{
+    Bicycle, PlannerSettings, Scenario, SimConfig, State, World, WorldModel, simulate,
+};
+use nudge_predictor::ConstantVelocity;
 
-use nudge_predictor::{ConstantVelocity, DT, T_OBS};
+mod logged;
 
-use super::*;
-use crate::sim::{SimConfig, World, WorldModel, simulate};
+/// Every vehicle's (length, width) in [`logged::logged_scene`] (m).
+const SIZE: [f64; 2] = [4.5, 1.9];
 
-const SIZE: [f64; 2] = [4.5, 1.8];
-
-/// Vehicles `(x, y, v)` at the last observed step (agent 0 = the ego), each driving at
-/// constant speed along +x for its history and 45 logged steps, on lanes `bounds`.
+/// Vehicles `(x, y, v)` at the last observed step (agent 0 = the ego) driving along +x at
+/// constant speed, on lanes `bounds`.
 fn scene(agents: &[(f64, f64, f64)], bounds: &[f64]) -> Scenario {
-    let n = agents.len();
-    let n_future = 45;
-    let mut history = Vec::new();
-    let mut future = Vec::new();
-    for &(x, y, v) in agents {
-        for t in 0..T_OBS {
-            history.extend([x - v * DT * (T_OBS - 1 - t) as f64, y]);
-        }
-        for k in 1..=n_future {
-            future.extend([x + v * DT * k as f64, y]);
-        }
-    }
-    Scenario {
-        name: "oracle".to_string(),
-        n_agents: n,
-        history,
-        heading: vec![0.0; n],
-        speed: agents.iter().map(|a| a.2).collect(),
-        size: vec![SIZE; n],
-        n_future,
-        future,
-        future_valid: vec![true; n * n_future],
-        lane_centres: bounds.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect(),
-        lane_bounds: bounds.to_vec(),
-        ego_lane: 0,
-        agent_ids: (0..n as i64).collect(),
-        lane_extents: None,
-        metadata: HashMap::new(),
-    }
+    logged::logged_scene("oracle", agents, bounds, None)
 }
 
 fn bicycle() -> Bicycle {
@@ -52,6 +30,28 @@ fn bicycle() -> Bicycle {
         l_f: s.l_f,
         l_r: s.l_r,
         dt: s.dt,
+    }
+}
+
+/// The oracle's world for an ego of [`SIZE`] on lanes `bounds` among `traffic`, 0.1 m of
+/// off-road tolerance.
+fn world<'a>(traffic: &'a LoggedTraffic, bounds: &'a [f64]) -> OracleWorld<'a> {
+    OracleWorld {
+        bicycle: bicycle(),
+        size: SIZE,
+        bounds,
+        road_tolerance: 0.1,
+        traffic,
+    }
+}
+
+/// The ego at the origin, heading along the road at `v` (m/s), before step 0 with last
+/// inputs `inputs`.
+fn start(v: f64, inputs: (f64, f64)) -> OracleStart {
+    OracleStart {
+        step: 0,
+        ego: [0.0, 0.0, 0.0, v],
+        inputs,
     }
 }
 
@@ -90,18 +90,8 @@ fn a_car_stopped_ahead_is_avoidable_exactly_beyond_the_stopping_distance() {
             let xo = 2.25 + d + slack + 2.25;
             let sc = scene(&[(0.0, 0.0, v0), (xo, 0.0, 0.0)], &bounds);
             let traffic = LoggedTraffic::new(&sc, 20);
-            let world = OracleWorld {
-                bicycle: bicycle(),
-                size: SIZE,
-                bounds: &bounds,
-                road_tolerance: 0.1,
-                traffic: &traffic,
-            };
-            let start = OracleStart {
-                step: 0,
-                ego: [0.0, 0.0, 0.0, v0],
-                inputs: (0.0, 0.0),
-            };
+            let world = world(&traffic, &bounds);
+            let start = start(v0, (0.0, 0.0));
             let found = avoid(&world, &limits, &start, 14);
             match (&found, avoidable) {
                 (Avoidance::Avoidable(inputs), true) => {
@@ -130,18 +120,8 @@ fn a_found_sequence_keeps_the_input_bounds_and_replays_clean() {
     // A car stopped 30 m ahead in the ego's lane, room beside it in lane 1.
     let sc = scene(&[(0.0, 0.0, 12.0), (32.0, 0.0, 0.0)], &bounds);
     let traffic = LoggedTraffic::new(&sc, 12);
-    let world = OracleWorld {
-        bicycle: bicycle(),
-        size: SIZE,
-        bounds: &bounds,
-        road_tolerance: 0.1,
-        traffic: &traffic,
-    };
-    let start = OracleStart {
-        step: 0,
-        ego: [0.0, 0.0, 0.0, 12.0],
-        inputs: (0.05, 1.0),
-    };
+    let world = world(&traffic, &bounds);
+    let start = start(12.0, (0.05, 1.0));
     let Avoidance::Avoidable(inputs) = avoid(&world, &limits, &start, 10) else {
         panic!("a free lane beside a stopped car leaves room");
     };
@@ -166,18 +146,8 @@ fn a_search_past_its_node_limit_is_undecided() {
     let bounds = [-1.75, 1.75];
     let sc = scene(&[(0.0, 0.0, 10.0), (60.0, 0.0, 0.0)], &bounds);
     let traffic = LoggedTraffic::new(&sc, 20);
-    let world = OracleWorld {
-        bicycle: bicycle(),
-        size: SIZE,
-        bounds: &bounds,
-        road_tolerance: 0.1,
-        traffic: &traffic,
-    };
-    let start = OracleStart {
-        step: 0,
-        ego: [0.0, 0.0, 0.0, 10.0],
-        inputs: (0.0, 0.0),
-    };
+    let world = world(&traffic, &bounds);
+    let start = start(10.0, (0.0, 0.0));
     // Ten blocks are needed; holding the inputs reaches the car at 60 m after 5 s (17 steps).
     assert_eq!(
         avoid(&world, &limits, &start, 19),
@@ -230,11 +200,7 @@ fn replaying_a_log_replay_run_gives_its_states_and_its_collisions() {
     };
     let mut limits = OracleLimits::of(&s);
     limits.heading_max = std::f64::consts::PI;
-    let start = OracleStart {
-        step: 0,
-        ego: [0.0, 0.0, 0.0, 10.0],
-        inputs: (0.0, 0.0),
-    };
+    let start = start(10.0, (0.0, 0.0));
     let executed: Vec<(f64, f64)> = run.steps.iter().map(|st| (st.delta, st.accel)).collect();
     let (_, violation) = replay(&world, &limits, &start, &executed);
     assert!(
