@@ -208,3 +208,45 @@ fn replaying_a_log_replay_run_gives_its_states_and_its_collisions() {
         "{violation:?}, first collision at step {first}"
     );
 }
+
+/// What the ego could know: extrapolating a log whose vehicles keep their velocity gives the
+/// log itself, from any step; where a vehicle changes its velocity after step k, the
+/// extrapolation from k keeps the log up to k − 1 and the old velocity after.
+#[test]
+fn the_constant_velocity_extrapolation_of_a_steady_log_is_the_log() {
+    let bounds = [-1.75, 1.75, 5.25];
+    let steady = scene(
+        &[(0.0, 0.0, 10.0), (20.0, 3.5, 12.0), (-15.0, 0.0, 8.0)],
+        &bounds,
+    );
+    let log = LoggedTraffic::new(&steady, 12);
+    let close = |a: &nudge_planner::sim::metrics::Vehicle,
+                 b: &nudge_planner::sim::metrics::Vehicle| {
+        (a.bbox.x - b.bbox.x).abs() < 1e-9
+            && (a.bbox.y - b.bbox.y).abs() < 1e-9
+            && (a.bbox.heading - b.bbox.heading).abs() < 1e-12
+            && (a.vx - b.vx).abs() < 1e-9
+    };
+    for k in [0, 1, 2, 5, 11, 12] {
+        let guess = log.extrapolated(&steady, k);
+        assert_eq!(guess.steps.len(), 12);
+        for (s, (g, l)) in guess.steps.iter().zip(&log.steps).enumerate() {
+            assert!(g.iter().zip(l).all(|(a, b)| close(a, b)), "k {k}, step {s}");
+        }
+    }
+    // Agent 1 moves 1 m to the left at step 4 (its logged future step 5) and on.
+    let mut turning = steady.clone();
+    for step in 4..turning.n_future {
+        turning.future[(turning.n_future + step) * 2 + 1] += 1.0;
+    }
+    let log = LoggedTraffic::new(&turning, 12);
+    let guess = log.extrapolated(&turning, 4);
+    for s in 0..12 {
+        let (g, l) = (&guess.steps[s][0], &log.steps[s][0]);
+        assert_eq!(close(g, l), s < 4, "step {s}");
+        // From step 4 on the guess keeps lane 1's centre line.
+        if s >= 4 {
+            assert!((g.bbox.y - 3.5).abs() < 1e-9);
+        }
+    }
+}
