@@ -2008,7 +2008,8 @@ fn the_fallback_brakes_then_holds_when_that_stops_short() {
 /// placed so that of the constant profiles only a_max (with `fallback_full_accel`) gets past
 /// it. Without the setting no fallback is safe (the least-violating one is applied); with it
 /// the fallback accelerates at a_max and is safe. Independent check: a candidate is safe iff
-/// its road-aligned roll-out ends beyond the line.
+/// its road-aligned roll-out ends beyond the line. The lattice, which holds the same ramp, is
+/// off: this is the constant profiles alone.
 #[test]
 fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
     let (h, sizes) = car_behind_in_target_lane();
@@ -2016,6 +2017,7 @@ fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
     for on in [false, true] {
         let s = PlannerSettings {
             fallback_full_accel: on,
+            fallback_lattice: false,
             ..repairs_only()
         };
         let m = model(&s);
@@ -2244,5 +2246,121 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
         if !clear {
             assert!(hits(&s, &p, &best.delta, &best.accel));
         }
+    }
+}
+
+/// `lattice_when_fallback_hits`: by the planning predictor the other car sits on every
+/// candidate that ends short of a line only the full-acceleration ramp reaches (and yields to
+/// the others), so no simple fallback is
+/// admissible and the lattice holds the escape. Whether the lattice is searched turns on the
+/// other car at constant velocity, checked with the boxes independently of the planner:
+/// - 40 m behind in the next lane at the ego's speed, it touches no fallback: the rule keeps
+///   the simple fallback (inadmissible), where without the rule the lattice's escape is taken;
+/// - 12 m behind in the ego's lane at 30 m/s, it drives through the simple fallback: the
+///   lattice is searched with the rule too, and its escape is taken (the escape's own
+///   clearance without reaction, `lattice_clear_nonreactive`, is off here: the car at 30 m/s
+///   would catch it).
+#[test]
+fn the_lattice_is_searched_only_when_the_fallback_hits_somebody_without_reaction() {
+    let boxes_at = |x: f64, y: f64, heading: f64| crate::OrientedBox {
+        x,
+        y,
+        heading,
+        length: 4.5,
+        width: 1.9,
+    };
+    for (car, fallback_hits) in [((-40.0, 3.7, 12.0), false), ((-12.0, 0.0, 30.0), true)] {
+        let (h, sizes) = scene(12.0, 0.0, &[car]);
+        // The car after plan step k (1-based) at constant velocity (0.3 s steps).
+        let hits = |z: &[[f64; 4]]| {
+            z.iter().enumerate().any(|(k, zk)| {
+                let x = car.0 + car.2 * 0.3 * (k + 1) as f64;
+                boxes_at(zk[0], zk[1], zk[2]).overlaps(&boxes_at(x, car.1, 0.0))
+            })
+        };
+        let mut simple_fallback = None;
+        for rule in [false, true] {
+            let s = PlannerSettings {
+                fallback_lattice: true,
+                lattice_clear_nonreactive: false,
+                lattice_when_fallback_hits: rule,
+                ..repairs_only()
+            };
+            let m = model(&s);
+            let mut p = problem(&h, &sizes, 12.0);
+            p.y_target = 0.0;
+            let lp = LinearisedProblem::new(&s, &m, None, &p);
+            let zero_steer = vec![0.0; 6];
+            let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
+            let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
+            let constraint = SafetyConstraint::new(&p, &s);
+            let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+            let mut planning = YieldUnless { limit };
+            let mut cv = ConstantVelocity::new(6).unwrap();
+            cv.set_scene(&h).unwrap();
+            let mut r = Repairer {
+                nonreactive: Some(&mut cv),
+                ..plain_repairer(&s, &m, &lp, &mut safety, &mut planning)
+            };
+            let best = r.best_fallback().unwrap();
+            let searched = !rule || fallback_hits;
+            assert_eq!(
+                best.rank.safe, searched,
+                "{car:?} rule {rule}: {:?}",
+                best.accel
+            );
+            if searched {
+                assert!(best.rollout[5][0] >= limit);
+            } else {
+                let world = rollout_world(&s, &p, &best.delta, &best.accel);
+                assert!(!hits(&world), "{car:?}: the kept fallback hits the car");
+                simple_fallback = Some(best.accel.clone());
+            }
+            if rule && fallback_hits {
+                // The simple fallback (lattice off) does hit the car at constant velocity.
+                let off = PlannerSettings {
+                    fallback_lattice: false,
+                    ..s.clone()
+                };
+                let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+                let mut planning = YieldUnless { limit };
+                let mut r = plain_repairer(&off, &m, &lp, &mut safety, &mut planning);
+                let simple = r.best_fallback().unwrap();
+                assert!(!simple.rank.safe);
+                assert!(hits(&rollout_world(&s, &p, &simple.delta, &simple.accel)));
+            }
+        }
+        assert_eq!(simple_fallback.is_some(), !fallback_hits);
+    }
+}
+
+/// `lattice_min_speed`: the lattice escape of
+/// [`the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss`] is searched for at the
+/// ego's speed (12 m/s) with the floor at or below it, and not with the floor above it.
+#[test]
+fn the_lattice_is_searched_only_from_its_minimum_speed() {
+    let (h, sizes) = car_behind_in_target_lane();
+    for (floor, searched) in [(0.0, true), (12.0, true), (12.5, false)] {
+        let s = PlannerSettings {
+            fallback_lattice: true,
+            lattice_min_speed: floor,
+            ..repairs_only()
+        };
+        s.validate().unwrap();
+        let m = model(&s);
+        let mut p = problem(&h, &sizes, 12.0);
+        p.y_target = 0.0;
+        let lp = LinearisedProblem::new(&s, &m, None, &p);
+        let zero_steer = vec![0.0; 6];
+        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
+        let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
+        let constraint = SafetyConstraint::new(&p, &s);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut gate = Gate::behind(limit);
+        gate.set_scene(&h).unwrap();
+        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
+        let best = r.best_fallback().unwrap();
+        assert_eq!(best.rank.safe, searched, "floor {floor}: {:?}", best.accel);
+        assert_eq!(best.rollout[5][0] >= limit, searched);
     }
 }
