@@ -2148,6 +2148,58 @@ fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
     }
 }
 
+/// The line (m along the road) halfway between where the ramps to a_max/2 and to a_max end,
+/// driving straight from acceleration 0: of the lattice's sequences only those near the
+/// full-acceleration ramp get past it.
+fn full_ramp_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
+    let zero_steer = vec![0.0; 6];
+    let end = |a: &[f64]| rollout_world(s, p, &zero_steer, a)[5][0];
+    0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]))
+}
+
+/// Whether the world-frame roll-out `z` (`[T]` states, 0.3 s apart) overlaps, at some step, a
+/// 4.5 m × 1.9 m car that starts at (`x`, `y`) and drives along the road at `v` m/s: the boxes'
+/// separating-axis test, independent of the planner's ellipses.
+fn hits_car_at_constant_velocity(z: &[[f64; 4]], (x, y, v): (f64, f64, f64)) -> bool {
+    let car_box = |x: f64, y: f64, heading: f64| crate::OrientedBox {
+        x,
+        y,
+        heading,
+        length: 4.5,
+        width: 1.9,
+    };
+    z.iter().enumerate().any(|(k, zk)| {
+        let xk = x + v * 0.3 * (k + 1) as f64;
+        car_box(zk[0], zk[1], zk[2]).overlaps(&car_box(xk, y, 0.0))
+    })
+}
+
+/// Runs `f` on a repairer under `s` of a lane-keeping call at 12 m/s in the scene `h`: the
+/// planning predictor is [`YieldUnless`] at the [`full_ramp_line`], the non-reactive one
+/// constant velocity. `f` gets the repairer, the problem, its linearisation and the line.
+fn with_yield_repairer<R>(
+    s: &PlannerSettings,
+    h: &History,
+    sizes: &[[f64; 2]],
+    f: impl FnOnce(&mut Repairer<'_, '_>, &PlanningProblem<'_>, &LinearisedProblem, f64) -> R,
+) -> R {
+    let m = model(s);
+    let mut p = problem(h, sizes, 12.0);
+    p.y_target = 0.0;
+    let lp = LinearisedProblem::new(s, &m, None, &p);
+    let limit = full_ramp_line(s, &p);
+    let constraint = SafetyConstraint::new(&p, s);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    let mut planning = YieldUnless { limit };
+    let mut cv = ConstantVelocity::new(6).unwrap();
+    cv.set_scene(h).unwrap();
+    let mut r = Repairer {
+        nonreactive: Some(&mut cv),
+        ..plain_repairer(s, &m, &lp, &mut safety, &mut planning)
+    };
+    f(&mut r, &p, &lp, limit)
+}
+
 /// A planning predictor by which agent 1 yields (it stays 60 m behind the candidate at every
 /// step) unless the candidate ends short of `limit` (m along the road): then it sits on the
 /// candidate's positions.
@@ -2189,26 +2241,10 @@ impl Predictor for YieldUnless {
 /// not admissible.
 #[test]
 fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_without_reaction() {
-    let (h, sizes) = scene(12.0, 0.0, &[(-12.0, 0.0, 30.0)]);
-    // The car at constant velocity after plan step k (1-based): 9 m per step from −12 m.
+    let car = (-12.0, 0.0, 30.0);
+    let (h, sizes) = scene(12.0, 0.0, &[car]);
     let hits = |s: &PlannerSettings, p: &PlanningProblem<'_>, d: &[f64], a: &[f64]| {
-        rollout_world(s, p, d, a).iter().enumerate().any(|(k, z)| {
-            let ego = crate::OrientedBox {
-                x: z[0],
-                y: z[1],
-                heading: z[2],
-                length: 4.5,
-                width: 1.9,
-            };
-            let car = crate::OrientedBox {
-                x: -12.0 + 9.0 * (k + 1) as f64,
-                y: 0.0,
-                heading: 0.0,
-                length: 4.5,
-                width: 1.9,
-            };
-            ego.overlaps(&car)
-        })
+        hits_car_at_constant_velocity(&rollout_world(s, p, d, a), car)
     };
     for clear in [false, true] {
         let s = PlannerSettings {
@@ -2216,36 +2252,22 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
             lattice_clear_nonreactive: clear,
             ..repairs_only()
         };
-        let m = model(&s);
-        let mut p = problem(&h, &sizes, 12.0);
-        p.y_target = 0.0;
-        let lp = LinearisedProblem::new(&s, &m, None, &p);
-        let zero_steer = vec![0.0; 6];
-        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
-        let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
-        let constraint = SafetyConstraint::new(&p, &s);
-        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-        let mut planning = YieldUnless { limit };
-        let mut cv = ConstantVelocity::new(6).unwrap();
-        cv.set_scene(&h).unwrap();
-        let mut r = Repairer {
-            nonreactive: Some(&mut cv),
-            ..plain_repairer(&s, &m, &lp, &mut safety, &mut planning)
-        };
-        let admitted: Vec<(Vec<f64>, Vec<f64>)> = lattice_inputs(&lp)
-            .into_iter()
-            .filter_map(|(d, a)| {
-                let c = r.check(d, a).unwrap();
-                c.rank.safe.then_some((c.delta, c.accel))
-            })
-            .collect();
-        assert!(!admitted.is_empty());
-        assert!(admitted.iter().all(|(d, a)| hits(&s, &p, d, a)));
-        let best = r.best_fallback().unwrap();
-        assert_eq!(best.rank.safe, !clear, "{:?}", best.accel);
-        if !clear {
-            assert!(hits(&s, &p, &best.delta, &best.accel));
-        }
+        with_yield_repairer(&s, &h, &sizes, |r, p, lp, _| {
+            let admitted: Vec<(Vec<f64>, Vec<f64>)> = lattice_inputs(lp)
+                .into_iter()
+                .filter_map(|(d, a)| {
+                    let c = r.check(d, a).unwrap();
+                    c.rank.safe.then_some((c.delta, c.accel))
+                })
+                .collect();
+            assert!(!admitted.is_empty());
+            assert!(admitted.iter().all(|(d, a)| hits(&s, p, d, a)));
+            let best = r.best_fallback().unwrap();
+            assert_eq!(best.rank.safe, !clear, "{:?}", best.accel);
+            if !clear {
+                assert!(hits(&s, p, &best.delta, &best.accel));
+            }
+        });
     }
 }
 
@@ -2262,22 +2284,9 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
 ///   would catch it).
 #[test]
 fn the_lattice_is_searched_only_when_the_fallback_hits_somebody_without_reaction() {
-    let boxes_at = |x: f64, y: f64, heading: f64| crate::OrientedBox {
-        x,
-        y,
-        heading,
-        length: 4.5,
-        width: 1.9,
-    };
     for (car, fallback_hits) in [((-40.0, 3.7, 12.0), false), ((-12.0, 0.0, 30.0), true)] {
         let (h, sizes) = scene(12.0, 0.0, &[car]);
-        // The car after plan step k (1-based) at constant velocity (0.3 s steps).
-        let hits = |z: &[[f64; 4]]| {
-            z.iter().enumerate().any(|(k, zk)| {
-                let x = car.0 + car.2 * 0.3 * (k + 1) as f64;
-                boxes_at(zk[0], zk[1], zk[2]).overlaps(&boxes_at(x, car.1, 0.0))
-            })
-        };
+        let hits = |z: &[[f64; 4]]| hits_car_at_constant_velocity(z, car);
         let mut simple_fallback = None;
         for rule in [false, true] {
             let s = PlannerSettings {
@@ -2286,48 +2295,33 @@ fn the_lattice_is_searched_only_when_the_fallback_hits_somebody_without_reaction
                 lattice_when_fallback_hits: rule,
                 ..repairs_only()
             };
-            let m = model(&s);
-            let mut p = problem(&h, &sizes, 12.0);
-            p.y_target = 0.0;
-            let lp = LinearisedProblem::new(&s, &m, None, &p);
-            let zero_steer = vec![0.0; 6];
-            let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
-            let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
-            let constraint = SafetyConstraint::new(&p, &s);
-            let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-            let mut planning = YieldUnless { limit };
-            let mut cv = ConstantVelocity::new(6).unwrap();
-            cv.set_scene(&h).unwrap();
-            let mut r = Repairer {
-                nonreactive: Some(&mut cv),
-                ..plain_repairer(&s, &m, &lp, &mut safety, &mut planning)
-            };
-            let best = r.best_fallback().unwrap();
             let searched = !rule || fallback_hits;
-            assert_eq!(
-                best.rank.safe, searched,
-                "{car:?} rule {rule}: {:?}",
-                best.accel
-            );
-            if searched {
-                assert!(best.rollout[5][0] >= limit);
-            } else {
-                let world = rollout_world(&s, &p, &best.delta, &best.accel);
-                assert!(!hits(&world), "{car:?}: the kept fallback hits the car");
-                simple_fallback = Some(best.accel.clone());
-            }
+            with_yield_repairer(&s, &h, &sizes, |r, p, _, limit| {
+                let best = r.best_fallback().unwrap();
+                assert_eq!(
+                    best.rank.safe, searched,
+                    "{car:?} rule {rule}: {:?}",
+                    best.accel
+                );
+                if searched {
+                    assert!(best.rollout[5][0] >= limit);
+                } else {
+                    let world = rollout_world(&s, p, &best.delta, &best.accel);
+                    assert!(!hits(&world), "{car:?}: the kept fallback hits the car");
+                    simple_fallback = Some(best.accel.clone());
+                }
+            });
             if rule && fallback_hits {
                 // The simple fallback (lattice off) does hit the car at constant velocity.
                 let off = PlannerSettings {
                     fallback_lattice: false,
                     ..s.clone()
                 };
-                let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-                let mut planning = YieldUnless { limit };
-                let mut r = plain_repairer(&off, &m, &lp, &mut safety, &mut planning);
-                let simple = r.best_fallback().unwrap();
-                assert!(!simple.rank.safe);
-                assert!(hits(&rollout_world(&s, &p, &simple.delta, &simple.accel)));
+                with_yield_repairer(&off, &h, &sizes, |r, p, _, _| {
+                    let simple = r.best_fallback().unwrap();
+                    assert!(!simple.rank.safe);
+                    assert!(hits(&rollout_world(&off, p, &simple.delta, &simple.accel)));
+                });
             }
         }
         assert_eq!(simple_fallback.is_some(), !fallback_hits);
@@ -2351,9 +2345,7 @@ fn the_lattice_is_searched_only_from_its_minimum_speed() {
         let mut p = problem(&h, &sizes, 12.0);
         p.y_target = 0.0;
         let lp = LinearisedProblem::new(&s, &m, None, &p);
-        let zero_steer = vec![0.0; 6];
-        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
-        let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
+        let limit = full_ramp_line(&s, &p);
         let constraint = SafetyConstraint::new(&p, &s);
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
         let mut gate = Gate::behind(limit);
