@@ -268,26 +268,44 @@ pub struct PlannerSettings {
     /// traffic (`docs/results/fallback_escape.md`).
     pub fallback_full_accel: bool,
     /// When no fallback above is admissible, also check the input lattice (blocks of two
-    /// steps, each changing the steering and the
-    /// acceleration by −, 0 or + their rate bounds per step, clipped to their boxes: up to
-    /// 9^⌈T/2⌉ sequences, 729 at T = 6), each on its own roll-out and prediction like every
-    /// fallback, and keep the best by the same rank. The log-replay oracle
-    /// (`crate::sim::oracle`) found every at-fault collision of the development runs avoidable
-    /// from a state 0.6–1.5 s before the contact where the planner already had nothing
-    /// admissible; the simple fallbacks miss the sequences that avoid it. Off by default: on
-    /// 600 training scenes × 3 seeds (student planner, paired) it raised the log-replay at-fault
-    /// runs 17 → 26 (events 22 → 34; with `fallback_nonreactive` as well 17 → 31) while
-    /// success barely moved there (1479 → 1480 of 1800), edging the ego into stop-and-go
-    /// queues when nothing is admissible (`docs/results/avoidability.md`).
+    /// steps, each changing the steering and the acceleration by −, 0 or + their rate bounds
+    /// per step, clipped to their boxes: up to 9^⌈T/2⌉ sequences, 729 at T = 6), each on its
+    /// own roll-out and prediction like every fallback, and keep the best by the same rank.
+    /// The log-replay oracle (`crate::sim::oracle`) found every at-fault collision of the
+    /// development runs avoidable from a state 0.6–1.5 s before the contact where the planner
+    /// already had nothing admissible; the simple fallbacks miss the sequences that avoid it.
+    /// On by default, with `lattice_clear_nonreactive` and `lattice_min_speed`: alone, on 600
+    /// training scenes × 3 seeds (student planner, paired), it raised the log-replay at-fault
+    /// runs 17 → 26 (events 22 → 34), edging the ego into stop-and-go queues; with both it
+    /// cut them 17 → 9 (events 22 → 15) and added none in any world, and on validation it
+    /// added no at-fault, off-road or free-road slow run in any arm
+    /// (`docs/results/avoidability.md`).
     pub fallback_lattice: bool,
     /// With `fallback_lattice`: a lattice sequence replaces the fallback only when its boxes
     /// overlap no other vehicle's at any step under a constant-velocity prediction (every
     /// other vehicle keeps its last observed displacement per step and does not react), so the
-    /// last-resort search never counts on somebody making room. Off by default: on 600
-    /// training scenes × 3 seeds (student planner, paired) it still raised the log-replay
+    /// last-resort search never counts on somebody making room. On by default (with
+    /// `lattice_min_speed`); without the speed floor it still raised the training log-replay
     /// at-fault runs 17 → 23 (events 22 → 29), all the added ones at walking pace in queues
     /// that were standing when the sequence was chosen (`docs/results/avoidability.md`).
     pub lattice_clear_nonreactive: bool,
+    /// With `fallback_lattice`: search the lattice only when the fallback chosen above itself
+    /// overlaps another vehicle's box at some step under the constant-velocity prediction
+    /// (every other vehicle keeps its last observed displacement per step and does not
+    /// react). A fallback that is inadmissible only by the planning predictor's margins, but
+    /// hits nobody even if nobody reacts, is kept. Off by default: with
+    /// `lattice_clear_nonreactive` (no speed floor) on 600 training scenes × 3 seeds (student
+    /// planner, paired) the log-replay at-fault runs went 17 → 21, 5 avoided and 9 added, most
+    /// of those at walking pace (`docs/results/avoidability.md`).
+    pub lattice_when_fallback_hits: bool,
+    /// With `fallback_lattice`: search the lattice only while the ego's speed at the start of
+    /// the call is at least this (m/s); 0 searches it at any speed. At walking pace the simple
+    /// brake fallback stops the ego within a few metres inside its own lane, while the
+    /// lattice's escapes there edged the ego into standing queues. 10 m/s by default, chosen
+    /// on the training scenes: without a floor, every log-replay at-fault contact the lattice
+    /// added there came at 9.1 m/s or slower and every one it removed at 13.8 m/s or faster
+    /// (the ego's speed at the contact; `docs/results/avoidability.md`).
+    pub lattice_min_speed: f64,
     /// Rank inadmissible candidates by their worst case over two predictions: the planning
     /// predictor's and a constant-velocity one (every other vehicle keeps its last observed
     /// displacement per step and does not react). An inadmissible candidate's predicted box
@@ -514,8 +532,10 @@ impl Default for PlannerSettings {
             fallback_speed_floor: 0.5,
             fallback_brake_hold: false,
             fallback_full_accel: false,
-            fallback_lattice: false,
-            lattice_clear_nonreactive: false,
+            fallback_lattice: true,
+            lattice_clear_nonreactive: true,
+            lattice_when_fallback_hits: false,
+            lattice_min_speed: 10.0,
             fallback_nonreactive: false,
             edge_first: true,
             contact_first: true,
@@ -710,6 +730,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("z_cuts", 0.0, 8.0, "cuts"),
     closed("z_retighten", 0.0, 10.0, "re-tightenings"),
     closed("fallback_speed_floor", 0.0, 1.0, "–"),
+    closed("lattice_min_speed", 0.0, 100.0, "m/s"),
     closed(
         "bounds_slack",
         0.0,
@@ -798,6 +819,7 @@ impl PlannerSettings {
             "z_cuts" => self.z_cuts as f64,
             "z_retighten" => self.z_retighten as f64,
             "fallback_speed_floor" => self.fallback_speed_floor,
+            "lattice_min_speed" => self.lattice_min_speed,
             "bounds_slack" => self.bounds_slack,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,

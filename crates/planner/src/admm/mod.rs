@@ -784,15 +784,17 @@ impl AdmmResult {
 
 /// The constant-velocity predictor, set to the problem's scene, that inadmissible candidates
 /// are also ranked against (`PlannerSettings::fallback_nonreactive`) and lattice sequences
-/// must be clear under (`PlannerSettings::lattice_clear_nonreactive`); `None` when neither
-/// rule is on or nothing is checked.
+/// must be clear under (`PlannerSettings::lattice_clear_nonreactive`), and that the fallback
+/// must hit somebody under before the lattice is searched at all
+/// (`PlannerSettings::lattice_when_fallback_hits`); `None` when no such rule is on or nothing is checked.
 fn nonreactive_predictor(
     s: &PlannerSettings,
     constraint: &SafetyConstraint,
     problem: &PlanningProblem<'_>,
     horizon: usize,
 ) -> Result<Option<ConstantVelocity>, PlannerError> {
-    let wanted = s.fallback_nonreactive || (s.fallback_lattice && s.lattice_clear_nonreactive);
+    let wanted = s.fallback_nonreactive
+        || (s.fallback_lattice && (s.lattice_clear_nonreactive || s.lattice_when_fallback_hits));
     if !wanted || constraint.vehicles().is_empty() {
         return Ok(None);
     }

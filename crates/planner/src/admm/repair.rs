@@ -215,9 +215,10 @@ pub(crate) struct Repairer<'a, 'c> {
     /// The follower-gap rule of the call (`None` when it does not apply).
     pub follower_gap: Option<FollowerGap>,
     /// The non-reactive predictor inadmissible candidates are also ranked against
-    /// (`PlannerSettings::fallback_nonreactive`) and lattice sequences must be clear under
-    /// (`PlannerSettings::lattice_clear_nonreactive`); `None` when neither rule is on or
-    /// nothing is checked.
+    /// (`PlannerSettings::fallback_nonreactive`), lattice sequences must be clear under
+    /// (`PlannerSettings::lattice_clear_nonreactive`) and the fallback must hit somebody under
+    /// before the lattice is searched (`PlannerSettings::lattice_when_fallback_hits`); `None`
+    /// when no such rule is on or nothing is checked.
     pub nonreactive: Option<&'a mut dyn Predictor>,
 }
 
@@ -447,6 +448,10 @@ impl Repairer<'_, '_> {
     /// [`retreat_inputs`] too (checked within the retreat's bounds). With nothing admissible
     /// this is the minimum-risk choice between holding, finishing and cancelling a lane
     /// change: the least-violating; a change is cancelled only for what the predictor sees.
+    /// With `PlannerSettings::fallback_lattice` and still nothing admissible, the lattice too
+    /// ([`Self::best_of_lattice`]) while the ego is at least as fast as
+    /// `PlannerSettings::lattice_min_speed`; with `PlannerSettings::lattice_when_fallback_hits`
+    /// only when the best so far is not [`Self::clear_without_reaction`].
     pub(crate) fn best_fallback(&mut self) -> Result<Candidate, PlannerError> {
         let nominal = (self.lp.nominal_delta.clone(), self.lp.nominal_accel.clone());
         let mut best = self.check(nominal.0, nominal.1)?;
@@ -465,7 +470,12 @@ impl Repairer<'_, '_> {
                 best = c;
             }
         }
-        if self.s.fallback_lattice && !best.rank.safe {
+        if self.s.fallback_lattice
+            && !best.rank.safe
+            && self.lp.start[3] >= self.s.lattice_min_speed
+            && (!self.s.lattice_when_fallback_hits
+                || !self.clear_without_reaction(&best.rollout)?)
+        {
             best = self.best_of_lattice(best)?;
         }
         Ok(best)

@@ -2008,7 +2008,8 @@ fn the_fallback_brakes_then_holds_when_that_stops_short() {
 /// placed so that of the constant profiles only a_max (with `fallback_full_accel`) gets past
 /// it. Without the setting no fallback is safe (the least-violating one is applied); with it
 /// the fallback accelerates at a_max and is safe. Independent check: a candidate is safe iff
-/// its road-aligned roll-out ends beyond the line.
+/// its road-aligned roll-out ends beyond the line. The lattice, which holds the same ramp, is
+/// off: this is the constant profiles alone.
 #[test]
 fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
     let (h, sizes) = car_behind_in_target_lane();
@@ -2016,6 +2017,7 @@ fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
     for on in [false, true] {
         let s = PlannerSettings {
             fallback_full_accel: on,
+            fallback_lattice: false,
             ..repairs_only()
         };
         let m = model(&s);
@@ -2146,6 +2148,58 @@ fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
     }
 }
 
+/// The line (m along the road) halfway between where the ramps to a_max/2 and to a_max end,
+/// driving straight from acceleration 0: of the lattice's sequences only those near the
+/// full-acceleration ramp get past it.
+fn full_ramp_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
+    let zero_steer = vec![0.0; 6];
+    let end = |a: &[f64]| rollout_world(s, p, &zero_steer, a)[5][0];
+    0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]))
+}
+
+/// Whether the world-frame roll-out `z` (`[T]` states, 0.3 s apart) overlaps, at some step, a
+/// 4.5 m × 1.9 m car that starts at (`x`, `y`) and drives along the road at `v` m/s: the boxes'
+/// separating-axis test, independent of the planner's ellipses.
+fn hits_car_at_constant_velocity(z: &[[f64; 4]], (x, y, v): (f64, f64, f64)) -> bool {
+    let car_box = |x: f64, y: f64, heading: f64| crate::OrientedBox {
+        x,
+        y,
+        heading,
+        length: 4.5,
+        width: 1.9,
+    };
+    z.iter().enumerate().any(|(k, zk)| {
+        let xk = x + v * 0.3 * (k + 1) as f64;
+        car_box(zk[0], zk[1], zk[2]).overlaps(&car_box(xk, y, 0.0))
+    })
+}
+
+/// Runs `f` on a repairer under `s` of a lane-keeping call at 12 m/s in the scene `h`: the
+/// planning predictor is [`YieldUnless`] at the [`full_ramp_line`], the non-reactive one
+/// constant velocity. `f` gets the repairer, the problem, its linearisation and the line.
+fn with_yield_repairer<R>(
+    s: &PlannerSettings,
+    h: &History,
+    sizes: &[[f64; 2]],
+    f: impl FnOnce(&mut Repairer<'_, '_>, &PlanningProblem<'_>, &LinearisedProblem, f64) -> R,
+) -> R {
+    let m = model(s);
+    let mut p = problem(h, sizes, 12.0);
+    p.y_target = 0.0;
+    let lp = LinearisedProblem::new(s, &m, None, &p);
+    let limit = full_ramp_line(s, &p);
+    let constraint = SafetyConstraint::new(&p, s);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    let mut planning = YieldUnless { limit };
+    let mut cv = ConstantVelocity::new(6).unwrap();
+    cv.set_scene(h).unwrap();
+    let mut r = Repairer {
+        nonreactive: Some(&mut cv),
+        ..plain_repairer(s, &m, &lp, &mut safety, &mut planning)
+    };
+    f(&mut r, &p, &lp, limit)
+}
+
 /// A planning predictor by which agent 1 yields (it stays 60 m behind the candidate at every
 /// step) unless the candidate ends short of `limit` (m along the road): then it sits on the
 /// candidate's positions.
@@ -2187,26 +2241,10 @@ impl Predictor for YieldUnless {
 /// not admissible.
 #[test]
 fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_without_reaction() {
-    let (h, sizes) = scene(12.0, 0.0, &[(-12.0, 0.0, 30.0)]);
-    // The car at constant velocity after plan step k (1-based): 9 m per step from −12 m.
+    let car = (-12.0, 0.0, 30.0);
+    let (h, sizes) = scene(12.0, 0.0, &[car]);
     let hits = |s: &PlannerSettings, p: &PlanningProblem<'_>, d: &[f64], a: &[f64]| {
-        rollout_world(s, p, d, a).iter().enumerate().any(|(k, z)| {
-            let ego = crate::OrientedBox {
-                x: z[0],
-                y: z[1],
-                heading: z[2],
-                length: 4.5,
-                width: 1.9,
-            };
-            let car = crate::OrientedBox {
-                x: -12.0 + 9.0 * (k + 1) as f64,
-                y: 0.0,
-                heading: 0.0,
-                length: 4.5,
-                width: 1.9,
-            };
-            ego.overlaps(&car)
-        })
+        hits_car_at_constant_velocity(&rollout_world(s, p, d, a), car)
     };
     for clear in [false, true] {
         let s = PlannerSettings {
@@ -2214,35 +2252,107 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
             lattice_clear_nonreactive: clear,
             ..repairs_only()
         };
+        with_yield_repairer(&s, &h, &sizes, |r, p, lp, _| {
+            let admitted: Vec<(Vec<f64>, Vec<f64>)> = lattice_inputs(lp)
+                .into_iter()
+                .filter_map(|(d, a)| {
+                    let c = r.check(d, a).unwrap();
+                    c.rank.safe.then_some((c.delta, c.accel))
+                })
+                .collect();
+            assert!(!admitted.is_empty());
+            assert!(admitted.iter().all(|(d, a)| hits(&s, p, d, a)));
+            let best = r.best_fallback().unwrap();
+            assert_eq!(best.rank.safe, !clear, "{:?}", best.accel);
+            if !clear {
+                assert!(hits(&s, p, &best.delta, &best.accel));
+            }
+        });
+    }
+}
+
+/// `lattice_when_fallback_hits`: by the planning predictor the other car sits on every
+/// candidate that ends short of a line only the full-acceleration ramp reaches (and yields to
+/// the others), so no simple fallback is
+/// admissible and the lattice holds the escape. Whether the lattice is searched turns on the
+/// other car at constant velocity, checked with the boxes independently of the planner:
+/// - 40 m behind in the next lane at the ego's speed, it touches no fallback: the rule keeps
+///   the simple fallback (inadmissible), where without the rule the lattice's escape is taken;
+/// - 12 m behind in the ego's lane at 30 m/s, it drives through the simple fallback: the
+///   lattice is searched with the rule too, and its escape is taken (the escape's own
+///   clearance without reaction, `lattice_clear_nonreactive`, is off here: the car at 30 m/s
+///   would catch it).
+#[test]
+fn the_lattice_is_searched_only_when_the_fallback_hits_somebody_without_reaction() {
+    for (car, fallback_hits) in [((-40.0, 3.7, 12.0), false), ((-12.0, 0.0, 30.0), true)] {
+        let (h, sizes) = scene(12.0, 0.0, &[car]);
+        let hits = |z: &[[f64; 4]]| hits_car_at_constant_velocity(z, car);
+        let mut simple_fallback = None;
+        for rule in [false, true] {
+            let s = PlannerSettings {
+                fallback_lattice: true,
+                lattice_clear_nonreactive: false,
+                lattice_when_fallback_hits: rule,
+                ..repairs_only()
+            };
+            let searched = !rule || fallback_hits;
+            with_yield_repairer(&s, &h, &sizes, |r, p, _, limit| {
+                let best = r.best_fallback().unwrap();
+                assert_eq!(
+                    best.rank.safe, searched,
+                    "{car:?} rule {rule}: {:?}",
+                    best.accel
+                );
+                if searched {
+                    assert!(best.rollout[5][0] >= limit);
+                } else {
+                    let world = rollout_world(&s, p, &best.delta, &best.accel);
+                    assert!(!hits(&world), "{car:?}: the kept fallback hits the car");
+                    simple_fallback = Some(best.accel.clone());
+                }
+            });
+            if rule && fallback_hits {
+                // The simple fallback (lattice off) does hit the car at constant velocity.
+                let off = PlannerSettings {
+                    fallback_lattice: false,
+                    ..s.clone()
+                };
+                with_yield_repairer(&off, &h, &sizes, |r, p, _, _| {
+                    let simple = r.best_fallback().unwrap();
+                    assert!(!simple.rank.safe);
+                    assert!(hits(&rollout_world(&off, p, &simple.delta, &simple.accel)));
+                });
+            }
+        }
+        assert_eq!(simple_fallback.is_some(), !fallback_hits);
+    }
+}
+
+/// `lattice_min_speed`: the lattice escape of
+/// [`the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss`] is searched for at the
+/// ego's speed (12 m/s) with the floor at or below it, and not with the floor above it.
+#[test]
+fn the_lattice_is_searched_only_from_its_minimum_speed() {
+    let (h, sizes) = car_behind_in_target_lane();
+    for (floor, searched) in [(0.0, true), (12.0, true), (12.5, false)] {
+        let s = PlannerSettings {
+            fallback_lattice: true,
+            lattice_min_speed: floor,
+            ..repairs_only()
+        };
+        s.validate().unwrap();
         let m = model(&s);
         let mut p = problem(&h, &sizes, 12.0);
         p.y_target = 0.0;
         let lp = LinearisedProblem::new(&s, &m, None, &p);
-        let zero_steer = vec![0.0; 6];
-        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5][0];
-        let limit = 0.5 * (end(&[1.5; 6]) + end(&[1.5, 3.0, 3.0, 3.0, 3.0, 3.0]));
+        let limit = full_ramp_line(&s, &p);
         let constraint = SafetyConstraint::new(&p, &s);
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-        let mut planning = YieldUnless { limit };
-        let mut cv = ConstantVelocity::new(6).unwrap();
-        cv.set_scene(&h).unwrap();
-        let mut r = Repairer {
-            nonreactive: Some(&mut cv),
-            ..plain_repairer(&s, &m, &lp, &mut safety, &mut planning)
-        };
-        let admitted: Vec<(Vec<f64>, Vec<f64>)> = lattice_inputs(&lp)
-            .into_iter()
-            .filter_map(|(d, a)| {
-                let c = r.check(d, a).unwrap();
-                c.rank.safe.then_some((c.delta, c.accel))
-            })
-            .collect();
-        assert!(!admitted.is_empty());
-        assert!(admitted.iter().all(|(d, a)| hits(&s, &p, d, a)));
+        let mut gate = Gate::behind(limit);
+        gate.set_scene(&h).unwrap();
+        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
         let best = r.best_fallback().unwrap();
-        assert_eq!(best.rank.safe, !clear, "{:?}", best.accel);
-        if !clear {
-            assert!(hits(&s, &p, &best.delta, &best.accel));
-        }
+        assert_eq!(best.rank.safe, searched, "floor {floor}: {:?}", best.accel);
+        assert_eq!(best.rollout[5][0] >= limit, searched);
     }
 }
