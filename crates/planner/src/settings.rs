@@ -322,6 +322,27 @@ pub struct PlannerSettings {
     /// teacher, IDM and log-replay worlds): in a queue the follower's constant velocity runs
     /// into the ego, so the fallback accelerates towards the vehicle ahead.
     pub fallback_nonreactive: bool,
+    /// Among candidates without an admissible plan, one whose box overlaps no other vehicle's
+    /// at any step under the constant-velocity prediction (every other vehicle keeps its last
+    /// observed displacement per step, its lateral drift included, and does not react) beats
+    /// one that overlaps somebody's, after the state-bound, predicted-contact, road-edge and
+    /// unbegun-lane rules and before the speed floor and the total violation. A driver the
+    /// planning predictor keeps in the next lane while it drifts into the ego's then no longer
+    /// has the ego hold its speed beside it by a slightly smaller violation when braking lets
+    /// it in. One constant-velocity evaluation per inadmissible candidate (no network call;
+    /// not counted in `predictor_calls` or `budget_calls`). Off by default: on 600 training
+    /// scenes × 3 seeds (student planner, paired, from `avoid_min_speed`) it added no at-fault
+    /// run (log replay 9 → 9 runs, 15 → 12 events; IDM 4 → 4, one avoided and one added;
+    /// teacher world unchanged), but on validation the teacher planner in the IDM world gained
+    /// one (0 → 1: a rear contact in its lane became a side contact from behind while
+    /// straddling), which the adoption rule forbids (`docs/results/avoidability.md`).
+    pub fallback_avoid_nonreactive: bool,
+    /// With `fallback_avoid_nonreactive`: the rule applies only while the ego's speed at the
+    /// start of the call is at least this (m/s); 0 applies it at any speed. 10 m/s by
+    /// default, the lattice's floor (`lattice_min_speed`): at any speed the rule added an
+    /// at-fault run at 2.2 m/s on the training scenes (IDM world), where braking clear of the
+    /// car ahead had the follower hit the ego.
+    pub avoid_min_speed: f64,
     /// Rank the road-edge excess first among fallbacks without an admissible plan: the
     /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
     /// horizon, m) wins before the speed floor and the total violation (which otherwise
@@ -478,6 +499,10 @@ pub enum SafetyGeometry {
     GrownBoxes,
 }
 
+/// The default speed (m/s) from which the last-resort rules that rank or search against the
+/// constant-velocity prediction apply: `lattice_min_speed` and `avoid_min_speed`.
+const LAST_RESORT_MIN_SPEED: f64 = 10.0;
+
 impl Default for PlannerSettings {
     fn default() -> Self {
         Self {
@@ -535,8 +560,10 @@ impl Default for PlannerSettings {
             fallback_lattice: true,
             lattice_clear_nonreactive: true,
             lattice_when_fallback_hits: false,
-            lattice_min_speed: 10.0,
+            lattice_min_speed: LAST_RESORT_MIN_SPEED,
             fallback_nonreactive: false,
+            fallback_avoid_nonreactive: false,
+            avoid_min_speed: LAST_RESORT_MIN_SPEED,
             edge_first: true,
             contact_first: true,
             bounds_first: true,
@@ -731,6 +758,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("z_retighten", 0.0, 10.0, "re-tightenings"),
     closed("fallback_speed_floor", 0.0, 1.0, "–"),
     closed("lattice_min_speed", 0.0, 100.0, "m/s"),
+    closed("avoid_min_speed", 0.0, 100.0, "m/s"),
     closed(
         "bounds_slack",
         0.0,
@@ -820,6 +848,7 @@ impl PlannerSettings {
             "z_retighten" => self.z_retighten as f64,
             "fallback_speed_floor" => self.fallback_speed_floor,
             "lattice_min_speed" => self.lattice_min_speed,
+            "avoid_min_speed" => self.avoid_min_speed,
             "bounds_slack" => self.bounds_slack,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,

@@ -794,6 +794,7 @@ fn nonreactive_predictor(
     horizon: usize,
 ) -> Result<Option<ConstantVelocity>, PlannerError> {
     let wanted = s.fallback_nonreactive
+        || s.fallback_avoid_nonreactive
         || (s.fallback_lattice && (s.lattice_clear_nonreactive || s.lattice_when_fallback_hits));
     if !wanted || constraint.vehicles().is_empty() {
         return Ok(None);

@@ -160,3 +160,142 @@ fn an_inadmissible_candidate_ranks_by_the_worse_of_the_two_predictions() {
         "{cv_worse} {learned_worse}"
     );
 }
+
+/// Predicts agent 1 from its last observed position driving along +x at `vx` m/s, its lateral
+/// position held: a driver the planning model expects to slow down in its lane.
+struct Slowing {
+    last: [f64; 2],
+    vx: f64,
+}
+
+impl Predictor for Slowing {
+    fn name(&self) -> &'static str {
+        "slowing"
+    }
+    fn horizon(&self) -> usize {
+        6
+    }
+    fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
+        self.last = history.at(1, T_OBS - 1);
+        Ok(())
+    }
+    fn predict(&mut self, _: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
+        for k in 0..6 {
+            out[2 * k] = self.last[0] + self.vx * 0.3 * (k + 1) as f64;
+            out[2 * k + 1] = self.last[1];
+        }
+        Ok(())
+    }
+}
+
+/// Whether the world-frame roll-out `z` overlaps, at some step (0.3 s apart), a 4.5 m × 1.9 m
+/// car that starts at (`x`, `y`) and moves at (`vx`, `vy`) m/s: the boxes' separating-axis
+/// test, independent of the planner's ellipses and of its constant-velocity predictor.
+fn hits_drifting_car(z: &[State], (x, y, vx, vy): (f64, f64, f64, f64)) -> bool {
+    let car_box = |x: f64, y: f64, heading: f64| crate::OrientedBox {
+        x,
+        y,
+        heading,
+        length: 4.5,
+        width: 1.9,
+    };
+    let heading = vy.atan2(vx);
+    z.iter().enumerate().any(|(k, zk)| {
+        let t = 0.3 * (k + 1) as f64;
+        car_box(zk[0], zk[1], zk[2]).overlaps(&car_box(x + vx * t, y + vy * t, heading))
+    })
+}
+
+/// `fallback_avoid_nonreactive`: the ego keeps its lane at 20 m/s; a car 6 m ahead, 2.8 m to
+/// the side (beside: the boxes cannot touch where it is) drives at 18 m/s and drifts towards
+/// the ego at 1 m/s. The planning model expects it to slow to 12 m/s in its lane, so every
+/// fallback is inadmissible (the car sits inside the ellipse) and accelerating past it is
+/// the least violating. Off, that is the fallback, and at constant velocity (drift included)
+/// its box meets the car's (the separating-axis test). On, the fallback is one that meets
+/// nobody at constant velocity, the least violating of those; each candidate's
+/// `hits_nonreactive` is the independent box check. With `avoid_min_speed` above the ego's
+/// 20 m/s the rule does not apply, and the fallback is the one without it.
+#[test]
+fn with_nothing_admissible_the_fallback_keeps_clear_of_a_driver_drifting_in() {
+    let car = (6.0, 2.8, 18.0, -1.0);
+    let (h, sizes) = scene_of(&[car]);
+    let mut p = problem(&h, &sizes, 20.0);
+    p.y_target = 0.0;
+    let mut best_of = Vec::new();
+    for (rule, floor) in [(false, 0.0), (true, 0.0), (true, 20.0), (true, 20.5)] {
+        let on = rule && p.ego.v >= floor;
+        let s = PlannerSettings {
+            fallback_avoid_nonreactive: rule,
+            avoid_min_speed: floor,
+            fallback_lattice: false,
+            ..settings(false)
+        };
+        s.validate().unwrap();
+        let mut planning = Slowing {
+            last: [0.0; 2],
+            vx: 12.0,
+        };
+        planning.set_scene(&h).unwrap();
+        let mut cv = ConstantVelocity::new(6).unwrap();
+        cv.set_scene(&h).unwrap();
+        let (all, _) = candidates(&s, &p, &mut planning, Some(&mut cv));
+        for c in &all {
+            assert!(!c.rank.safe, "{:?}", c.accel);
+            let hits = hits_drifting_car(&c.rollout, car);
+            assert_eq!(c.rank.hits_nonreactive, on && hits, "{:?}", c.accel);
+        }
+        // The rule can choose: some candidates meet the car, some do not.
+        assert!(all.iter().any(|c| hits_drifting_car(&c.rollout, car)));
+        assert!(all.iter().any(|c| !hits_drifting_car(&c.rollout, car)));
+        let best = best_fallback(&s, &p, &mut planning, &mut cv);
+        assert!(!best.rank.safe);
+        assert_eq!(
+            hits_drifting_car(&best.rollout, car),
+            !on,
+            "{:?}",
+            best.accel
+        );
+        let least = |pick: &dyn Fn(&Candidate) -> bool| {
+            all.iter()
+                .filter(|c| pick(c))
+                .map(|c| c.rank.value)
+                .fold(f64::INFINITY, f64::min)
+        };
+        let want = if on {
+            least(&|c| !hits_drifting_car(&c.rollout, car))
+        } else {
+            least(&|_| true)
+        };
+        assert!((best.rank.value - want).abs() < 1e-12, "{on}: {best:?}");
+        best_of.push(best.accel);
+    }
+    assert!(best_of[0][0] > 0.0 && best_of[1][0] < 0.0, "{best_of:?}");
+    assert_eq!(best_of[2], best_of[1]);
+    assert_eq!(best_of[3], best_of[0]);
+}
+
+/// [`Repairer::best_fallback`] of the call on `p` under `s`, with the planning predictor
+/// `planning` and the constant-velocity one `cv`.
+fn best_fallback<P: Predictor>(
+    s: &PlannerSettings,
+    p: &PlanningProblem<'_>,
+    planning: &mut P,
+    cv: &mut ConstantVelocity,
+) -> Candidate {
+    let m = model(s);
+    let lp = LinearisedProblem::new(s, &m, None, p);
+    let constraint = SafetyConstraint::new(p, s);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    safety.count_overlap = s.contact_first;
+    let mut r = Repairer {
+        s,
+        model: &m,
+        lp: &lp,
+        safety: &mut safety,
+        predictor: planning,
+        contingency: None,
+        follower_gap: None,
+        nonreactive: Some(cv),
+    };
+    r.best_fallback().unwrap()
+}

@@ -91,11 +91,13 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 /// box overlap wins before that. With `PlannerSettings::bounds_first`, one within the state
 /// bounds wins before that (predicted contact never buys a swerve past the heading bound,
 /// out of the lateral corridor or off the road). After those, an inadmissible one that puts
-/// a centre in a lane before it begins loses to every inadmissible one that does not.
+/// a centre in a lane before it begins loses to every inadmissible one that does not. With
+/// `PlannerSettings::fallback_avoid_nonreactive`, after that, one whose box meets nobody
+/// under the constant-velocity prediction beats one whose box meets somebody's.
 ///
 /// The order among inadmissible candidates, each rule deciding only on a tie of those before
 /// it: `out_of_bounds` (false first), `contact`, `edge` (smaller first), `unbegun` (false
-/// first), `clear` (true first), `value` (smaller first).
+/// first), `hits_nonreactive` (false first), `clear` (true first), `value` (smaller first).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
     /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
@@ -119,6 +121,11 @@ pub(crate) struct Rank {
     /// Road-edge excess of the roll-out (m, [`LinearisedProblem::edge_excess`]) when
     /// inadmissible and `PlannerSettings::edge_first` is on, else 0.
     pub edge: f64,
+    /// Inadmissible, and its box overlaps another vehicle's at some step under the
+    /// constant-velocity prediction ([`Repairer::clear_without_reaction`]) with
+    /// `PlannerSettings::fallback_avoid_nonreactive` on and the ego at least as fast as
+    /// `PlannerSettings::avoid_min_speed`; else false.
+    pub hits_nonreactive: bool,
 }
 
 impl Rank {
@@ -135,6 +142,7 @@ impl Rank {
                 self.edge < other.edge
             }
             _ if self.unbegun != other.unbegun => other.unbegun,
+            _ if self.hits_nonreactive != other.hits_nonreactive => other.hits_nonreactive,
             _ if self.clear != other.clear => self.clear,
             _ => self.value < other.value,
         }
@@ -159,6 +167,7 @@ impl Rank {
                 0.0
             },
             edge: if s.edge_first { violations.edge } else { 0.0 },
+            hits_nonreactive: violations.hits_nonreactive,
         }
     }
 }
@@ -183,6 +192,9 @@ pub(crate) struct Violations {
     pub contact: f64,
     /// Road-edge excess of the box's corners (m, [`LinearisedProblem::edge_excess`]).
     pub edge: f64,
+    /// Its box overlaps another vehicle's under the constant-velocity prediction (false
+    /// when not checked: `PlannerSettings::fallback_avoid_nonreactive` off).
+    pub hits_nonreactive: bool,
 }
 
 /// What an inadmissible candidate's safety ranks by ([`Repairer::worst_case`]).
@@ -295,6 +307,7 @@ impl Repairer<'_, '_> {
                     bound_excess: excess,
                     contact: e.overlap,
                     edge: self.edge_rank(&rollout),
+                    hits_nonreactive: self.hits_without_reaction(&rollout)?,
                 },
             )
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
@@ -306,6 +319,7 @@ impl Repairer<'_, '_> {
                 out_of_bounds: false,
                 contact: 0.0,
                 edge: 0.0,
+                hits_nonreactive: false,
             }
         } else {
             let worst = self.worst_case(&rollout, &e)?;
@@ -316,6 +330,7 @@ impl Repairer<'_, '_> {
                 && gap_violation <= EXCESS_TOLERANCE
                 && safety_violation(e.path_min_b, e.path_violation, self.s.safety_min) == 0.0
                 && v_end >= floor * self.lp.reference[3];
+            let hits_nonreactive = self.hits_without_reaction(&rollout)?;
             Rank::inadmissible(
                 self.s,
                 &Violations {
@@ -325,6 +340,7 @@ impl Repairer<'_, '_> {
                     bound_excess: excess,
                     contact: worst.contact,
                     edge: self.edge_rank(&rollout),
+                    hits_nonreactive,
                 },
             )
         };
@@ -362,6 +378,17 @@ impl Repairer<'_, '_> {
             worst.contact = worst.contact.max(e.overlap);
         }
         Ok(worst)
+    }
+
+    /// Whether an inadmissible `rollout` ranks as meeting somebody without reaction
+    /// ([`Rank::hits_nonreactive`]): with `PlannerSettings::fallback_avoid_nonreactive` on and
+    /// the ego at least as fast as `PlannerSettings::avoid_min_speed` at the start of the
+    /// call, its box overlaps another vehicle's under the constant-velocity prediction
+    /// ([`Self::clear_without_reaction`]); else false.
+    fn hits_without_reaction(&mut self, rollout: &[State]) -> Result<bool, PlannerError> {
+        Ok(self.s.fallback_avoid_nonreactive
+            && self.lp.start[3] >= self.s.avoid_min_speed
+            && !self.clear_without_reaction(rollout)?)
     }
 
     /// The road-edge excess an inadmissible `rollout` ranks by first (m): its

@@ -1568,7 +1568,10 @@ fn predicted_contacts(plan: &Plan, h: &History, sizes: &[[f64; 2]]) -> usize {
 /// beside it (a contact by the separating-axis test at the constant-velocity positions), with
 /// one ellipse for the whole truck or with 6 m slices; with `contact_first` the fallback
 /// touches nobody, and still with `bounds_first` too (the fallback that touches nobody is
-/// within the state bounds).
+/// within the state bounds). The planning predictor here is the constant-velocity one, so
+/// `fallback_avoid_nonreactive` alone keeps the tail off the car as well: it is off where
+/// `contact_first` is tested, and tested on its own (at the truck's 18.6 m/s, above its
+/// speed floor).
 #[test]
 fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
     let (h, sizes) = squeezed_truck();
@@ -1581,6 +1584,7 @@ fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
             ego_segment_length,
             contact_first,
             bounds_first,
+            fallback_avoid_nonreactive: false,
             ..PlannerSettings::default()
         };
         let mut planner = Planner::new(s).unwrap();
@@ -1613,6 +1617,25 @@ fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
                 on.states
             );
         }
+        let s = PlannerSettings {
+            ego_segment_length: segment,
+            contact_first: false,
+            bounds_first: false,
+            fallback_avoid_nonreactive: true,
+            ..PlannerSettings::default()
+        };
+        assert!(p.ego.v >= s.avoid_min_speed);
+        let avoid = Planner::new(s)
+            .unwrap()
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap();
+        inadmissible(&avoid);
+        assert_eq!(
+            predicted_contacts(&avoid, &h, &sizes),
+            0,
+            "segment {segment}: fallback_avoid_nonreactive alone: {:?}",
+            avoid.states
+        );
     }
 }
 
@@ -1670,6 +1693,7 @@ fn edge_and_contact_rank_before_the_total_violation() {
         out_of_bounds: false,
         contact,
         edge,
+        hits_nonreactive: false,
     };
     assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.05, 0.0, false)));
     assert!(!r(1.0, 0.05, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
@@ -1686,6 +1710,18 @@ fn edge_and_contact_rank_before_the_total_violation() {
     assert!(r(5.0, 0.0, 0.0, false).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
     assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
     assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.3, 0.0, true)));
+    // A box that meets somebody at constant velocity after the unbegun lane, before the
+    // speed floor and the total violation.
+    let hits = |rank: super::repair::Rank| super::repair::Rank {
+        hits_nonreactive: true,
+        ..rank
+    };
+    assert!(r(5.0, 0.0, 0.0, false).beats(&hits(r(1.0, 0.0, 0.0, true))));
+    assert!(!hits(r(1.0, 0.0, 0.0, true)).beats(&r(5.0, 0.0, 0.0, false)));
+    assert!(hits(r(5.0, 0.0, 0.0, false)).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
+    assert!(hits(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
+    assert!(hits(r(1.0, 0.0, 0.0, false)).beats(&hits(r(5.0, 0.0, 0.0, false))));
+    assert!(admissible_rank(100.0).beats(&hits(r(0.0, 0.0, 0.0, true))));
     assert!(admissible_rank(100.0).beats(&r(0.0, 0.0, 0.0, true)));
 }
 
@@ -1699,6 +1735,7 @@ fn admissible_rank(value: f64) -> super::repair::Rank {
         out_of_bounds: false,
         contact: 0.0,
         edge: 0.0,
+        hits_nonreactive: false,
     }
 }
 
@@ -1718,6 +1755,7 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
         bound_excess,
         contact,
         edge,
+        hits_nonreactive: false,
     };
     let swerve = v(0.4, 0.1, 0.0, 4.5);
     let within = v(0.0, 0.8, 0.0, 6.0);
