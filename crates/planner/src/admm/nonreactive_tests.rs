@@ -69,15 +69,16 @@ fn settings(on: bool) -> PlannerSettings {
     }
 }
 
-/// Every fallback candidate of the call on `p` (its simple inputs), checked by a repairer
-/// whose planning predictor is `planning` and, when given, whose non-reactive predictor is
-/// `nonreactive`; and the planning predictor calls made.
-fn candidates<P: Predictor>(
+/// Runs `f` on a repairer of the call on `p` under `s` whose planning predictor is `planning`
+/// and, when given, whose non-reactive predictor is `nonreactive` (no contingency or
+/// follower-gap rule), with `f` getting the call's linearisation too.
+fn with_repairer<R>(
     s: &PlannerSettings,
     p: &PlanningProblem<'_>,
-    planning: &mut P,
+    planning: &mut dyn Predictor,
     nonreactive: Option<&mut ConstantVelocity>,
-) -> (Vec<Candidate>, usize) {
+    f: impl FnOnce(&mut Repairer<'_, '_>, &LinearisedProblem) -> R,
+) -> R {
     let m = model(s);
     let lp = LinearisedProblem::new(s, &m, None, p);
     let constraint = SafetyConstraint::new(p, s);
@@ -99,12 +100,25 @@ fn candidates<P: Predictor>(
         follower_gap: None,
         nonreactive: nonreactive.map(|cv| cv as &mut dyn Predictor),
     };
-    let out: Vec<Candidate> = simple_inputs(s, &m, &lp)
-        .into_iter()
-        .map(|(d, a)| r.check(d, a).unwrap())
-        .collect();
-    let calls = r.safety.calls;
-    (out, calls)
+    f(&mut r, &lp)
+}
+
+/// Every fallback candidate of the call on `p` (its simple inputs), checked by a repairer
+/// whose planning predictor is `planning` and, when given, whose non-reactive predictor is
+/// `nonreactive`; and the planning predictor calls made.
+fn candidates<P: Predictor>(
+    s: &PlannerSettings,
+    p: &PlanningProblem<'_>,
+    planning: &mut P,
+    nonreactive: Option<&mut ConstantVelocity>,
+) -> (Vec<Candidate>, usize) {
+    with_repairer(s, p, planning, nonreactive, |r, lp| {
+        let out: Vec<Candidate> = simple_inputs(s, r.model, lp)
+            .into_iter()
+            .map(|(d, a)| r.check(d, a).unwrap())
+            .collect();
+        (out, r.safety.calls)
+    })
 }
 
 #[test]
@@ -282,20 +296,5 @@ fn best_fallback<P: Predictor>(
     planning: &mut P,
     cv: &mut ConstantVelocity,
 ) -> Candidate {
-    let m = model(s);
-    let lp = LinearisedProblem::new(s, &m, None, p);
-    let constraint = SafetyConstraint::new(p, s);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-    safety.count_overlap = s.contact_first;
-    let mut r = Repairer {
-        s,
-        model: &m,
-        lp: &lp,
-        safety: &mut safety,
-        predictor: planning,
-        contingency: None,
-        follower_gap: None,
-        nonreactive: Some(cv),
-    };
-    r.best_fallback().unwrap()
+    with_repairer(s, p, planning, Some(cv), |r, _| r.best_fallback().unwrap())
 }
