@@ -783,7 +783,8 @@ impl AdmmResult {
 }
 
 /// The constant-velocity predictor, set to the problem's scene, that inadmissible candidates
-/// are also ranked against (`PlannerSettings::fallback_nonreactive`) and lattice sequences
+/// are also ranked against (`PlannerSettings::fallback_nonreactive`,
+/// `PlannerSettings::fallback_avoid_nonreactive`) and lattice sequences
 /// must be clear under (`PlannerSettings::lattice_clear_nonreactive`), and that the fallback
 /// must hit somebody under before the lattice is searched at all
 /// (`PlannerSettings::lattice_when_fallback_hits`); `None` when no such rule is on or nothing is checked.

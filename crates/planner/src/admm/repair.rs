@@ -193,7 +193,8 @@ pub(crate) struct Violations {
     /// Road-edge excess of the box's corners (m, [`LinearisedProblem::edge_excess`]).
     pub edge: f64,
     /// Its box overlaps another vehicle's under the constant-velocity prediction (false
-    /// when not checked: `PlannerSettings::fallback_avoid_nonreactive` off).
+    /// when not checked: `PlannerSettings::fallback_avoid_nonreactive` off, or the ego
+    /// slower than `PlannerSettings::avoid_min_speed`).
     pub hits_nonreactive: bool,
 }
 
@@ -227,7 +228,8 @@ pub(crate) struct Repairer<'a, 'c> {
     /// The follower-gap rule of the call (`None` when it does not apply).
     pub follower_gap: Option<FollowerGap>,
     /// The non-reactive predictor inadmissible candidates are also ranked against
-    /// (`PlannerSettings::fallback_nonreactive`), lattice sequences must be clear under
+    /// (`PlannerSettings::fallback_nonreactive`,
+    /// `PlannerSettings::fallback_avoid_nonreactive`), lattice sequences must be clear under
     /// (`PlannerSettings::lattice_clear_nonreactive`) and the fallback must hit somebody under
     /// before the lattice is searched (`PlannerSettings::lattice_when_fallback_hits`); `None`
     /// when no such rule is on or nothing is checked.
