@@ -202,22 +202,11 @@ impl Predictor for Slowing {
     }
 }
 
-/// Whether the world-frame roll-out `z` overlaps, at some step (0.3 s apart), a 4.5 m × 1.9 m
-/// car that starts at (`x`, `y`) and moves at (`vx`, `vy`) m/s: the boxes' separating-axis
-/// test, independent of the planner's ellipses and of its constant-velocity predictor.
-fn hits_drifting_car(z: &[State], (x, y, vx, vy): (f64, f64, f64, f64)) -> bool {
-    let car_box = |x: f64, y: f64, heading: f64| crate::OrientedBox {
-        x,
-        y,
-        heading,
-        length: 4.5,
-        width: 1.9,
-    };
-    let heading = vy.atan2(vx);
-    z.iter().enumerate().any(|(k, zk)| {
-        let t = 0.3 * (k + 1) as f64;
-        car_box(zk[0], zk[1], zk[2]).overlaps(&car_box(x + vx * t, y + vy * t, heading))
-    })
+/// [`super::tests::hits_drifting_car`] for a roll-out in the call's frame (the ego starts at
+/// the origin, so it is the world frame).
+fn hits_drifting_car(z: &[State], car: (f64, f64, f64, f64)) -> bool {
+    let world: Vec<[f64; 4]> = z.iter().map(|s| [s[0], s[1], s[2], s[3]]).collect();
+    super::tests::hits_drifting_car(&world, car)
 }
 
 /// `fallback_avoid_nonreactive`: the ego keeps its lane at 20 m/s; a car 6 m ahead, 2.8 m to

@@ -2199,6 +2199,14 @@ fn full_ramp_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
 /// 4.5 m × 1.9 m car that starts at (`x`, `y`) and drives along the road at `v` m/s: the boxes'
 /// separating-axis test, independent of the planner's ellipses.
 fn hits_car_at_constant_velocity(z: &[[f64; 4]], (x, y, v): (f64, f64, f64)) -> bool {
+    hits_drifting_car(z, (x, y, v, 0.0))
+}
+
+/// Whether the world-frame roll-out `z` (`[T]` states, 0.3 s apart) overlaps, at some step, a
+/// 4.5 m × 1.9 m car that starts at (`x`, `y`) and moves at (`vx`, `vy`) m/s, heading along
+/// its motion: the boxes' separating-axis test, independent of the planner's ellipses and of
+/// its constant-velocity predictor.
+pub(super) fn hits_drifting_car(z: &[[f64; 4]], (x, y, vx, vy): (f64, f64, f64, f64)) -> bool {
     let car_box = |x: f64, y: f64, heading: f64| crate::OrientedBox {
         x,
         y,
@@ -2206,9 +2214,10 @@ fn hits_car_at_constant_velocity(z: &[[f64; 4]], (x, y, v): (f64, f64, f64)) -> 
         length: 4.5,
         width: 1.9,
     };
+    let heading = vy.atan2(vx);
     z.iter().enumerate().any(|(k, zk)| {
-        let xk = x + v * 0.3 * (k + 1) as f64;
-        car_box(zk[0], zk[1], zk[2]).overlaps(&car_box(xk, y, 0.0))
+        let t = 0.3 * (k + 1) as f64;
+        car_box(zk[0], zk[1], zk[2]).overlaps(&car_box(x + vx * t, y + vy * t, heading))
     })
 }
 
