@@ -31,8 +31,8 @@ pub mod sim;
 
 pub use ablation::keep_lane_path;
 pub use admm::{
-    BindingVehicle, CheckedVehicle, EgoState, JointSolution, PhaseTimings, Plan, PlanStatus,
-    Planner, PlanningProblem, SafetyConstraint, StepStatus,
+    BindingVehicle, CheckedVehicle, DRIFT_STEPS, EgoState, JointSolution, PhaseTimings, Plan,
+    PlanStatus, Planner, PlanningProblem, SafetyConstraint, StepStatus, lateral_drift,
 };
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,

@@ -343,6 +343,24 @@ pub struct PlannerSettings {
     /// at-fault run at 2.2 m/s on the training scenes (IDM world), where braking clear of the
     /// car ahead had the follower hit the ego.
     pub avoid_min_speed: f64,
+    /// Extend the planning predictor's forecast of every checked vehicle that is drifting
+    /// across the road ([`crate::lateral_drift`]): a vehicle whose mean lateral speed over its
+    /// last [`crate::DRIFT_STEPS`] observed steps is at least `lateral_drift_min_speed` is
+    /// checked
+    /// at least as far along its drift as that speed carries it from its last observed
+    /// position (y_k = y_last + k·Δy per step, wherever the network predicts less; its
+    /// predicted position along the road is the network's). A driver the network keeps in the
+    /// next lane while it cuts in then makes the plans that hold the ego beside it
+    /// inadmissible from the first step it drifts. No extra predictor call. Off by default:
+    /// on 600 training scenes × 3 seeds (student planner, paired) it removed the five
+    /// log-replay at-fault runs with drivers drifting in (9 → 6 runs, 15 → 6 events) but added
+    /// one in the IDM world (4 → 5) and lost teacher-world runs (14 lost, 5 gained); at
+    /// 0.4 m/s it added at-fault runs in both worlds and lost 11 teacher-world runs for 1
+    /// (`docs/results/avoidability.md`).
+    pub lateral_drift: bool,
+    /// With `lateral_drift`: the smallest mean lateral speed (m/s) over the last
+    /// [`crate::DRIFT_STEPS`] observed steps that counts as a drift.
+    pub lateral_drift_min_speed: f64,
     /// Rank the road-edge excess first among fallbacks without an admissible plan: the
     /// candidate whose box's corners reach least far beyond the road's edges (Σ over the
     /// horizon, m) wins before the speed floor and the total violation (which otherwise
@@ -564,6 +582,8 @@ impl Default for PlannerSettings {
             fallback_nonreactive: false,
             fallback_avoid_nonreactive: false,
             avoid_min_speed: LAST_RESORT_MIN_SPEED,
+            lateral_drift: false,
+            lateral_drift_min_speed: 0.25,
             edge_first: true,
             contact_first: true,
             bounds_first: true,
@@ -759,6 +779,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("fallback_speed_floor", 0.0, 1.0, "–"),
     closed("lattice_min_speed", 0.0, 100.0, "m/s"),
     closed("avoid_min_speed", 0.0, 100.0, "m/s"),
+    closed("lateral_drift_min_speed", 0.0, 10.0, "m/s"),
     closed(
         "bounds_slack",
         0.0,
@@ -849,6 +870,7 @@ impl PlannerSettings {
             "fallback_speed_floor" => self.fallback_speed_floor,
             "lattice_min_speed" => self.lattice_min_speed,
             "avoid_min_speed" => self.avoid_min_speed,
+            "lateral_drift_min_speed" => self.lateral_drift_min_speed,
             "bounds_slack" => self.bounds_slack,
             "restore_step" => self.restore_step,
             "heading_max" => self.heading_max,

@@ -43,6 +43,7 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "fallback_brake_hold": false, "fallback_full_accel": false, "fallback_lattice": true, "lattice_clear_nonreactive": true, "lattice_when_fallback_hits": false,
         "lattice_min_speed": 10.0,
         "fallback_nonreactive": false, "fallback_avoid_nonreactive": false, "avoid_min_speed": 10.0,
+        "lateral_drift": false, "lateral_drift_min_speed": 0.25,
         "edge_first": true, "contact_first": true, "bounds_first": true, "bounds_slack": 0.05,
         "restore_step": 1.0,
         "ablate_reaction": false,
@@ -124,7 +125,7 @@ fn every_field_is_validated() {
             );
         }
     }
-    assert_eq!(numeric, 61, "numeric settings");
+    assert_eq!(numeric, 62, "numeric settings");
 }
 
 /// The documented range table covers exactly the numeric fields, each bound is enforced, and

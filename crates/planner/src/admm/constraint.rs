@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use nudge_predictor::{Predictor, T_OBS};
+use nudge_predictor::{History, Predictor, T_OBS};
 
 use crate::error::PlannerError;
 use crate::model::State;
@@ -30,6 +30,33 @@ pub struct CheckedVehicle {
     /// (cos ψ, sin ψ) of its last observed motion ([`motion_axis`], heading 0 when it barely
     /// moved): the signed direction the box geometry needs.
     pub axis: [f64; 2],
+    /// Lateral drift (m per step, + to the left) its checked positions are extended by
+    /// (`PlannerSettings::lateral_drift`; [`lateral_drift`]); 0 when it does not drift or the
+    /// rule is off.
+    pub drift: f64,
+}
+
+/// Observed steps over which a vehicle's lateral speed is averaged for
+/// `PlannerSettings::lateral_drift` (3 × 0.3 s = 0.9 s).
+pub const DRIFT_STEPS: usize = 3;
+
+/// The lateral drift (m per step, + to the left) of agent `agent` of `history` under
+/// `settings`: its mean lateral displacement per step over the last [`DRIFT_STEPS`] observed
+/// steps when `lateral_drift` is on and that mean is at least `lateral_drift_min_speed` ×
+/// `dt` in magnitude; else 0.
+#[must_use]
+pub fn lateral_drift(history: &History, agent: usize, settings: &PlannerSettings) -> f64 {
+    if !settings.lateral_drift {
+        return 0.0;
+    }
+    let last = history.at(agent, T_OBS - 1)[1];
+    let first = history.at(agent, T_OBS - 1 - DRIFT_STEPS)[1];
+    let per_step = (last - first) / DRIFT_STEPS as f64;
+    if per_step.abs() >= settings.lateral_drift_min_speed * settings.dt {
+        per_step
+    } else {
+        0.0
+    }
 }
 
 /// The safety constraint of one MPC call: the vehicles within `check_range` of the ego's
@@ -70,6 +97,7 @@ impl SafetyConstraint {
                     last: [p[0], p[1]],
                     direction: motion_direction([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
                     axis: motion_axis([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
+                    drift: lateral_drift(problem.history, i, settings),
                 });
             }
         }
@@ -678,6 +706,30 @@ impl<'c> SafetyEval<'c> {
         Ok(())
     }
 
+    /// Extends the prediction of every drifting checked vehicle (`CheckedVehicle::drift`
+    /// ≠ 0) along its drift: its lateral position at step k (1-based) becomes y_last +
+    /// k·drift wherever the prediction lies less far that way. A non-finite prediction is
+    /// left as it is (never replaced by a finite one). Idempotent, so a prediction reused
+    /// under the reaction ablation is extended once.
+    fn extend_drifts(&mut self) {
+        let t = self.horizon;
+        for v in self.constraint.vehicles().iter().filter(|v| v.drift != 0.0) {
+            let base = (v.index - 1) * t * 2;
+            for k in 0..t {
+                let y = &mut self.prediction[base + 2 * k + 1];
+                let drifted = v.last[1] + (k + 1) as f64 * v.drift;
+                let further = if v.drift > 0.0 {
+                    drifted > *y
+                } else {
+                    drifted < *y
+                };
+                if further {
+                    *y = drifted;
+                }
+            }
+        }
+    }
+
     /// The threshold of the violation (b_min).
     pub(crate) fn threshold(&self) -> f64 {
         self.threshold
@@ -742,6 +794,7 @@ impl<'c> SafetyEval<'c> {
             return Ok(Evaluation::not_evaluated());
         }
         self.predict(predictor)?;
+        self.extend_drifts();
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;
         let mut path_min_b: Option<f64> = None;

@@ -45,6 +45,8 @@ mod contingency_tests;
 #[cfg(test)]
 mod convergence_tests;
 #[cfg(test)]
+mod drift_tests;
+#[cfg(test)]
 mod follower_gap_tests;
 #[cfg(test)]
 mod nonreactive_tests;
@@ -62,7 +64,9 @@ use crate::model::{Bicycle, State};
 use crate::qp::QpFailure;
 use crate::settings::{PlannerSettings, SafetyGeometry};
 
-pub use constraint::{BindingVehicle, CheckedVehicle, SafetyConstraint};
+pub use constraint::{
+    BindingVehicle, CheckedVehicle, DRIFT_STEPS, SafetyConstraint, lateral_drift,
+};
 pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
 

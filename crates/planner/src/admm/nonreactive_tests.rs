@@ -12,8 +12,8 @@ use super::*;
 /// Predicts every other agent from its last observed position driving along +x at its last
 /// observed longitudinal speed, its lateral position held: a merging car the planning model
 /// expects to stay in its lane.
-struct Straight {
-    last: Vec<[[f64; 2]; 2]>,
+pub(super) struct Straight {
+    pub(super) last: Vec<[[f64; 2]; 2]>,
 }
 
 impl Predictor for Straight {
@@ -44,7 +44,7 @@ impl Predictor for Straight {
 
 /// The ego at 20 m/s in its lane (y = 0) and the `others` (x, y m; v_x, v_y m/s, observed
 /// over the history); all 4.5 m × 1.9 m.
-fn scene_of(others: &[(f64, f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
+pub(super) fn scene_of(others: &[(f64, f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
     let n = 1 + others.len();
     let mut pos = Vec::with_capacity(n * T_OBS * 2);
     for &(x, y, vx, vy) in std::iter::once(&(0.0, 0.0, 20.0, 0.0)).chain(others) {
