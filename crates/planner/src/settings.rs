@@ -267,10 +267,11 @@ pub struct PlannerSettings {
     /// candidate became accelerating past the target-lane gap, which left the ego beside the
     /// traffic (`docs/results/fallback_escape.md`).
     pub fallback_full_accel: bool,
-    /// When no fallback above is admissible, also check the input lattice (blocks of two
-    /// steps, each changing the steering and the acceleration by −, 0 or + their rate bounds
-    /// per step, clipped to their boxes: up to 9^⌈T/2⌉ sequences, 729 at T = 6), each on its
-    /// own roll-out and prediction like every fallback, and keep the best by the same rank.
+    /// When no fallback above is admissible, also check the input lattice (over the first six
+    /// steps, blocks of two steps, each changing the steering and the acceleration by −, 0
+    /// or + their rate bounds per step, clipped to their boxes, the last inputs held after
+    /// them: at most 729 sequences whatever the horizon), each on its own roll-out and
+    /// prediction like every fallback, and keep the best by the same rank.
     /// The log-replay oracle (`crate::sim::oracle`) found every at-fault collision of the
     /// development runs avoidable from a state 0.6–1.5 s before the contact where the planner
     /// already had nothing admissible; the simple fallbacks miss the sequences that avoid it.

@@ -605,16 +605,23 @@ pub(crate) const LATTICE_RATES: [(f64, f64); 9] = [
     (1.0, 1.0),
 ];
 
+/// Blocks of [`LATTICE_HOLD`] steps over which the fallback's input lattice branches
+/// ([`lattice_inputs`]): the shipped 6-step horizon exactly, and at most 9³ = 729 sequences
+/// whatever the horizon.
+pub(crate) const LATTICE_BLOCKS: usize = 3;
+
 /// The input lattice of the fallback (`PlannerSettings::fallback_lattice`): from the inputs
-/// applied last, every sequence `[T]` that in blocks of [`LATTICE_HOLD`] steps changes the
-/// steering by −, 0 or + its rate bound per step and the acceleration likewise, each clipped
-/// to its box (so within the box and rate bounds by construction); sequences equal after
-/// clipping appear once, in the order of the choices (holding first, then braking, then the
-/// rest). At most 9^⌈T/`LATTICE_HOLD`⌉.
+/// applied last, every sequence `[T]` that in each of its first [`LATTICE_BLOCKS`] blocks of
+/// [`LATTICE_HOLD`] steps changes the steering by −, 0 or + its rate bound per step and the
+/// acceleration likewise, each clipped to its box (so within the box and rate bounds by
+/// construction), and holds its last inputs after them (horizons beyond
+/// `LATTICE_BLOCKS` × `LATTICE_HOLD` steps); sequences equal after clipping appear once, in
+/// the order of the choices (holding first, then braking, then the rest). At most
+/// 9^min(⌈T/`LATTICE_HOLD`⌉, `LATTICE_BLOCKS`).
 pub(crate) fn lattice_inputs(lp: &LinearisedProblem) -> Vec<(Vec<f64>, Vec<f64>)> {
     let (db, ab) = (lp.delta_box, lp.accel_box);
     let mut out: Vec<(Vec<f64>, Vec<f64>)> = vec![(Vec::new(), Vec::new())];
-    for start in (0..lp.horizon).step_by(LATTICE_HOLD) {
+    for start in (0..lp.horizon).step_by(LATTICE_HOLD).take(LATTICE_BLOCKS) {
         let steps = LATTICE_HOLD.min(lp.horizon - start);
         let mut next = Vec::with_capacity(out.len() * LATTICE_RATES.len());
         for (d, a) in &out {
@@ -646,6 +653,12 @@ pub(crate) fn lattice_inputs(lp: &LinearisedProblem) -> Vec<(Vec<f64>, Vec<f64>)
             }
         }
         out = next;
+    }
+    for (d, a) in &mut out {
+        if let (Some(&last_d), Some(&last_a)) = (d.last(), a.last()) {
+            d.resize(lp.horizon, last_d);
+            a.resize(lp.horizon, last_a);
+        }
     }
     out
 }

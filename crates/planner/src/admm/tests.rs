@@ -2138,6 +2138,33 @@ fn the_lattice_keeps_the_input_bounds_and_holds_the_extreme_ramps() {
     }
 }
 
+/// On horizons of 10 and 60 steps (the predictors' largest) the lattice stays the 6-step one,
+/// each sequence holding its last inputs after step 6: the same sequences, in the same order,
+/// as on the shipped horizon. It used to grow as 9^⌈T/2⌉ (59,049 sequences at 10 steps, 9^30
+/// at 60, which the settings fuzzer found as a hang).
+#[test]
+fn a_long_horizon_lattice_branches_over_the_first_six_steps_only() {
+    let (h, sizes) = car_behind_in_target_lane();
+    let short = repairs_only();
+    let m = model(&short);
+    let p = problem(&h, &sizes, 12.0);
+    let six = lattice_inputs(&LinearisedProblem::new(&short, &m, None, &p));
+    for horizon in [10, 60] {
+        let long = PlannerSettings {
+            horizon,
+            ..repairs_only()
+        };
+        long.validate().unwrap();
+        let lattice = lattice_inputs(&LinearisedProblem::new(&long, &m, None, &p));
+        assert_eq!(lattice.len(), six.len(), "{horizon} steps");
+        for ((d, a), (d6, a6)) in lattice.iter().zip(&six) {
+            assert_eq!((d.len(), a.len()), (horizon, horizon));
+            assert_eq!((&d[..6], &a[..6]), (d6.as_slice(), a6.as_slice()));
+            assert!(d[6..].iter().all(|&x| x == d6[5]) && a[6..].iter().all(|&x| x == a6[5]));
+        }
+    }
+}
+
 /// With nothing else admissible the lattice finds the escape: a vehicle closing from behind
 /// catches every candidate that ends short of a line only the full-acceleration ramp reaches.
 /// Without `fallback_lattice` (and without `fallback_full_accel`) no fallback is safe; with it
