@@ -86,7 +86,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             predictor.as_mut(),
             WorldModel::LogReplay,
         )?;
-        let traffic = LoggedTraffic::new(&sc, cfg.max_steps);
+        let traffic = LoggedTraffic::new(&sc, cfg.max_steps, cfg.replay_lateral_decay);
         let observer = RunObserver::new(&sc, run.target_lane, cfg.fault_brake_limit, settings.l_r);
         let world = OracleWorld {
             bicycle: nudge::planner::Bicycle {

@@ -187,6 +187,10 @@ fn cli_refuses_bad_arguments_by_name() {
         (vec!["--stall-progress", "2"], "stall_progress"),
         (vec!["--start-abort-after", "5000"], "start_abort_after"),
         (vec!["--crawl-fraction", "2"], "crawl_fraction"),
+        (
+            vec!["--replay-lateral-decay", "1.5"],
+            "replay_lateral_decay",
+        ),
         (vec!["--crawl-fraction", "NaN"], "crawl_fraction"),
     ] {
         let mut all = vec!["simulate", "--scenes", sc];

@@ -403,7 +403,7 @@ def simulate(
     ``config`` (default ``SimConfig.default()``) with ``config_overrides`` (``SimConfig`` fields:
     ``world``, ``max_steps``, ``settle_y``, ``settle_psi``, ``settle_steps``, ``abort_after``,
     ``abort_hold``, ``stall_progress``, ``start_abort_after``, ``gap_speed``, ``gap_window``,
-    ``crawl_fraction``, ``fault_brake_limit``) sets
+    ``crawl_fraction``, ``fault_brake_limit``, ``replay_lateral_decay``) sets
     the closed loop. Lane-change
     aborts: after ``abort_after`` consecutive steps without a safe plan (status ``Fallback``,
     ``Unsafe`` or ``SolverFailed``) while the ego is not yet wholly inside the target lane, the ego
@@ -418,6 +418,9 @@ def simulate(
     median speed of the goal lane's vehicles within 50 m along the road (the last such median
     seen when none is in range), its reference speed is at least that median for the rest of
     the run (``crawl_fraction = 0``: off).
+    Log replay past a vehicle's log: it keeps its last displacement along the road and
+    repeats ``replay_lateral_decay`` (in [0, 1]; 0.75, fitted to real tracks) of its last
+    sideways one per step (1: constant velocity; 0: its lateral position held).
     The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).
 
     ``trace``: keep every step's plan and the planning predictor's predicted reaction to it

@@ -121,6 +121,13 @@ pub struct SimulateArgs {
         DEFAULT.fault_brake_limit,
     ))]
     pub fault_brake_limit: Option<f64>,
+    #[arg(long, help = noted(
+        "Log replay past a vehicle's log: the share of its last sideways displacement it \
+         repeats per step (its speed along the road held); 1 is constant velocity, 0 holds \
+         its lateral position",
+        DEFAULT.replay_lateral_decay,
+    ))]
+    pub replay_lateral_decay: Option<f64>,
     /// Output directory for steps.csv, runs.csv, collisions.csv and records.json.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -164,6 +171,7 @@ impl SimulateArgs {
         c.gap_window = self.gap_window.unwrap_or(c.gap_window);
         c.crawl_fraction = self.crawl_fraction.unwrap_or(c.crawl_fraction);
         c.fault_brake_limit = self.fault_brake_limit.unwrap_or(c.fault_brake_limit);
+        c.replay_lateral_decay = self.replay_lateral_decay.unwrap_or(c.replay_lateral_decay);
         Ok(c)
     }
 

@@ -89,7 +89,7 @@ fn a_car_stopped_ahead_is_avoidable_exactly_beyond_the_stopping_distance() {
             // Ego front at 2.25 m; the stopped car's rear at 2.25 + d + slack.
             let xo = 2.25 + d + slack + 2.25;
             let sc = scene(&[(0.0, 0.0, v0), (xo, 0.0, 0.0)], &bounds);
-            let traffic = LoggedTraffic::new(&sc, 20);
+            let traffic = LoggedTraffic::new(&sc, 20, SimConfig::default().replay_lateral_decay);
             let world = world(&traffic, &bounds);
             let start = start(v0, (0.0, 0.0));
             let found = avoid(&world, &limits, &start, 14);
@@ -119,7 +119,7 @@ fn a_found_sequence_keeps_the_input_bounds_and_replays_clean() {
     let bounds = [-1.75, 1.75, 5.25];
     // A car stopped 30 m ahead in the ego's lane, room beside it in lane 1.
     let sc = scene(&[(0.0, 0.0, 12.0), (32.0, 0.0, 0.0)], &bounds);
-    let traffic = LoggedTraffic::new(&sc, 12);
+    let traffic = LoggedTraffic::new(&sc, 12, SimConfig::default().replay_lateral_decay);
     let world = world(&traffic, &bounds);
     let start = start(12.0, (0.05, 1.0));
     let Avoidance::Avoidable(inputs) = avoid(&world, &limits, &start, 10) else {
@@ -145,7 +145,7 @@ fn a_search_past_its_node_limit_is_undecided() {
     limits.max_nodes = 3;
     let bounds = [-1.75, 1.75];
     let sc = scene(&[(0.0, 0.0, 10.0), (60.0, 0.0, 0.0)], &bounds);
-    let traffic = LoggedTraffic::new(&sc, 20);
+    let traffic = LoggedTraffic::new(&sc, 20, SimConfig::default().replay_lateral_decay);
     let world = world(&traffic, &bounds);
     let start = start(10.0, (0.0, 0.0));
     // Ten blocks are needed; holding the inputs reaches the car at 60 m after 5 s (17 steps).
@@ -180,7 +180,7 @@ fn replaying_a_log_replay_run_gives_its_states_and_its_collisions() {
     let mut cv = ConstantVelocity::default();
     let run = simulate(&sc, &s, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap();
     assert!(run.collision, "the fast cars catch the ego");
-    let traffic = LoggedTraffic::new(&sc, run.steps.len());
+    let traffic = LoggedTraffic::new(&sc, run.steps.len(), cfg.replay_lateral_decay);
     let b = bicycle();
     let mut z = State::new(0.0, 0.0, 0.0, 10.0);
     for (k, st) in run.steps.iter().enumerate() {
@@ -219,7 +219,7 @@ fn the_constant_velocity_extrapolation_of_a_steady_log_is_the_log() {
         &[(0.0, 0.0, 10.0), (20.0, 3.5, 12.0), (-15.0, 0.0, 8.0)],
         &bounds,
     );
-    let log = LoggedTraffic::new(&steady, 12);
+    let log = LoggedTraffic::new(&steady, 12, SimConfig::default().replay_lateral_decay);
     let close = |a: &nudge_planner::sim::metrics::Vehicle,
                  b: &nudge_planner::sim::metrics::Vehicle| {
         (a.bbox.x - b.bbox.x).abs() < 1e-9
@@ -239,7 +239,7 @@ fn the_constant_velocity_extrapolation_of_a_steady_log_is_the_log() {
     for step in 4..turning.n_future {
         turning.future[(turning.n_future + step) * 2 + 1] += 1.0;
     }
-    let log = LoggedTraffic::new(&turning, 12);
+    let log = LoggedTraffic::new(&turning, 12, SimConfig::default().replay_lateral_decay);
     let guess = log.extrapolated(&turning, 4);
     for s in 0..12 {
         let (g, l) = (&guess.steps[s][0], &log.steps[s][0]);

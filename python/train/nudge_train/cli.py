@@ -752,7 +752,7 @@ def build_parser() -> argparse.ArgumentParser:
                "override them.",
     )
     sub = parser.add_subparsers(dest="cmd", required=True,
-                                metavar="{data,train,teacher,student,distill,closed-loop,interaction,paper,bench,goldens,figures,idm}")
+                                metavar="{data,train,teacher,student,distill,closed-loop,interaction,paper,bench,goldens,figures,idm,replay-extrapolation}")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
@@ -770,7 +770,25 @@ def build_parser() -> argparse.ArgumentParser:
     _add_figures(sub)
     _add_idm(sub)
     _add_commonroad(sub)
+    _add_replay_extrapolation(sub)
     return parser
+
+
+# ---- log replay past a log's end ----------------------------------------------------------------
+def _add_replay_extrapolation(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "replay-extrapolation", "fit the log-replay world's sideways decay past a log's end to "
+                 "real tracks (training scenes) and report it on the validation and test scenes; exit 1 when "
+                 "the shipped default is not the fitted value", _run_replay_extrapolation)
+    p.add_argument("--scenes-root", type=Path, default=paths.scenes("train").parent,
+                   help="folder holding the train, val and test scene folders")
+    p.add_argument("--out", type=Path, default=paths.results() / "replay_extrapolation.md", help="the report")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _run_replay_extrapolation(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.replay_extrapolation import run
+
+    return run(a.scenes_root, a.out, progress=not a.no_progress)
 
 
 # ---- CommonRoad ---------------------------------------------------------------------------------

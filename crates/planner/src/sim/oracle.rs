@@ -40,9 +40,10 @@ pub struct LoggedTraffic {
 
 impl LoggedTraffic {
     /// The others of `sc` after steps `0..steps`, moved by the log exactly as the simulator's
-    /// log-replay world moves them (constant velocity once the log ends).
+    /// log-replay world with [`crate::SimConfig::replay_lateral_decay`] = `lateral_decay`
+    /// moves them.
     #[must_use]
-    pub fn new(sc: &Scenario, steps: usize) -> Self {
+    pub fn new(sc: &Scenario, steps: usize, lateral_decay: f64) -> Self {
         let mut observed: Vec<Vec<[f64; 2]>> = (0..sc.n_agents)
             .map(|i| (0..T_OBS).map(|t| sc.position(i, t)).collect())
             .collect();
@@ -55,7 +56,7 @@ impl LoggedTraffic {
                     if i == 0 {
                         h[T_OBS - 1]
                     } else {
-                        logged_position(sc, i, h, step)
+                        logged_position(sc, i, h, step, lateral_decay)
                     }
                 })
                 .collect();

@@ -56,8 +56,12 @@ pub(crate) enum Mover<'p> {
         candidate: Vec<f64>,
         prediction: Vec<f64>,
     },
-    /// The logged future.
-    LogReplay,
+    /// The logged future, and the lateral decay past its end
+    /// ([`SimConfig::replay_lateral_decay`]).
+    LogReplay {
+        /// Fraction of the last lateral displacement repeated per extrapolated step.
+        lateral_decay: f64,
+    },
     /// IDM traffic.
     Idm(IdmTraffic),
 }
@@ -106,15 +110,17 @@ impl<'p> Mover<'p> {
                     prediction: vec![0.0; (sc.n_agents.max(2) - 1) * horizon * 2],
                 })
             }
-            WorldModel::LogReplay => Ok(Self::LogReplay),
+            WorldModel::LogReplay => Ok(Self::LogReplay {
+                lateral_decay: cfg.replay_lateral_decay,
+            }),
             WorldModel::Idm(population) => Ok(Self::Idm(IdmTraffic::new(sc, population, seed))),
         }
     }
 
     /// The others' positions after `step` (index = agent, agent 0 = the ego at `ego_to`): the
     /// teacher predicts them given the ego's executed position and the rest of its `plan`;
-    /// log replay reads the log (constant velocity from the last two observations once it
-    /// ends); IDM traffic follows its leaders while the ego moves from `ego_from` to `ego_to`.
+    /// log replay reads the log (past its end, the last two observations' displacement along
+    /// the road and a decaying share of it across); IDM traffic follows its leaders while the ego moves from `ego_from` to `ego_to`.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn advance(
         &mut self,
@@ -155,9 +161,9 @@ impl<'p> Mover<'p> {
                     moved.push([prediction[b], prediction[b + 1]]);
                 }
             }
-            Self::LogReplay => {
+            Self::LogReplay { lateral_decay } => {
                 for (i, h) in observed.iter().enumerate().skip(1) {
-                    moved.push(logged_position(sc, i, h, step));
+                    moved.push(logged_position(sc, i, h, step, *lateral_decay));
                 }
             }
             Self::Idm(traffic) => moved.extend(traffic.step(ego_from, ego_to)),
@@ -167,19 +173,23 @@ impl<'p> Mover<'p> {
 }
 
 /// Where the log puts `agent` after closed-loop step `step` (m): its logged position at future
-/// step `step + 1`, or, where the log has none, one more displacement at the velocity of its
-/// last two observed positions `observed` `[T_OBS]` (m). The one rule of log replay (the
-/// simulator's world and [`super::oracle::LoggedTraffic`]).
+/// step `step + 1`, or, where the log has none, its last observed position `observed[T_OBS −
+/// 1]` (m) moved by the displacement from `observed[T_OBS − 2]` along the road (x) and by
+/// `lateral_decay` (in [0, 1]) times it across (y). Applied step after step, a vehicle whose
+/// log ends after a lateral displacement Δy is Δy·ρ(1 − ρᵏ)/(1 − ρ) further across k steps
+/// later (ρ = `lateral_decay`; k·Δy at ρ = 1). The one rule of log replay (the simulator's
+/// world and [`super::oracle::LoggedTraffic`]).
 #[must_use]
 pub fn logged_position(
     sc: &Scenario,
     agent: usize,
     observed: &[[f64; 2]],
     step: usize,
+    lateral_decay: f64,
 ) -> [f64; 2] {
     sc.future_at(agent, step + 1).unwrap_or_else(|| {
         let a = observed[T_OBS - 2];
         let b = observed[T_OBS - 1];
-        [2.0 * b[0] - a[0], 2.0 * b[1] - a[1]]
+        [2.0 * b[0] - a[0], b[1] + lateral_decay * (b[1] - a[1])]
     })
 }

@@ -459,8 +459,10 @@ population fitted to real NGSIM car-following, `assets/worlds/idm.json`; the ego
 the lane of its centre at the start and enters another lane by the fitted intrusion rule: a follower
 counts it once its nearest edge is 0.7 m inside the follower's lane with probability 0.7, otherwise
 only once it is wholly inside, and keeps counting it while any part of it is in the lane; see
-`nudge_planner::sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged future; constant
-velocity once the log ends; the others never react).
+`nudge_planner::sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged future; the others
+never react; once a vehicle's log ends it keeps its last displacement along the road and repeats
+{decay:g} of its last sideways one per step, `replay_lateral_decay`, fitted to real tracks in
+`docs/results/replay_extrapolation.md`; most logs are shorter than a run).
 """
 
 
@@ -510,7 +512,8 @@ def report(chunks: list[Chunk], meta: dict, cfg: EvalConfig, command: str) -> st
         "",
         "@SUMMARY@",
         RULES.format(budget=budget, budget_s=budget * nudge.DT, brake=brake, t1=cuts[0], t2=cuts[1],
-                     boot=cfg.bootstrap, settle=float(sim_cfg.settle_y)),
+                     boot=cfg.bootstrap, settle=float(sim_cfg.settle_y),
+                     decay=float(sim_cfg.replay_lateral_decay)),
         "## Results per world and planner",
         "",
         "| world | planner | runs (scenes) | success % [95 % CI] | collisions at fault: events (runs) | "
