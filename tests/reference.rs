@@ -32,5 +32,5 @@ fn settings_command_prints_the_page_and_the_json() {
     assert_eq!(run("markdown"), settings_markdown());
     let json: serde_json::Value = serde_json::from_str(&run("json")).expect("JSON");
     assert_eq!(json, settings_json());
-    assert_eq!(json["SimConfig"].as_array().map(Vec::len), Some(13));
+    assert_eq!(json["SimConfig"].as_array().map(Vec::len), Some(14));
 }
