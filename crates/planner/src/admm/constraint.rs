@@ -479,6 +479,10 @@ pub(crate) struct Evaluation {
     pub path_min_b: Option<f64>,
     /// `violation` over the pairs whose vehicle is not beside the ego.
     pub path_violation: f64,
+    /// `violation` over the pairs whose vehicle is not beside the ego and whose centre is
+    /// ahead of the ego's along the road at that step: the vehicles the ego drives into
+    /// (`PlannerSettings::lead_first`).
+    pub ahead_violation: f64,
     /// Σ over the pairs of how deep the boxes overlap (m, [`SafetyConstraint::overlap`]); 0
     /// unless the evaluator counts it ([`SafetyEval::count_overlap`]).
     pub overlap: f64,
@@ -493,6 +497,7 @@ impl Evaluation {
             violation: f64::INFINITY,
             path_min_b: Some(f64::NEG_INFINITY),
             path_violation: f64::INFINITY,
+            ahead_violation: f64::INFINITY,
             overlap: f64::INFINITY,
         }
     }
@@ -772,6 +777,7 @@ impl<'c> SafetyEval<'c> {
                 violation: 0.0,
                 path_min_b: None,
                 path_violation: 0.0,
+                ahead_violation: 0.0,
                 overlap: 0.0,
             });
         }
@@ -799,6 +805,7 @@ impl<'c> SafetyEval<'c> {
         let mut violation = 0.0;
         let mut path_min_b: Option<f64> = None;
         let mut path_violation = 0.0;
+        let mut ahead_violation = 0.0;
         let mut overlap = 0.0;
         self.rows.clear();
         for v in checked {
@@ -823,6 +830,9 @@ impl<'c> SafetyEval<'c> {
                     path_min_b = Some(path_min_b.map_or(b, |m| min_or_nan(m, b)));
                     if b <= self.threshold {
                         path_violation += self.threshold - b;
+                        if other[0] > ego[0] {
+                            ahead_violation += self.threshold - b;
+                        }
                     }
                 }
                 min_b = min_or_nan(min_b, b);
@@ -846,6 +856,7 @@ impl<'c> SafetyEval<'c> {
                 violation: f64::INFINITY,
                 path_min_b: Some(f64::NEG_INFINITY),
                 path_violation: f64::INFINITY,
+                ahead_violation: f64::INFINITY,
                 overlap: f64::INFINITY,
             });
         }
@@ -854,6 +865,7 @@ impl<'c> SafetyEval<'c> {
             violation,
             path_min_b: path_min_b.map(|b| if b.is_nan() { f64::NEG_INFINITY } else { b }),
             path_violation,
+            ahead_violation,
             overlap,
         })
     }

@@ -49,6 +49,8 @@ mod drift_tests;
 #[cfg(test)]
 mod follower_gap_tests;
 #[cfg(test)]
+mod lead_first_tests;
+#[cfg(test)]
 mod nonreactive_tests;
 #[cfg(test)]
 mod projection_tests;

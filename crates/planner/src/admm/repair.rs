@@ -93,11 +93,14 @@ const EXCESS_TOLERANCE: f64 = 1e-9;
 /// out of the lateral corridor or off the road). After those, an inadmissible one that puts
 /// a centre in a lane before it begins loses to every inadmissible one that does not. With
 /// `PlannerSettings::fallback_avoid_nonreactive`, after that, one whose box meets nobody
-/// under the constant-velocity prediction beats one whose box meets somebody's.
+/// under the constant-velocity prediction beats one whose box meets somebody's. With
+/// `PlannerSettings::lead_first` (from `PlannerSettings::lead_min_speed`), after the road
+/// edge, the smaller safety violation against the vehicles ahead of the ego in its path wins.
 ///
 /// The order among inadmissible candidates, each rule deciding only on a tie of those before
-/// it: `out_of_bounds` (false first), `contact`, `edge` (smaller first), `unbegun` (false
-/// first), `hits_nonreactive` (false first), `clear` (true first), `value` (smaller first).
+/// it: `out_of_bounds` (false first), `contact`, `edge`, `ahead` (smaller first), `unbegun`
+/// (false first), `hits_nonreactive` (false first), `clear` (true first), `value` (smaller
+/// first).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rank {
     /// The roll-out is admissible: safe at `safety_min` and within the state bounds.
@@ -126,6 +129,10 @@ pub(crate) struct Rank {
     /// `PlannerSettings::fallback_avoid_nonreactive` on and the ego at least as fast as
     /// `PlannerSettings::avoid_min_speed`; else false.
     pub hits_nonreactive: bool,
+    /// Safety violation (units of b) against the vehicles ahead of the ego in its path
+    /// ([`super::constraint::Evaluation::ahead_violation`]) when inadmissible and
+    /// `PlannerSettings::lead_first` is on, else 0.
+    pub ahead: f64,
 }
 
 impl Rank {
@@ -140,6 +147,9 @@ impl Rank {
             }
             (false, false) if (self.edge - other.edge).abs() > EXCESS_TOLERANCE => {
                 self.edge < other.edge
+            }
+            (false, false) if (self.ahead - other.ahead).abs() > EXCESS_TOLERANCE => {
+                self.ahead < other.ahead
             }
             _ if self.unbegun != other.unbegun => other.unbegun,
             _ if self.hits_nonreactive != other.hits_nonreactive => other.hits_nonreactive,
@@ -168,6 +178,7 @@ impl Rank {
             },
             edge: if s.edge_first { violations.edge } else { 0.0 },
             hits_nonreactive: violations.hits_nonreactive,
+            ahead: if s.lead_first { violations.ahead } else { 0.0 },
         }
     }
 }
@@ -196,6 +207,8 @@ pub(crate) struct Violations {
     /// when not checked: `PlannerSettings::fallback_avoid_nonreactive` off, or the ego
     /// slower than `PlannerSettings::avoid_min_speed`).
     pub hits_nonreactive: bool,
+    /// Safety violation (units of b) against the vehicles ahead of the ego in its path.
+    pub ahead: f64,
 }
 
 /// What an inadmissible candidate's safety ranks by ([`Repairer::worst_case`]).
@@ -310,6 +323,7 @@ impl Repairer<'_, '_> {
                     contact: e.overlap,
                     edge: self.edge_rank(&rollout),
                     hits_nonreactive: self.hits_without_reaction(&rollout)?,
+                    ahead: self.ahead_rank(&e),
                 },
             )
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
@@ -322,6 +336,7 @@ impl Repairer<'_, '_> {
                 contact: 0.0,
                 edge: 0.0,
                 hits_nonreactive: false,
+                ahead: 0.0,
             }
         } else {
             let worst = self.worst_case(&rollout, &e)?;
@@ -343,6 +358,7 @@ impl Repairer<'_, '_> {
                     contact: worst.contact,
                     edge: self.edge_rank(&rollout),
                     hits_nonreactive,
+                    ahead: self.ahead_rank(&e),
                 },
             )
         };
@@ -391,6 +407,19 @@ impl Repairer<'_, '_> {
         Ok(self.s.fallback_avoid_nonreactive
             && self.lp.start[3] >= self.s.avoid_min_speed
             && !self.clear_without_reaction(rollout)?)
+    }
+
+    /// The safety violation against the vehicles ahead in the path an inadmissible
+    /// candidate of evaluation `e` ranks by (units of b): its
+    /// [`super::constraint::Evaluation::ahead_violation`] with `PlannerSettings::lead_first`
+    /// while the ego is at least as fast as `PlannerSettings::lead_min_speed` at the start of
+    /// the call, else 0.
+    fn ahead_rank(&self, e: &Evaluation) -> f64 {
+        if self.s.lead_first && self.lp.start[3] >= self.s.lead_min_speed {
+            e.ahead_violation
+        } else {
+            0.0
+        }
     }
 
     /// The road-edge excess an inadmissible `rollout` ranks by first (m): its

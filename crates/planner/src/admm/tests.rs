@@ -1694,6 +1694,7 @@ fn edge_and_contact_rank_before_the_total_violation() {
         contact,
         edge,
         hits_nonreactive: false,
+        ahead: 0.0,
     };
     assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.05, 0.0, false)));
     assert!(!r(1.0, 0.05, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
@@ -1736,6 +1737,7 @@ fn admissible_rank(value: f64) -> super::repair::Rank {
         contact: 0.0,
         edge: 0.0,
         hits_nonreactive: false,
+        ahead: 0.0,
     }
 }
 
@@ -1756,6 +1758,7 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
         contact,
         edge,
         hits_nonreactive: false,
+        ahead: 0.0,
     };
     let swerve = v(0.4, 0.1, 0.0, 4.5);
     let within = v(0.0, 0.8, 0.0, 6.0);

@@ -1,0 +1,164 @@
+//! `lead_first`: among fallbacks without an admissible plan, the safety violation against
+//! the vehicles ahead of the ego in its path ranks before the total violation.
+
+#![allow(clippy::unwrap_used)]
+
+use nudge_predictor::{ConstantVelocity, Predictor};
+
+use super::nonreactive_tests::scene_of;
+use super::tests::{model, problem};
+use super::*;
+
+/// The ego at 20 m/s in its lane, squeezed: a slower leader (16 m/s) 14 m ahead in its lane,
+/// a faster follower (24 m/s) 12 m behind in its lane, and a car beside it in the target
+/// lane (y = 3.7) at its speed. Every vehicle 4.5 m × 1.9 m, observed at constant velocity.
+fn squeezed() -> (nudge_predictor::History, Vec<[f64; 2]>) {
+    scene_of(&[
+        (14.0, 0.0, 16.0, 0.0),
+        (-12.0, 0.0, 24.0, 0.0),
+        (0.0, 3.7, 20.0, 0.0),
+    ])
+}
+
+/// The safety evaluation of `accel` (held steering 0) from the call on `p` under `s`, with
+/// the constant-velocity prediction.
+fn evaluation(
+    s: &PlannerSettings,
+    p: &PlanningProblem<'_>,
+    accel: &[f64],
+) -> super::constraint::Evaluation {
+    let m = model(s);
+    let lp = LinearisedProblem::new(s, &m, None, p);
+    let constraint = SafetyConstraint::new(p, s);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, p.history.n_agents(), 0.0);
+    let mut rollout = vec![crate::model::State::zeros(); 6];
+    m.rollout(&lp.start, &[0.0; 6], accel, &mut rollout);
+    let mut cv = ConstantVelocity::new(6).unwrap();
+    cv.set_scene(p.history).unwrap();
+    safety.eval(&mut cv, &rollout).unwrap()
+}
+
+/// The violation against vehicles ahead is the part of the path violation whose vehicle is
+/// ahead of the ego: a follower alone adds none, a leader alone all of it, a car beside
+/// none (it is not in the path).
+#[test]
+fn ahead_violation_counts_only_the_vehicles_ahead_in_the_path() {
+    let s = PlannerSettings::default();
+    let hold = [0.0; 6];
+    for (others, ahead_is_all) in [
+        (vec![(-6.0, 0.0, 22.0, 0.0)], false),
+        (vec![(12.0, 0.0, 17.0, 0.0)], true),
+        (vec![(0.0, 2.6, 20.0, 0.0)], false),
+    ] {
+        let (h, sizes) = scene_of(&others);
+        let p = problem(&h, &sizes, 20.0);
+        let e = evaluation(&s, &p, &hold);
+        assert!(e.violation > 0.0, "{others:?}: the pair is violated: {e:?}");
+        if ahead_is_all {
+            assert!(
+                (e.ahead_violation - e.path_violation).abs() < 1e-12,
+                "{e:?}"
+            );
+            assert!((e.ahead_violation - e.violation).abs() < 1e-12, "{e:?}");
+        } else {
+            assert_eq!(e.ahead_violation, 0.0, "{others:?}: {e:?}");
+        }
+    }
+    // All three together: the leader's share alone.
+    let (h, sizes) = scene_of(&[(12.0, 0.0, 17.0, 0.0)]);
+    let leader = evaluation(&s, &problem(&h, &sizes, 20.0), &hold).ahead_violation;
+    let (h, sizes) = scene_of(&[
+        (-6.0, 0.0, 22.0, 0.0),
+        (12.0, 0.0, 17.0, 0.0),
+        (0.0, 2.6, 20.0, 0.0),
+    ]);
+    let all = evaluation(&s, &problem(&h, &sizes, 20.0), &hold);
+    assert!((all.ahead_violation - leader).abs() < 1e-12, "{all:?}");
+    assert!(all.violation > all.ahead_violation + 1e-6, "{all:?}");
+}
+
+/// The rank's order: `ahead` decides after the state bounds, contact and the road edge, and
+/// before the unbegun lane, the speed floor and the total violation; off, it is 0.
+#[test]
+fn ahead_ranks_after_contact_and_edge_before_the_total_violation() {
+    use super::repair::{Rank, Violations};
+    let v = |contact: f64, edge: f64, ahead: f64, clear: bool, value: f64| Violations {
+        unbegun: false,
+        clear,
+        value,
+        bound_excess: 0.0,
+        contact,
+        edge,
+        hits_nonreactive: false,
+        ahead,
+    };
+    let on = PlannerSettings {
+        lead_first: true,
+        ..PlannerSettings::default()
+    };
+    let off = PlannerSettings::default();
+    let rank = |s: &PlannerSettings, x: Violations| Rank::inadmissible(s, &x);
+    // Less violation ahead beats a smaller total violation and the speed floor.
+    let brake = v(0.0, 0.0, 0.1, false, 2.0);
+    let speed_up = v(0.0, 0.0, 0.5, true, 1.0);
+    assert!(rank(&on, brake).beats(&rank(&on, speed_up)));
+    assert!(rank(&off, speed_up).beats(&rank(&off, brake)));
+    assert_eq!(rank(&off, brake).ahead, 0.0);
+    // Contact and the road edge still decide first.
+    let touches = v(0.3, 0.0, 0.0, false, 0.5);
+    let over_edge = v(0.0, 0.2, 0.0, false, 0.5);
+    assert!(rank(&on, brake).beats(&rank(&on, touches)));
+    assert!(rank(&on, brake).beats(&rank(&on, over_edge)));
+    // Equal ahead: the total violation decides.
+    assert!(rank(&on, v(0.0, 0.0, 0.1, false, 1.0)).beats(&rank(&on, brake)));
+}
+
+/// The squeezed ego: nothing is admissible. Ranked by the total violation the fallback
+/// speeds up towards the slower leader, away from the follower; with `lead_first` it brakes
+/// and ends farther from the leader (bumper gap at the constant-velocity positions), with
+/// less violation against it. An ego slower than `lead_min_speed` is ranked as without it.
+#[test]
+fn lead_first_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() {
+    let (h, sizes) = squeezed();
+    let p = problem(&h, &sizes, 20.0);
+    let plan_at = |lead_first: bool, lead_min_speed: f64| {
+        let s = PlannerSettings {
+            lead_first,
+            lead_min_speed,
+            ..PlannerSettings::default()
+        };
+        Planner::new(s)
+            .unwrap()
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap()
+    };
+    let plan = |lead_first: bool| plan_at(lead_first, PlannerSettings::default().lead_min_speed);
+    let (off, on) = (plan(false), plan(true));
+    // Below its speed floor the rule changes nothing.
+    assert_eq!(plan_at(true, 20.5).accel, off.accel);
+    assert_eq!(plan_at(true, 20.0).accel, on.accel);
+    for plan in [&off, &on] {
+        assert_eq!(plan.status, PlanStatus::Unsafe, "{:?}", plan.accel);
+    }
+    let v_end = |plan: &Plan| plan.states.last().unwrap()[3];
+    assert!(v_end(&off) > 20.0, "off: speeds up: {:?}", off.accel);
+    assert!(
+        on.accel.iter().all(|&a| a <= 0.0) && v_end(&on) < 20.0,
+        "on: brakes: {:?}",
+        on.accel
+    );
+    // The leader at constant velocity: 14 m ahead at 16 m/s.
+    let gap = |plan: &Plan| {
+        let k = plan.states.len();
+        14.0 + 16.0 * 0.3 * k as f64 - plan.states[k - 1][0] - 4.5
+    };
+    assert!(gap(&on) > gap(&off) + 1.0, "{} vs {}", gap(&on), gap(&off));
+    let s = PlannerSettings::default();
+    let ahead = |plan: &Plan| evaluation(&s, &p, &plan.accel).ahead_violation;
+    assert!(
+        ahead(&on) < ahead(&off),
+        "{} vs {}",
+        ahead(&on),
+        ahead(&off)
+    );
+}
