@@ -390,9 +390,10 @@ pub struct PlannerSettings {
     /// to lower the follower's violation (the last at-fault run of the test split, a front
     /// contact). Off by default: on 600 training scenes × 3 seeds (student planner, log
     /// replay, paired) it cut the at-fault runs 22 → 19 (events 33 → 24) and added none,
-    /// with success 1486 → 1497 of 1800 (5 lost, 16 gained, McNemar p = 0.03); the validation
-    /// split, on which settings are chosen, and the test split are in
-    /// `docs/results/lead_first.md`.
+    /// with success 1486 → 1497 of 1800 (5 lost, 16 gained, McNemar p = 0.03); but on
+    /// validation (student planner, log replay, 300 scenes × 3 seeds) it added 9 at-fault runs
+    /// to none (a car from behind in the target lane meeting the side of an ego that held
+    /// its speed across the line for a vehicle ahead; `docs/results/lead_first.md`).
     pub lead_first: bool,
     /// With `lead_first`: the rule applies only while the ego's speed at the start of the
     /// call is at least this (m/s); 0 applies it at any speed. 10 m/s by default, the floor
