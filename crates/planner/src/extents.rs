@@ -310,6 +310,15 @@ impl Lanes<'_> {
         Some(self.bounds[1..nl].partition_point(|&b| b <= y))
     }
 
+    /// Whether the band from `lo` to `hi` across the road (m, `lo` ≤ `hi`) spans a lane line:
+    /// an interior boundary lies strictly inside it. The road's outer edges are not lane
+    /// lines.
+    #[must_use]
+    pub fn spans_line(&self, lo: f64, hi: f64) -> bool {
+        let n = self.bounds.len();
+        n > 2 && self.bounds[1..n - 1].iter().any(|&b| lo < b && b < hi)
+    }
+
     /// The lane and how a centre at (`x`, `y`) (m) lies outside its lane's extent, counting
     /// only real begins and ends; `None` when it is inside (or off the road).
     #[must_use]

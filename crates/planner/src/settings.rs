@@ -402,6 +402,18 @@ pub struct PlannerSettings {
     /// across the line, hit from behind while its front met a car standing in the next lane)
     /// and slow steps in live lanes (75 → 120).
     pub lead_min_speed: f64,
+    /// With `lead_first`: the rule applies only while the ego's box at the start of the call
+    /// spans no lane line (it is wholly inside one lane, where the at-fault rule counts a
+    /// contact from behind as not the ego's); without a lane layout it never applies. Across
+    /// the line a contact from behind counts as the ego's, and there `lead_first` alone
+    /// swapped contacts the ego drives into for contacts it is driven into. Off by default,
+    /// with `lead_first`: on validation (both planners, three worlds, paired) the two
+    /// together changed no at-fault run and 19 runs' success (10 gained, 9 lost); on 600
+    /// training scenes × 3 seeds (student planner) they cut the log-replay at-fault runs
+    /// 22 → 19 but added one in the teacher world (0 → 1: an ego braking for a slow leader
+    /// in the target lane drifted back across the line and was hit from behind;
+    /// `docs/results/lead_first.md`).
+    pub lead_in_lane: bool,
     /// Rank the state bounds first among fallbacks without an admissible plan: a candidate
     /// whose roll-out is within the state bounds (heading, lateral corridor, speed, road edge,
     /// lane extents and stopping rule: the excess the total violation weighs, 0) beats every
@@ -613,6 +625,7 @@ impl Default for PlannerSettings {
             contact_first: true,
             lead_first: false,
             lead_min_speed: LAST_RESORT_MIN_SPEED,
+            lead_in_lane: false,
             bounds_first: true,
             bounds_slack: 0.05,
             restore_step: 1.0,

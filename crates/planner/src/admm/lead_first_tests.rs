@@ -162,3 +162,86 @@ fn lead_first_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() 
         ahead(&off)
     );
 }
+
+/// Two lanes, both open along the whole scene, split by a line at `line` (m); the road's
+/// edges as [`problem`]'s.
+fn two_lanes(line: f64) -> ([f64; 3], [crate::scenario::LaneExtent; 2]) {
+    let open = crate::scenario::LaneExtent {
+        begin: -500.0,
+        end: 2000.0,
+        begins: false,
+        ends: false,
+    };
+    ([-1.85, line, 5.55], [open, open])
+}
+
+/// Whether the ego's box starts within one lane: its extent across the road at its heading
+/// against the interior lane lines only; never without a layout.
+#[test]
+fn starts_in_one_lane_tests_the_box_across_the_road_at_its_heading() {
+    let s = PlannerSettings::default();
+    let m = model(&s);
+    let (h, sizes) = scene_of(&[(40.0, 0.0, 20.0, 0.0)]);
+    let (bounds, extents) = two_lanes(1.85);
+    let lanes = crate::extents::Lanes {
+        bounds: &bounds,
+        extents: &extents,
+    };
+    let at = |y: f64, psi: f64, with_lanes: bool| {
+        let mut p = problem(&h, &sizes, 20.0);
+        p.ego.y = y;
+        p.ego.psi = psi;
+        if with_lanes {
+            p.lanes = Some(lanes);
+        }
+        LinearisedProblem::new(&s, &m, None, &p).starts_in_one_lane()
+    };
+    // The ego is 4.5 m × 1.9 m (problem's sizes[0]): half width 0.95 m.
+    assert!(at(0.0, 0.0, true));
+    assert!(
+        !at(0.0, 0.0, false),
+        "no layout: unknown, so not in one lane"
+    );
+    // 0.6 + 0.95 = 1.55 < 1.85 straight; turned by 0.2 rad the half extent is
+    // ½(4.5 sin 0.2 + 1.9 cos 0.2) = 1.378 m, so its corner reaches 1.978 > 1.85.
+    assert!(at(0.6, 0.0, true));
+    assert!(!at(0.6, 0.2, true));
+    assert!(!at(1.85, 0.0, true), "on the line");
+    // Against the road's edge (not a lane line) it is still in its lane.
+    assert!(at(-1.5, 0.0, true));
+    assert!(!lanes.spans_line(-1.85, 1.85) && lanes.spans_line(1.84, 1.86));
+}
+
+/// `lead_in_lane`: the squeezed ego wholly inside its lane plans as with `lead_first` alone;
+/// the same scene with the lane line through the ego's box plans bit for bit as without the
+/// rule, where `lead_first` alone would have braked.
+#[test]
+fn lead_in_lane_applies_the_rule_only_to_an_ego_within_one_lane() {
+    let (h, sizes) = squeezed();
+    let plan = |line: f64, lead_first: bool, lead_in_lane: bool| {
+        let (bounds, extents) = two_lanes(line);
+        let p = PlanningProblem {
+            lanes: Some(crate::extents::Lanes {
+                bounds: &bounds,
+                extents: &extents,
+            }),
+            ..problem(&h, &sizes, 20.0)
+        };
+        let s = PlannerSettings {
+            lead_first,
+            lead_in_lane,
+            ..PlannerSettings::default()
+        };
+        Planner::new(s)
+            .unwrap()
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap()
+            .accel
+    };
+    // The ego's box spans y ∈ [-0.95, 0.95]: within the lane below 1.85, across a line at 0.5.
+    let (within, across) = (1.85, 0.5);
+    assert_eq!(plan(within, true, true), plan(within, true, false));
+    assert_ne!(plan(within, true, true), plan(within, false, false));
+    assert_eq!(plan(across, true, true), plan(across, false, false));
+    assert_ne!(plan(across, true, false), plan(across, false, false));
+}

@@ -289,6 +289,18 @@ impl LinearisedProblem {
         z.iter().map(|zk| self.edge_excess_at(zk)).sum()
     }
 
+    /// Whether the ego's box at the measured start spans no lane line: its extent across the
+    /// road (½(L·|sin ψ| + W·|cos ψ|) either side of its centre, m) crosses none of the lane
+    /// layout's interior boundaries ([`crate::extents::Lanes::spans_line`]). False without a
+    /// lane layout (nothing says where the lines are).
+    pub(crate) fn starts_in_one_lane(&self) -> bool {
+        self.lanes.as_ref().is_some_and(|lanes| {
+            let e = half_extent_at(self.ego_size, self.start[2]);
+            let y = self.origin[1];
+            !lanes.view().spans_line(y - e, y + e)
+        })
+    }
+
     /// The stopping rule's excess of the plan `z` (`[T]`, this frame) (m): that of its last
     /// state ([`crate::extents::Lanes::stop_excess`]), a terminal constraint: a plan that
     /// ends in a lane that really ends must end able to stop `stop_margin` before the end,

@@ -413,9 +413,13 @@ impl Repairer<'_, '_> {
     /// candidate of evaluation `e` ranks by (units of b): its
     /// [`super::constraint::Evaluation::ahead_violation`] with `PlannerSettings::lead_first`
     /// while the ego is at least as fast as `PlannerSettings::lead_min_speed` at the start of
-    /// the call, else 0.
+    /// the call (and, with `PlannerSettings::lead_in_lane`, its box spans no lane line there,
+    /// [`LinearisedProblem::starts_in_one_lane`]), else 0.
     fn ahead_rank(&self, e: &Evaluation) -> f64 {
-        if self.s.lead_first && self.lp.start[3] >= self.s.lead_min_speed {
+        if self.s.lead_first
+            && self.lp.start[3] >= self.s.lead_min_speed
+            && (!self.s.lead_in_lane || self.lp.starts_in_one_lane())
+        {
             e.ahead_violation
         } else {
             0.0
