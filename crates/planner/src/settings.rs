@@ -414,6 +414,16 @@ pub struct PlannerSettings {
     /// in the target lane drifted back across the line and was hit from behind;
     /// `docs/results/lead_first.md`).
     pub lead_in_lane: bool,
+    /// With `lead_first` (while it applies): among fallbacks without an admissible plan, one
+    /// whose roll-out keeps the ego's box off every lane line beats every one that puts it
+    /// across a line, before the violation ahead decides. Ranked by the violation ahead
+    /// alone, a braking ego could steer off its lane's centre to lower that violation and
+    /// drift across the line it had crossed (`lead_in_lane`'s training run). Off by default:
+    /// with `lead_first` and `lead_in_lane` it added no at-fault run in any world on the
+    /// training scenes (student planner, 600 scenes × 3 seeds; log replay 22 → 19) or on
+    /// validation (both planners, three worlds; none there to remove), with success even, but
+    /// the test split has not been run with it (`docs/results/lead_first.md`).
+    pub lead_keep_lane: bool,
     /// Rank the state bounds first among fallbacks without an admissible plan: a candidate
     /// whose roll-out is within the state bounds (heading, lateral corridor, speed, road edge,
     /// lane extents and stopping rule: the excess the total violation weighs, 0) beats every
@@ -626,6 +636,7 @@ impl Default for PlannerSettings {
             lead_first: false,
             lead_min_speed: LAST_RESORT_MIN_SPEED,
             lead_in_lane: false,
+            lead_keep_lane: false,
             bounds_first: true,
             bounds_slack: 0.05,
             restore_step: 1.0,

@@ -91,6 +91,7 @@ fn ahead_ranks_after_contact_and_edge_before_the_total_violation() {
         edge,
         hits_nonreactive: false,
         ahead,
+        leaves_lane: false,
     };
     let on = PlannerSettings {
         lead_first: true,
@@ -244,4 +245,76 @@ fn lead_in_lane_applies_the_rule_only_to_an_ego_within_one_lane() {
     assert_ne!(plan(within, true, true), plan(within, false, false));
     assert_eq!(plan(across, true, true), plan(across, false, false));
     assert_ne!(plan(across, true, false), plan(across, false, false));
+}
+
+/// `lead_keep_lane`'s rank: within the lead rule, staying off the lane lines decides before
+/// the violation ahead, after contact and the road edge; without `lead_keep_lane` it never
+/// decides.
+#[test]
+fn keeping_the_lane_ranks_before_the_violation_ahead() {
+    use super::repair::{Rank, Violations};
+    let v = |contact: f64, ahead: f64, leaves_lane: bool| Violations {
+        unbegun: false,
+        clear: false,
+        value: 1.0,
+        bound_excess: 0.0,
+        contact,
+        edge: 0.0,
+        hits_nonreactive: false,
+        ahead,
+        leaves_lane,
+    };
+    let with = |lead_keep_lane: bool| PlannerSettings {
+        lead_first: true,
+        lead_in_lane: true,
+        lead_keep_lane,
+        ..PlannerSettings::default()
+    };
+    let (on, off) = (with(true), with(false));
+    let rank = |s: &PlannerSettings, x: Violations| Rank::inadmissible(s, &x);
+    let keeps = v(0.0, 0.5, false);
+    let leaves = v(0.0, 0.1, true);
+    assert!(rank(&on, keeps).beats(&rank(&on, leaves)));
+    assert!(rank(&off, leaves).beats(&rank(&off, keeps)));
+    assert!(!rank(&off, leaves).leaves_lane);
+    // Contact still decides first.
+    assert!(rank(&on, leaves).beats(&rank(&on, v(0.2, 0.5, false))));
+}
+
+/// The squeezed ego inside its lane, with `lead_keep_lane`: no state of the plan puts its box
+/// across the lane line; off, the plan is `lead_in_lane`'s, bit for bit.
+#[test]
+fn lead_keep_lane_keeps_a_braking_ego_off_the_lane_lines() {
+    let (h, sizes) = squeezed();
+    let (bounds, extents) = two_lanes(1.85);
+    let p = PlanningProblem {
+        lanes: Some(crate::extents::Lanes {
+            bounds: &bounds,
+            extents: &extents,
+        }),
+        ..problem(&h, &sizes, 20.0)
+    };
+    let plan = |lead_keep_lane: bool| {
+        let s = PlannerSettings {
+            lead_first: true,
+            lead_in_lane: true,
+            lead_keep_lane,
+            ..PlannerSettings::default()
+        };
+        Planner::new(s)
+            .unwrap()
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap()
+    };
+    let (off, on) = (plan(false), plan(true));
+    let s = PlannerSettings::default();
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    let rel = |plan: &Plan| -> Vec<crate::model::State> {
+        plan.states
+            .iter()
+            .map(|z| crate::model::State::new(z[0], z[1], z[2], z[3]))
+            .collect()
+    };
+    assert!(!lp.spans_line(&rel(&on)), "{:?}", on.states);
+    assert!(lp.spans_line(&rel(&off)), "{:?}", off.states);
 }

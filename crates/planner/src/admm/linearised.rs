@@ -301,6 +301,20 @@ impl LinearisedProblem {
         })
     }
 
+    /// Whether the box of one of the states `z` (`[T]`, this frame) spans a lane line
+    /// ([`crate::extents::Lanes::spans_line`] at its extent across the road); false without a
+    /// lane layout.
+    pub(crate) fn spans_line(&self, z: &[State]) -> bool {
+        self.lanes.as_ref().is_some_and(|lanes| {
+            let lanes = lanes.view();
+            z.iter().any(|zk| {
+                let e = half_extent_at(self.ego_size, zk[2]);
+                let y = zk[1] + self.origin[1];
+                lanes.spans_line(y - e, y + e)
+            })
+        })
+    }
+
     /// The stopping rule's excess of the plan `z` (`[T]`, this frame) (m): that of its last
     /// state ([`crate::extents::Lanes::stop_excess`]), a terminal constraint: a plan that
     /// ends in a lane that really ends must end able to stop `stop_margin` before the end,

@@ -133,6 +133,10 @@ pub(crate) struct Rank {
     /// ([`super::constraint::Evaluation::ahead_violation`]) when inadmissible and
     /// `PlannerSettings::lead_first` is on, else 0.
     pub ahead: f64,
+    /// Inadmissible, and the box of some state of the roll-out spans a lane line, with
+    /// `PlannerSettings::lead_keep_lane` on while `PlannerSettings::lead_first` applies
+    /// ([`Repairer::lead_applies`]); else false.
+    pub leaves_lane: bool,
 }
 
 impl Rank {
@@ -148,6 +152,7 @@ impl Rank {
             (false, false) if (self.edge - other.edge).abs() > EXCESS_TOLERANCE => {
                 self.edge < other.edge
             }
+            (false, false) if self.leaves_lane != other.leaves_lane => other.leaves_lane,
             (false, false) if (self.ahead - other.ahead).abs() > EXCESS_TOLERANCE => {
                 self.ahead < other.ahead
             }
@@ -179,6 +184,7 @@ impl Rank {
             edge: if s.edge_first { violations.edge } else { 0.0 },
             hits_nonreactive: violations.hits_nonreactive,
             ahead: if s.lead_first { violations.ahead } else { 0.0 },
+            leaves_lane: s.lead_first && s.lead_keep_lane && violations.leaves_lane,
         }
     }
 }
@@ -209,6 +215,9 @@ pub(crate) struct Violations {
     pub hits_nonreactive: bool,
     /// Safety violation (units of b) against the vehicles ahead of the ego in its path.
     pub ahead: f64,
+    /// The box of some state of the roll-out spans a lane line (false when not checked:
+    /// the lead rule does not apply to the call or `PlannerSettings::lead_keep_lane` is off).
+    pub leaves_lane: bool,
 }
 
 /// What an inadmissible candidate's safety ranks by ([`Repairer::worst_case`]).
@@ -324,6 +333,7 @@ impl Repairer<'_, '_> {
                     edge: self.edge_rank(&rollout),
                     hits_nonreactive: self.hits_without_reaction(&rollout)?,
                     ahead: self.ahead_rank(&e),
+                    leaves_lane: self.leave_rank(&rollout),
                 },
             )
         } else if predicted_safe && excess <= EXCESS_TOLERANCE {
@@ -337,6 +347,7 @@ impl Repairer<'_, '_> {
                 edge: 0.0,
                 hits_nonreactive: false,
                 ahead: 0.0,
+                leaves_lane: false,
             }
         } else {
             let worst = self.worst_case(&rollout, &e)?;
@@ -359,6 +370,7 @@ impl Repairer<'_, '_> {
                     edge: self.edge_rank(&rollout),
                     hits_nonreactive,
                     ahead: self.ahead_rank(&e),
+                    leaves_lane: self.leave_rank(&rollout),
                 },
             )
         };
@@ -416,14 +428,29 @@ impl Repairer<'_, '_> {
     /// the call (and, with `PlannerSettings::lead_in_lane`, its box spans no lane line there,
     /// [`LinearisedProblem::starts_in_one_lane`]), else 0.
     fn ahead_rank(&self, e: &Evaluation) -> f64 {
-        if self.s.lead_first
-            && self.lp.start[3] >= self.s.lead_min_speed
-            && (!self.s.lead_in_lane || self.lp.starts_in_one_lane())
-        {
+        if self.lead_applies() {
             e.ahead_violation
         } else {
             0.0
         }
+    }
+
+    /// Whether `PlannerSettings::lead_first` ranks this call's inadmissible candidates: on,
+    /// the ego at least as fast as `PlannerSettings::lead_min_speed` at the start of the call
+    /// and, with `PlannerSettings::lead_in_lane`, its box spanning no lane line there
+    /// ([`LinearisedProblem::starts_in_one_lane`]).
+    fn lead_applies(&self) -> bool {
+        self.s.lead_first
+            && self.lp.start[3] >= self.s.lead_min_speed
+            && (!self.s.lead_in_lane || self.lp.starts_in_one_lane())
+    }
+
+    /// Whether an inadmissible `rollout` ranks as leaving its lane ([`Rank::leaves_lane`]):
+    /// with `PlannerSettings::lead_keep_lane` while the lead rule applies
+    /// ([`Self::lead_applies`]), the box of one of its states spans a lane line
+    /// ([`LinearisedProblem::spans_line`]); else false.
+    fn leave_rank(&self, rollout: &[State]) -> bool {
+        self.s.lead_keep_lane && self.lead_applies() && self.lp.spans_line(rollout)
     }
 
     /// The road-edge excess an inadmissible `rollout` ranks by first (m): its

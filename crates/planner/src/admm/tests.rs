@@ -1695,6 +1695,7 @@ fn edge_and_contact_rank_before_the_total_violation() {
         edge,
         hits_nonreactive: false,
         ahead: 0.0,
+        leaves_lane: false,
     };
     assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.05, 0.0, false)));
     assert!(!r(1.0, 0.05, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
@@ -1738,6 +1739,7 @@ fn admissible_rank(value: f64) -> super::repair::Rank {
         edge: 0.0,
         hits_nonreactive: false,
         ahead: 0.0,
+        leaves_lane: false,
     }
 }
 
@@ -1759,6 +1761,7 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
         edge,
         hits_nonreactive: false,
         ahead: 0.0,
+        leaves_lane: false,
     };
     let swerve = v(0.4, 0.1, 0.0, 4.5);
     let within = v(0.0, 0.8, 0.0, 6.0);
