@@ -20,6 +20,14 @@ fn squeezed() -> (nudge_predictor::History, Vec<[f64; 2]>) {
     ])
 }
 
+/// The plan of `p` under `s` with the constant-velocity prediction.
+fn plan_cv(s: PlannerSettings, p: &PlanningProblem<'_>) -> Plan {
+    Planner::new(s)
+        .unwrap()
+        .plan(p, &mut ConstantVelocity::new(6).unwrap())
+        .unwrap()
+}
+
 /// The safety evaluation of `accel` (held steering 0) from the call on `p` under `s`, with
 /// the constant-velocity prediction.
 fn evaluation(
@@ -128,10 +136,7 @@ fn lead_first_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() 
             lead_min_speed,
             ..PlannerSettings::default()
         };
-        Planner::new(s)
-            .unwrap()
-            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
-            .unwrap()
+        plan_cv(s, &p)
     };
     let plan = |lead_first: bool| plan_at(lead_first, PlannerSettings::default().lead_min_speed);
     let (off, on) = (plan(false), plan(true));
@@ -233,11 +238,7 @@ fn lead_in_lane_applies_the_rule_only_to_an_ego_within_one_lane() {
             lead_in_lane,
             ..PlannerSettings::default()
         };
-        Planner::new(s)
-            .unwrap()
-            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
-            .unwrap()
-            .accel
+        plan_cv(s, &p).accel
     };
     // The ego's box spans y ∈ [-0.95, 0.95]: within the lane below 1.85, across a line at 0.5.
     let (within, across) = (1.85, 0.5);
@@ -301,10 +302,7 @@ fn lead_keep_lane_keeps_a_braking_ego_off_the_lane_lines() {
             lead_keep_lane,
             ..PlannerSettings::default()
         };
-        Planner::new(s)
-            .unwrap()
-            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
-            .unwrap()
+        plan_cv(s, &p)
     };
     let (off, on) = (plan(false), plan(true));
     let s = PlannerSettings::default();
