@@ -291,14 +291,10 @@ impl LinearisedProblem {
 
     /// Whether the ego's box at the measured start spans no lane line: its extent across the
     /// road (½(L·|sin ψ| + W·|cos ψ|) either side of its centre, m) crosses none of the lane
-    /// layout's interior boundaries ([`crate::extents::Lanes::spans_line`]). False without a
-    /// lane layout (nothing says where the lines are).
+    /// layout's interior boundaries ([`Self::spans_line`] of the start alone). False without
+    /// a lane layout (nothing says where the lines are).
     pub(crate) fn starts_in_one_lane(&self) -> bool {
-        self.lanes.as_ref().is_some_and(|lanes| {
-            let e = half_extent_at(self.ego_size, self.start[2]);
-            let y = self.origin[1];
-            !lanes.view().spans_line(y - e, y + e)
-        })
+        self.lanes.is_some() && !self.spans_line(std::slice::from_ref(&self.start))
     }
 
     /// Whether the box of one of the states `z` (`[T]`, this frame) spans a lane line
