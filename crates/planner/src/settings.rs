@@ -388,12 +388,14 @@ pub struct PlannerSettings {
     /// alone weighs a follower closing from behind like the vehicle the ego drives into, so an
     /// ego squeezed between a slower leader and a close follower sped up towards the leader
     /// to lower the follower's violation (the last at-fault run of the test split, a front
-    /// contact). Off by default: on 600 training scenes × 3 seeds (student planner, log
-    /// replay, paired) it cut the at-fault runs 22 → 19 (events 33 → 24) and added none,
-    /// with success 1486 → 1497 of 1800 (5 lost, 16 gained, McNemar p = 0.03); but on
-    /// validation (student planner, log replay, 300 scenes × 3 seeds) it added 9 at-fault runs
-    /// to none (a car from behind in the target lane meeting the side of an ego that held
-    /// its speed across the line for a vehicle ahead; `docs/results/lead_first.md`).
+    /// contact). On by default, with `lead_in_lane` and `lead_keep_lane`: alone, on 600
+    /// training scenes × 3 seeds (student planner, log replay, paired) it cut the at-fault
+    /// runs 22 → 19 (events 33 → 24) and added none, but on validation (student planner, log
+    /// replay, 300 scenes × 3 seeds) it added 9 at-fault runs to none (a car from behind in
+    /// the target lane meeting the side of an ego that held its speed across the line for a
+    /// vehicle ahead); the three together added no at-fault run on training, validation or
+    /// test and removed the last at-fault run of the test split
+    /// (`docs/results/lead_first.md`).
     pub lead_first: bool,
     /// With `lead_first`: the rule applies only while the ego's speed at the start of the
     /// call is at least this (m/s); 0 applies it at any speed. 10 m/s by default, the floor
@@ -406,23 +408,22 @@ pub struct PlannerSettings {
     /// spans no lane line (it is wholly inside one lane, where the at-fault rule counts a
     /// contact from behind as not the ego's); without a lane layout it never applies. Across
     /// the line a contact from behind counts as the ego's, and there `lead_first` alone
-    /// swapped contacts the ego drives into for contacts it is driven into. Off by default,
-    /// with `lead_first`: on validation (both planners, three worlds, paired) the two
-    /// together changed no at-fault run and 19 runs' success (10 gained, 9 lost); on 600
-    /// training scenes × 3 seeds (student planner) they cut the log-replay at-fault runs
-    /// 22 → 19 but added one in the teacher world (0 → 1: an ego braking for a slow leader
-    /// in the target lane drifted back across the line and was hit from behind;
-    /// `docs/results/lead_first.md`).
+    /// swapped contacts the ego drives into for contacts it is driven into. On by default:
+    /// without `lead_keep_lane` it added one at-fault run in the teacher world on 600
+    /// training scenes × 3 seeds (0 → 1: an ego braking for a slow leader in the target lane
+    /// drifted back across the line and was hit from behind), which `lead_keep_lane` removes
+    /// (`docs/results/lead_first.md`).
     pub lead_in_lane: bool,
     /// With `lead_first` (while it applies): among fallbacks without an admissible plan, one
     /// whose roll-out keeps the ego's box off every lane line beats every one that puts it
     /// across a line, before the violation ahead decides. Ranked by the violation ahead
     /// alone, a braking ego could steer off its lane's centre to lower that violation and
-    /// drift across the line it had crossed (`lead_in_lane`'s training run). Off by default:
-    /// with `lead_first` and `lead_in_lane` it added no at-fault run in any world on the
-    /// training scenes (student planner, 600 scenes × 3 seeds; log replay 22 → 19) or on
-    /// validation (both planners, three worlds; none there to remove), with success even, but
-    /// the test split has not been run with it (`docs/results/lead_first.md`).
+    /// drift across the line it had crossed (`lead_in_lane`'s training run). On by default:
+    /// with `lead_first` and `lead_in_lane`, paired with all three off, it added no at-fault
+    /// run in any world on the training scenes (student planner, 600 scenes × 3 seeds; log
+    /// replay 22 → 19), on validation or on the test split (both planners, three worlds; test
+    /// log replay 1 → 0, not-at-fault collisions 0 → 3), with no significant change in
+    /// success (`docs/results/lead_first.md`).
     pub lead_keep_lane: bool,
     /// Rank the state bounds first among fallbacks without an admissible plan: a candidate
     /// whose roll-out is within the state bounds (heading, lateral corridor, speed, road edge,
@@ -633,10 +634,10 @@ impl Default for PlannerSettings {
             lateral_drift_min_speed: 0.25,
             edge_first: true,
             contact_first: true,
-            lead_first: false,
+            lead_first: true,
             lead_min_speed: LAST_RESORT_MIN_SPEED,
-            lead_in_lane: false,
-            lead_keep_lane: false,
+            lead_in_lane: true,
+            lead_keep_lane: true,
             bounds_first: true,
             bounds_slack: 0.05,
             restore_step: 1.0,

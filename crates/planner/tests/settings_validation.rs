@@ -44,7 +44,7 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "lattice_min_speed": 10.0,
         "fallback_nonreactive": false, "fallback_avoid_nonreactive": false, "avoid_min_speed": 10.0,
         "lateral_drift": false, "lateral_drift_min_speed": 0.25,
-        "edge_first": true, "contact_first": true, "lead_first": false, "lead_min_speed": 10.0, "lead_in_lane": false, "lead_keep_lane": false, "bounds_first": true, "bounds_slack": 0.05,
+        "edge_first": true, "contact_first": true, "lead_first": true, "lead_min_speed": 10.0, "lead_in_lane": true, "lead_keep_lane": true, "bounds_first": true, "bounds_slack": 0.05,
         "restore_step": 1.0,
         "ablate_reaction": false,
         "heading_max": 0.2, "heading_recovery": 0.05, "heading_governor": true,

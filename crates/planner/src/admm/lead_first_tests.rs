@@ -105,7 +105,10 @@ fn ahead_ranks_after_contact_and_edge_before_the_total_violation() {
         lead_first: true,
         ..PlannerSettings::default()
     };
-    let off = PlannerSettings::default();
+    let off = PlannerSettings {
+        lead_first: false,
+        ..PlannerSettings::default()
+    };
     let rank = |s: &PlannerSettings, x: Violations| Rank::inadmissible(s, &x);
     // Less violation ahead beats a smaller total violation and the speed floor.
     let brake = v(0.0, 0.0, 0.1, false, 2.0);
@@ -131,9 +134,11 @@ fn lead_first_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() 
     let (h, sizes) = squeezed();
     let p = problem(&h, &sizes, 20.0);
     let plan_at = |lead_first: bool, lead_min_speed: f64| {
+        // No lane layout here: the in-lane condition would never let the rule apply.
         let s = PlannerSettings {
             lead_first,
             lead_min_speed,
+            lead_in_lane: false,
             ..PlannerSettings::default()
         };
         plan_cv(s, &p)
