@@ -31,8 +31,9 @@ pub mod sim;
 
 pub use ablation::keep_lane_path;
 pub use admm::{
-    BindingVehicle, CheckedVehicle, DRIFT_STEPS, EgoState, JointSolution, PhaseTimings, Plan,
-    PlanStatus, Planner, PlanningProblem, SafetyConstraint, StepStatus, lateral_drift,
+    BindingVehicle, CheckedVehicle, DRIFT_STEPS, EgoState, JointSolution, MATCH_SPEED_PROFILES,
+    PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, SafetyConstraint, StepStatus,
+    lateral_drift,
 };
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,

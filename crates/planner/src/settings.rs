@@ -267,6 +267,33 @@ pub struct PlannerSettings {
     /// candidate became accelerating past the target-lane gap, which left the ego beside the
     /// traffic (`docs/results/fallback_escape.md`).
     pub fallback_full_accel: bool,
+    /// Add "brake to the speed of the vehicle ahead, then hold" acceleration profiles to the
+    /// fallbacks' constant ones: one for each of the (at most [`crate::MATCH_SPEED_PROFILES`])
+    /// nearest vehicles ahead of the ego, within `check_range`, whose box reaches into the band
+    /// between the ego's lateral position and its goal and whose observed speed along the road
+    /// is below the ego's; each brakes as hard as the box and jerk bounds allow while the
+    /// speed, after unwinding the brake at the jerk bound, stays at or above that vehicle's,
+    /// then holds it. Each with the keep-lane, steer-to-the-goal and retreat steering, ranked
+    /// like the others (and among the safe start's candidates), or apart from them with
+    /// `match_admissible_only`, and only from `match_min_speed`. Meant for yielding to a
+    /// slower vehicle about to enter the ego's path, which the constant profiles do at a_min,
+    /// towards a standstill. Off by default: measured on 600 training scenes × 3 seeds
+    /// (student planner, paired; `docs/results/match_speed.md`), neither way removed a run
+    /// with a slow plan on a free road in any world. Ranked with the others and from any
+    /// speed, it lost 9 runs in the teacher world and gained none (McNemar p = 0.004; lane
+    /// changes left unfinished, the ego slowing to a slower vehicle's speed where it had
+    /// passed it) and raised the log-replay at-fault runs 19 → 32. Apart, admissible only,
+    /// from 10 m/s: 5 lost and none gained (p = 0.06), at-fault runs 19 → 22.
+    pub fallback_match_speed: bool,
+    /// With `fallback_match_speed`: its profiles are checked apart from the others and
+    /// replace the best fallback only when admissible (and cheaper, as any admissible one);
+    /// they get the keep-lane and steer-to-the-goal steering, not the retreat's, and never
+    /// become the least-violating candidate. Off: they join the constant profiles, ranked like
+    /// them (the variant measured first, `docs/results/match_speed.md`).
+    pub match_admissible_only: bool,
+    /// With `fallback_match_speed`: the ego's speed (m/s) at the start of the call from which
+    /// the match-speed profiles are built; slower, none (a queue, not a free-flowing road).
+    pub match_min_speed: f64,
     /// When no fallback above is admissible, also check the input lattice (over the first six
     /// steps, blocks of two steps, each changing the steering and the acceleration by −, 0
     /// or + their rate bounds per step, clipped to their boxes, the last inputs held after
@@ -566,7 +593,7 @@ pub enum SafetyGeometry {
 
 /// The default speed (m/s) from which the last-resort rules that rank or search against the
 /// constant-velocity prediction apply (`lattice_min_speed` and `avoid_min_speed`), and of
-/// `lead_min_speed`.
+/// `lead_min_speed` and `match_min_speed`.
 const LAST_RESORT_MIN_SPEED: f64 = 10.0;
 
 impl Default for PlannerSettings {
@@ -623,6 +650,9 @@ impl Default for PlannerSettings {
             fallback_speed_floor: 0.5,
             fallback_brake_hold: false,
             fallback_full_accel: false,
+            fallback_match_speed: false,
+            match_admissible_only: true,
+            match_min_speed: LAST_RESORT_MIN_SPEED,
             fallback_lattice: true,
             lattice_clear_nonreactive: true,
             lattice_when_fallback_hits: false,
@@ -832,6 +862,7 @@ pub const RANGES: &[FieldRange] = &[
     closed("lattice_min_speed", 0.0, 100.0, "m/s"),
     closed("avoid_min_speed", 0.0, 100.0, "m/s"),
     closed("lead_min_speed", 0.0, 100.0, "m/s"),
+    closed("match_min_speed", 0.0, 100.0, "m/s"),
     closed("lateral_drift_min_speed", 0.0, 10.0, "m/s"),
     closed(
         "bounds_slack",
@@ -924,6 +955,7 @@ impl PlannerSettings {
             "lattice_min_speed" => self.lattice_min_speed,
             "avoid_min_speed" => self.avoid_min_speed,
             "lead_min_speed" => self.lead_min_speed,
+            "match_min_speed" => self.match_min_speed,
             "lateral_drift_min_speed" => self.lateral_drift_min_speed,
             "bounds_slack" => self.bounds_slack,
             "restore_step" => self.restore_step,

@@ -51,6 +51,8 @@ mod follower_gap_tests;
 #[cfg(test)]
 mod lead_first_tests;
 #[cfg(test)]
+mod match_speed_tests;
+#[cfg(test)]
 mod nonreactive_tests;
 #[cfg(test)]
 mod projection_tests;
@@ -69,6 +71,7 @@ use crate::settings::{PlannerSettings, SafetyGeometry};
 pub use constraint::{
     BindingVehicle, CheckedVehicle, DRIFT_STEPS, SafetyConstraint, lateral_drift,
 };
+pub use linearised::MATCH_SPEED_PROFILES;
 pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
 

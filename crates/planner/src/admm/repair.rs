@@ -550,6 +550,14 @@ impl Repairer<'_, '_> {
                 best = c;
             }
         }
+        if self.s.match_admissible_only {
+            for (d, a) in match_inputs(self.s, self.model, self.lp) {
+                let c = self.check(d, a)?;
+                if c.rank.safe && c.rank.beats(&best.rank) {
+                    best = c;
+                }
+            }
+        }
         if best.predicted_safe {
             return Ok(best);
         }
@@ -623,7 +631,9 @@ fn towards(u: &[f64], nominal: &[f64], theta: f64, bounds: RateBox) -> Vec<f64> 
 /// jerk bounds ([`repair_box_rate`]): the constants 0, a_min/2, a_min, a_max/2; then, with
 /// `fallback_full_accel`, the constant a_max; then, with `fallback_brake_hold`, "brake, then
 /// hold": a_min for the first k steps and 0 after, for k = ⌈T/3⌉ and ⌈2T/3⌉ (those below T,
-/// once each), which shed part of the speed and keep the rest.
+/// once each), which shed part of the speed and keep the rest; then, with
+/// `fallback_match_speed` and without `match_admissible_only`, [`match_speed_accels`] to each of
+/// [`LinearisedProblem::lead_speeds`] (with it, those are [`match_inputs`], apart).
 pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<Vec<f64>> {
     let t = lp.horizon;
     let mut profiles: Vec<Vec<f64>> = [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
@@ -640,10 +650,75 @@ pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Ve
             profiles.push((0..t).map(|i| if i < k { s.a_min } else { 0.0 }).collect());
         }
     }
+    if !s.match_admissible_only {
+        for &v_goal in &lp.lead_speeds {
+            profiles.push(match_speed_accels(s, lp, v_goal));
+        }
+    }
     for a in &mut profiles {
         repair_box_rate(a, lp.accel_box);
     }
     profiles
+}
+
+/// Accelerations `[T]` (m/s²) that brake the ego from its start speed to `v_goal` (m/s, ≥ 0)
+/// and then hold it (`PlannerSettings::fallback_match_speed`): each step takes the hardest
+/// braking within the box and jerk bounds after which the speed, less what it still loses
+/// while the brake unwinds to 0 at the jerk bound ([`unwind_loss`]), stays at or above
+/// `v_goal`; with none such, the least braking the bounds allow (never more than 0 unless the
+/// jerk bound keeps it positive). The speed advances by a·dt, floored at 0.
+pub(crate) fn match_speed_accels(
+    s: &PlannerSettings,
+    lp: &LinearisedProblem,
+    v_goal: f64,
+) -> Vec<f64> {
+    const BISECTIONS: usize = 50;
+    let b = lp.accel_box;
+    let (mut v, mut prev) = (lp.start[3].max(0.0), b.prev);
+    let mut out = Vec::with_capacity(lp.horizon);
+    for _ in 0..lp.horizon {
+        let lo = b.lo.max(prev - b.rate);
+        let hi = b.hi.min(prev + b.rate);
+        let keeps = |a: f64| v + a * s.dt - unwind_loss(a, b.rate, s.dt) >= v_goal;
+        let least = hi.min(0.0).max(lo);
+        let a = if !keeps(least) {
+            least
+        } else if keeps(lo) {
+            lo
+        } else {
+            // keeps(a) is monotone on [lo, least]: false at lo, true at least.
+            let (mut bad, mut good) = (lo, least);
+            for _ in 0..BISECTIONS {
+                let mid = 0.5 * (bad + good);
+                if keeps(mid) {
+                    good = mid;
+                } else {
+                    bad = mid;
+                }
+            }
+            good
+        };
+        v = (v + a * s.dt).max(0.0);
+        prev = a;
+        out.push(a);
+    }
+    out
+}
+
+/// The speed (m/s) still lost after a step at acceleration `a` (m/s², braking when
+/// negative) while the brake unwinds to 0 at `rate` (m/s² per step), a step of `dt` (s) at
+/// each: dt · Σ_{j ≥ 1} max(|a| − j·rate, 0); 0 when `a` ≥ 0.
+pub(crate) fn unwind_loss(a: f64, rate: f64, dt: f64) -> f64 {
+    if a >= 0.0 || rate <= 0.0 {
+        return 0.0;
+    }
+    let mut rest = -a - rate;
+    let mut loss = 0.0;
+    while rest > 0.0 {
+        loss += rest;
+        rest -= rate;
+    }
+    loss * dt
 }
 
 /// Steps each choice of the fallback's input lattice is held ([`lattice_inputs`]).
@@ -750,6 +825,36 @@ pub(crate) fn simple_inputs(
         inputs.push((d, a));
     }
     inputs.extend(stop_inputs(s, model, lp));
+    inputs
+}
+
+/// The match-speed sequences of the fallback checked apart from the others
+/// (`PlannerSettings::match_admissible_only`): for each of [`LinearisedProblem::lead_speeds`]
+/// (none unless `PlannerSettings::fallback_match_speed`), its [`match_speed_accels`] with
+/// [`align_with_road`], then with [`steer_towards`] the lateral goal.
+pub(crate) fn match_inputs(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
+    let mut inputs = Vec::with_capacity(2 * lp.lead_speeds.len());
+    for &v_goal in &lp.lead_speeds {
+        let a = match_speed_accels(s, lp, v_goal);
+        inputs.push((
+            align_with_road(model, &lp.start, &a, lp.delta_box),
+            a.clone(),
+        ));
+        let d = steer_towards(
+            model,
+            &lp.start,
+            &a,
+            lp.reference[1],
+            max_heading,
+            lp.delta_box,
+        );
+        inputs.push((d, a));
+    }
     inputs
 }
 

@@ -58,7 +58,7 @@ pub(super) fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]], v: f64) -> Plan
 /// agent 1 chasing the candidate at 29 m per step (a plausible prediction: the planner refuses
 /// motions beyond 30 m per step), so that it sits on top of the candidate (b = −1) from the
 /// step it catches up.
-struct Gate {
+pub(super) struct Gate {
     strict_from: usize,
     limit: f64,
     /// The coordinate of the candidate's last position that is gated: 0 (x) or 1 (y).
@@ -84,7 +84,7 @@ impl Gate {
 
     /// Gated on the candidate's last longitudinal position beyond `x_limit` from the first
     /// call.
-    fn ahead(x_limit: f64) -> Self {
+    pub(super) fn ahead(x_limit: f64) -> Self {
         Self {
             axis: 0,
             ..Self::new(0, x_limit)
@@ -197,7 +197,7 @@ fn far_b_lower_bound(s: &PlannerSettings) -> f64 {
 }
 
 /// The nonlinear roll-out of (δ, a) from the problem's ego state, in the road frame.
-fn rollout_world(
+pub(super) fn rollout_world(
     s: &PlannerSettings,
     p: &PlanningProblem<'_>,
     d: &[f64],
@@ -217,7 +217,7 @@ fn rollout_world(
 /// The defaults with the refinement and the heading and corridor bounds off: the repair
 /// branches after the execution check (backtracking, fallbacks) alone, as they are reached
 /// when the refinement fails.
-fn repairs_only() -> PlannerSettings {
+pub(super) fn repairs_only() -> PlannerSettings {
     PlannerSettings {
         refine_iters: 0,
         heading_max: 3.0,
@@ -228,7 +228,7 @@ fn repairs_only() -> PlannerSettings {
 }
 
 /// A repairer of the call on `lp` without the contingency and follower-gap rules.
-fn plain_repairer<'a, 'c>(
+pub(super) fn plain_repairer<'a, 'c>(
     s: &'a PlannerSettings,
     model: &'a Bicycle,
     lp: &'a LinearisedProblem,
