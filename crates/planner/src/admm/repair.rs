@@ -798,49 +798,46 @@ pub(crate) fn lattice_inputs(lp: &LinearisedProblem) -> Vec<(Vec<f64>, Vec<f64>)
     out
 }
 
-/// The simple input sequences of the fallback besides the nominal, in order: for each
-/// profile of [`fallback_accels`], [`align_with_road`], then [`steer_towards`] the lateral
-/// goal; then, when the ego's lane really ends ahead, the [`stop_inputs`].
+/// The simple input sequences of the fallback besides the nominal, in order: the
+/// [`keep_or_steer`] sequences of the profiles of [`fallback_accels`]; then, when the ego's
+/// lane really ends ahead, the [`stop_inputs`].
 pub(crate) fn simple_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
     lp: &LinearisedProblem,
 ) -> Vec<(Vec<f64>, Vec<f64>)> {
-    let profiles = fallback_accels(s, lp);
-    let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
-    let mut inputs = Vec::with_capacity(2 * profiles.len() + 3);
-    for a in profiles {
-        inputs.push((
-            align_with_road(model, &lp.start, &a, lp.delta_box),
-            a.clone(),
-        ));
-        let d = steer_towards(
-            model,
-            &lp.start,
-            &a,
-            lp.reference[1],
-            max_heading,
-            lp.delta_box,
-        );
-        inputs.push((d, a));
-    }
+    let mut inputs = keep_or_steer(model, lp, fallback_accels(s, lp));
     inputs.extend(stop_inputs(s, model, lp));
     inputs
 }
 
 /// The match-speed sequences of the fallback checked apart from the others
-/// (`PlannerSettings::match_admissible_only`): for each of [`LinearisedProblem::lead_speeds`]
-/// (none unless `PlannerSettings::fallback_match_speed`), its [`match_speed_accels`] with
-/// [`align_with_road`], then with [`steer_towards`] the lateral goal.
+/// (`PlannerSettings::match_admissible_only`): the [`keep_or_steer`] sequences of the
+/// [`match_speed_accels`] to each of [`LinearisedProblem::lead_speeds`] (none unless
+/// `PlannerSettings::fallback_match_speed`).
 pub(crate) fn match_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
     lp: &LinearisedProblem,
 ) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let profiles = lp
+        .lead_speeds
+        .iter()
+        .map(|&v_goal| match_speed_accels(s, lp, v_goal))
+        .collect();
+    keep_or_steer(model, lp, profiles)
+}
+
+/// For each acceleration profile `[T]` (m/s²) of `profiles`, in order, the steering of
+/// [`align_with_road`], then that of [`steer_towards`] the lateral goal, each paired with it.
+fn keep_or_steer(
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+    profiles: Vec<Vec<f64>>,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
     let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
-    let mut inputs = Vec::with_capacity(2 * lp.lead_speeds.len());
-    for &v_goal in &lp.lead_speeds {
-        let a = match_speed_accels(s, lp, v_goal);
+    let mut inputs = Vec::with_capacity(2 * profiles.len() + 3);
+    for a in profiles {
         inputs.push((
             align_with_road(model, &lp.start, &a, lp.delta_box),
             a.clone(),
