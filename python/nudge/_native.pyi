@@ -14,6 +14,8 @@ __version__: str
 T_OBS: int
 MAX_AGENTS: int
 DT: float
+# Fraction of the surrounding traffic's speed below which the ego is slow (closed-loop metrics).
+SLOW_FRACTION: float
 
 class _Defaults(TypedDict):
     predictor: str  # "student"

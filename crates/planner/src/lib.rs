@@ -32,8 +32,8 @@ pub mod sim;
 pub use ablation::keep_lane_path;
 pub use admm::{
     BindingVehicle, CheckedVehicle, DRIFT_STEPS, EgoState, JointSolution, MATCH_SPEED_PROFILES,
-    PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, SafetyConstraint, StepStatus,
-    lateral_drift,
+    PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, SHY_CLEARANCE, SHY_MIN_SHIFT,
+    SafetyConstraint, StepStatus, lateral_drift,
 };
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,

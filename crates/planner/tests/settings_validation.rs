@@ -40,7 +40,7 @@ fn shipped_defaults_are_valid_and_unchanged() {
         "z_safe_step": false, "z_step_margin": 0.01, "z_cuts": 0, "safe_start": false,
         "z_retighten": 0, "z_rollout_trial": false, "relinearise": false,
         "warm_start_dual": false, "rollout_check": true, "fallback_speed_floor": 0.5,
-        "fallback_brake_hold": false, "fallback_full_accel": false, "fallback_match_speed": false, "match_admissible_only": true, "match_min_speed": 10.0, "fallback_lattice": true, "lattice_clear_nonreactive": true, "lattice_when_fallback_hits": false,
+        "fallback_brake_hold": false, "fallback_full_accel": false, "fallback_shy": false, "fallback_match_speed": false, "match_admissible_only": true, "match_min_speed": 10.0, "fallback_lattice": true, "lattice_clear_nonreactive": true, "lattice_when_fallback_hits": false,
         "lattice_min_speed": 10.0,
         "fallback_nonreactive": false, "fallback_avoid_nonreactive": false, "avoid_min_speed": 10.0,
         "lateral_drift": false, "lateral_drift_min_speed": 0.25,

@@ -9,6 +9,7 @@
     nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
     nudge-train horizon                    the teacher over 3 s (accuracy, cut-ins, latency), docs/results/horizon.md
     nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
+    nudge-train slow-plans                 what the plans ending slow on a free road in a closed-loop cache brake for
     nudge-train paper [--quick]            the paper's Tables I-II and Figures 7-10 into docs/paper
     nudge-train interaction                aware planner vs its reaction ablated on dense or merge scenes, docs/results/interaction.md
     nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
@@ -451,6 +452,35 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
     return run(cfg, a.out, a.json_path, command_line(sys.argv[2:] if len(sys.argv) > 2 else []), before)
 
 
+def _add_slow_plans(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "slow-plans",
+                 "re-simulate the runs of a closed-loop cache with a plan ending slow on a free road and describe "
+                 "what each such plan brakes for",
+                 _run_slow_plans)
+    p.add_argument("--split", choices=SPLITS, default="val", help="the split whose scenes the cache ran")
+    p.add_argument("--scenes", type=Path, default=None,
+                   help="folder of scenario files (default data/processed/scenes/<split>)")
+    p.add_argument("--cache", type=Path, default=paths.runs() / "closed_loop", help="the closed-loop cache")
+    p.add_argument("--out", type=Path, default=None, help="write the report here (default: print it)")
+    p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
+                   help="also write one row per flagged step here")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+
+
+def _run_slow_plans(a: argparse.Namespace) -> int:
+    import shlex
+
+    from nudge_train.experiments.slow_plans import run
+
+    command = "nudge-train slow-plans " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
+    try:
+        return run(a.cache, a.scenes or paths.scenes(a.split), a.out, a.json_path, command,
+                   progress=not a.no_progress)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
 # ---- the paper ---------------------------------------------------------------------------------
 def _add_paper(sub: argparse._SubParsersAction) -> None:
     from nudge_train.experiments.paper import STAGES, PaperConfig
@@ -752,7 +782,7 @@ def build_parser() -> argparse.ArgumentParser:
                "override them.",
     )
     sub = parser.add_subparsers(dest="cmd", required=True,
-                                metavar="{data,train,teacher,student,distill,closed-loop,interaction,paper,bench,goldens,figures,idm,replay-extrapolation}")
+                                metavar="{data,train,teacher,student,distill,closed-loop,slow-plans,interaction,paper,bench,goldens,figures,idm,replay-extrapolation}")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
@@ -763,6 +793,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_horizon(sub)
     _add_distill(sub)
     _add_closed_loop(sub)
+    _add_slow_plans(sub)
     _add_paper(sub)
     _add_interaction(sub)
     _add_bench(sub)

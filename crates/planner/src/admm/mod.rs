@@ -57,6 +57,8 @@ mod nonreactive_tests;
 #[cfg(test)]
 mod projection_tests;
 #[cfg(test)]
+mod shy_tests;
+#[cfg(test)]
 mod tests;
 
 use std::time::Instant;
@@ -74,6 +76,7 @@ pub use constraint::{
 pub use linearised::MATCH_SPEED_PROFILES;
 pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
+pub use repair::{SHY_CLEARANCE, SHY_MIN_SHIFT};
 
 use constraint::{Budget, SafetyEval};
 use inputs::Input;

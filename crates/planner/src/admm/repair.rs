@@ -800,7 +800,8 @@ pub(crate) fn lattice_inputs(lp: &LinearisedProblem) -> Vec<(Vec<f64>, Vec<f64>)
 
 /// The simple input sequences of the fallback besides the nominal, in order: the
 /// [`keep_or_steer`] sequences of the profiles of [`fallback_accels`]; then, when the ego's
-/// lane really ends ahead, the [`stop_inputs`].
+/// lane really ends ahead, the [`stop_inputs`]; then, with `PlannerSettings::fallback_shy`,
+/// the [`shy_inputs`].
 pub(crate) fn simple_inputs(
     s: &PlannerSettings,
     model: &Bicycle,
@@ -808,6 +809,67 @@ pub(crate) fn simple_inputs(
 ) -> Vec<(Vec<f64>, Vec<f64>)> {
     let mut inputs = keep_or_steer(model, lp, fallback_accels(s, lp));
     inputs.extend(stop_inputs(s, model, lp));
+    inputs.extend(shy_inputs(s, model, lp));
+    inputs
+}
+
+/// Clearance (m) the shy sequences' goals keep between the ego's box and its own lane's lines
+/// (`PlannerSettings::fallback_shy`): its box stays off the line it moves towards.
+pub const SHY_CLEARANCE: f64 = 0.1;
+
+/// The smallest move across the road (m) that makes a shy goal: a goal nearer the ego's
+/// start than this is no sequence of its own (the keep-lane one already holds it).
+pub const SHY_MIN_SHIFT: f64 = 0.05;
+
+/// The lateral goals (m, the call's frame) of the shy sequences (`PlannerSettings::fallback_shy`),
+/// right first: in the lane holding the ego's centre at the start, the positions where its
+/// box (at heading 0) keeps [`SHY_CLEARANCE`] from the lane's right and from its left line,
+/// each clamped into the call's lateral bounds at the last step; only those at least
+/// [`SHY_MIN_SHIFT`] from the start. Empty without a lane layout, with the centre off the
+/// lanes, or with a lane too narrow for the box and its clearance.
+pub(crate) fn shy_goals(lp: &LinearisedProblem) -> Vec<f64> {
+    let Some(lanes) = &lp.lanes else {
+        return Vec::new();
+    };
+    let lanes = lanes.view();
+    let y0 = lp.origin[1];
+    let Some(j) = lanes.lane_at(y0) else {
+        return Vec::new();
+    };
+    let half = 0.5 * lp.ego_size[1] + SHY_CLEARANCE;
+    let (right, left) = (lanes.bounds[j] + half - y0, lanes.bounds[j + 1] - half - y0);
+    if right > left {
+        return Vec::new();
+    }
+    let (Some(lower), Some(upper)) = (lp.lower.last(), lp.upper.last()) else {
+        return Vec::new();
+    };
+    [right, left]
+        .into_iter()
+        .map(|y| y.clamp(lower[1], upper[1]))
+        .filter(|y| y.abs() >= SHY_MIN_SHIFT)
+        .collect()
+}
+
+/// The shy sequences of the fallback (none unless `PlannerSettings::fallback_shy`): for each
+/// goal of [`shy_goals`], each profile of [`fallback_accels`] with [`steer_towards`] it.
+pub(crate) fn shy_inputs(
+    s: &PlannerSettings,
+    model: &Bicycle,
+    lp: &LinearisedProblem,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    if !s.fallback_shy {
+        return Vec::new();
+    }
+    let max_heading = lp.upper.iter().map(|u| u[2]).fold(f64::INFINITY, f64::min);
+    let profiles = fallback_accels(s, lp);
+    let mut inputs = Vec::new();
+    for y_goal in shy_goals(lp) {
+        for a in &profiles {
+            let d = steer_towards(model, &lp.start, a, y_goal, max_heading, lp.delta_box);
+            inputs.push((d, a.clone()));
+        }
+    }
     inputs
 }
 
