@@ -846,7 +846,7 @@ pub(crate) fn shy_goals(lp: &LinearisedProblem) -> Vec<f64> {
     };
     [right, left]
         .into_iter()
-        .map(|y| y.clamp(lower[1], upper[1]))
+        .map(|y| y.max(lower[1]).min(upper[1]))
         .filter(|y| y.abs() >= SHY_MIN_SHIFT)
         .collect()
 }
