@@ -31,9 +31,9 @@ pub mod sim;
 
 pub use ablation::keep_lane_path;
 pub use admm::{
-    BindingVehicle, CheckedVehicle, DRIFT_STEPS, EgoState, JointSolution, MATCH_SPEED_PROFILES,
-    PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, SHY_CLEARANCE, SHY_MIN_SHIFT,
-    SafetyConstraint, StepStatus, lateral_drift,
+    BindingVehicle, CheckedVehicle, DecidedBy, EgoState, Family, JointSolution, PhaseTimings,
+    Plan, PlanStatus, Planner, PlanningProblem, RANK_ORDER, RankKey, SafetyConstraint,
+    StepStatus,
 };
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
@@ -42,11 +42,11 @@ pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
-    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, axis_scales, bounding_half_extents,
+    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
     box_separation, clip_segment_to_box, motion_axis, motion_direction, motion_heading,
 };
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
-pub use settings::{PlannerSettings, SafetyGeometry};
+pub use settings::PlannerSettings;
 pub use sim::{
     Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
     RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,

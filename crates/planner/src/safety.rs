@@ -161,26 +161,11 @@ impl Ellipse {
         m_x: f64,
         m_y: f64,
     ) -> Self {
-        Self::oriented_scaled(ego, ego_dir, other, other_dir, [scale, scale], m_x, m_y)
-    }
-
-    /// [`Ellipse::oriented`] with a scale per axis, `scales` = (s_x along the road, s_y across
-    /// it) ([`axis_scales`]).
-    #[must_use]
-    pub fn oriented_scaled(
-        ego: [f64; 2],
-        ego_dir: [f64; 2],
-        other: [f64; 2],
-        other_dir: [f64; 2],
-        scales: [f64; 2],
-        m_x: f64,
-        m_y: f64,
-    ) -> Self {
         let e = bounding_half_extents(ego, ego_dir);
         let o = bounding_half_extents(other, other_dir);
         Self {
-            a_x: scales[0] * (e[0] + o[0]) + m_x,
-            a_y: scales[1] * (e[1] + o[1]) + m_y,
+            a_x: scale * (e[0] + o[0]) + m_x,
+            a_y: scale * (e[1] + o[1]) + m_y,
         }
     }
 
@@ -256,24 +241,6 @@ impl Ellipse {
         [
             2.0 * (ego[0] - other[0]) / (self.a_x * self.a_x),
             2.0 * (ego[1] - other[1]) / (self.a_y * self.a_y),
-        ]
-    }
-}
-
-/// The ellipse's scales (s_x along the road, s_y across it) of `scale` s with the lateral
-/// scale `lateral` (`PlannerSettings::ellipse_lateral_scale`): (s, s) when `lateral` is 0,
-/// else (1 / √(2/s² − 1/s_y²), s_y) with s_y = `lateral`, so that 1/s_x² + 1/s_y² = 2/s²
-/// (with s = √2 the ellipse of half extents (A, B) passes through the corner (A, B) of the
-/// overlap rectangle, as the isotropic one does). `lateral` must exceed s / √2
-/// (`PlannerSettings::validate`); at or below it s_x is infinite (NaN past it).
-#[must_use]
-pub fn axis_scales(scale: f64, lateral: f64) -> [f64; 2] {
-    if lateral == 0.0 {
-        [scale, scale]
-    } else {
-        [
-            1.0 / (2.0 / (scale * scale) - 1.0 / (lateral * lateral)).sqrt(),
-            lateral,
         ]
     }
 }
@@ -354,44 +321,6 @@ mod tests {
         let fx = (e.value([p[0] + h, p[1]], [0.5, -0.2]) - e.value([p[0] - h, p[1]], [0.5, -0.2]))
             / (2.0 * h);
         assert!((fx - g[0]).abs() < 1e-6);
-    }
-
-    /// The lateral scale moves the inflation along the road and keeps the overlap
-    /// rectangle's corner on the ellipse; 0 is the isotropic ellipse.
-    #[test]
-    fn axis_scales_keep_the_corner_on_the_ellipse() {
-        let s = std::f64::consts::SQRT_2;
-        assert_eq!(axis_scales(s, 0.0), [s, s]);
-        let [sx, sy] = axis_scales(s, s);
-        assert!((sx - s).abs() < 1e-12 && sy == s);
-        let [sx, sy] = axis_scales(s, 1.15);
-        assert!((1.0 / (sx * sx) + 1.0 / (sy * sy) - 1.0).abs() < 1e-12);
-        assert!(sx > 2.0 && sx < 2.1, "{sx}");
-        let e = Ellipse::oriented_scaled(
-            [4.5, 1.8],
-            [1.0, 0.0],
-            [4.5, 1.8],
-            [1.0, 0.0],
-            [sx, sy],
-            0.0,
-            0.0,
-        );
-        assert!(e.value([4.5, 1.8], [0.0, 0.0]).abs() < 1e-12);
-        // Two 2.0 m wide cars side by side 3.0 m apart (adjacent lanes, one off centre):
-        // inside the isotropic √2 ellipse with the default 0.3 m margin, outside this one.
-        let iso = Ellipse::new([4.8, 2.0], [4.8, 2.0], s, 1.5, 0.3);
-        let aniso = Ellipse::oriented_scaled(
-            [4.8, 2.0],
-            [1.0, 0.0],
-            [4.8, 2.0],
-            [1.0, 0.0],
-            [sx, sy],
-            1.5,
-            0.3,
-        );
-        assert!(iso.value([0.0, 3.0], [0.0, 0.0]) < 0.0);
-        assert!(aniso.value([0.0, 3.0], [0.0, 0.0]) > 0.0);
-        assert!(aniso.a_x > iso.a_x);
     }
 
     #[test]
@@ -635,21 +564,19 @@ mod tests {
                 proptest::prop_assert!(!a.overlaps(&b));
             }
         }
-        /// With s = √2, any lateral scale s_y > 1 and its longitudinal scale ([`axis_scales`]),
-        /// non-negative margins, b > 0 still excludes overlap of the rotated boxes (independent
-        /// truth: the separating-axis test), one ellipse or the sliced ego.
+        /// With s = √2 and non-negative margins, b > 0 of the ego cut into k slices excludes
+        /// overlap of the rotated boxes (independent truth: the separating-axis test).
         #[test]
-        fn positive_b_of_a_lateral_scale_excludes_overlap(
+        fn positive_b_of_the_sliced_ego_excludes_overlap(
             l0 in 2.0f64..20.0, w0 in 1.0f64..3.0, h0 in -0.6f64..0.6,
             l1 in 2.0f64..20.0, w1 in 1.0f64..3.0, h1 in -0.6f64..0.6,
             dx in -25.0f64..25.0, dy in -6.0f64..6.0,
             mx in 0.0f64..3.0, my in 0.0f64..1.0,
-            sy in 1.001f64..2.0, k in 1usize..5,
+            k in 1usize..5,
         ) {
-            let scales = axis_scales(std::f64::consts::SQRT_2, sy);
             let dir = |h: f64| [h.cos().abs(), h.sin().abs()];
-            let e = Ellipse::oriented_scaled(
-                [l0 / k as f64, w0], dir(h0), [l1, w1], dir(h1), scales, mx, my,
+            let e = Ellipse::oriented(
+                [l0 / k as f64, w0], dir(h0), [l1, w1], dir(h1), std::f64::consts::SQRT_2, mx, my,
             );
             let a = OrientedBox { x: 0.0, y: 0.0, heading: h0, length: l0, width: w0 };
             let b = OrientedBox { x: dx, y: dy, heading: h1, length: l1, width: w1 };

@@ -6,12 +6,12 @@
 
 use std::time::{Duration, Instant};
 
-use nudge_predictor::{History, Predictor, T_OBS};
+use nudge_predictor::{Predictor, T_OBS};
 
 use crate::error::PlannerError;
 use crate::model::State;
 use crate::safety::{Ellipse, OrientedBox, box_separation, motion_axis, motion_direction};
-use crate::settings::{PlannerSettings, SafetyGeometry};
+use crate::settings::PlannerSettings;
 
 use super::problem::PlanningProblem;
 
@@ -30,33 +30,6 @@ pub struct CheckedVehicle {
     /// (cos ψ, sin ψ) of its last observed motion ([`motion_axis`], heading 0 when it barely
     /// moved): the signed direction the box geometry needs.
     pub axis: [f64; 2],
-    /// Lateral drift (m per step, + to the left) its checked positions are extended by
-    /// (`PlannerSettings::lateral_drift`; [`lateral_drift`]); 0 when it does not drift or the
-    /// rule is off.
-    pub drift: f64,
-}
-
-/// Observed steps over which a vehicle's lateral speed is averaged for
-/// `PlannerSettings::lateral_drift` (3 × 0.3 s = 0.9 s).
-pub const DRIFT_STEPS: usize = 3;
-
-/// The lateral drift (m per step, + to the left) of agent `agent` of `history` under
-/// `settings`: its mean lateral displacement per step over the last [`DRIFT_STEPS`] observed
-/// steps when `lateral_drift` is on and that mean is at least `lateral_drift_min_speed` ×
-/// `dt` in magnitude; else 0.
-#[must_use]
-pub fn lateral_drift(history: &History, agent: usize, settings: &PlannerSettings) -> f64 {
-    if !settings.lateral_drift {
-        return 0.0;
-    }
-    let last = history.at(agent, T_OBS - 1)[1];
-    let first = history.at(agent, T_OBS - 1 - DRIFT_STEPS)[1];
-    let per_step = (last - first) / DRIFT_STEPS as f64;
-    if per_step.abs() >= settings.lateral_drift_min_speed * settings.dt {
-        per_step
-    } else {
-        0.0
-    }
 }
 
 /// The safety constraint of one MPC call: the vehicles within `check_range` of the ego's
@@ -68,9 +41,8 @@ pub struct SafetyConstraint {
     vehicles: Vec<CheckedVehicle>,
     ego_size: [f64; 2],
     /// The ellipse's scales (along, across the road; [`crate::axis_scales`]).
-    scales: [f64; 2],
+    scale: f64,
     margins: [f64; 2],
-    geometry: SafetyGeometry,
     /// Slices the ego is cut into along its heading for the ellipse geometry
     /// ([`PlannerSettings::ego_segment_length`]; 1: one ellipse for the whole ego).
     segments: usize,
@@ -97,19 +69,14 @@ impl SafetyConstraint {
                     last: [p[0], p[1]],
                     direction: motion_direction([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
                     axis: motion_axis([q[0], q[1]], [p[0], p[1]], [1.0, 0.0]),
-                    drift: lateral_drift(problem.history, i, settings),
                 });
             }
         }
         Self {
             vehicles,
             ego_size: problem.sizes[0],
-            scales: crate::safety::axis_scales(
-                settings.ellipse_scale,
-                settings.ellipse_lateral_scale,
-            ),
+            scale: settings.ellipse_scale,
             margins: [settings.margin_x, settings.margin_y],
-            geometry: settings.safety_geometry,
             segments: ego_segments(problem.sizes[0][0], settings.ego_segment_length),
             dt: settings.dt,
             brake_decel: settings.brake_decel,
@@ -132,12 +99,12 @@ impl SafetyConstraint {
         previous: [f64; 2],
         other: [f64; 2],
     ) -> Ellipse {
-        Ellipse::oriented_scaled(
+        Ellipse::oriented(
             self.ego_size,
             ego_direction,
             vehicle.size,
             motion_direction(previous, other, vehicle.direction),
-            self.scales,
+            self.scale,
             self.margins[0],
             self.margins[1],
         )
@@ -226,14 +193,10 @@ impl SafetyConstraint {
             0.0
         };
         ellipse.a_x += closing;
-        let b = match self.geometry {
-            SafetyGeometry::Ellipse if self.segments > 1 => {
-                self.sliced(vehicle, ego, previous, other, closing).0
-            }
-            SafetyGeometry::Ellipse => ellipse.value([ego[0], ego[1]], other),
-            SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
-                self.boxes(vehicle, ego, previous, other, closing).0
-            }
+        let b = if self.segments > 1 {
+            self.sliced(vehicle, ego, previous, other, closing).0
+        } else {
+            ellipse.value([ego[0], ego[1]], other)
         };
         (b, ellipse)
     }
@@ -254,19 +217,13 @@ impl SafetyConstraint {
         } else {
             0.0
         };
-        match self.geometry {
-            SafetyGeometry::Ellipse if self.segments > 1 => {
-                self.sliced(vehicle, ego, previous, other, closing)
-            }
-            SafetyGeometry::Ellipse => {
-                let mut e = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
-                e.a_x += closing;
-                let p = [ego[0], ego[1]];
-                (e.value(p, other), e.gradient(p, other))
-            }
-            SafetyGeometry::Boxes | SafetyGeometry::GrownBoxes => {
-                self.boxes(vehicle, ego, previous, other, closing)
-            }
+        if self.segments > 1 {
+            self.sliced(vehicle, ego, previous, other, closing)
+        } else {
+            let mut e = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
+            e.a_x += closing;
+            let p = [ego[0], ego[1]];
+            (e.value(p, other), e.gradient(p, other))
         }
     }
 
@@ -285,46 +242,18 @@ impl SafetyConstraint {
         closing: f64,
     ) -> (f64, [f64; 2]) {
         let k = self.segments;
-        let mut e = Ellipse::oriented_scaled(
+        let mut e = Ellipse::oriented(
             [self.ego_size[0] / k as f64, self.ego_size[1]],
             heading_direction(ego[2]),
             vehicle.size,
             motion_direction(previous, other, vehicle.direction),
-            self.scales,
+            self.scale,
             self.margins[0],
             self.margins[1],
         );
         e.a_x += closing;
         let (sn, cs) = ego[2].sin_cos();
         e.sliced([ego[0], ego[1]], [cs, sn], self.ego_size[0], k, other)
-    }
-
-    /// The [`box_separation`] of the ego's box at `ego` (its heading ψ) and the vehicle's at
-    /// `other` (the heading of its motion from `previous`), the margins as clearance with
-    /// `closing` (m) added to the longitudinal one: a road-aligned clearance rectangle
-    /// (`Boxes`), or the ego's box grown by the clearances in its own frame (`GrownBoxes`).
-    fn boxes(
-        &self,
-        vehicle: &CheckedVehicle,
-        ego: [f64; 4],
-        previous: [f64; 2],
-        other: [f64; 2],
-        closing: f64,
-    ) -> (f64, [f64; 2]) {
-        let (sn, cs) = ego[2].sin_cos();
-        let axis = motion_axis(previous, other, vehicle.axis);
-        let b = OrientedBox::along(other, axis, vehicle.size);
-        let clearance = [self.margins[0] + closing, self.margins[1]];
-        if self.geometry == SafetyGeometry::GrownBoxes {
-            let grown = [
-                self.ego_size[0] + 2.0 * clearance[0],
-                self.ego_size[1] + 2.0 * clearance[1],
-            ];
-            let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], grown);
-            return box_separation(&a, &b, [0.0, 0.0]);
-        }
-        let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
-        box_separation(&a, &b, clearance)
     }
 
     /// How deep the ego's box at `ego` = (x, y, ψ, v) overlaps the vehicle's box at `other`
@@ -711,38 +640,9 @@ impl<'c> SafetyEval<'c> {
         Ok(())
     }
 
-    /// Extends the prediction of every drifting checked vehicle (`CheckedVehicle::drift`
-    /// ≠ 0) along its drift: its lateral position at step k (1-based) becomes y_last +
-    /// k·drift wherever the prediction lies less far that way. A non-finite prediction is
-    /// left as it is (never replaced by a finite one). Idempotent, so a prediction reused
-    /// under the reaction ablation is extended once.
-    fn extend_drifts(&mut self) {
-        let t = self.horizon;
-        for v in self.constraint.vehicles().iter().filter(|v| v.drift != 0.0) {
-            let base = (v.index - 1) * t * 2;
-            for k in 0..t {
-                let y = &mut self.prediction[base + 2 * k + 1];
-                let drifted = v.last[1] + (k + 1) as f64 * v.drift;
-                let further = if v.drift > 0.0 {
-                    drifted > *y
-                } else {
-                    drifted < *y
-                };
-                if further {
-                    *y = drifted;
-                }
-            }
-        }
-    }
-
     /// The threshold of the violation (b_min).
     pub(crate) fn threshold(&self) -> f64 {
         self.threshold
-    }
-
-    /// Sets the threshold of the violation (b_min) for the evaluations from now on.
-    pub(crate) fn set_threshold(&mut self, threshold: f64) {
-        self.threshold = threshold;
     }
 
     /// [`SafetyEval::eval`] of `z` against a second, non-reactive `predictor` (constant
@@ -800,7 +700,6 @@ impl<'c> SafetyEval<'c> {
             return Ok(Evaluation::not_evaluated());
         }
         self.predict(predictor)?;
-        self.extend_drifts();
         let mut min_b = f64::INFINITY;
         let mut violation = 0.0;
         let mut path_min_b: Option<f64> = None;

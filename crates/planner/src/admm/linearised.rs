@@ -3,7 +3,6 @@
 //! shifted previous plan, or constant velocity on a cold start), the linearised dynamics
 //! around it, the input and state bounds, and the cost J = Φ1 + Φ2 + Φ3.
 
-use nudge_predictor::T_OBS;
 
 use crate::extents::{LaneTable, StopRule, deadline_factor};
 use crate::model::{Bicycle, Linearisation, State};
@@ -12,66 +11,14 @@ use crate::settings::PlannerSettings;
 
 use super::problem::PlanningProblem;
 
-/// What one call leaves for the next: its inputs and duals, shifted by one step when used.
+/// What one call leaves for the next: its inputs, shifted by one step when used (the duals
+/// start from 0 in every call).
 #[derive(Debug, Clone)]
 pub(crate) struct WarmStart {
     /// Steering `[T]` (rad).
     pub delta: Vec<f64>,
     /// Acceleration `[T]` (m/s²).
     pub accel: Vec<f64>,
-    /// Duals μ `[T]`.
-    pub duals: Vec<State>,
-}
-
-/// At most this many match-speed profiles per call (`PlannerSettings::fallback_match_speed`):
-/// those of the nearest slower vehicles ahead.
-pub const MATCH_SPEED_PROFILES: usize = 2;
-
-/// Speeds (m/s) closer than this count as one match-speed profile.
-const MATCH_SPEED_RESOLUTION: f64 = 0.25;
-
-/// The speeds the fallbacks' match-speed profiles brake to
-/// (`PlannerSettings::fallback_match_speed`), nearest vehicle first, at most
-/// [`MATCH_SPEED_PROFILES`], none within [`MATCH_SPEED_RESOLUTION`] of an earlier one: the
-/// observed speeds along the road (the last observed step's x displacement over `dt`, m/s)
-/// of the vehicles of `p` that are ahead of the ego's position (their centre's x beyond its
-/// x) within `check_range`, whose box reaches into the band the ego sweeps between its
-/// lateral position and the lateral goal `y_goal` (the centres' lateral distance from that
-/// band below half the sum of the two widths), and that move forwards slower than the ego by
-/// more than the resolution.
-pub(crate) fn lead_speeds(s: &PlannerSettings, p: &PlanningProblem<'_>, y_goal: f64) -> Vec<f64> {
-    let (band_lo, band_hi) = (p.ego.y.min(y_goal), p.ego.y.max(y_goal));
-    let mut ahead: Vec<(f64, f64)> = Vec::new();
-    for i in 1..p.history.n_agents() {
-        let last = p.history.at(i, T_OBS - 1);
-        let before = p.history.at(i, T_OBS - 2);
-        let dx = last[0] - p.ego.x;
-        let reach = 0.5 * (p.sizes[i][1] + p.sizes[0][1]);
-        let outside = (band_lo - last[1]).max(last[1] - band_hi).max(0.0);
-        let speed = (last[0] - before[0]) / s.dt;
-        if dx > 0.0
-            && dx.hypot(last[1] - p.ego.y) <= s.check_range
-            && outside < reach
-            && speed >= 0.0
-            && speed < p.ego.v - MATCH_SPEED_RESOLUTION
-        {
-            ahead.push((dx, speed));
-        }
-    }
-    ahead.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut speeds: Vec<f64> = Vec::with_capacity(MATCH_SPEED_PROFILES);
-    for (_, v) in ahead {
-        if speeds.len() == MATCH_SPEED_PROFILES {
-            break;
-        }
-        if speeds
-            .iter()
-            .all(|u| (u - v).abs() >= MATCH_SPEED_RESOLUTION)
-        {
-            speeds.push(v);
-        }
-    }
-    speeds
 }
 
 /// `v` shifted by one step, its last entry repeated.
@@ -157,11 +104,6 @@ pub(crate) struct LinearisedProblem {
     pub delta_box: RateBox,
     /// Box and rate bounds of the acceleration.
     pub accel_box: RateBox,
-    /// The speeds (m/s, ≥ 0) the fallbacks' match-speed profiles brake to
-    /// (`PlannerSettings::fallback_match_speed`; [`lead_speeds`]), nearest vehicle first;
-    /// empty when the setting is off or the ego is slower than
-    /// `PlannerSettings::match_min_speed`.
-    pub lead_speeds: Vec<f64>,
 }
 
 impl LinearisedProblem {
@@ -188,13 +130,11 @@ impl LinearisedProblem {
             prev: p.last_accel.clamp(s.a_min, s.a_max),
         };
         let (mut nominal_delta, mut nominal_accel, warm_duals) = match warm {
-            Some(w) if w.delta.len() == t => {
-                let mut duals = shifted(&w.duals, State::zeros());
-                if !s.warm_start_dual {
-                    duals.iter_mut().for_each(|m| *m = State::zeros());
-                }
-                (shifted(&w.delta, 0.0), shifted(&w.accel, 0.0), duals)
-            }
+            Some(w) if w.delta.len() == t => (
+                shifted(&w.delta, 0.0),
+                shifted(&w.accel, 0.0),
+                vec![State::zeros(); t],
+            ),
             _ => (vec![0.0; t], vec![0.0; t], vec![State::zeros(); t]),
         };
         repair_box_rate(&mut nominal_delta, delta_box);
@@ -246,31 +186,7 @@ impl LinearisedProblem {
             stop_line: stop_line(s, p),
             delta_box,
             accel_box,
-            lead_speeds: if s.fallback_match_speed && p.ego.v >= s.match_min_speed {
-                lead_speeds(s, p, y_goal)
-            } else {
-                Vec::new()
-            },
         }
-    }
-
-    /// Linearises the dynamics again around the inputs (`delta`, `accel`, `[T]`) and their
-    /// nonlinear roll-out `rollout` (z_1..z_T, `[T]`) from the measured state: the outer
-    /// sequential-convex step (`PlannerSettings::relinearise`). The nominal inputs (the
-    /// shifted previous plan) and every bound stay as set up.
-    pub(crate) fn relinearise(
-        &mut self,
-        model: &Bicycle,
-        delta: &[f64],
-        accel: &[f64],
-        rollout: &[State],
-        v_lin_min: f64,
-    ) {
-        let mut around = Vec::with_capacity(self.horizon);
-        around.push(self.start);
-        around.extend_from_slice(&rollout[..self.horizon - 1]);
-        self.linearisation =
-            Linearisation::new(model, &self.start, &around, delta, accel, v_lin_min);
     }
 
     /// Φ3(Z) = Σ_k w_y e_y² + w_ψ e_ψ² + w_v e_v², e = z_k − reference.

@@ -21,43 +21,21 @@
 //! linearised problem as one joint QP ([`reference`]).
 
 mod constraint;
-mod contingency;
-mod follower_gap;
 mod heading;
 mod inputs;
 mod linearised;
 mod problem;
-mod projection;
 mod reference;
 mod refine;
 mod repair;
 mod restoration;
-mod retighten;
-mod safe_step;
-mod start;
 mod workspace;
 mod z_update;
 
 #[cfg(test)]
 mod ablation_tests;
 #[cfg(test)]
-mod contingency_tests;
-#[cfg(test)]
-mod convergence_tests;
-#[cfg(test)]
-mod drift_tests;
-#[cfg(test)]
-mod follower_gap_tests;
-#[cfg(test)]
 mod lead_first_tests;
-#[cfg(test)]
-mod match_speed_tests;
-#[cfg(test)]
-mod nonreactive_tests;
-#[cfg(test)]
-mod projection_tests;
-#[cfg(test)]
-mod shy_tests;
 #[cfg(test)]
 mod tests;
 
@@ -68,15 +46,14 @@ use nudge_predictor::{Checked, ConstantVelocity, Predictor};
 use crate::error::PlannerError;
 use crate::model::{Bicycle, State};
 use crate::qp::QpFailure;
-use crate::settings::{PlannerSettings, SafetyGeometry};
+use crate::settings::PlannerSettings;
 
-pub use constraint::{
-    BindingVehicle, CheckedVehicle, DRIFT_STEPS, SafetyConstraint, lateral_drift,
+pub use constraint::{BindingVehicle, CheckedVehicle, SafetyConstraint};
+pub use problem::{
+    DecidedBy, EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus,
 };
-pub use linearised::MATCH_SPEED_PROFILES;
-pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
+pub use repair::{Family, RANK_ORDER, RankKey};
 pub use reference::JointSolution;
-pub use repair::{SHY_CLEARANCE, SHY_MIN_SHIFT};
 
 use constraint::{Budget, SafetyEval};
 use inputs::Input;
@@ -478,10 +455,10 @@ struct Finished {
     z: Vec<State>,
     /// ADMM's Z at the end of its loop (empty after a QP failure).
     admm_z: Vec<State>,
-    duals: Vec<State>,
     min_b: Option<f64>,
     rollout_min_b: Option<f64>,
     status: PlanStatus,
+    decided_by: DecidedBy,
     iterations: usize,
     change_residual: f64,
     qp_solves: usize,
@@ -595,22 +572,22 @@ impl Planner {
             predictor.set_scene(problem.history)?;
         }
         let n_agents = problem.history.n_agents();
-        let threshold = s.safety_min + s.plan_buffer;
-        let mut safety = SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, threshold);
+        let mut safety =
+            SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, s.safety_min);
         safety.budget = Budget::new(s, start);
-        safety.count_overlap = s.contact_first;
+        safety.count_overlap = true;
         safety.ego_last = Some(problem.history.at(0, nudge_predictor::T_OBS - 1));
         if s.ablate_reaction {
             safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.dt));
         }
         let mut timings = PhaseTimings::default();
-        let (iterates, first) = start::start(s, &self.model, &lp, &mut safety, predictor)?;
+        let iterates = Iterates::start(&lp);
+        let first = safety.eval(predictor, &iterates.z)?;
         let current = CurrentSafety::new(first, &safety);
         let mut ws = Workspace::new(s, &lp, iterates, current);
         // ADMM: loop {(re-linearisation;) Δ-update; α-update; Z-update; dual update}.
         let run = admm_loop(
             s,
-            &self.model,
             &mut lp,
             &mut ws,
             &mut safety,
@@ -621,15 +598,13 @@ impl Planner {
         // Execution check: the roll-out of (Δ, α), repaired when unsafe; it may use the calls
         // the budget held back.
         safety.budget.reserve = 0;
-        let mut nonreactive = nonreactive_predictor(s, &constraint, problem, lp.horizon)?;
+        let mut nonreactive = nonreactive_predictor(&constraint, problem, lp.horizon)?;
         let mut repairer = Repairer {
             s,
             model: &self.model,
             lp: &lp,
             safety: &mut safety,
             predictor,
-            contingency: contingency::Contingency::new(s, &lp),
-            follower_gap: follower_gap::FollowerGap::new(problem, s),
             nonreactive: nonreactive.as_mut().map(|p| p as &mut dyn Predictor),
         };
         let finished = check_execution(&mut repairer, admm)?;
@@ -650,8 +625,7 @@ impl Planner {
         problem.check()?;
         let s = &self.settings;
         let ego_length = problem.sizes[0][0];
-        if s.safety_geometry == SafetyGeometry::Ellipse
-            && constraint::ego_slice_count(ego_length, s.ego_segment_length)
+        if constraint::ego_slice_count(ego_length, s.ego_segment_length)
                 > PlannerSettings::MAX_EGO_SEGMENTS as f64
         {
             return Err(PlannerError::BadProblem {
@@ -697,48 +671,34 @@ struct AdmmRun {
     qp_solves: usize,
 }
 
-/// The ADMM loop from the workspace's iterates until convergence, `max_iter` iterations, a QP
-/// failure or the budget: loop {re-linearisation (with `relinearise`, from the second
-/// iteration); Δ-update; α-update; the roll-out of the inputs for the Z-update's roll-out
-/// trial (with `z_rollout_trial`); Z-update; dual update}.
+/// The ADMM loop: Δ-update, α-update, Z-update and dual update until both residuals meet their
+/// tolerances ([`Stop::Converged`]), `max_iter` iterations, a QP failure or the budget.
 fn admm_loop(
     s: &PlannerSettings,
-    model: &Bicycle,
     lp: &mut LinearisedProblem,
     ws: &mut Workspace,
     safety: &mut SafetyEval<'_>,
     predictor: &mut dyn Predictor,
     timings: &mut PhaseTimings,
 ) -> Result<AdmmRun, PlannerError> {
-    let failed = |failure, iterations, qp_solves| {
-        Ok(AdmmRun {
-            stop: Stop::SolverFailed(failure),
-            iterations,
-            qp_solves,
-        })
-    };
     let mut qps = match InputQps::new(s, lp) {
         Ok(qps) => qps,
-        Err(failure) => return failed(failure, 0, 0),
+        Err(failure) => {
+            return Ok(AdmmRun {
+                stop: Stop::SolverFailed(failure),
+                iterations: 0,
+                qp_solves: 0,
+            });
+        }
     };
-    let mut earlier_solves = 0;
     let mut stop = Stop::MaxIterations;
     let mut iterations = 0;
-    let mut retightened = 0;
     for iteration in 0..s.max_iter {
         if safety.budget.spent(safety.calls) {
             stop = Stop::Budget;
             break;
         }
         iterations = iteration + 1;
-        if s.relinearise && iteration > 0 {
-            ws.relinearise(s, model, lp);
-            earlier_solves += qps.solves();
-            qps = match InputQps::new(s, lp) {
-                Ok(qps) => qps,
-                Err(failure) => return failed(failure, iterations, earlier_solves),
-            };
-        }
         let (delta_s, alpha_s) = (&mut timings.delta_s, &mut timings.alpha_s);
         let inputs = qps
             .update(Input::Steering, s, lp, ws, iteration, delta_s)
@@ -747,37 +707,21 @@ fn admm_loop(
             stop = Stop::SolverFailed(failure);
             break;
         }
-        if s.z_rollout_trial {
-            ws.roll_out_inputs(model, lp);
-        }
         ws.update_z(s, lp, safety, predictor, timings)?;
         let converged = ws.update_duals(s, lp);
         if safety.budget.exhausted {
             stop = Stop::Budget;
             break;
         }
-        // The re-tightening (`z_retighten`): a converged loop whose roll-out is unsafe goes
-        // on inside a threshold raised by the roll-out's drop.
-        if converged
-            && retightened < s.z_retighten
-            && let Some(threshold) =
-                retighten::raised_threshold(s, model, lp, ws, safety, predictor)?
-        {
-            retightened += 1;
-            safety.set_threshold(threshold);
-            ws.current = CurrentSafety::new(safety.eval(predictor, &ws.iterates.z)?, safety);
-            continue;
-        }
         if converged {
             stop = Stop::Converged;
             break;
         }
     }
-    safety.set_threshold(s.safety_min + s.plan_buffer);
     Ok(AdmmRun {
         stop,
         iterations,
-        qp_solves: earlier_solves + qps.solves(),
+        qp_solves: qps.solves(),
     })
 }
 
@@ -794,22 +738,15 @@ impl AdmmResult {
     }
 }
 
-/// The constant-velocity predictor, set to the problem's scene, that inadmissible candidates
-/// are also ranked against (`PlannerSettings::fallback_nonreactive`,
-/// `PlannerSettings::fallback_avoid_nonreactive`) and lattice sequences
-/// must be clear under (`PlannerSettings::lattice_clear_nonreactive`), and that the fallback
-/// must hit somebody under before the lattice is searched at all
-/// (`PlannerSettings::lattice_when_fallback_hits`); `None` when no such rule is on or nothing is checked.
+/// The constant-velocity predictor, set to the problem's scene, under which a lattice
+/// sequence must hit nobody to replace the fallback ([`repair`]); `None` when nothing is
+/// checked.
 fn nonreactive_predictor(
-    s: &PlannerSettings,
     constraint: &SafetyConstraint,
     problem: &PlanningProblem<'_>,
     horizon: usize,
 ) -> Result<Option<ConstantVelocity>, PlannerError> {
-    let wanted = s.fallback_nonreactive
-        || s.fallback_avoid_nonreactive
-        || (s.fallback_lattice && (s.lattice_clear_nonreactive || s.lattice_when_fallback_hits));
-    if !wanted || constraint.vehicles().is_empty() {
+    if constraint.vehicles().is_empty() {
         return Ok(None);
     }
     let mut cv = ConstantVelocity::new(horizon)?;
@@ -817,21 +754,15 @@ fn nonreactive_predictor(
     Ok(Some(cv))
 }
 
-/// The execution check of the ADMM result (see [`repair`]). The plan's states are always the
-/// nonlinear roll-out of its inputs. When the roll-out of the ADMM inputs is admissible the
-/// plan is the ADMM answer (status `Converged` or `MaxIterations`); otherwise, with
-/// `rollout_check` on, the refinement ([`PlanStatus::Refined`]), else the first admissible
-/// backtracking step ([`PlanStatus::Backtracked`]), else the best fallback if it beats the
-/// roll-out ([`PlanStatus::Fallback`]); a plan that is still not admissible has status
-/// [`PlanStatus::Unsafe`]. After a QP failure, the best fallback with status
-/// [`PlanStatus::SolverFailed`].
+/// The execution check: the ADMM roll-out when admissible, else the repairs in order
+/// (refinement, backtracking, the best fallback); with nothing admissible the least-violating
+/// of the roll-out and the best fallback. Every outcome names what decided it.
 fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finished, PlannerError> {
-    let s = r.s;
     let Iterates {
         delta,
         accel,
         z: admm_z,
-        duals,
+        ..
     } = admm.iterates;
     let counts = (admm.iterations, admm.change_residual, admm.qp_solves);
     let status = match admm.stop {
@@ -841,85 +772,68 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
                 qp: failure.qp,
                 status: failure.status,
             };
-            let zeros = vec![State::zeros(); duals.len()];
-            return Ok(Finished::adopt(c, zeros, Vec::new(), status, counts));
+            let by = fallback(&c);
+            return Ok(Finished::adopt(c, Vec::new(), (status, by), counts));
         }
         Stop::Converged => PlanStatus::Converged,
         Stop::MaxIterations => PlanStatus::MaxIterations,
         Stop::Budget => PlanStatus::BudgetExhausted,
     };
     let rollout = r.check(delta, accel)?;
+    let admm_by = if rollout.governed {
+        DecidedBy::AdmmGoverned
+    } else {
+        DecidedBy::Admm
+    };
     if rollout.rank.safe {
-        return Ok(Finished::adopt(rollout, duals, admm_z, status, counts));
+        return Ok(Finished::adopt(rollout, admm_z, (status, admm_by), counts));
     }
-    if status == PlanStatus::BudgetExhausted {
+    let unsafe_outcome = if status == PlanStatus::BudgetExhausted {
         // The budget's reserved second call: the shifted previous plan.
         let nominal = r.check(r.lp.nominal_delta.clone(), r.lp.nominal_accel.clone())?;
-        let (best, status) = if nominal.rank.safe {
-            (nominal, PlanStatus::BudgetExhausted)
-        } else if nominal.rank.beats(&rollout.rank) {
-            (nominal, PlanStatus::Unsafe)
-        } else {
-            (rollout, PlanStatus::Unsafe)
-        };
-        return Ok(Finished::adopt(best, duals, admm_z, status, counts));
-    }
-    if s.rollout_check {
+        if nominal.rank.safe {
+            let outcome = (PlanStatus::BudgetExhausted, DecidedBy::Nominal);
+            return Ok(Finished::adopt(nominal, admm_z, outcome, counts));
+        }
+        (nominal, DecidedBy::Nominal)
+    } else {
         if let Some(c) = r.refine(&rollout)? {
-            return Ok(Finished::adopt(
-                c,
-                duals,
-                admm_z,
-                PlanStatus::Refined,
-                counts,
-            ));
+            let outcome = (PlanStatus::Refined, DecidedBy::Refined);
+            return Ok(Finished::adopt(c, admm_z, outcome, counts));
         }
         if let Some(c) = r.backtrack(&rollout.delta, &rollout.accel)? {
-            return Ok(Finished::adopt(
-                c,
-                duals,
-                admm_z,
-                PlanStatus::Backtracked,
-                counts,
-            ));
+            let outcome = (PlanStatus::Backtracked, DecidedBy::Backtracked);
+            return Ok(Finished::adopt(c, admm_z, outcome, counts));
         }
         let c = r.best_fallback()?;
+        let by = fallback(&c);
         if c.rank.safe {
-            return Ok(Finished::adopt(
-                c,
-                duals,
-                admm_z,
-                PlanStatus::Fallback,
-                counts,
-            ));
+            return Ok(Finished::adopt(c, admm_z, (PlanStatus::Fallback, by), counts));
         }
-        if c.rank.beats(&rollout.rank) {
-            return Ok(Finished::adopt(
-                c,
-                duals,
-                admm_z,
-                PlanStatus::Unsafe,
-                counts,
-            ));
-        }
-    }
-    Ok(Finished::adopt(
-        rollout,
-        duals,
-        admm_z,
-        PlanStatus::Unsafe,
-        counts,
-    ))
+        (c, by)
+    };
+    // Nothing admissible: the least-violating of the repair and the ADMM roll-out.
+    let (best, by) = if unsafe_outcome.0.rank.beats(&rollout.rank) {
+        unsafe_outcome
+    } else {
+        (rollout, admm_by)
+    };
+    Ok(Finished::adopt(best, admm_z, (PlanStatus::Unsafe, by), counts))
+}
+
+/// What decided a candidate returned by [`Repairer::best_fallback`].
+fn fallback(c: &Candidate) -> DecidedBy {
+    let (family, key) = c.chosen.unwrap_or((Family::Nominal, None));
+    DecidedBy::Fallback { family, key }
 }
 
 impl Finished {
-    /// A repaired plan: the candidate's inputs and roll-out; `counts` = (iterations, change
-    /// residual, QP solves) of the ADMM loop.
+    /// The plan of candidate `c` with its (status, what decided it); `counts` = (iterations,
+    /// change residual, QP solves) of the ADMM loop.
     fn adopt(
         c: Candidate,
-        duals: Vec<State>,
         admm_z: Vec<State>,
-        status: PlanStatus,
+        (status, decided_by): (PlanStatus, DecidedBy),
         counts: (usize, f64, usize),
     ) -> Self {
         Self {
@@ -927,10 +841,10 @@ impl Finished {
             accel: c.accel,
             z: c.rollout,
             admm_z,
-            duals,
             min_b: c.min_b,
             rollout_min_b: c.min_b,
             status,
+            decided_by,
             iterations: counts.0,
             change_residual: counts.1,
             qp_solves: counts.2,
@@ -967,11 +881,11 @@ impl Finished {
             lane_violation: lp.lane_violation(&self.z),
             timings,
             status: self.status,
+            decided_by: self.decided_by,
         };
         let warm = WarmStart {
             delta: self.delta,
             accel: self.accel,
-            duals: self.duals,
         };
         (plan, warm)
     }

@@ -11,7 +11,7 @@ use crate::settings::PlannerSettings;
 use super::constraint::SafetyEval;
 use super::linearised::LinearisedProblem;
 use super::workspace::{CurrentSafety, Curvature, Scratch, mat_vec};
-use super::z_update::{Lagrangian, safe_direction};
+use super::z_update::Lagrangian;
 
 /// A restoration move from Z.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -19,9 +19,6 @@ pub(crate) enum Move {
     /// A descent step on G: Newton (η = 1, 1/2, ...) with Hessian scaling, else the gradient
     /// (η = 1/L, 1/(2L), ...).
     Descent,
-    /// The linearised-safety step ([`super::safe_step`], with `z_safe_step`), η = 1, 1/2, ...:
-    /// G's minimiser with the violated safety rows of Z linearised (elastic).
-    SafeStep,
     /// The positions pushed along the violation's descent direction −∇V/‖∇V‖∞ (prediction
     /// frozen) by a step of `restore_step`, `restore_step`/2, ... metres: through the pinned
     /// Newton step towards the pushed positions with Hessian scaling (ψ and v follow
@@ -60,9 +57,6 @@ fn trial_point(
     scratch: &mut Scratch,
 ) -> bool {
     match mv {
-        Move::SafeStep => {
-            lp.project_step(z, &scratch.safe_step, eta, &mut scratch.trial);
-        }
         Move::Descent => {
             let direction = if curvature.newton.is_some() {
                 &scratch.newton_step
@@ -122,12 +116,7 @@ pub(crate) fn restore(
     predictor: &mut dyn Predictor,
 ) -> Result<bool, PlannerError> {
     let (s, lp) = (g.s, g.lp);
-    let safe_step = s.z_safe_step && safe_direction(g, curvature, current, safety, scratch);
-    let moves: &[Move] = if safe_step {
-        &[Move::SafeStep, Move::Descent, Move::PushPositions]
-    } else {
-        &[Move::Descent, Move::PushPositions]
-    };
+    let moves = [Move::Descent, Move::PushPositions];
     let mut best_violation = current.violation;
     let mut best_min_b = current.min_b;
     let mut found = false;
@@ -138,7 +127,7 @@ pub(crate) fn restore(
     };
     let mut push = s.restore_step;
     for _ in 0..=s.pgd_halvings {
-        for &mv in moves {
+        for mv in moves {
             let (vg, step) = (&current.violation_gradient, (eta, push));
             if !trial_point(mv, s, lp, curvature, z, vg, step, scratch) {
                 continue;

@@ -4,7 +4,7 @@
 
 use nalgebra::DMatrix;
 
-use crate::model::{Bicycle, State};
+use crate::model::State;
 use crate::settings::PlannerSettings;
 
 use super::constraint::{Evaluation, SafetyEval, SafetyRow};
@@ -62,13 +62,6 @@ impl Curvature {
             .map(|i| (0..m4).map(|j| h[(i, j)].abs()).sum::<f64>())
             .fold(0.0, f64::max)
             .max(1e-9);
-        if !s.hessian_scaled {
-            return Self {
-                lipschitz,
-                newton: None,
-                pinned: None,
-            };
-        }
         let mut pinned = h.clone();
         for k in 0..t {
             pinned[(4 * k, 4 * k)] += s.pin_weight;
@@ -138,12 +131,6 @@ pub(crate) struct Scratch {
     pub pinned_step: Vec<State>,
     /// ∇G plus the pull of the positions towards a pushed target.
     pub pinned_rhs: Vec<State>,
-    /// The linearised-safety step ([`super::safe_step`]).
-    pub safe_step: Vec<State>,
-    /// The nonlinear roll-out of the current inputs (clamped for the roll-out trial).
-    pub input_rollout: Vec<State>,
-    /// Z minus the clamped roll-out: the roll-out trial's step.
-    pub rollout_step: Vec<State>,
     /// The safety rows of `best`.
     pub best_rows: Vec<SafetyRow>,
     /// A trial Z.
@@ -170,9 +157,6 @@ impl Scratch {
             newton_step: states(),
             pinned_step: states(),
             pinned_rhs: states(),
-            safe_step: states(),
-            input_rollout: states(),
-            rollout_step: states(),
             best_rows: Vec::new(),
             trial: states(),
             best: states(),
@@ -212,34 +196,6 @@ impl Workspace {
             current,
             scratch: Scratch::new(lp.horizon),
             change: f64::INFINITY,
-        }
-    }
-
-    /// The re-linearisation (`PlannerSettings::relinearise`): the dynamics linearised again
-    /// around the current inputs and their nonlinear roll-out ([`LinearisedProblem::relinearise`]),
-    /// and the Z-update's curvature of the new linearisation; the iterates and duals carry
-    /// over.
-    pub(crate) fn relinearise(
-        &mut self,
-        s: &PlannerSettings,
-        model: &Bicycle,
-        lp: &mut LinearisedProblem,
-    ) {
-        let it = &self.iterates;
-        let rollout = &mut self.scratch.input_rollout;
-        model.rollout(&lp.start, &it.delta, &it.accel, rollout);
-        lp.relinearise(model, &it.delta, &it.accel, rollout, s.v_lin_min);
-        self.curvature = Curvature::new(s, lp);
-    }
-
-    /// The nonlinear roll-out of the current inputs, clamped into the state bounds, into
-    /// `scratch.input_rollout`: the Z-update's roll-out trial point.
-    pub(crate) fn roll_out_inputs(&mut self, model: &Bicycle, lp: &LinearisedProblem) {
-        let it = &self.iterates;
-        let rollout = &mut self.scratch.input_rollout;
-        model.rollout(&lp.start, &it.delta, &it.accel, rollout);
-        for (k, r) in rollout.iter_mut().enumerate() {
-            *r = lp.clamp(k, r);
         }
     }
 

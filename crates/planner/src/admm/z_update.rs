@@ -14,9 +14,7 @@ use crate::settings::PlannerSettings;
 use super::constraint::SafetyEval;
 use super::linearised::LinearisedProblem;
 use super::problem::PhaseTimings;
-use super::projection::{Projected, project};
 use super::restoration::restore;
-use super::safe_step::linearised_step;
 use super::workspace::{CurrentSafety, Curvature, Scratch, Workspace, mat_vec, max_diff};
 
 /// The augmented Lagrangian as a function of Z, the inputs and duals fixed.
@@ -66,78 +64,40 @@ impl Lagrangian<'_> {
 pub(crate) enum Trial {
     /// d = H⁻¹∇G with η = 1, 1/2, ...: η = 1 is G's exact minimiser when no bound is active.
     Newton,
-    /// d = the linearised-safety step ([`super::safe_step`]) with η = 1, 1/2, ...: G's
-    /// minimiser subject to the safety rows of the current Z, so that Z slides along the
-    /// constraint boundary instead of stalling on it.
-    SafeStep,
-    /// With `z_cuts`: the projection onto the linearised safe set ([`super::projection`]):
-    /// the linearised-safety step at η = 1, solved again with the cuts of its unsafe trial
-    /// points, then halved (η = 1/2, ...).
-    Projection,
-    /// With `z_cuts`: the Newton step's halvings (η = 1/2, ...), after the projection.
-    NewtonHalved,
-    /// d = Z − Π(roll-out of the current (Δ, α)) with η = 1 only: the nonlinear roll-out of
-    /// the inputs as a trial point (F there is the linearisation error alone).
-    RollOut,
     /// d = H_pin⁻¹∇G with η = 1 only: minimises G while holding the positions near the current
     /// (safe) ones, so that ψ and v become consistent with them.
     PinnedNewton,
-    /// d = ∇G with η = 1/L, 1/(2L), ... (when Hessian scaling is off).
+    /// d = ∇G with η = 1/L, 1/(2L), ... (when H could not be inverted).
     Gradient,
 }
 
 impl Trial {
-    /// The kinds tried in order: the roll-out trial (used only with `z_rollout_trial`, in a
-    /// Z-update's first step), then the Newton pair with Hessian scaling, else the gradient;
-    /// with `z_safe_step` the safe step after the Newton step (after the gradient step).
-    /// With `z_cuts` (and `z_safe_step`, Hessian scaling) the full Newton step, then the
-    /// projection, then the Newton step's halvings.
-    fn sequence(s: &PlannerSettings, curvature: &Curvature) -> &'static [Trial] {
-        if curvature.newton.is_some() && s.z_safe_step && s.z_cuts > 0 {
-            return &[
-                Self::RollOut,
-                Self::Newton,
-                Self::Projection,
-                Self::NewtonHalved,
-                Self::PinnedNewton,
-            ];
-        }
-        match (curvature.newton.is_some(), s.z_safe_step) {
-            (true, true) => &[
-                Self::RollOut,
-                Self::Newton,
-                Self::SafeStep,
-                Self::PinnedNewton,
-            ],
-            (true, false) => &[Self::RollOut, Self::Newton, Self::PinnedNewton],
-            (false, true) => &[Self::RollOut, Self::Gradient, Self::SafeStep],
-            (false, false) => &[Self::RollOut, Self::Gradient],
+    /// The kinds tried in order: the Newton pair when H was inverted, else the gradient.
+    fn sequence(curvature: &Curvature) -> &'static [Trial] {
+        if curvature.newton.is_some() {
+            &[Self::Newton, Self::PinnedNewton]
+        } else {
+            &[Self::Gradient]
         }
     }
 
-    /// The first step length η.
     fn first_step(self, curvature: &Curvature) -> f64 {
         match self {
-            Self::Newton | Self::PinnedNewton | Self::SafeStep | Self::RollOut => 1.0,
+            Self::Newton | Self::PinnedNewton => 1.0,
             Self::Gradient => 1.0 / curvature.lipschitz,
-            Self::Projection | Self::NewtonHalved => 0.5,
         }
     }
 
-    /// How many times η is halved after the first trial.
     fn halvings(self, s: &PlannerSettings) -> usize {
         match self {
-            Self::PinnedNewton | Self::RollOut => 0,
-            Self::Newton if s.z_safe_step && s.z_cuts > 0 => 0,
-            Self::Newton | Self::Gradient | Self::SafeStep => s.pgd_halvings,
-            Self::Projection | Self::NewtonHalved => s.pgd_halvings.saturating_sub(1),
+            Self::PinnedNewton => 0,
+            Self::Newton | Self::Gradient => s.pgd_halvings,
         }
     }
 }
 
-/// Descent from a safe Z: the first trial (kinds in [`Trial::sequence`] order, η halved within
-/// a kind) that lowers G and is safe replaces Z. A trial that does not move Z (every step
-/// component held by the bounds) ends the search. Returns whether Z moved.
+/// One descent step from a safe Z: the first trial of [`Trial::sequence`] whose point lowers G
+/// and is safe by the predictor moves Z (`true`); `false` when none does.
 #[allow(clippy::too_many_arguments)]
 fn descend(
     g: &Lagrangian<'_>,
@@ -148,49 +108,17 @@ fn descend(
     current: &mut CurrentSafety,
     safety: &mut SafetyEval<'_>,
     predictor: &mut dyn Predictor,
-    first: bool,
 ) -> Result<bool, PlannerError> {
-    for &trial in Trial::sequence(g.s, curvature) {
-        if trial == Trial::SafeStep && !safe_direction(g, curvature, current, safety, scratch) {
-            continue;
-        }
-        if trial == Trial::Projection {
-            match project(
-                g, curvature, z, g_current, scratch, current, safety, predictor,
-            )? {
-                Projected::Moved => return Ok(true),
-                Projected::NoStep => continue,
-                Projected::Rejected => {}
-            }
-        }
-        if trial == Trial::RollOut {
-            if !g.s.z_rollout_trial || !first {
-                continue;
-            }
-            for ((d, zk), r) in scratch
-                .rollout_step
-                .iter_mut()
-                .zip(z.iter())
-                .zip(&scratch.input_rollout)
-            {
-                *d = zk - r;
-            }
-        }
+    for &trial in Trial::sequence(curvature) {
         let direction = match trial {
-            Trial::Newton | Trial::NewtonHalved => &scratch.newton_step,
-            Trial::Projection => &scratch.safe_step,
+            Trial::Newton => &scratch.newton_step,
             Trial::PinnedNewton => &scratch.pinned_step,
             Trial::Gradient => &scratch.gradient,
-            Trial::SafeStep => &scratch.safe_step,
-            Trial::RollOut => &scratch.rollout_step,
         };
         let mut eta = trial.first_step(curvature);
         for _ in 0..=trial.halvings(g.s) {
             g.lp.project_step(z, direction, eta, &mut scratch.trial);
             if max_diff(&scratch.trial, z) < 1e-12 {
-                if trial == Trial::RollOut {
-                    break;
-                }
                 return Ok(false);
             }
             if g.value(&scratch.trial, &mut scratch.weighted) < g_current {
@@ -207,28 +135,6 @@ fn descend(
         }
     }
     Ok(false)
-}
-
-/// Writes the linearised-safety step ([`super::safe_step`]) from the current Z (whose safety,
-/// rows included, is `current`, and whose ∇G is in `scratch.gradient`) into
-/// `scratch.safe_step`; `false` without Hessian scaling or when no step is defined.
-pub(crate) fn safe_direction(
-    g: &Lagrangian<'_>,
-    curvature: &Curvature,
-    current: &CurrentSafety,
-    safety: &SafetyEval<'_>,
-    scratch: &mut Scratch,
-) -> bool {
-    let Some(inverse) = curvature.newton.as_ref() else {
-        return false;
-    };
-    linearised_step(
-        inverse,
-        &scratch.gradient,
-        &current.rows,
-        safety.threshold() + g.s.z_step_margin,
-        &mut scratch.safe_step,
-    )
 }
 
 impl Workspace {
@@ -260,7 +166,7 @@ impl Workspace {
         };
         let z = &mut iterates.z;
         let mut g_current = g.value(z, &mut scratch.residual);
-        for step in 0..s.pgd_steps {
+        for _ in 0..s.pgd_steps {
             g.gradient(
                 z,
                 &scratch.residual,
@@ -283,7 +189,6 @@ impl Workspace {
                     current,
                     safety,
                     predictor,
-                    step == 0,
                 )?
             } else {
                 restore(&g, curvature, z, scratch, current, safety, predictor)?
