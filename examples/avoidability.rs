@@ -63,7 +63,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         world: World::LogReplay,
         ..SimConfig::default()
     };
-    let mut predictor = PredictorSpec::resolve(&args.planner, &assets, settings.horizon)?.build();
+    let mut predictor = PredictorSpec::resolve(&args.planner, &assets, settings.model.horizon)?.build();
     let mut limits = OracleLimits::of(&settings);
     limits.hold = args.hold;
     limits.max_nodes = args.max_nodes;
@@ -87,12 +87,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             WorldModel::LogReplay,
         )?;
         let traffic = LoggedTraffic::new(&sc, cfg.max_steps, cfg.replay_lateral_decay);
-        let observer = RunObserver::new(&sc, run.target_lane, cfg.fault_brake_limit, settings.l_r);
+        let observer = RunObserver::new(&sc, run.target_lane, cfg.fault_brake_limit, settings.model.l_r);
         let world = OracleWorld {
             bicycle: nudge::planner::Bicycle {
-                l_f: settings.l_f,
-                l_r: settings.l_r,
-                dt: settings.dt,
+                l_f: settings.model.l_f,
+                l_r: settings.model.l_r,
+                dt: settings.model.dt,
             },
             size: sc.size[0],
             bounds: &sc.lane_bounds,
@@ -166,20 +166,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let before = before.or_else(|| Some(sc.position(ev.other, T_OBS - 1)[1]));
                 let ego_y = start_of(k).ego[1];
                 match (now, before) {
-                    (Some(a), Some(b)) => ((a - b) / settings.dt) * (ego_y - a).signum(),
+                    (Some(a), Some(b)) => ((a - b) / settings.model.dt) * (ego_y - a).signum(),
                     _ => f64::NAN,
                 }
             };
             let (k_txt, lead, st, lat) = match latest {
                 Some(k) => (
                     k.to_string(),
-                    format!("{:.1}", (c - k + 1) as f64 * settings.dt),
+                    format!("{:.1}", (c - k + 1) as f64 * settings.model.dt),
                     statuses(k),
                     format!("{:+.2}", lateral(k)),
                 ),
                 None => (
                     format!("< {from}"),
-                    format!("> {:.1}", (c - from + 1) as f64 * settings.dt),
+                    format!("> {:.1}", (c - from + 1) as f64 * settings.model.dt),
                     statuses(from),
                     format!("{:+.2}", lateral(from)),
                 ),

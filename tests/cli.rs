@@ -457,9 +457,10 @@ fn cli_ablate_reaction_is_the_setting() {
 
     let (loaded, bad) = Scenario::load_dir(&scenes).unwrap();
     assert!(bad.is_empty());
-    let settings = PlannerSettings {
-        ablate_reaction: true,
-        ..PlannerSettings::default()
+    let settings = {
+        let mut s = PlannerSettings::default();
+        s.safety.ablate_reaction = true;
+        s
     };
     let cfg = SimConfig {
         max_steps: 3,

@@ -318,31 +318,14 @@ fn convoy_scene(name: &str, seed: u64, spacing: f64) -> (Scenario, f64, f64) {
     (sc, y_lane, y_own)
 }
 
-/// The convergence rules of the ADMM loop (`z_safe_step`, `z_rollout_trial`, `relinearise`,
-/// `plan_buffer` 0.03) on, with the stalled-change abort they need.
-fn convergence_rules() -> (PlannerSettings, f64) {
-    let settings = PlannerSettings {
-        z_safe_step: true,
-        z_rollout_trial: true,
-        relinearise: true,
-        plan_buffer: 0.03,
-        ..PlannerSettings::default()
-    };
-    (settings, 0.05)
-}
-
 /// With the default settings the lane change finds no admissible plan in front of the convoy
-/// and the abort fires; with the convergence rules it finds admissible plans that edge over
-/// the line and stop there, and the stalled-change abort (`stall_progress`) fires instead.
+/// and the abort fires; without aborts the goal stays the target lane.
 #[test]
 fn blocked_target_lane_aborts_instead_of_idling_across_the_boundary() {
     let (sc, y_target, y_own) = convoy_scene("us101-11_1-t02.1-ego144", 0, 11.0);
-    let (rules, stall_progress) = convergence_rules();
     let arms = [
         (2, PlannerSettings::default(), 0.0),
         (0, PlannerSettings::default(), 0.0),
-        (2, rules.clone(), stall_progress),
-        (0, rules, stall_progress),
     ];
     for (abort_after, settings, stall_progress) in arms {
         let cfg = SimConfig {

@@ -37,7 +37,6 @@ use std::time::{Duration, Instant};
 use nudge::planner::scenario::{
     EGO_LANE_TOLERANCE, LANE_WIDTH, MAX_HEADING, MAX_SPEED, ROAD_TOLERANCE,
 };
-use nudge::planner::settings::RANGES;
 use nudge::planner::{
     EgoState, PlanStatus, Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, State,
     World, WorldModel, simulate,
@@ -1102,10 +1101,14 @@ struct SettingsScene {
 }
 
 fn settings_value(rng: &mut Rng, field: &str) -> serde_json::Value {
-    let range = RANGES.iter().find(|r| r.field == field);
+    let range = PlannerSettings::fields()
+        .filter_map(|f| f.range)
+        .find(|r| r.field == field);
+    let (group, leaf) = field.split_once('.').unwrap_or(("", field));
     let is_int = serde_json::to_value(PlannerSettings::default())
         .unwrap()
-        .get(field)
+        .get(group)
+        .and_then(|g| g.get(leaf))
         .is_some_and(serde_json::Value::is_u64);
     match rng.below(12) {
         0 => serde_json::json!(rng.pick(&[1e300, -1e300, 0.0, -1.0, 1e-300])),
@@ -1147,13 +1150,21 @@ fn settings_value(rng: &mut Rng, field: &str) -> serde_json::Value {
 }
 
 fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
-    let defaults = serde_json::to_value(PlannerSettings::default()).unwrap();
-    let keys: Vec<String> = defaults.as_object().unwrap().keys().cloned().collect();
+    // Dotted keys of every field (`cost.w_y`), written as nested groups.
+    let keys: Vec<String> = PlannerSettings::fields()
+        .map(|f| f.field.to_owned())
+        .collect();
     let mut obj = serde_json::Map::new();
     for _ in 0..=rng.below(4) {
         let k = keys[rng.below(keys.len())].clone();
         let v = settings_value(rng, &k);
-        obj.insert(k, v);
+        let (group, leaf) = k.split_once('.').unwrap_or(("", &k));
+        let entry = obj
+            .entry(group.to_owned())
+            .or_insert_with(|| serde_json::json!({}));
+        if let Some(m) = entry.as_object_mut() {
+            m.insert(leaf.to_owned(), v);
+        }
     }
     let mut text = serde_json::Value::Object(obj.clone()).to_string();
     match rng.below(10) {
@@ -1184,7 +1195,7 @@ fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
         Ok(s) => s,
         Err(e) => return Outcome::Refused(kind(&e)),
     };
-    for r in RANGES {
+    for r in PlannerSettings::fields().filter_map(|f| f.range) {
         let v = s.numeric(r.field).unwrap_or(f64::NAN);
         if !r.contains(v) {
             return Outcome::Invalid(format!("accepted {} = {v} outside {r}", r.field));
@@ -1194,7 +1205,7 @@ fn settings_try(rng: &mut Rng, scene: &SettingsScene) -> Outcome {
         Ok(p) => p,
         Err(e) => return Outcome::LaterRefused(kind(&e)),
     };
-    let mut cv = match ConstantVelocity::new(s.horizon) {
+    let mut cv = match ConstantVelocity::new(s.model.horizon) {
         Ok(cv) => cv,
         Err(e) => return Outcome::LaterRefused(kind(&e)),
     };
@@ -1541,7 +1552,7 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
                 PlanStatus::Converged | PlanStatus::MaxIterations
             ) && !plan
                 .min_safety
-                .is_none_or(|b| b.is_finite() && b > settings.safety_min)
+                .is_none_or(|b| b.is_finite() && b > settings.safety.safety_min)
             {
                 return Outcome::Invalid(format!(
                     "{:?} (reported safe) with min_safety {:?}",

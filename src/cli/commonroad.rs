@@ -109,7 +109,7 @@ impl Prepared {
                 (self.ego, self.t0),
                 &self.scenario,
                 record,
-                (settings.l_f, settings.l_r),
+                (settings.model.l_f, settings.model.l_r),
             )
             .map_err(|e| e.to_string())?;
             let path = out.join(format!(
@@ -122,7 +122,7 @@ impl Prepared {
                 "planning_problem": sol.planning_problem,
                 "ego": self.ego.to_string(),
                 "ego_size_m": self.scenario.size[0],
-                "l_r_m": settings.l_r,
+                "l_r_m": settings.model.l_r,
                 "max_dev_m": sol.max_dev_m,
                 "n_states": sol.states.len(),
             });

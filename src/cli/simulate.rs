@@ -183,7 +183,7 @@ impl SimulateArgs {
             }
             None => PlannerSettings::default(),
         };
-        s.ablate_reaction |= self.ablate_reaction;
+        s.safety.ablate_reaction |= self.ablate_reaction;
         Ok(s)
     }
 }

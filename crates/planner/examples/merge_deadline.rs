@@ -72,12 +72,13 @@ fn main() {
     let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
     let pop = IdmPopulation::from_file(nudge_planner::sim::idm_path(&assets)).unwrap();
     for world in [World::Idm, World::LogReplay] {
-        for w in [0.0, PlannerSettings::default().w_deadline] {
+        for w in [0.0, PlannerSettings::default().lane_ends.w_deadline] {
             for gap_back in [20.0, 60.0, 100.0] {
                 let sc = scene(gap_back);
-                let s = PlannerSettings {
-                    w_deadline: w,
-                    ..PlannerSettings::default()
+                let s = {
+                    let mut s = PlannerSettings::default();
+                    s.lane_ends.w_deadline = w;
+                    s
                 };
                 let cfg = SimConfig {
                     world,

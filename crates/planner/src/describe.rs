@@ -11,13 +11,16 @@ use schemars::JsonSchema;
 use serde::Serialize;
 use serde_json::Value;
 
-use crate::settings::{FieldRange, PlannerSettings, RANGES};
+use crate::settings::{
+    AdmmSettings, BoundSettings, BudgetSettings, CostSettings, FieldRange, FieldSpec,
+    LaneEndSettings, ModelSettings, PlannerSettings, RepairSettings, SafetySettings,
+};
 use crate::sim::SimConfig;
 
 /// One field of a settings struct.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FieldDoc {
-    /// Name of the field (as in the serde representation: JSON files, Python keywords).
+    /// Dotted name of the field (as in JSON files: `cost.w_y`, or `max_steps` at the top).
     pub field: String,
     /// Unit of the value (`""` when it has none: weights, tolerances, booleans, names).
     pub unit: &'static str,
@@ -34,21 +37,57 @@ pub struct FieldDoc {
 pub trait Described: JsonSchema + Serialize + Default {
     /// Name of the struct (as in Rust and Python).
     const NAME: &'static str;
-    /// The ranges its `validate` checks, one per numeric field.
-    const RANGES: &'static [FieldRange];
+    /// Its fields (dotted names and ranges), in declaration order; empty for a struct of
+    /// groups, which describes itself through [`Described::rows`].
+    const FIELDS: &'static [FieldSpec];
+
+    /// Every field, in declaration order.
+    #[must_use]
+    fn rows() -> Vec<FieldDoc> {
+        describe::<Self>()
+    }
+}
+
+macro_rules! described {
+    ($($t:ty => $name:literal),* $(,)?) => {
+        $(impl Described for $t {
+            const NAME: &'static str = $name;
+            const FIELDS: &'static [FieldSpec] = <$t>::FIELDS;
+        })*
+    };
+}
+
+described! {
+    ModelSettings => "ModelSettings",
+    CostSettings => "CostSettings",
+    BoundSettings => "BoundSettings",
+    SafetySettings => "SafetySettings",
+    AdmmSettings => "AdmmSettings",
+    RepairSettings => "RepairSettings",
+    BudgetSettings => "BudgetSettings",
+    LaneEndSettings => "LaneEndSettings",
+    SimConfig => "SimConfig",
 }
 
 impl Described for PlannerSettings {
     const NAME: &'static str = "PlannerSettings";
-    const RANGES: &'static [FieldRange] = RANGES;
+    const FIELDS: &'static [FieldSpec] = &[];
+
+    fn rows() -> Vec<FieldDoc> {
+        let mut rows = describe::<ModelSettings>();
+        rows.extend(describe::<CostSettings>());
+        rows.extend(describe::<BoundSettings>());
+        rows.extend(describe::<SafetySettings>());
+        rows.extend(describe::<AdmmSettings>());
+        rows.extend(describe::<RepairSettings>());
+        rows.extend(describe::<BudgetSettings>());
+        rows.extend(describe::<LaneEndSettings>());
+        rows
+    }
 }
 
-impl Described for SimConfig {
-    const NAME: &'static str = "SimConfig";
-    const RANGES: &'static [FieldRange] = SimConfig::RANGES;
-}
-
-/// Every field of `T`, in alphabetical order (the order of its serde serialisation).
+/// Every field of the flat struct `T` (`T::FIELDS`), in declaration order: its doc from the
+/// JSON schema, its default from the serialised [`Default`], its unit and range.
 #[must_use]
 pub fn describe<T: Described>() -> Vec<FieldDoc> {
     let schema = schemars::schema_for!(T);
@@ -56,15 +95,19 @@ pub fn describe<T: Described>() -> Vec<FieldDoc> {
     let Some(props) = schema.get("properties").and_then(Value::as_object) else {
         return Vec::new();
     };
-    props
+    T::FIELDS
         .iter()
-        .map(|(field, prop)| {
-            let range = T::RANGES.iter().find(|r| r.field == field);
-            let default = defaults.get(field).cloned().unwrap_or(Value::Null);
+        .map(|spec| {
+            let leaf = spec.field.rsplit('.').next().unwrap_or(spec.field);
+            let prop = props.get(leaf).unwrap_or(&Value::Null);
+            let default = defaults.get(leaf).cloned().unwrap_or(Value::Null);
             FieldDoc {
-                field: field.clone(),
-                unit: range.map_or("", |r| r.unit),
-                range: range.map_or_else(|| names(&schema, prop, &default), range_text),
+                field: spec.field.to_owned(),
+                unit: spec.range.as_ref().map_or("", |r| r.unit),
+                range: spec
+                    .range
+                    .as_ref()
+                    .map_or_else(|| names(&schema, prop, &default), range_text),
                 default,
                 doc: doc_text(prop),
             }
@@ -138,17 +181,10 @@ fn cell(text: &str) -> String {
     text.replace('|', "\\|").replace("\n\n", "<br>")
 }
 
-/// One struct's section of the reference page: its description and a table of its fields.
-fn section<T: Described>(out: &mut String, json_name: &str) {
-    out.push_str(&format!("## `{}`\n\n{}\n\n", T::NAME, struct_doc::<T>()));
-    out.push_str(&format!(
-        "In JSON (`{json_name}`) every field is optional and unknown fields are refused; from \
-         Python, `nudge.{}(field=value, ...)` and `nudge.{}.describe()`.\n\n",
-        T::NAME,
-        T::NAME
-    ));
+/// The table of `rows` (field, unit, default, valid values, meaning).
+fn table(out: &mut String, rows: &[FieldDoc]) {
     out.push_str("| field | unit | default | valid values | meaning |\n|---|---|---|---|---|\n");
-    for f in describe::<T>() {
+    for f in rows {
         out.push_str(&format!(
             "| `{}` | {} | {} | {} | {} |\n",
             f.field,
@@ -161,21 +197,63 @@ fn section<T: Described>(out: &mut String, json_name: &str) {
     out.push('\n');
 }
 
-/// `docs/reference/settings.md`: every field of [`PlannerSettings`] and [`SimConfig`] with
-/// unit, default, valid values and meaning (Markdown).
+/// One group's subsection: its doc and table.
+fn group<T: Described>(out: &mut String, name: &str) {
+    out.push_str(&format!("### `{name}`\n\n{}\n\n", struct_doc::<T>()));
+    table(out, &describe::<T>());
+}
+
+/// The fallback's rank keys, in the order they are compared.
+fn rank_keys(out: &mut String) {
+    out.push_str(
+        "The fallback ranks its candidates by these keys, in order, each deciding only on a \
+         tie of those before it (`decided_by` in the records names the key that chose a \
+         fallback):\n\n",
+    );
+    for (i, key) in crate::RANK_ORDER.iter().enumerate() {
+        out.push_str(&format!("{}. `{}`\n", i + 1, key.name()));
+    }
+    out.push('\n');
+}
+
+/// `docs/reference/settings.md`: every field of [`PlannerSettings`] (group by group, in the
+/// order of the MPC call's phases) and of [`SimConfig`] with unit, default, valid values and
+/// meaning (Markdown).
 #[must_use]
 pub fn settings_markdown() -> String {
     let mut out = String::from(
         "# Settings reference\n\n\
-         <!-- Generated by `nudge settings --format markdown` (make reference-docs) from the doc \
-         comments, defaults and validation ranges of the Rust settings; do not edit. -->\n\n\
+         <!-- Generated by `nudge settings --format markdown` (make reference-docs) from the \
+         declarations of the Rust settings; do not edit. -->\n\n\
          Every setting of the planner and of the closed-loop simulator: its unit, its default \
          and the values `validate()` accepts (`[a, b]` includes an end, `(a, b)` excludes it). \
          A value outside its range is refused with an error naming the field; nothing is \
          clamped.\n\n",
     );
-    section::<PlannerSettings>(&mut out, "--settings FILE");
-    section::<SimConfig>(&mut out, "--config FILE");
+    out.push_str(&format!(
+        "## `PlannerSettings`\n\n{}\n\nIn JSON (`--settings FILE`) the groups are nested \
+         objects, e.g. `{{\"cost\": {{\"w_y\": 20}}}}`; every group and field is optional and \
+         unknown ones are refused, as are the flat keys of earlier versions (with where they \
+         moved or why they were removed). From Python, \
+         `nudge.PlannerSettings(cost={{\"w_y\": 20}})` and `nudge.PlannerSettings.describe()`.\n\n",
+        struct_doc::<PlannerSettings>()
+    ));
+    group::<ModelSettings>(&mut out, "model");
+    group::<CostSettings>(&mut out, "cost");
+    group::<BoundSettings>(&mut out, "bounds");
+    group::<SafetySettings>(&mut out, "safety");
+    group::<AdmmSettings>(&mut out, "admm");
+    group::<RepairSettings>(&mut out, "repair");
+    rank_keys(&mut out);
+    group::<BudgetSettings>(&mut out, "budget");
+    group::<LaneEndSettings>(&mut out, "lane_ends");
+    out.push_str(&format!(
+        "## `SimConfig`\n\n{}\n\nIn JSON (`--config FILE`) every field is optional and \
+         unknown fields are refused; from Python, `nudge.SimConfig(field=value, ...)` and \
+         `nudge.SimConfig.describe()`.\n\n",
+        struct_doc::<SimConfig>()
+    ));
+    table(&mut out, &describe::<SimConfig>());
     out
 }
 
@@ -183,8 +261,8 @@ pub fn settings_markdown() -> String {
 #[must_use]
 pub fn settings_json() -> Value {
     serde_json::json!({
-        PlannerSettings::NAME: describe::<PlannerSettings>(),
-        SimConfig::NAME: describe::<SimConfig>(),
+        PlannerSettings::NAME: PlannerSettings::rows(),
+        SimConfig::NAME: SimConfig::rows(),
     })
 }
 
@@ -192,71 +270,58 @@ pub fn settings_json() -> Value {
 mod tests {
     use super::*;
 
-    /// Every field of the serialised default is described once, in order, with that default,
-    /// a meaning and admissible values; every range names a described field.
+    /// Every field of the serialised default of the flat struct `T` is described once, in
+    /// declaration order, with that default, a meaning and admissible values; a numeric
+    /// default lies in its range.
     fn check<T: Described>() {
         let rows = describe::<T>();
         let Value::Object(defaults) = serde_json::to_value(T::default()).expect("serialise") else {
             panic!("{} does not serialise to an object", T::NAME);
         };
-        let described: Vec<&str> = rows.iter().map(|r| r.field.as_str()).collect();
+        let mut described: Vec<&str> = rows
+            .iter()
+            .map(|r| r.field.rsplit('.').next().unwrap_or(&r.field))
+            .collect();
+        described.sort_unstable();
         let serialised: Vec<&str> = defaults.keys().map(String::as_str).collect();
         assert_eq!(described, serialised, "{}: described fields", T::NAME);
-        for r in &rows {
-            assert_eq!(
-                r.default,
-                defaults[&r.field],
-                "{}.{} default",
-                T::NAME,
-                r.field
-            );
-            assert!(
-                r.doc.len() > 10,
-                "{}.{} has no doc comment",
-                T::NAME,
-                r.field
-            );
+        for (r, spec) in rows.iter().zip(T::FIELDS) {
+            let leaf = r.field.rsplit('.').next().unwrap_or(&r.field);
+            assert_eq!(r.default, defaults[leaf], "{}.{} default", T::NAME, r.field);
+            assert!(r.doc.len() > 10, "{}.{} has no doc comment", T::NAME, r.field);
             assert!(!r.range.is_empty(), "{}.{} has no range", T::NAME, r.field);
             if let Some(x) = r.default.as_f64() {
-                let range = T::RANGES.iter().find(|g| g.field == r.field);
-                let range = range.unwrap_or_else(|| panic!("{}.{}: no range", T::NAME, r.field));
-                assert!(
-                    range.contains(x),
-                    "{}.{} default outside its range",
-                    T::NAME,
-                    r.field
-                );
+                let range = spec
+                    .range
+                    .unwrap_or_else(|| panic!("{}.{}: no range", T::NAME, r.field));
+                assert!(range.contains(x), "{}.{} default outside its range", T::NAME, r.field);
             }
         }
-        for g in T::RANGES {
-            assert!(
-                described.contains(&g.field),
-                "{}: range of unknown {}",
-                T::NAME,
-                g.field
-            );
-        }
-        assert!(
-            struct_doc::<T>().len() > 20,
-            "{} has no doc comment",
-            T::NAME
-        );
+        assert!(struct_doc::<T>().len() > 20, "{} has no doc comment", T::NAME);
     }
 
     #[test]
     fn every_planner_setting_is_described_with_its_serialised_default() {
-        check::<PlannerSettings>();
-        let rows = describe::<PlannerSettings>();
-        let dt = rows.iter().find(|r| r.field == "dt").expect("dt");
+        check::<ModelSettings>();
+        check::<CostSettings>();
+        check::<BoundSettings>();
+        check::<SafetySettings>();
+        check::<AdmmSettings>();
+        check::<RepairSettings>();
+        check::<BudgetSettings>();
+        check::<LaneEndSettings>();
+        let rows = PlannerSettings::rows();
+        assert_eq!(rows.len(), PlannerSettings::fields().count());
+        let dt = rows.iter().find(|r| r.field == "model.dt").expect("dt");
         assert_eq!((dt.unit, dt.range.as_str()), ("s", "[0.01, 1]"));
         assert_eq!(dt.doc, "Step length (s).");
-        let check = rows
+        let ablate = rows
             .iter()
-            .find(|r| r.field == "rollout_check")
+            .find(|r| r.field == "safety.ablate_reaction")
             .expect("bool");
         assert_eq!(
-            (check.range.as_str(), &check.default),
-            ("true or false", &Value::Bool(true))
+            (ablate.range.as_str(), &ablate.default),
+            ("true or false", &Value::Bool(false))
         );
     }
 
@@ -277,7 +342,7 @@ mod tests {
     #[test]
     fn the_page_has_a_row_per_field_and_escapes_pipes() {
         let page = settings_markdown();
-        for r in describe::<PlannerSettings>()
+        for r in PlannerSettings::rows()
             .iter()
             .chain(&describe::<SimConfig>())
         {
@@ -287,7 +352,7 @@ mod tests {
                 r.field
             );
         }
-        assert!(page.contains(r"\|y − y_target\| ≤ settle_y"));
+        assert!(page.contains(r"\|y − y_target\| ≤ this"));
         // Each table row has its five cells (no stray pipe inside one).
         for line in page.lines().filter(|l| l.starts_with("| `")) {
             assert_eq!(line.replace(r"\|", "").matches('|').count(), 6, "{line}");

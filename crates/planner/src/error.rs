@@ -11,18 +11,34 @@ use crate::qp::{QpFailure, QpName, QpStatus};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SettingsError {
-    /// A numeric field lies outside its documented range ([`crate::settings::RANGES`]).
+    /// A numeric field lies outside its documented range ([`crate::settings::FieldSpec`]).
     #[error(
         "invalid planner setting `{field}` = {shown}: must be in {range}",
         shown = crate::settings::show(*.value)
     )]
     OutOfRange {
-        /// Name of the field (as in the serde representation).
+        /// Dotted name of the field (as in JSON).
         field: &'static str,
         /// The value found.
         value: f64,
         /// Its admissible range.
         range: crate::settings::FieldRange,
+    },
+    /// A key of the flat settings of earlier versions that moved into a group.
+    #[error("planner setting `{key}` moved: it is now `{to}` (settings are grouped by phase)")]
+    Moved {
+        /// The old key.
+        key: &'static str,
+        /// Its dotted path now.
+        to: &'static str,
+    },
+    /// A key of earlier versions that was removed.
+    #[error("planner setting `{key}` was removed ({why})")]
+    Removed {
+        /// The old key.
+        key: &'static str,
+        /// Why, and where its evidence lives.
+        why: &'static str,
     },
     /// A settings file cannot be read (missing, not a regular file, too large, not UTF-8).
     #[error("cannot read planner settings: {0}")]

@@ -177,13 +177,13 @@ impl StopRule {
     /// turn rate of the bicycle (`l_f`, `l_r`) at full steering `delta_max`.
     #[must_use]
     pub fn new(s: &crate::PlannerSettings) -> Self {
-        let beta_max = (s.l_r / (s.l_f + s.l_r) * s.delta_max.tan()).atan();
+        let beta_max = (s.model.l_r / (s.model.l_f + s.model.l_r) * s.bounds.delta_max.tan()).atan();
         Self {
-            decel: s.stop_decel,
-            margin: s.stop_margin,
-            heading_max: s.heading_max,
+            decel: s.lane_ends.stop_decel,
+            margin: s.lane_ends.stop_margin,
+            heading_max: s.bounds.heading_max,
             beta_max,
-            turn_rate: beta_max.sin() / s.l_r,
+            turn_rate: beta_max.sin() / s.model.l_r,
         }
     }
 
@@ -582,14 +582,14 @@ mod tests {
     /// heading reaches `heading_max`, then straight on at that heading.
     fn crossing_by_the_bicycle(gap: f64, psi: f64, s: &crate::PlannerSettings) -> f64 {
         let bike = crate::model::Bicycle {
-            l_f: s.l_f,
-            l_r: s.l_r,
+            l_f: s.model.l_f,
+            l_r: s.model.l_r,
             dt: 1e-3,
         };
         let mut z = crate::model::State::new(0.0, 0.0, psi, 1.0);
         while z[1] < gap {
-            let delta = if z[2] < s.heading_max {
-                s.delta_max
+            let delta = if z[2] < s.bounds.heading_max {
+                s.bounds.delta_max
             } else {
                 0.0
             };

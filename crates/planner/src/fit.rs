@@ -12,23 +12,23 @@ use crate::settings::PlannerSettings;
 const DT_TOLERANCE: f64 = 1e-9;
 
 fn horizon(settings: &PlannerSettings, name: &str, horizon: usize) -> Result<(), SettingsError> {
-    if settings.horizon == horizon {
+    if settings.model.horizon == horizon {
         return Ok(());
     }
     Err(SettingsError::Incompatible {
-        field: "horizon",
-        value: settings.horizon as f64,
+        field: "model.horizon",
+        value: settings.model.horizon as f64,
         reason: format!("the {name} predicts {horizon} steps"),
     })
 }
 
 fn time_step(settings: &PlannerSettings, why: &str) -> Result<(), SettingsError> {
-    if (settings.dt - DT).abs() <= DT_TOLERANCE {
+    if (settings.model.dt - DT).abs() <= DT_TOLERANCE {
         return Ok(());
     }
     Err(SettingsError::Incompatible {
-        field: "dt",
-        value: settings.dt,
+        field: "model.dt",
+        value: settings.model.dt,
         reason: format!("{why} {DT} s steps"),
     })
 }
@@ -38,18 +38,19 @@ fn time_step(settings: &PlannerSettings, why: &str) -> Result<(), SettingsError>
 /// `"student"`) `dt` = [`DT`].
 ///
 /// # Errors
-/// [`SettingsError::Incompatible`] naming `horizon` or `dt`.
+/// [`SettingsError::Incompatible`] naming `model.horizon` or `model.dt`.
 ///
 /// # Examples
 ///
 /// ```
 /// use nudge_planner::{PlannerSettings, fit};
 ///
-/// let s = PlannerSettings { horizon: 7, ..PlannerSettings::default() };
+/// let mut s = PlannerSettings::default();
+/// s.model.horizon = 7;
 /// let e = fit::check_predictor(&s, "student", 6).unwrap_err();
 /// assert_eq!(
 ///     e.to_string(),
-///     "planner setting `horizon` = 7 does not fit: the student predicts 6 steps"
+///     "planner setting `model.horizon` = 7 does not fit: the student predicts 6 steps"
 /// );
 /// ```
 pub fn check_predictor(
@@ -70,7 +71,7 @@ pub fn check_predictor(
 /// step), and [`check_predictor`] for each.
 ///
 /// # Errors
-/// [`SettingsError::Incompatible`] naming `dt` or `horizon`.
+/// [`SettingsError::Incompatible`] naming `model.dt` or `model.horizon`.
 pub fn check_closed_loop(
     settings: &PlannerSettings,
     predictors: &[(&str, usize)],
@@ -95,19 +96,20 @@ mod tests {
             assert!(matches!(
                 check_predictor(&s, name, 5),
                 Err(SettingsError::Incompatible {
-                    field: "horizon",
+                    field: "model.horizon",
                     ..
                 })
             ));
         }
-        let slow = PlannerSettings {
-            dt: 0.5,
-            ..PlannerSettings::default()
+        let slow = {
+            let mut s = PlannerSettings::default();
+            s.model.dt = 0.5;
+            s
         };
         for name in ["teacher", "student"] {
             assert!(matches!(
                 check_predictor(&slow, name, 6),
-                Err(SettingsError::Incompatible { field: "dt", .. })
+                Err(SettingsError::Incompatible { field: "model.dt", .. })
             ));
         }
         // Constant velocity extrapolates whatever step its history has ...
@@ -116,7 +118,7 @@ mod tests {
         let e = check_closed_loop(&slow, &[("constant_velocity", 6)]).unwrap_err();
         assert_eq!(
             e.to_string(),
-            "planner setting `dt` = 0.5 does not fit: the scenes are sampled at 0.3 s steps"
+            "planner setting `model.dt` = 0.5 does not fit: the scenes are sampled at 0.3 s steps"
         );
         assert_eq!(
             check_closed_loop(&s, &[("student", 6), ("teacher", 6)]),

@@ -53,9 +53,10 @@ impl Predictor for Recorder {
 }
 
 fn ablated() -> PlannerSettings {
-    PlannerSettings {
-        ablate_reaction: true,
-        ..PlannerSettings::default()
+    {
+        let mut s = PlannerSettings::default();
+        s.safety.ablate_reaction = true;
+        s
     }
 }
 

@@ -130,7 +130,7 @@ fn a_blocked_main_lane_makes_the_ego_wait_before_the_end() {
         );
         assert!(st.ego[1] < BOUNDS[1], "step {}: {:?}", st.step, st.ego);
         assert!(
-            st.ego[0] <= END - s.stop_margin + 0.5,
+            st.ego[0] <= END - s.lane_ends.stop_margin + 0.5,
             "step {}: {:?}",
             st.step,
             st.ego
@@ -639,9 +639,10 @@ fn the_target_draw_never_offers_a_lane_that_ends_within_reach() {
     };
     assert_eq!(draws(&at_200, 64, &s, &short), before);
     assert_eq!(draws(&at_200, 64, &s, &cfg), "2".repeat(64));
-    let wary = PlannerSettings {
-        deadline_distance: 180.0,
-        ..s.clone()
+    let wary = {
+        let mut s = s.clone();
+        s.lane_ends.deadline_distance = 180.0;
+        s
     };
     assert_eq!(draws(&at_200, 64, &wary, &short), "2".repeat(64));
     // In the simulator too: the run heads for lane 2.
@@ -788,9 +789,9 @@ fn drive(
 fn the_stopping_rule_lets_go_of_an_ego_that_can_no_longer_stop() {
     let s = PlannerSettings::default();
     let v = 16.3;
-    let line = END - s.stop_margin;
+    let line = END - s.lane_ends.stop_margin;
     let x0 = line - 20.0;
-    assert!(x0 + v * v / (2.0 * -s.a_min) > line);
+    assert!(x0 + v * v / (2.0 * -s.bounds.a_min) > line);
     let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
     let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 3);
     let (status, accel, _) = steps[0];
@@ -803,7 +804,7 @@ fn the_stopping_rule_lets_go_of_an_ego_that_can_no_longer_stop() {
     assert!(last[1].abs() <= 0.3 && last[0] < line, "{steps:?}");
     // Still able to stop at 5 m/s²: the rule binds and the ego brakes.
     let x0 = line - 39.0;
-    assert!(x0 + v * v / (2.0 * -s.a_min) <= line);
+    assert!(x0 + v * v / (2.0 * -s.bounds.a_min) <= line);
     let sc = scene(&[(x0, 1.0, v)], Some(merge_extents()));
     let steps = drive(&sc, [x0, 1.0, 0.0, v], 0.0, 2);
     assert!(steps.iter().all(|st| st.1 <= -1.0), "{steps:?}");
@@ -849,7 +850,7 @@ fn an_ego_stopped_before_the_end_merges_once_the_main_lane_empties() {
     assert!(stopped.len() >= 3, "stopped for {} steps", stopped.len());
     for st in stopped {
         assert!(
-            st.ego[1] < BOUNDS[1] && st.ego[0] > END - s.stop_margin - 4.0,
+            st.ego[1] < BOUNDS[1] && st.ego[0] > END - s.lane_ends.stop_margin - 4.0,
             "{st:?}"
         );
     }

@@ -33,9 +33,10 @@ fn problem<'a>(h: &'a History, sizes: &'a [[f64; 2]]) -> PlanningProblem<'a> {
 }
 
 fn settings() -> PlannerSettings {
-    PlannerSettings {
-        horizon: HORIZON,
-        ..PlannerSettings::default()
+    {
+        let mut s = PlannerSettings::default();
+        s.model.horizon = HORIZON;
+        s
     }
 }
 

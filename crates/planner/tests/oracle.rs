@@ -27,9 +27,9 @@ fn scene(agents: &[(f64, f64, f64)], bounds: &[f64]) -> Scenario {
 fn bicycle() -> Bicycle {
     let s = PlannerSettings::default();
     Bicycle {
-        l_f: s.l_f,
-        l_r: s.l_r,
-        dt: s.dt,
+        l_f: s.model.l_f,
+        l_r: s.model.l_r,
+        dt: s.model.dt,
     }
 }
 
@@ -61,9 +61,9 @@ fn start(v: f64, inputs: (f64, f64)) -> OracleStart {
 fn ramp_stopping_distance(v0: f64, s: &PlannerSettings) -> (f64, usize) {
     let (mut v, mut x, mut k) = (v0, 0.0, 0);
     while v > 0.0 {
-        let a = (-(k as f64 + 1.0) * s.da_max).max(s.a_min);
-        x += s.dt * v;
-        v = (v + s.dt * a).max(0.0);
+        let a = (-(k as f64 + 1.0) * s.bounds.da_max).max(s.bounds.a_min);
+        x += s.model.dt * v;
+        v = (v + s.model.dt * a).max(0.0);
         k += 1;
     }
     (x, k)
@@ -127,14 +127,14 @@ fn a_found_sequence_keeps_the_input_bounds_and_replays_clean() {
     };
     let mut prev = start.inputs;
     for &(d, a) in &inputs {
-        assert!(d.abs() <= s.delta_max && (s.a_min..=s.a_max).contains(&a));
-        assert!((d - prev.0).abs() <= s.ddelta_max + 1e-12);
-        assert!((a - prev.1).abs() <= s.da_max + 1e-12);
+        assert!(d.abs() <= s.bounds.delta_max && (s.bounds.a_min..=s.bounds.a_max).contains(&a));
+        assert!((d - prev.0).abs() <= s.bounds.ddelta_max + 1e-12);
+        assert!((a - prev.1).abs() <= s.bounds.da_max + 1e-12);
         prev = (d, a);
     }
     let (states, violation) = replay(&world, &limits, &start, &inputs);
     assert_eq!(violation, None);
-    assert!(states.iter().all(|z| z[2].abs() <= s.heading_max + 1e-12));
+    assert!(states.iter().all(|z| z[2].abs() <= s.bounds.heading_max + 1e-12));
 }
 
 /// A search cut short says so.

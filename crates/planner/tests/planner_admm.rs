@@ -55,18 +55,18 @@ fn assert_bounds(s: &PlannerSettings, delta: &[f64], accel: &[f64], states: &[[f
     let mut pd = 0.0;
     let mut pa = 0.0;
     for (d, a) in delta.iter().zip(accel) {
-        assert!(d.abs() <= s.delta_max, "delta {d}");
+        assert!(d.abs() <= s.bounds.delta_max, "delta {d}");
         assert!(
-            (d - pd).abs() <= s.ddelta_max + 1e-12,
+            (d - pd).abs() <= s.bounds.ddelta_max + 1e-12,
             "steering rate {d} after {pd}"
         );
-        assert!(*a >= s.a_min && *a <= s.a_max, "accel {a}");
-        assert!((a - pa).abs() <= s.da_max + 1e-12, "jerk {a} after {pa}");
+        assert!(*a >= s.bounds.a_min && *a <= s.bounds.a_max, "accel {a}");
+        assert!((a - pa).abs() <= s.bounds.da_max + 1e-12, "jerk {a} after {pa}");
         pd = *d;
         pa = *a;
     }
     for z in states {
-        assert!(z[3] >= 0.0 && z[3] <= s.v_max, "speed {}", z[3]);
+        assert!(z[3] >= 0.0 && z[3] <= s.bounds.v_max, "speed {}", z[3]);
         assert!(z[1] >= -1.85 && z[1] <= 9.25, "y {} off the road", z[1]);
     }
 }
@@ -80,14 +80,14 @@ fn assert_bounds(s: &PlannerSettings, delta: &[f64], accel: &[f64], states: &[[f
 /// linearisation error only.
 #[test]
 fn admm_matches_joint_qp_without_vehicles() {
-    let settings = PlannerSettings {
-        max_iter: 3000,
-        eps_primal: 1e-7,
-        eps_change: 1e-7,
-        heading_max: 3.0,
-        overshoot_max: 100.0,
-        relinearise: false,
-        ..PlannerSettings::default()
+    let settings = {
+        let mut s = PlannerSettings::default();
+        s.admm.max_iter = 3000;
+        s.admm.eps_primal = 1e-7;
+        s.admm.eps_change = 1e-7;
+        s.bounds.heading_max = 3.0;
+        s.bounds.overshoot_max = 100.0;
+        s
     };
     // One far vehicle, outside check_range: the safety constraint is inactive.
     let (h, sizes) = scene(12.0, 0.0, &[(200.0, 3.7, 12.0)]);
@@ -107,9 +107,9 @@ fn admm_matches_joint_qp_without_vehicles() {
     // The returned states are the nonlinear roll-out of the returned inputs (an independent
     // roll-out with the bicycle's own step and the speed clamp).
     let model = nudge_planner::Bicycle {
-        l_f: planner.settings().l_f,
-        l_r: planner.settings().l_r,
-        dt: planner.settings().dt,
+        l_f: planner.settings().model.l_f,
+        l_r: planner.settings().model.l_r,
+        dt: planner.settings().model.dt,
     };
     let mut z = nudge_planner::State::new(p.ego.x, p.ego.y, p.ego.psi, p.ego.v);
     for (k, (d, a)) in plan.delta.iter().zip(&plan.accel).enumerate() {
@@ -153,16 +153,16 @@ fn min_b_under(
             let b = (i - 1) * 12 + 2 * k;
             let other = [out[b], out[b + 1]];
             let heading = motion_heading(prev, other, 0.0);
-            let other_speed = (other[0] - prev[0]) / s.dt;
+            let other_speed = (other[0] - prev[0]) / s.model.dt;
             prev = other;
             let mut e = Ellipse::with_headings(
                 sizes[0],
                 st[2],
                 sizes[i],
                 heading,
-                s.ellipse_scale,
-                s.margin_x,
-                s.margin_y,
+                s.safety.ellipse_scale,
+                s.safety.margin_x,
+                s.safety.margin_y,
             );
             if k == 5 {
                 let (rear, front) = if st[0] <= other[0] {
@@ -170,7 +170,7 @@ fn min_b_under(
                 } else {
                     (other_speed, st[3].max(0.0))
                 };
-                e.a_x += ((rear * rear - front * front) / (2.0 * s.brake_decel)).max(0.0);
+                e.a_x += ((rear * rear - front * front) / (2.0 * s.safety.brake_decel)).max(0.0);
             }
             m = m.min(e.value([st[0], st[1]], other));
             let ego_box = OrientedBox {
@@ -231,34 +231,41 @@ fn plans_are_safe_bounded_and_deterministic_with_traffic() {
 #[test]
 fn invalid_settings_are_typed_errors() {
     let bad = [
-        PlannerSettings {
-            w_y: -1.0,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.cost.w_y = -1.0;
+            s
         },
-        PlannerSettings {
-            horizon: 0,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.model.horizon = 0;
+            s
         },
-        PlannerSettings {
-            a_min: 3.0,
-            a_max: 3.0,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.bounds.a_min = 3.0;
+            s.bounds.a_max = 3.0;
+            s
         },
-        PlannerSettings {
-            delta_max: 0.0,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.bounds.delta_max = 0.0;
+            s
         },
-        PlannerSettings {
-            rho: f64::NAN,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.admm.rho = f64::NAN;
+            s
         },
-        PlannerSettings {
-            max_iter: 0,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.admm.max_iter = 0;
+            s
         },
-        PlannerSettings {
-            plan_buffer: -0.1,
-            ..PlannerSettings::default()
+        {
+            let mut s = PlannerSettings::default();
+            s.safety.safety_min = -0.1;
+            s
         },
     ];
     let fields = [
@@ -268,7 +275,7 @@ fn invalid_settings_are_typed_errors() {
         "delta_max",
         "rho",
         "max_iter",
-        "plan_buffer",
+        "safety.safety_min",
     ];
     for (s, f) in bad.into_iter().zip(fields) {
         match Planner::new(s) {
@@ -278,10 +285,14 @@ fn invalid_settings_are_typed_errors() {
             other => panic!("expected a settings error naming {f}, got {other:?}"),
         }
     }
-    assert!(PlannerSettings::from_json(r#"{"w_y": 2.0, "bogus": 1}"#).is_err());
-    let ok = PlannerSettings::from_json(r#"{"w_y": 2.0}"#).unwrap();
-    assert_eq!(ok.w_y, 2.0);
-    assert_eq!(ok.horizon, 6);
+    assert!(PlannerSettings::from_json(r#"{"cost": {"w_y": 2.0, "bogus": 1}}"#).is_err());
+    let e = PlannerSettings::from_json(r#"{"w_y": 2.0}"#).unwrap_err();
+    assert!(e.to_string().contains("`w_y` moved: it is now `cost.w_y`"), "{e}");
+    let e = PlannerSettings::from_json(r#"{"z_safe_step": true}"#).unwrap_err();
+    assert!(e.to_string().contains("`z_safe_step` was removed"), "{e}");
+    let ok = PlannerSettings::from_json(r#"{"cost": {"w_y": 2.0}}"#).unwrap();
+    assert_eq!(ok.cost.w_y, 2.0);
+    assert_eq!(ok.model.horizon, 6);
 }
 
 #[test]
@@ -313,16 +324,16 @@ fn bad_problems_are_typed_errors() {
 
 /// The ego's safety slices are bounded: at the finest accepted slice length a 32 m ego needs
 /// exactly `MAX_EGO_SEGMENTS` = 64 slices and plans; 32.01 m needs 65 and is refused naming
-/// `sizes` (not cut into an unbounded number of ellipses); with the box geometry (no slices)
-/// the same ego plans.
+/// `sizes` (not cut into an unbounded number of ellipses); with one ellipse for the whole ego
+/// (`ego_segment_length` 0) the same ego plans.
 #[test]
 fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
-    use nudge_planner::settings::SafetyGeometry;
-    let fine = PlannerSettings {
-        ego_segment_length: PlannerSettings::MIN_EGO_SEGMENT_LENGTH,
-        ..PlannerSettings::default()
+    let fine = {
+        let mut s = PlannerSettings::default();
+        s.safety.ego_segment_length = PlannerSettings::MIN_EGO_SEGMENT_LENGTH;
+        s
     };
-    let at_most = PlannerSettings::MAX_EGO_SEGMENTS as f64 * fine.ego_segment_length;
+    let at_most = PlannerSettings::MAX_EGO_SEGMENTS as f64 * fine.safety.ego_segment_length;
     let (h, mut sizes) = scene(12.0, 0.0, &[(40.0, 3.7, 12.0)]);
     let mut cv = ConstantVelocity::default();
     sizes[0][0] = at_most;
@@ -342,11 +353,12 @@ fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
         }) => assert!(reason.contains("MAX_EGO_SEGMENTS"), "{reason}"),
         other => panic!("a {} m ego in 0.5 m slices: {other:?}", sizes[0][0]),
     }
-    let boxes = PlannerSettings {
-        safety_geometry: SafetyGeometry::Boxes,
-        ..fine
+    let whole = {
+        let mut s = fine;
+        s.safety.ego_segment_length = 0.0;
+        s
     };
-    Planner::new(boxes)
+    Planner::new(whole)
         .unwrap()
         .plan(&problem(&h, &sizes, 12.0, 0.0, 3.7), &mut cv)
         .unwrap();
@@ -371,7 +383,14 @@ proptest! {
         rho in 10.0f64..2000.0,
         delta_max in 0.05f64..0.3,
     ) {
-        let s = PlannerSettings { w_y, rho, delta_max, max_iter: 20, ..PlannerSettings::default() };
+        let s = {
+            let mut s = PlannerSettings::default();
+            s.cost.w_y = w_y;
+            s.admm.rho = rho;
+            s.bounds.delta_max = delta_max;
+            s.admm.max_iter = 20;
+            s
+        };
         let (h, sizes) = scene(v, y0, &[(dx, 3.7, v * 0.8), (-dx, 0.0, v)]);
         let mut p = problem(&h, &sizes, v, y0, 3.7);
         p.ego.psi = psi;
@@ -381,18 +400,18 @@ proptest! {
         let mut cv = ConstantVelocity::default();
         let plan = planner.plan(&p, &mut cv).unwrap();
         // Bounds with the clamped last inputs.
-        let mut pd = last_delta.clamp(-s.delta_max, s.delta_max);
-        let mut pa = last_accel.clamp(s.a_min, s.a_max);
+        let mut pd = last_delta.clamp(-s.bounds.delta_max, s.bounds.delta_max);
+        let mut pa = last_accel.clamp(s.bounds.a_min, s.bounds.a_max);
         for (d, a) in plan.delta.iter().zip(&plan.accel) {
-            prop_assert!(d.abs() <= s.delta_max);
-            prop_assert!((d - pd).abs() <= s.ddelta_max + 1e-12);
-            prop_assert!(*a >= s.a_min && *a <= s.a_max);
-            prop_assert!((a - pa).abs() <= s.da_max + 1e-12);
+            prop_assert!(d.abs() <= s.bounds.delta_max);
+            prop_assert!((d - pd).abs() <= s.bounds.ddelta_max + 1e-12);
+            prop_assert!(*a >= s.bounds.a_min && *a <= s.bounds.a_max);
+            prop_assert!((a - pa).abs() <= s.bounds.da_max + 1e-12);
             pd = *d;
             pa = *a;
         }
         for z in &plan.states {
-            prop_assert!(z[3] >= 0.0 && z[3] <= s.v_max.max(v));
+            prop_assert!(z[3] >= 0.0 && z[3] <= s.bounds.v_max.max(v));
         }
         if plan.status != PlanStatus::Unsafe
             && let Some(b) = plan.min_safety

@@ -70,6 +70,7 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
     d.set_item("checked", plan.checked)?;
     d.set_item("rollout_min_safety", plan.rollout_min_safety)?;
     d.set_item("status", plan.status.name())?;
+    d.set_item("decided_by", plan.decided_by.label())?;
     let violation = plan
         .lane_violation
         .map(|v| -> PyResult<Bound<'py, PyDict>> {

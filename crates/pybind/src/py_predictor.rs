@@ -284,7 +284,7 @@ impl PlanningPredictor {
                 (Self::Native(native.clone().unbind()), name, horizon)
             }
             Err(_) => {
-                let p = PythonPredictor::new(object, settings.horizon)?;
+                let p = PythonPredictor::new(object, settings.model.horizon)?;
                 let horizon = p.horizon;
                 let python = Self::Python(object.clone().unbind(), Mutex::new(p));
                 (python, LABEL, horizon)

@@ -3,10 +3,11 @@
 //!
 //! Both go through serde (`serde_json::Value`): every key must be a known field (unknown keys
 //! raise `SettingsError` naming the key), each value must have its default's type (integers
-//! stay integers, floats must be finite, names must be one of the field's names), and the
+//! stay integers, floats must be finite, names must be one of the field's names; a group of
+//! the planner settings is a dict of its fields, `PlannerSettings(cost={"w_y": 20})`), and the
 //! result is validated by the Rust `validate()`.
 
-use nudge_planner::describe::{Described, FieldDoc, describe};
+use nudge_planner::describe::{Described, FieldDoc};
 use nudge_planner::{PlannerSettings, SimConfig};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString};
@@ -26,6 +27,10 @@ pub trait Settings: Serialize + DeserializeOwned + Default + Clone {
     fn check(&self) -> PyResult<()>;
     /// Parses and validates JSON text.
     fn parse_json(text: &str) -> PyResult<Self>;
+    /// The error for a top-level key of an earlier version (moved or removed), if `key` is one.
+    fn old_key(_key: &str) -> Option<PyErr> {
+        None
+    }
 }
 
 impl Settings for PlannerSettings {
@@ -36,6 +41,11 @@ impl Settings for PlannerSettings {
     }
     fn parse_json(text: &str) -> PyResult<Self> {
         Self::from_json(text).map_err(settings_err)
+    }
+    fn old_key(key: &str) -> Option<PyErr> {
+        nudge_planner::settings::check_key(key)
+            .err()
+            .map(settings_err)
     }
 }
 
@@ -79,6 +89,13 @@ fn value_to_py<'py>(py: Python<'py>, v: &Value) -> PyResult<Bound<'py, PyAny>> {
             }
         }
         Value::String(s) => s.into_pyobject(py)?.into_any(),
+        Value::Object(m) => {
+            let d = PyDict::new(py);
+            for (k, v) in m {
+                d.set_item(k, value_to_py(py, v)?)?;
+            }
+            d.into_any()
+        }
         other => other.to_string().into_pyobject(py)?.into_any(),
     })
 }
@@ -120,6 +137,27 @@ fn py_to_value<T: Settings>(key: &str, default: &Value, v: &Bound<'_, PyAny>) ->
         }
         Value::String(_) if v.is_instance_of::<PyString>() => Ok(Value::String(v.extract()?)),
         Value::String(_) => Err(bad("a str")),
+        Value::Object(fields) => {
+            let dict = v
+                .cast::<PyDict>()
+                .map_err(|_| bad("a dict of the group's fields"))?;
+            let mut out = fields.clone();
+            for (k, item) in dict.iter() {
+                let name: String = k.extract().map_err(|_| bad("a dict with str keys"))?;
+                let path = format!("{key}.{name}");
+                let Some(default) = fields.get(&name) else {
+                    let mut known: Vec<&str> = fields.keys().map(String::as_str).collect();
+                    known.sort_unstable();
+                    return Err(SettingsError::new_err(format!(
+                        "unknown {} `{path}` (known in `{key}`: {})",
+                        T::FIELD,
+                        known.join(", ")
+                    )));
+                };
+                out.insert(name, py_to_value::<T>(&path, default, &item)?);
+            }
+            Ok(Value::Object(out))
+        }
         _ => Err(bad("a supported value")),
     }
 }
@@ -144,6 +182,9 @@ pub fn with_overrides<T: Settings>(base: &T, d: &Bound<'_, PyAny>) -> PyResult<T
                 k.repr().map_or_else(|_| "?".to_string(), |r| r.to_string())
             ))
         })?;
+        if let Some(e) = T::old_key(&key) {
+            return Err(e);
+        }
         let Some(default) = obj.get(&key) else {
             let mut known: Vec<&str> = obj.keys().map(String::as_str).collect();
             known.sort_unstable();
@@ -204,7 +245,7 @@ fn field_dict<'py>(py: Python<'py>, f: &FieldDoc) -> PyResult<Bound<'py, PyDict>
 
 /// Every field of `T` as a list of dicts ([`describe`]).
 fn describe_list<T: Settings + Described>(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
-    let rows = describe::<T>()
+    let rows = T::rows()
         .iter()
         .map(|f| field_dict(py, f))
         .collect::<PyResult<Vec<_>>>()?;
@@ -215,7 +256,7 @@ fn describe_list<T: Settings + Described>(py: Python<'_>) -> PyResult<Bound<'_, 
 /// valid values and meaning (numpy style), from the same rows as `describe()`.
 fn class_doc<T: Settings + Described>(intro: &str) -> String {
     let mut doc = format!("{intro}\n\nFields\n------\n");
-    for f in describe::<T>() {
+    for f in T::rows() {
         let kind = match &f.default {
             serde_json::Value::Bool(_) => "bool",
             serde_json::Value::Number(n) if n.is_f64() => "float",

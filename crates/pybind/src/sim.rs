@@ -195,7 +195,7 @@ pub fn simulate<'py>(
             }
         };
         let assets = assets.unwrap_or_else(default_assets_dir);
-        let python = predictor.python(py, settings.horizon)?;
+        let python = predictor.python(py, settings.model.horizon)?;
         if python.is_some() && threads.is_some_and(|t| t != 1) {
             return Err(InputError::new_err(format!(
                 "invalid argument `threads`: a Python predictor plans on one thread (its runs \

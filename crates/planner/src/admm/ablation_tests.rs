@@ -76,9 +76,10 @@ fn predict(h: &History, c: &[f64]) -> Vec<f64> {
 fn ablated_evaluation_checks_every_candidate_against_the_keep_lane_prediction() {
     let (h, sizes) = dense();
     let p = problem(&h, &sizes);
-    let s = PlannerSettings {
-        ablate_reaction: true,
-        ..PlannerSettings::default()
+    let s = {
+        let mut s = PlannerSettings::default();
+        s.safety.ablate_reaction = true;
+        s
     };
     let constraint = SafetyConstraint::new(&p, &s);
     assert_eq!(constraint.vehicles().len(), 3);
@@ -88,7 +89,7 @@ fn ablated_evaluation_checks_every_candidate_against_the_keep_lane_prediction() 
     let mut model = teacher();
     model.set_scene(&h).unwrap();
     let mut safety = SafetyEval::new(&constraint, [0.0, 0.0], 6, 4, 0.0);
-    safety.ablate_reaction(crate::keep_lane_path(&p.ego, 6, s.dt));
+    safety.ablate_reaction(crate::keep_lane_path(&p.ego, 6, s.model.dt));
     let lane_change = candidate(3.7, V);
     let braking = candidate(0.0, 10.0);
     assert_ne!(flat(&lane_change), flat(&braking));

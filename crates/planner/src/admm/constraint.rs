@@ -61,7 +61,7 @@ impl SafetyConstraint {
         for i in 1..problem.history.n_agents() {
             let p = problem.history.at(i, T_OBS - 1);
             let d = ((p[0] - origin[0]).powi(2) + (p[1] - origin[1]).powi(2)).sqrt();
-            if d <= settings.check_range {
+            if d <= settings.safety.check_range {
                 let q = problem.history.at(i, T_OBS - 2);
                 vehicles.push(CheckedVehicle {
                     index: i,
@@ -75,11 +75,11 @@ impl SafetyConstraint {
         Self {
             vehicles,
             ego_size: problem.sizes[0],
-            scale: settings.ellipse_scale,
-            margins: [settings.margin_x, settings.margin_y],
-            segments: ego_segments(problem.sizes[0][0], settings.ego_segment_length),
-            dt: settings.dt,
-            brake_decel: settings.brake_decel,
+            scale: settings.safety.ellipse_scale,
+            margins: [settings.safety.margin_x, settings.safety.margin_y],
+            segments: ego_segments(problem.sizes[0][0], settings.safety.ego_segment_length),
+            dt: settings.model.dt,
+            brake_decel: settings.safety.brake_decel,
         }
     }
 
@@ -510,9 +510,9 @@ impl Budget {
     /// The budget of `settings` for a call that started at `start`; none when both are 0.
     pub(crate) fn new(settings: &PlannerSettings, start: Instant) -> Self {
         Self {
-            deadline: (settings.budget_s > 0.0)
-                .then(|| start + Duration::from_secs_f64(settings.budget_s)),
-            max_calls: (settings.budget_calls > 0).then_some(settings.budget_calls),
+            deadline: (settings.budget.seconds > 0.0)
+                .then(|| start + Duration::from_secs_f64(settings.budget.seconds)),
+            max_calls: (settings.budget.calls > 0).then_some(settings.budget.calls),
             reserve: RESERVED_CALLS,
             predictor_time: Duration::ZERO,
             exhausted: false,

@@ -40,8 +40,8 @@ impl Input {
     /// (w, w_d) of Φ1 or Φ2.
     fn weights(self, s: &PlannerSettings) -> (f64, f64) {
         match self {
-            Self::Steering => (s.w_delta, s.w_ddelta),
-            Self::Acceleration => (s.w_a, s.w_da),
+            Self::Steering => (s.cost.w_delta, s.cost.w_ddelta),
+            Self::Acceleration => (s.cost.w_a, s.cost.w_da),
         }
     }
 
@@ -61,7 +61,7 @@ impl Input {
     ) -> Result<BoxRateQp, QpFailure> {
         let t = lp.horizon;
         let curvature: Vec<f64> = (0..t)
-            .map(|k| s.rho * self.column(lp, k).norm_squared())
+            .map(|k| s.admm.rho * self.column(lp, k).norm_squared())
             .collect();
         let (w, wd) = self.weights(s);
         let hessian = input_hessian(t, w, wd, &curvature);
@@ -121,7 +121,7 @@ impl InputQps {
         };
         for (k, (q, uk)) in x.linear.iter_mut().zip(u.iter()).enumerate() {
             let column = input.column(lp, k);
-            let wk = it.duals[k] + s.rho * (x.residual[k] - column * *uk);
+            let wk = it.duals[k] + s.admm.rho * (x.residual[k] - column * *uk);
             *q = column.dot(&wk);
         }
         let (_, wd) = input.weights(s);

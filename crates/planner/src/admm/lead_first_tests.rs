@@ -1,13 +1,51 @@
-//! `lead_first`: among fallbacks without an admissible plan, the safety violation against
-//! the vehicles ahead of the ego in its path ranks before the total violation.
+//! The lead rule: among fallbacks without an admissible plan of an ego at least as fast as
+//! `repair.lead_min_speed` and wholly inside one lane, a roll-out that keeps the lane ranks
+//! first ([`super::RankKey::KeepsLane`]), then the safety violation against the vehicles ahead
+//! of the ego in its path ([`super::RankKey::Ahead`]), before the total violation.
 
 #![allow(clippy::unwrap_used)]
 
 use nudge_predictor::{ConstantVelocity, Predictor};
 
-use super::nonreactive_tests::scene_of;
+use nudge_predictor::{History, T_OBS};
+
 use super::tests::{model, problem};
 use super::*;
+
+/// The ego at 20 m/s in its lane (y = 0) and the `others` (x, y m; v_x, v_y m/s, observed
+/// over the history); all 4.5 m × 1.9 m.
+fn scene_of(others: &[(f64, f64, f64, f64)]) -> (History, Vec<[f64; 2]>) {
+    let n = 1 + others.len();
+    let mut pos = Vec::with_capacity(n * T_OBS * 2);
+    for &(x, y, vx, vy) in std::iter::once(&(0.0, 0.0, 20.0, 0.0)).chain(others) {
+        for t in 0..T_OBS {
+            let back = (T_OBS - 1 - t) as f64 * 0.3;
+            pos.extend([x - vx * back, y - vy * back]);
+        }
+    }
+    (History::new(pos, n).unwrap(), vec![[4.5, 1.9]; n])
+}
+
+/// The settings with the lead rule off: its speed floor above every ego's speed.
+fn lead_off() -> PlannerSettings {
+    let mut s = PlannerSettings::default();
+    s.repair.lead_min_speed = 100.0;
+    s
+}
+
+/// The squeezed scene with two lanes split by a line at `line` (m).
+fn plan_in_lanes(line: f64, s: PlannerSettings) -> Plan {
+    let (h, sizes) = squeezed();
+    let (bounds, extents) = two_lanes(line);
+    let p = PlanningProblem {
+        lanes: Some(crate::extents::Lanes {
+            bounds: &bounds,
+            extents: &extents,
+        }),
+        ..problem(&h, &sizes, 20.0)
+    };
+    plan_cv(s, &p)
+}
 
 /// The ego at 20 m/s in its lane, squeezed: a slower leader (16 m/s) 14 m ahead in its lane,
 /// a faster follower (24 m/s) 12 m behind in its lane, and a car beside it in the target
@@ -85,8 +123,8 @@ fn ahead_violation_counts_only_the_vehicles_ahead_in_the_path() {
     assert!(all.violation > all.ahead_violation + 1e-6, "{all:?}");
 }
 
-/// The rank's order: `ahead` decides after the state bounds, contact and the road edge, and
-/// before the unbegun lane, the speed floor and the total violation; off, it is 0.
+/// The rank's order: `ahead` decides after the state bounds, contact, the road edge and the
+/// lane keeping, and before the unbegun lane, the speed floor and the total violation.
 #[test]
 fn ahead_ranks_after_contact_and_edge_before_the_total_violation() {
     use super::repair::{Rank, Violations};
@@ -97,57 +135,50 @@ fn ahead_ranks_after_contact_and_edge_before_the_total_violation() {
         bound_excess: 0.0,
         contact,
         edge,
-        hits_nonreactive: false,
         ahead,
         leaves_lane: false,
     };
-    let on = PlannerSettings {
-        lead_first: true,
-        ..PlannerSettings::default()
-    };
-    let off = PlannerSettings {
-        lead_first: false,
-        ..PlannerSettings::default()
-    };
-    let rank = |s: &PlannerSettings, x: Violations| Rank::inadmissible(s, &x);
+    let s = PlannerSettings::default();
+    let rank = |x: Violations| Rank::inadmissible(&s, &x);
     // Less violation ahead beats a smaller total violation and the speed floor.
     let brake = v(0.0, 0.0, 0.1, false, 2.0);
     let speed_up = v(0.0, 0.0, 0.5, true, 1.0);
-    assert!(rank(&on, brake).beats(&rank(&on, speed_up)));
-    assert!(rank(&off, speed_up).beats(&rank(&off, brake)));
-    assert_eq!(rank(&off, brake).ahead, 0.0);
+    assert_eq!(rank(brake).decide(&rank(speed_up)), (RankKey::Ahead, true));
+    // Without a violation ahead (the rule not applying) the speed floor decides.
+    let (brake0, speed_up0) = (v(0.0, 0.0, 0.0, false, 2.0), v(0.0, 0.0, 0.0, true, 1.0));
+    assert_eq!(
+        rank(speed_up0).decide(&rank(brake0)),
+        (RankKey::ClearPath, true)
+    );
     // Contact and the road edge still decide first.
     let touches = v(0.3, 0.0, 0.0, false, 0.5);
     let over_edge = v(0.0, 0.2, 0.0, false, 0.5);
-    assert!(rank(&on, brake).beats(&rank(&on, touches)));
-    assert!(rank(&on, brake).beats(&rank(&on, over_edge)));
+    assert_eq!(rank(brake).decide(&rank(touches)), (RankKey::Contact, true));
+    assert_eq!(rank(brake).decide(&rank(over_edge)), (RankKey::RoadEdge, true));
     // Equal ahead: the total violation decides.
-    assert!(rank(&on, v(0.0, 0.0, 0.1, false, 1.0)).beats(&rank(&on, brake)));
+    assert_eq!(
+        rank(v(0.0, 0.0, 0.1, false, 1.0)).decide(&rank(brake)),
+        (RankKey::Value, true)
+    );
 }
 
-/// The squeezed ego: nothing is admissible. Ranked by the total violation the fallback
-/// speeds up towards the slower leader, away from the follower; with `lead_first` it brakes
-/// and ends farther from the leader (bumper gap at the constant-velocity positions), with
-/// less violation against it. An ego slower than `lead_min_speed` is ranked as without it.
+/// The squeezed ego inside its lane: nothing is admissible. Without the lead rule the fallback
+/// speeds up towards the slower leader, away from the follower; with it (the default) it
+/// brakes and ends farther from the leader (bumper gap at the constant-velocity positions),
+/// with less violation against it. An ego slower than `lead_min_speed` is ranked as without
+/// it.
 #[test]
-fn lead_first_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() {
+fn lead_rule_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() {
     let (h, sizes) = squeezed();
-    let p = problem(&h, &sizes, 20.0);
-    let plan_at = |lead_first: bool, lead_min_speed: f64| {
-        // No lane layout here: the in-lane condition would never let the rule apply.
-        let s = PlannerSettings {
-            lead_first,
-            lead_min_speed,
-            lead_in_lane: false,
-            ..PlannerSettings::default()
-        };
-        plan_cv(s, &p)
+    let plan_at = |lead_min_speed: f64| {
+        let mut s = PlannerSettings::default();
+        s.repair.lead_min_speed = lead_min_speed;
+        plan_in_lanes(1.85, s)
     };
-    let plan = |lead_first: bool| plan_at(lead_first, PlannerSettings::default().lead_min_speed);
-    let (off, on) = (plan(false), plan(true));
-    // Below its speed floor the rule changes nothing.
-    assert_eq!(plan_at(true, 20.5).accel, off.accel);
-    assert_eq!(plan_at(true, 20.0).accel, on.accel);
+    let (off, on) = (plan_at(100.0), plan_at(PlannerSettings::default().repair.lead_min_speed));
+    // At its speed floor the rule applies; just above it, it does not.
+    assert_eq!(plan_at(20.5).accel, off.accel);
+    assert_eq!(plan_at(20.0).accel, on.accel);
     for plan in [&off, &on] {
         assert_eq!(plan.status, PlanStatus::Unsafe, "{:?}", plan.accel);
     }
@@ -165,6 +196,7 @@ fn lead_first_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() 
     };
     assert!(gap(&on) > gap(&off) + 1.0, "{} vs {}", gap(&on), gap(&off));
     let s = PlannerSettings::default();
+    let p = problem(&h, &sizes, 20.0);
     let ahead = |plan: &Plan| evaluation(&s, &p, &plan.accel).ahead_violation;
     assert!(
         ahead(&on) < ahead(&off),
@@ -223,39 +255,21 @@ fn starts_in_one_lane_tests_the_box_across_the_road_at_its_heading() {
     assert!(!lanes.spans_line(-1.85, 1.85) && lanes.spans_line(1.84, 1.86));
 }
 
-/// `lead_in_lane`: the squeezed ego wholly inside its lane plans as with `lead_first` alone;
-/// the same scene with the lane line through the ego's box plans bit for bit as without the
-/// rule, where `lead_first` alone would have braked.
+/// The lead rule applies only to an ego wholly inside one lane: with the lane line through
+/// the squeezed ego's box the plan is bit for bit the plan without the rule; inside its lane
+/// the rule changes it.
 #[test]
-fn lead_in_lane_applies_the_rule_only_to_an_ego_within_one_lane() {
-    let (h, sizes) = squeezed();
-    let plan = |line: f64, lead_first: bool, lead_in_lane: bool| {
-        let (bounds, extents) = two_lanes(line);
-        let p = PlanningProblem {
-            lanes: Some(crate::extents::Lanes {
-                bounds: &bounds,
-                extents: &extents,
-            }),
-            ..problem(&h, &sizes, 20.0)
-        };
-        let s = PlannerSettings {
-            lead_first,
-            lead_in_lane,
-            ..PlannerSettings::default()
-        };
-        plan_cv(s, &p).accel
-    };
+fn the_lead_rule_applies_only_to_an_ego_within_one_lane() {
     // The ego's box spans y ∈ [-0.95, 0.95]: within the lane below 1.85, across a line at 0.5.
     let (within, across) = (1.85, 0.5);
-    assert_eq!(plan(within, true, true), plan(within, true, false));
-    assert_ne!(plan(within, true, true), plan(within, false, false));
-    assert_eq!(plan(across, true, true), plan(across, false, false));
-    assert_ne!(plan(across, true, false), plan(across, false, false));
+    let plan = |line: f64, s: PlannerSettings| plan_in_lanes(line, s).accel;
+    let on = PlannerSettings::default;
+    assert_ne!(plan(within, on()), plan(within, lead_off()));
+    assert_eq!(plan(across, on()), plan(across, lead_off()));
 }
 
-/// `lead_keep_lane`'s rank: within the lead rule, staying off the lane lines decides before
-/// the violation ahead, after contact and the road edge; without `lead_keep_lane` it never
-/// decides.
+/// The lane keeping's rank: staying off the lane lines decides before the violation ahead,
+/// after contact and the road edge.
 #[test]
 fn keeping_the_lane_ranks_before_the_violation_ahead() {
     use super::repair::{Rank, Violations};
@@ -266,31 +280,26 @@ fn keeping_the_lane_ranks_before_the_violation_ahead() {
         bound_excess: 0.0,
         contact,
         edge: 0.0,
-        hits_nonreactive: false,
         ahead,
         leaves_lane,
     };
-    let with = |lead_keep_lane: bool| PlannerSettings {
-        lead_first: true,
-        lead_in_lane: true,
-        lead_keep_lane,
-        ..PlannerSettings::default()
-    };
-    let (on, off) = (with(true), with(false));
-    let rank = |s: &PlannerSettings, x: Violations| Rank::inadmissible(s, &x);
+    let s = PlannerSettings::default();
+    let rank = |x: Violations| Rank::inadmissible(&s, &x);
     let keeps = v(0.0, 0.5, false);
     let leaves = v(0.0, 0.1, true);
-    assert!(rank(&on, keeps).beats(&rank(&on, leaves)));
-    assert!(rank(&off, leaves).beats(&rank(&off, keeps)));
-    assert!(!rank(&off, leaves).leaves_lane);
+    assert_eq!(rank(keeps).decide(&rank(leaves)), (RankKey::KeepsLane, true));
     // Contact still decides first.
-    assert!(rank(&on, leaves).beats(&rank(&on, v(0.2, 0.5, false))));
+    assert_eq!(
+        rank(leaves).decide(&rank(v(0.2, 0.5, false))),
+        (RankKey::Contact, true)
+    );
 }
 
-/// The squeezed ego inside its lane, with `lead_keep_lane`: no state of the plan puts its box
-/// across the lane line; off, the plan is `lead_in_lane`'s, bit for bit.
+/// The squeezed ego inside its lane: no state of the plan puts its box across the lane line,
+/// and the fallback that chose it says so.
 #[test]
-fn lead_keep_lane_keeps_a_braking_ego_off_the_lane_lines() {
+fn the_lead_rule_keeps_a_braking_ego_off_the_lane_lines() {
+    let on = plan_in_lanes(1.85, PlannerSettings::default());
     let (h, sizes) = squeezed();
     let (bounds, extents) = two_lanes(1.85);
     let p = PlanningProblem {
@@ -300,24 +309,17 @@ fn lead_keep_lane_keeps_a_braking_ego_off_the_lane_lines() {
         }),
         ..problem(&h, &sizes, 20.0)
     };
-    let plan = |lead_keep_lane: bool| {
-        let s = PlannerSettings {
-            lead_first: true,
-            lead_in_lane: true,
-            lead_keep_lane,
-            ..PlannerSettings::default()
-        };
-        plan_cv(s, &p)
-    };
-    let (off, on) = (plan(false), plan(true));
     let s = PlannerSettings::default();
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-    let rel = |plan: &Plan| -> Vec<crate::model::State> {
-        plan.states
-            .iter()
-            .map(|z| crate::model::State::new(z[0], z[1], z[2], z[3]))
-            .collect()
-    };
-    assert!(!lp.spans_line(&rel(&on)), "{:?}", on.states);
-    assert!(lp.spans_line(&rel(&off)), "{:?}", off.states);
+    let rel: Vec<crate::model::State> = on
+        .states
+        .iter()
+        .map(|z| crate::model::State::new(z[0], z[1], z[2], z[3]))
+        .collect();
+    assert!(!lp.spans_line(&rel), "{:?}", on.states);
+    assert!(
+        matches!(on.decided_by, DecidedBy::Fallback { .. }),
+        "{:?}",
+        on.decided_by
+    );
 }

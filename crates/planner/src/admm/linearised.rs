@@ -114,20 +114,20 @@ impl LinearisedProblem {
         warm: Option<&WarmStart>,
         p: &PlanningProblem<'_>,
     ) -> Self {
-        let t = s.horizon;
+        let t = s.model.horizon;
         let origin = [p.ego.x, p.ego.y];
         let start = State::new(0.0, 0.0, p.ego.psi, p.ego.v);
         let delta_box = RateBox {
-            lo: -s.delta_max,
-            hi: s.delta_max,
-            rate: s.ddelta_max,
-            prev: p.last_delta.clamp(-s.delta_max, s.delta_max),
+            lo: -s.bounds.delta_max,
+            hi: s.bounds.delta_max,
+            rate: s.bounds.ddelta_max,
+            prev: p.last_delta.clamp(-s.bounds.delta_max, s.bounds.delta_max),
         };
         let accel_box = RateBox {
-            lo: s.a_min,
-            hi: s.a_max,
-            rate: s.da_max,
-            prev: p.last_accel.clamp(s.a_min, s.a_max),
+            lo: s.bounds.a_min,
+            hi: s.bounds.a_max,
+            rate: s.bounds.da_max,
+            prev: p.last_accel.clamp(s.bounds.a_min, s.bounds.a_max),
         };
         let (mut nominal_delta, mut nominal_accel, warm_duals) = match warm {
             Some(w) if w.delta.len() == t => (
@@ -150,7 +150,7 @@ impl LinearisedProblem {
             &nominal,
             &nominal_delta,
             &nominal_accel,
-            s.v_lin_min,
+            s.admm.v_lin_min,
         );
         let y_goal = held_goal(s, p);
         let (lower, upper) = state_bounds(s, p, origin[1], y_goal);
@@ -163,7 +163,7 @@ impl LinearisedProblem {
             nominal_accel,
             nominal_rollout,
             warm_duals,
-            weights: State::new(0.0, lateral_weight(s, p), s.w_psi, s.w_v),
+            weights: State::new(0.0, lateral_weight(s, p), s.cost.w_psi, s.cost.w_v),
             reference: State::new(0.0, y_goal - origin[1], 0.0, p.v_ref),
             retreat: p.y_retreat.map(|y| {
                 let (lower, upper) = state_bounds(s, p, origin[1], y);
@@ -175,7 +175,7 @@ impl LinearisedProblem {
             }),
             lower,
             upper,
-            edges: if s.heading_max < std::f64::consts::FRAC_PI_2 {
+            edges: if s.bounds.heading_max < std::f64::consts::FRAC_PI_2 {
                 road_edges(p, origin[1])
             } else {
                 [f64::NEG_INFINITY, f64::INFINITY]
@@ -208,8 +208,8 @@ impl LinearisedProblem {
         accel: &[f64],
         z: &[State],
     ) -> f64 {
-        input_cost(delta, self.delta_box.prev, s.w_delta, s.w_ddelta)
-            + input_cost(accel, self.accel_box.prev, s.w_a, s.w_da)
+        input_cost(delta, self.delta_box.prev, s.cost.w_delta, s.cost.w_ddelta)
+            + input_cost(accel, self.accel_box.prev, s.cost.w_a, s.cost.w_da)
             + self.tracking_cost(z)
     }
 
@@ -334,11 +334,11 @@ pub(crate) fn lateral_weight(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f6
     let factor = p
         .lanes
         .and_then(|lanes| lanes.merge_deadline(p.ego.x, p.ego.y, p.y_target))
-        .map_or(0.0, |d| deadline_factor(d, s.deadline_distance));
+        .map_or(0.0, |d| deadline_factor(d, s.lane_ends.deadline_distance));
     if factor > 0.0 {
-        s.w_y + s.w_deadline * factor
+        s.cost.w_y + s.lane_ends.w_deadline * factor
     } else {
-        s.w_y
+        s.cost.w_y
     }
 }
 
@@ -359,7 +359,7 @@ fn stop_rule(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<StopRule> {
     let lanes = p.lanes?;
     let rule = StopRule::new(s);
     let hardest = StopRule {
-        decel: (-s.a_min).max(s.stop_decel),
+        decel: (-s.bounds.a_min).max(s.lane_ends.stop_decel),
         ..rule
     };
     let e = &p.ego;
@@ -376,11 +376,11 @@ fn stop_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<StopLine> {
     // towards the line is no longer a way out ([`stop_rule`]).
     stop_rule(s, p)?;
     let lanes = p.lanes?;
-    let x = lanes.stop_line(p.ego.x, p.ego.y, s.stop_margin)?;
+    let x = lanes.stop_line(p.ego.x, p.ego.y, s.lane_ends.stop_margin)?;
     // Out of reach: no plan (accelerating at a_max all along) could break the stopping rule.
-    let time = s.horizon as f64 * s.dt;
-    let v_far = p.ego.v + s.a_max.max(0.0) * time;
-    let reach = p.ego.x + 0.5 * (p.ego.v + v_far) * time + v_far * v_far / (2.0 * s.stop_decel);
+    let time = s.model.horizon as f64 * s.model.dt;
+    let v_far = p.ego.v + s.bounds.a_max.max(0.0) * time;
+    let reach = p.ego.x + 0.5 * (p.ego.v + v_far) * time + v_far * v_far / (2.0 * s.lane_ends.stop_decel);
     if reach < x {
         return None;
     }
@@ -403,7 +403,7 @@ fn held_goal(s: &PlannerSettings, p: &PlanningProblem<'_>) -> f64 {
         return p.y_target;
     };
     let e = lanes.extents[target];
-    let reach = p.ego.x + p.ego.v * s.horizon as f64 * s.dt;
+    let reach = p.ego.x + p.ego.v * s.model.horizon as f64 * s.model.dt;
     if target != own && e.begins && reach < e.begin {
         0.5 * (lanes.bounds[own] + lanes.bounds[own + 1])
     } else {
@@ -428,26 +428,26 @@ fn state_bounds(
     y0: f64,
     y_goal: f64,
 ) -> (Vec<State>, Vec<State>) {
-    let t = s.horizon;
+    let t = s.model.horizon;
     let [length, width] = p.sizes[0];
-    let bounded = s.heading_max < std::f64::consts::FRAC_PI_2;
+    let bounded = s.bounds.heading_max < std::f64::consts::FRAC_PI_2;
     let goal = y_goal - y0;
     let (corridor_low, corridor_high) = (
-        goal.min(0.0) - s.overshoot_max,
-        goal.max(0.0) + s.overshoot_max,
+        goal.min(0.0) - s.bounds.overshoot_max,
+        goal.max(0.0) + s.bounds.overshoot_max,
     );
     let mut lower = Vec::with_capacity(t);
     let mut upper = Vec::with_capacity(t);
     for k in 0..t {
         let (heading, half_extent) = if bounded {
             let h = s
-                .heading_max
-                .max(p.ego.psi.abs() - (k + 1) as f64 * s.heading_recovery);
+                .bounds.heading_max
+                .max(p.ego.psi.abs() - (k + 1) as f64 * s.bounds.heading_recovery);
             (h, half_extent_across(length, width, h))
         } else {
             (f64::INFINITY, 0.5 * width)
         };
-        let half = half_extent + s.edge_margin;
+        let half = half_extent + s.bounds.edge_margin;
         let mut low = (p.road[0] + half - y0).max(corridor_low);
         let mut high = (p.road[1] - half - y0).min(corridor_high);
         if low > high {
@@ -460,7 +460,7 @@ fn state_bounds(
             f64::INFINITY,
             high.max(0.0),
             heading,
-            s.v_max.max(p.ego.v),
+            s.bounds.v_max.max(p.ego.v),
         ));
     }
     (lower, upper)

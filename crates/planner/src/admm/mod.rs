@@ -472,9 +472,9 @@ impl Planner {
     pub fn new(settings: PlannerSettings) -> Result<Self, PlannerError> {
         settings.validate()?;
         let model = Bicycle {
-            l_f: settings.l_f,
-            l_r: settings.l_r,
-            dt: settings.dt,
+            l_f: settings.model.l_f,
+            l_r: settings.model.l_r,
+            dt: settings.model.dt,
         };
         Ok(Self {
             settings,
@@ -573,12 +573,12 @@ impl Planner {
         }
         let n_agents = problem.history.n_agents();
         let mut safety =
-            SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, s.safety_min);
+            SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, s.safety.safety_min);
         safety.budget = Budget::new(s, start);
         safety.count_overlap = true;
         safety.ego_last = Some(problem.history.at(0, nudge_predictor::T_OBS - 1));
-        if s.ablate_reaction {
-            safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.dt));
+        if s.safety.ablate_reaction {
+            safety.ablate_reaction(crate::keep_lane_path(&problem.ego, lp.horizon, s.model.dt));
         }
         let mut timings = PhaseTimings::default();
         let iterates = Iterates::start(&lp);
@@ -625,7 +625,7 @@ impl Planner {
         problem.check()?;
         let s = &self.settings;
         let ego_length = problem.sizes[0][0];
-        if constraint::ego_slice_count(ego_length, s.ego_segment_length)
+        if constraint::ego_slice_count(ego_length, s.safety.ego_segment_length)
                 > PlannerSettings::MAX_EGO_SEGMENTS as f64
         {
             return Err(PlannerError::BadProblem {
@@ -634,14 +634,14 @@ impl Planner {
                     "the ego (agent 0) of length {ego_length} m needs more than \
                      MAX_EGO_SEGMENTS = {} slices of ego_segment_length = {} m",
                     PlannerSettings::MAX_EGO_SEGMENTS,
-                    s.ego_segment_length
+                    s.safety.ego_segment_length
                 ),
             });
         }
-        if predictor.horizon() != self.settings.horizon {
+        if predictor.horizon() != self.settings.model.horizon {
             return Err(PlannerError::HorizonMismatch {
                 predictor: predictor.horizon(),
-                planner: self.settings.horizon,
+                planner: self.settings.model.horizon,
             });
         }
         Ok(())
@@ -693,7 +693,7 @@ fn admm_loop(
     };
     let mut stop = Stop::MaxIterations;
     let mut iterations = 0;
-    for iteration in 0..s.max_iter {
+    for iteration in 0..s.admm.max_iter {
         if safety.budget.spent(safety.calls) {
             stop = Stop::Budget;
             break;

@@ -61,16 +61,16 @@ impl JointQp {
     fn objective(&mut self, s: &PlannerSettings, lp: &LinearisedProblem) {
         let t = lp.horizon;
         let nv = 6 * t;
-        let pd = input_hessian(t, s.w_delta, s.w_ddelta, &vec![0.0; t]);
-        let pa = input_hessian(t, s.w_a, s.w_da, &vec![0.0; t]);
+        let pd = input_hessian(t, s.cost.w_delta, s.cost.w_ddelta, &vec![0.0; t]);
+        let pa = input_hessian(t, s.cost.w_a, s.cost.w_da, &vec![0.0; t]);
         for i in 0..t {
             for j in 0..t {
                 self.p[i * nv + j] = pd[i * t + j];
                 self.p[(t + i) * nv + t + j] = pa[i * t + j];
             }
         }
-        self.q[0] = -2.0 * s.w_ddelta * lp.delta_box.prev;
-        self.q[t] = -2.0 * s.w_da * lp.accel_box.prev;
+        self.q[0] = -2.0 * s.cost.w_ddelta * lp.delta_box.prev;
+        self.q[t] = -2.0 * s.cost.w_da * lp.accel_box.prev;
         for k in 0..t {
             for j in 0..4 {
                 let idx = 2 * t + 4 * k + j;

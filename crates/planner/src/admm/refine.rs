@@ -137,10 +137,10 @@ fn gauss_newton_objective(
     let mut p = vec![0.0; nv * nv];
     let mut q = vec![0.0; nv];
     let zeros = vec![0.0; t];
-    let hd = input_hessian(t, s.w_delta, s.w_ddelta, &zeros);
-    let ha = input_hessian(t, s.w_a, s.w_da, &zeros);
-    let gd = input_gradient(delta, lp.delta_box.prev, s.w_delta, s.w_ddelta);
-    let ga = input_gradient(accel, lp.accel_box.prev, s.w_a, s.w_da);
+    let hd = input_hessian(t, s.cost.w_delta, s.cost.w_ddelta, &zeros);
+    let ha = input_hessian(t, s.cost.w_a, s.cost.w_da, &zeros);
+    let gd = input_gradient(delta, lp.delta_box.prev, s.cost.w_delta, s.cost.w_ddelta);
+    let ga = input_gradient(accel, lp.accel_box.prev, s.cost.w_a, s.cost.w_da);
     for i in 0..t {
         q[i] += gd[i];
         q[t + i] += ga[i];
@@ -187,9 +187,9 @@ fn hard_rows(
     }
     for i in 0..2 * t {
         let r = if i < t {
-            s.refine_trust_delta
+            s.repair.refine_trust_delta
         } else {
-            s.refine_trust_accel
+            s.repair.refine_trust_accel
         };
         let row = b.len();
         a.push((row, i, 1.0));
@@ -246,7 +246,7 @@ fn road_edge_rows(
 /// Elastic rows (units of b) of the linearised safety b_ik + ∇b_ik · S_k^{xy} du ≥
 /// `safety_min` + `refine_margin`, one per safety row, prediction and ellipse held.
 fn safety_rows(s: &PlannerSettings, sens: &[Vec<State>], rows: &[SafetyRow]) -> Vec<ElasticRow> {
-    let target = s.safety_min + s.refine_margin;
+    let target = s.safety.safety_min + s.repair.refine_margin;
     rows.iter()
         .map(|r| {
             let g = sens[r.step]

@@ -77,7 +77,7 @@ fn trial_point(
                 pushed_rhs(
                     &scratch.gradient,
                     violation_gradient,
-                    s.pin_weight,
+                    s.admm.pin_weight,
                     push,
                     norm,
                     &mut scratch.pinned_rhs,
@@ -125,8 +125,8 @@ pub(crate) fn restore(
     } else {
         1.0 / curvature.lipschitz
     };
-    let mut push = s.restore_step;
-    for _ in 0..=s.pgd_halvings {
+    let mut push = s.admm.restore_step;
+    for _ in 0..=s.admm.pgd_halvings {
         for mv in moves {
             let (vg, step) = (&current.violation_gradient, (eta, push));
             if !trial_point(mv, s, lp, curvature, z, vg, step, scratch) {

@@ -192,7 +192,7 @@ fn predict_others(
 /// at the same lateral position, as the constraint sizes it for two road-aligned cars (ψ of
 /// the ego's planned state ignored: |sin ψ| ≈ 0 changes a_x by millimetres).
 fn far_b_lower_bound(s: &PlannerSettings) -> f64 {
-    let a_x = s.ellipse_scale * (4.5 + 1.9) + s.margin_x;
+    let a_x = s.safety.ellipse_scale * (4.5 + 1.9) + s.safety.margin_x;
     (35.0 / a_x).powi(2) - 1.0
 }
 
@@ -204,9 +204,9 @@ pub(super) fn rollout_world(
     a: &[f64],
 ) -> Vec<[f64; 4]> {
     let model = Bicycle {
-        l_f: s.l_f,
-        l_r: s.l_r,
-        dt: s.dt,
+        l_f: s.model.l_f,
+        l_r: s.model.l_r,
+        dt: s.model.dt,
     };
     let z0 = State::new(p.ego.x, p.ego.y, p.ego.psi, p.ego.v);
     let mut out = vec![State::zeros(); d.len()];
@@ -218,16 +218,17 @@ pub(super) fn rollout_world(
 /// branches after the execution check (backtracking, fallbacks) alone, as they are reached
 /// when the refinement fails.
 pub(super) fn repairs_only() -> PlannerSettings {
-    PlannerSettings {
-        refine_iters: 0,
-        heading_max: 3.0,
-        overshoot_max: 100.0,
-        brake_decel: 0.0,
-        ..PlannerSettings::default()
+    {
+        let mut s = PlannerSettings::default();
+        s.repair.refine_iters = 0;
+        s.bounds.heading_max = 3.0;
+        s.bounds.overshoot_max = 100.0;
+        s.safety.brake_decel = 0.0;
+        s
     }
 }
 
-/// A repairer of the call on `lp` without the contingency and follower-gap rules.
+/// A repairer of the call on `lp` without the constant-velocity check of the lattice.
 pub(super) fn plain_repairer<'a, 'c>(
     s: &'a PlannerSettings,
     model: &'a Bicycle,
@@ -241,8 +242,6 @@ pub(super) fn plain_repairer<'a, 'c>(
         lp,
         safety,
         predictor,
-        contingency: None,
-        follower_gap: None,
         nonreactive: None,
     }
 }
@@ -250,9 +249,9 @@ pub(super) fn plain_repairer<'a, 'c>(
 /// The bicycle of the settings `s`.
 pub(super) fn model(s: &PlannerSettings) -> Bicycle {
     Bicycle {
-        l_f: s.l_f,
-        l_r: s.l_r,
-        dt: s.dt,
+        l_f: s.model.l_f,
+        l_r: s.model.l_r,
+        dt: s.model.dt,
     }
 }
 
@@ -273,10 +272,7 @@ fn blocked_start() -> (History, Vec<[f64; 2]>) {
 #[test]
 fn restoration_reduces_the_violation_of_an_unsafe_start() {
     for hessian_scaled in [true, false] {
-        let s = PlannerSettings {
-            hessian_scaled,
-            ..PlannerSettings::default()
-        };
+        let s = PlannerSettings::default();
         let (h, sizes) = blocked_start();
         let p = problem(&h, &sizes, 12.0);
         let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
@@ -284,7 +280,7 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
         assert_eq!(constraint.vehicles().len(), 1);
         let mut cv = ConstantVelocity::default();
         cv.set_scene(&h).unwrap();
-        let threshold = s.safety_min + s.plan_buffer;
+        let threshold = s.safety.safety_min;
         let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, threshold);
         let iterates = Iterates::start(&lp);
         let first = safety.eval(&mut cv, &iterates.z).unwrap();
@@ -294,6 +290,11 @@ fn restoration_reduces_the_violation_of_an_unsafe_start() {
         );
         let current = CurrentSafety::new(first, &safety);
         let mut ws = Workspace::new(&s, &lp, iterates, current);
+        if !hessian_scaled {
+            // The path taken when H cannot be inverted.
+            ws.curvature.newton = None;
+            ws.curvature.pinned = None;
+        }
         // The gradient and steps at Z, as the Z-update prepares them.
         let Workspace {
             iterates,
@@ -366,12 +367,12 @@ fn z_updates_restore_then_descend_safely() {
     let constraint = SafetyConstraint::new(&p, &s);
     let mut cv = ConstantVelocity::default();
     cv.set_scene(&h).unwrap();
-    let threshold = s.safety_min + s.plan_buffer;
+    let threshold = s.safety.safety_min;
     let (mut safety, first, mut ws, mut qps) = call_start(&s, &lp, &constraint, threshold, &mut cv);
     let mut timings = PhaseTimings::default();
     let mut violations = vec![first.violation];
     let mut safe_since = None;
-    for it in 0..s.max_iter {
+    for it in 0..s.admm.max_iter {
         let mut t = 0.0;
         qps.update(Input::Steering, &s, &lp, &mut ws, it, &mut t)
             .unwrap();
@@ -397,7 +398,7 @@ fn z_updates_restore_then_descend_safely() {
         "the first Z-update did not restore: {violations:?}"
     );
     assert!(safe_since.is_some(), "never safe: {violations:?}");
-    assert_eq!(timings.z_updates_s.len(), s.max_iter);
+    assert_eq!(timings.z_updates_s.len(), s.admm.max_iter);
 }
 
 /// The predictor calls of a whole plan with an always-safe [`Gate`].
@@ -497,9 +498,8 @@ fn unsafe_rollout_falls_back_to_the_cheapest_safe_simple_sequence() {
     );
     assert!(plan.states[5][1] <= limit);
     // Roll-out check, 3 backtracking steps, the nominal and two simple sequences per
-    // acceleration profile (the four constants, and a_max with `fallback_full_accel`).
-    let profiles = 4 + usize::from(s.fallback_full_accel);
-    assert_eq!(plan.predictor_calls, admm_calls + 1 + 3 + 1 + 2 * profiles);
+    // acceleration profile (the four constants).
+    assert_eq!(plan.predictor_calls, admm_calls + 1 + 3 + 1 + 2 * 4);
     assert!(plan.min_safety.unwrap() > 0.0);
     assert_eq!(plan.rollout_min_safety, plan.min_safety);
 }
@@ -544,13 +544,13 @@ fn a_candidate_the_predictors_refuse_is_unsafe_and_never_predicted() {
     let constraint = SafetyConstraint::new(&p, &s);
     let mut cv = ConstantVelocity::default();
     cv.set_scene(&h).unwrap();
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety.safety_min);
     safety.ego_last = Some(h.at(0, T_OBS - 1));
     let near: Vec<State> = (1..=6)
         .map(|k| State::new(3.6 * k as f64, 0.0, 0.0, 12.0))
         .collect();
     let e = safety.eval(&mut cv, &near).unwrap();
-    assert!(e.is_safe(s.safety_min), "{e:?}");
+    assert!(e.is_safe(s.safety.safety_min), "{e:?}");
     assert_eq!((safety.calls, safety.refused), (1, 0));
 
     let mut far = near.clone();
@@ -564,13 +564,13 @@ fn a_candidate_the_predictors_refuse_is_unsafe_and_never_predicted() {
         "the predictor refuses it"
     );
     let e = safety.eval(&mut cv, &far).unwrap();
-    assert!(!e.is_safe(s.safety_min), "{e:?}");
+    assert!(!e.is_safe(s.safety.safety_min), "{e:?}");
     assert_eq!(e, Evaluation::not_evaluated());
     assert_eq!((safety.calls, safety.refused), (1, 1));
 
     let mut nan = near.clone();
     nan[2][1] = f64::NAN;
-    assert!(!safety.eval(&mut cv, &nan).unwrap().is_safe(s.safety_min));
+    assert!(!safety.eval(&mut cv, &nan).unwrap().is_safe(s.safety.safety_min));
     assert_eq!((safety.calls, safety.refused), (1, 2));
 
     safety.ego_last = None;
@@ -590,11 +590,11 @@ fn repairer_checks_every_candidate_on_its_rollout() {
     let p = problem(&h, &sizes, 12.0);
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
     let constraint = SafetyConstraint::new(&p, &s);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety.safety_min);
     // Steering left within the box and rate bounds; the gate closes between where θ = 3/4
     // and θ = 1/2 of it end.
     let steer: Vec<f64> = (1..=6)
-        .map(|k| (0.9 * k as f64 * s.ddelta_max).min(0.9 * s.delta_max))
+        .map(|k| (0.9 * k as f64 * s.bounds.ddelta_max).min(0.9 * s.bounds.delta_max))
         .collect();
     let end = |theta: f64| {
         let d: Vec<f64> = steer.iter().map(|d| theta * d).collect();
@@ -646,9 +646,10 @@ fn qp_failure_ends_in_a_checked_fallback_plan() {
     // w_a = 1e308 overflows the α-QP's Hessian to ∞: Clarabel stops with a numerical error.
     // Validation refuses such a weight, so the planner is built without it (the failure
     // stands for any Clarabel failure on valid settings).
-    let s = PlannerSettings {
-        w_a: 1e308,
-        ..PlannerSettings::default()
+    let s = {
+        let mut s = PlannerSettings::default();
+        s.cost.w_a = 1e308;
+        s
     };
     assert!(s.validate().is_err());
     let (h, sizes) = scene(12.0, 0.0, &[(6.0, 3.7, 12.0)]);
@@ -671,7 +672,7 @@ fn qp_failure_ends_in_a_checked_fallback_plan() {
     assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
     assert_eq!(plan.rollout_min_safety, plan.min_safety);
     assert!(
-        plan.min_safety.unwrap() > s.safety_min,
+        plan.min_safety.unwrap() > s.safety.safety_min,
         "the fallback is safe"
     );
     assert!(
@@ -756,7 +757,7 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     let executed = constraint.executed_min_b(ego_next, &positions).unwrap();
     // The planner's evaluation of a candidate whose first state is the executed one.
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety_min);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety.safety_min);
     let mut z = vec![State::new(-1000.0, 0.0, 0.0, 12.0); 6];
     z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], ego_next[3]);
     let planned = safety
@@ -774,9 +775,9 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
             ego_next[2],
             [4.5, 1.9],
             heading,
-            s.ellipse_scale,
-            s.margin_x,
-            s.margin_y,
+            s.safety.ellipse_scale,
+            s.safety.margin_x,
+            s.safety.margin_y,
         );
         e.a_x += margin;
         e.value([ego_next[0], ego_next[1]], other)
@@ -787,7 +788,7 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     // stopped car behind the ego.
     let v = constraint.vehicles()[0];
     let ahead_speed: f64 = 3.4 / 0.3;
-    let margin = (12.0f64.powi(2) - ahead_speed.powi(2)) / (2.0 * s.brake_decel);
+    let margin = (12.0f64.powi(2) - ahead_speed.powi(2)) / (2.0 * s.safety.brake_decel);
     let terminal = constraint.b(&v, ego_next, [10.0, 3.5], moved[0], true).0;
     assert!((terminal - b(positions[1], (-0.3f64).atan2(3.4), margin)).abs() < 1e-12);
     let behind = constraint.vehicles()[1];
@@ -805,9 +806,10 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     assert_eq!(
         SafetyConstraint::new(
             &problem(&h, &sizes[..], 12.0),
-            &PlannerSettings {
-                check_range: 1.0,
-                ..s
+            &{
+                let mut s = s;
+                s.safety.check_range = 1.0;
+                s
             }
         )
         .executed_min_b(ego_next, &positions),
@@ -815,133 +817,7 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     );
 }
 
-/// With `SafetyGeometry::Boxes`, b is the separating-axis distance of the ego's box (at its
-/// heading) and each vehicle's (at the signed heading of its motion, its last observed one
-/// when it stood still) less the margins, the closing-speed margin added to `margin_x` at the
-/// terminal step; the gradient the planner uses is that of b (finite differences); the
-/// simulator's `executed_min_b` and the planner's step-one evaluation agree bit for bit.
-#[test]
-fn the_box_geometry_is_the_oriented_box_separation() {
-    let s = PlannerSettings {
-        safety_geometry: crate::SafetyGeometry::Boxes,
-        ..PlannerSettings::default()
-    };
-    let (h, sizes) = scene(12.0, 0.0, &[(10.0, 3.5, 11.0), (-3.0, -3.6, 0.0)]);
-    let p = problem(&h, &sizes, 12.0);
-    let constraint = SafetyConstraint::new(&p, &s);
-    let moved = vec![[13.4, 3.2], [-3.0, -3.6]];
-    let ego_next = [3.6, 0.05, 0.03, 12.0];
-    let ego_box = crate::OrientedBox {
-        x: 3.6,
-        y: 0.05,
-        heading: 0.03,
-        length: 4.5,
-        width: 1.9,
-    };
-    let other = |at: [f64; 2], heading: f64| crate::OrientedBox {
-        x: at[0],
-        y: at[1],
-        heading,
-        length: 4.5,
-        width: 1.9,
-    };
-    let ahead = other(moved[0], (-0.3f64).atan2(3.4));
-    let v = constraint.vehicles()[0];
-    for (terminal, closing) in [
-        (false, 0.0),
-        (
-            true,
-            (12.0f64.powi(2) - (3.4f64 / 0.3).powi(2)) / (2.0 * s.brake_decel),
-        ),
-    ] {
-        let (b, _) = constraint.b(&v, ego_next, [10.0, 3.5], moved[0], terminal);
-        let want = crate::box_separation(&ego_box, &ahead, [s.margin_x + closing, s.margin_y]).0;
-        assert!((b - want).abs() < 1e-12, "{b} vs {want}");
-        let (b2, g) = constraint.b_and_gradient(&v, ego_next, [10.0, 3.5], moved[0], terminal);
-        assert_eq!(b.to_bits(), b2.to_bits());
-        let f = |dx: f64, dy: f64| {
-            let e = [ego_next[0] + dx, ego_next[1] + dy, ego_next[2], ego_next[3]];
-            constraint.b(&v, e, [10.0, 3.5], moved[0], terminal).0
-        };
-        let eps = 1e-6;
-        let fd = [
-            (f(eps, 0.0) - f(-eps, 0.0)) / (2.0 * eps),
-            (f(0.0, eps) - f(0.0, -eps)) / (2.0 * eps),
-        ];
-        assert!(
-            (fd[0] - g[0]).abs() < 1e-6 && (fd[1] - g[1]).abs() < 1e-6,
-            "{fd:?} vs {g:?}"
-        );
-    }
-    // The stopped car keeps its last observed heading (0).
-    let behind = constraint.vehicles()[1];
-    let (b, _) = constraint.b(&behind, ego_next, [-3.0, -3.6], moved[1], false);
-    let want = crate::box_separation(&ego_box, &other(moved[1], 0.0), [s.margin_x, s.margin_y]).0;
-    assert!((b - want).abs() < 1e-12);
-    let mut positions = vec![[ego_next[0], ego_next[1]]];
-    positions.extend_from_slice(&moved);
-    let executed = constraint.executed_min_b(ego_next, &positions).unwrap();
-    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 3, s.safety_min);
-    let mut z = vec![State::new(-1000.0, 0.0, 0.0, 12.0); 6];
-    z[0] = State::new(ego_next[0], ego_next[1], ego_next[2], ego_next[3]);
-    let planned = safety
-        .eval(&mut StepOne(moved.clone()), &z)
-        .unwrap()
-        .min_b
-        .unwrap();
-    assert_eq!(executed.to_bits(), planned.to_bits());
-}
 
-/// With `SafetyGeometry::GrownBoxes`, b > 0 exactly when the ego's box grown by the margins in
-/// its own frame (the closing-speed margin added at both ends at the terminal step) does not
-/// overlap the other vehicle's box (independent truth: `OrientedBox::overlaps`); level and
-/// parallel, b is the gap across the road less `margin_y` whatever `margin_x` is.
-#[test]
-fn grown_boxes_clear_the_ego_box_grown_in_its_own_frame() {
-    let s = PlannerSettings {
-        safety_geometry: crate::SafetyGeometry::GrownBoxes,
-        margin_x: 3.4,
-        ..PlannerSettings::default()
-    };
-    // A car level with the ego in the next lane, moving straight.
-    let (h, sizes) = scene(12.0, 0.0, &[(0.0, 3.7, 12.0)]);
-    let p = problem(&h, &sizes, 12.0);
-    let constraint = SafetyConstraint::new(&p, &s);
-    let v = constraint.vehicles()[0];
-    let other = [3.6, 3.7];
-    for (y, psi) in [
-        (1.0, 0.0),
-        (1.0, 0.15),
-        (1.45, 0.0),
-        (1.55, 0.0),
-        (0.0, 0.2),
-        (1.3, 0.1),
-    ] {
-        let ego = [3.6, y, psi, 12.0];
-        let (b, g) = constraint.b_and_gradient(&v, ego, [0.0, 3.7], other, false);
-        let grown = crate::OrientedBox {
-            x: 3.6,
-            y,
-            heading: psi,
-            length: 4.5 + 2.0 * 3.4,
-            width: 1.9 + 2.0 * 0.3,
-        };
-        let theirs = crate::OrientedBox {
-            x: other[0],
-            y: other[1],
-            heading: 0.0,
-            length: 4.5,
-            width: 1.9,
-        };
-        assert_eq!(b > 0.0, !grown.overlaps(&theirs), "y {y} psi {psi}: b {b}");
-        if psi == 0.0 {
-            // Level and parallel: the gap across the road less margin_y.
-            assert!((b - (3.7 - y - 1.9 - 0.3)).abs() < 1e-12, "{b}");
-            assert!(g[0].abs() < 1e-12 && (g[1] + 1.0).abs() < 1e-12);
-        }
-    }
-}
 
 /// From call `from` on, predicts agent 1 moving to a fixed road position `at` at 29 m per step
 /// (a plausible prediction: the planner refuses motions beyond 30 m per step) and staying
@@ -1000,10 +876,11 @@ impl Predictor for Obstacle {
 fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
     // A loose heading bound: the reference ADMM roll-out is admissible as it is; no
     // closing-speed margin (the obstacle stands still: the ellipse alone is tested here).
-    let s = PlannerSettings {
-        heading_max: 0.5,
-        brake_decel: 0.0,
-        ..PlannerSettings::default()
+    let s = {
+        let mut s = PlannerSettings::default();
+        s.bounds.heading_max = 0.5;
+        s.safety.brake_decel = 0.0;
+        s
     };
     let (h, sizes) = car_behind_in_target_lane();
     let p = problem(&h, &sizes, 12.0);
@@ -1012,7 +889,7 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
     let end = admm.states[5];
     // The ellipse's lateral semi-axis for two road-aligned cars, and an obstacle 0.97 of it
     // to the left of the roll-out's last position (b ≈ −0.06 there).
-    let a_y = s.ellipse_scale * 1.9 + s.margin_y;
+    let a_y = s.safety.ellipse_scale * 1.9 + s.safety.margin_y;
     let at = [end[0], end[1] + 0.97 * a_y];
     let mut obstacle = Obstacle::new(admm_calls, at);
     let mut planner = Planner::new(s.clone()).unwrap();
@@ -1029,7 +906,7 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
         let b = constraint.ellipse(&v, dir, at, at).value([z[0], z[1]], at);
         min_b = min_b.min(b);
     }
-    assert!(min_b > s.safety_min, "refined plan unsafe: b = {min_b}");
+    assert!(min_b > s.safety.safety_min, "refined plan unsafe: b = {min_b}");
     assert_eq!(
         plan.min_safety,
         Some(min_b).map(|_| plan.min_safety.unwrap())
@@ -1044,9 +921,10 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
     assert!(plan.states[5][1] < end[1]);
     let backtracked = {
         let mut o = Obstacle::new(admm_calls, at);
-        let mut planner = Planner::new(PlannerSettings {
-            refine_iters: 0,
-            ..s.clone()
+        let mut planner = Planner::new({
+            let mut s = s.clone();
+            s.repair.refine_iters = 0;
+            s
         })
         .unwrap();
         planner.plan(&p, &mut o).unwrap()
@@ -1074,10 +952,11 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
 #[test]
 fn returned_states_keep_the_heading_bound_and_the_corridor() {
     for heading_max in [0.1, 0.15, 0.2] {
-        let s = PlannerSettings {
-            heading_max,
-            overshoot_max: 0.1,
-            ..PlannerSettings::default()
+        let s = {
+            let mut s = PlannerSettings::default();
+            s.bounds.heading_max = heading_max;
+            s.bounds.overshoot_max = 0.1;
+            s
         };
         let (h, sizes) = scene(12.0, 0.0, &[(200.0, 3.7, 12.0)]);
         let p = problem(&h, &sizes, 12.0);
@@ -1122,9 +1001,9 @@ fn align_with_road_turns_parallel_to_the_road() {
     let m = model(&s);
     let start = State::new(0.0, 0.0, 0.15, 12.0);
     let bounds = RateBox {
-        lo: -s.delta_max,
-        hi: s.delta_max,
-        rate: s.ddelta_max,
+        lo: -s.bounds.delta_max,
+        hi: s.bounds.delta_max,
+        rate: s.bounds.ddelta_max,
         prev: 0.1,
     };
     let accel = [0.0; 12];
@@ -1133,7 +1012,7 @@ fn align_with_road_turns_parallel_to_the_road() {
     let mut prev = 0.1;
     for dk in &d {
         // Within the bounds, and never steering further left once the heading is left.
-        assert!((dk - prev).abs() <= s.ddelta_max + 1e-12 && dk.abs() <= s.delta_max + 1e-12);
+        assert!((dk - prev).abs() <= s.bounds.ddelta_max + 1e-12 && dk.abs() <= s.bounds.delta_max + 1e-12);
         prev = *dk;
         z = m.advance(&z, *dk, 0.0);
         assert!(z[2] > -0.02, "turned past the road's direction: {z:?}");
@@ -1154,9 +1033,10 @@ fn a_call_budget_bounds_the_work_and_returns_an_admissible_plan() {
         .unwrap();
     for budget_calls in [3, 5, 8] {
         assert!(free.predictor_calls > budget_calls);
-        let s = PlannerSettings {
-            budget_calls,
-            ..PlannerSettings::default()
+        let s = {
+            let mut s = PlannerSettings::default();
+            s.budget.calls = budget_calls;
+            s
         };
         let run = || {
             Planner::new(s.clone())
@@ -1179,7 +1059,7 @@ fn a_call_budget_bounds_the_work_and_returns_an_admissible_plan() {
             plan.status
         );
         if plan.status == PlanStatus::BudgetExhausted {
-            assert!(plan.min_safety.unwrap() > s.safety_min);
+            assert!(plan.min_safety.unwrap() > s.safety.safety_min);
         }
         assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
         assert_eq!(
@@ -1230,12 +1110,12 @@ fn without_an_admissible_plan_the_fallback_may_cancel_the_change() {
         cancel
             .states
             .iter()
-            .all(|z| z[1] >= -s.overshoot_max - 1e-9)
+            .all(|z| z[1] >= -s.bounds.overshoot_max - 1e-9)
     );
 }
 
 /// The fallback set steers towards the retreat lane too: for each acceleration profile (the
-/// four constants, and a_max with `fallback_full_accel`) one sequence that ends nearer the
+/// four constants) one sequence that ends nearer the
 /// retreat than it starts; none without a retreat lane.
 #[test]
 fn the_fallback_set_includes_steering_back_to_the_retreat_lane() {
@@ -1249,7 +1129,7 @@ fn the_fallback_set_includes_steering_back_to_the_retreat_lane() {
     p.y_retreat = Some(0.0);
     let lp = LinearisedProblem::new(&s, &m, None, &p);
     let back = retreat_inputs(&s, &m, &lp);
-    assert_eq!(back.len(), 4 + usize::from(s.fallback_full_accel));
+    assert_eq!(back.len(), 4);
     for (i, (d, a)) in back.iter().enumerate() {
         let end = rollout_world(&s, &p, d, a)[5][1];
         assert!(
@@ -1293,7 +1173,7 @@ fn binding_vehicle_is_the_planners_minimum_over_the_plan() {
     cv.predict(&candidate, &mut prediction).unwrap();
     let b = constraint.binding(&plan.states, &prediction).unwrap();
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety_min);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 4, s.safety.safety_min);
     let local: Vec<State> = plan
         .states
         .iter()
@@ -1311,9 +1191,10 @@ fn binding_vehicle_is_the_planners_minimum_over_the_plan() {
     // Nothing in range: no binding vehicle.
     let far = SafetyConstraint::new(
         &p,
-        &PlannerSettings {
-            check_range: 1.0,
-            ..s
+        &{
+            let mut s = s;
+            s.safety.check_range = 1.0;
+            s
         },
     );
     assert_eq!(far.binding(&plan.states, &prediction), None);
@@ -1351,22 +1232,22 @@ fn deadline_weight_and_its_gradient_against_finite_differences() {
         ..problem(&h, &sizes, 20.0)
     };
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-    let w = s.w_y + s.w_deadline * deadline_factor(40.0, s.deadline_distance);
+    let w = s.cost.w_y + s.lane_ends.w_deadline * deadline_factor(40.0, s.lane_ends.deadline_distance);
     assert_eq!(lp.weights[1], w);
     assert!(
-        w > 2.0 * s.w_y,
+        w > 2.0 * s.cost.w_y,
         "the end 40 m ahead at least doubles the weight: {w}"
     );
     // Without the layout, or aiming at the own lane, the weight is w_y.
     let plain = LinearisedProblem::new(&s, &model(&s), None, &problem(&h, &sizes, 20.0));
-    assert_eq!(plain.weights[1], s.w_y);
+    assert_eq!(plain.weights[1], s.cost.w_y);
     let own = PlanningProblem { y_target: 0.0, ..p };
     assert_eq!(
         LinearisedProblem::new(&s, &model(&s), None, &own).weights[1],
-        s.w_y
+        s.cost.w_y
     );
     // The gradient at an arbitrary Z with arbitrary inputs and duals.
-    let t = s.horizon;
+    let t = s.model.horizon;
     let delta: Vec<f64> = (0..t).map(|k| 0.01 * k as f64 - 0.02).collect();
     let accel: Vec<f64> = (0..t).map(|k| 0.3 - 0.1 * k as f64).collect();
     let duals: Vec<State> = (0..t)
@@ -1420,9 +1301,10 @@ fn a_vehicle_passing_beside_does_not_brake_the_ego_to_a_standstill() {
     let mut p = problem(&h, &sizes, v);
     p.y_target = 0.0;
     let plan_with = |floor: f64, p: &PlanningProblem<'_>| {
-        let s = PlannerSettings {
-            fallback_speed_floor: floor,
-            ..PlannerSettings::default()
+        let s = {
+            let mut s = PlannerSettings::default();
+            s.repair.fallback_speed_floor = floor;
+            s
         };
         let mut planner = Planner::new(s).unwrap();
         planner
@@ -1478,14 +1360,15 @@ fn the_speed_floor_takes_the_bounds_within_their_slack() {
     p.ego.y = -0.5;
     p.ego.psi = -0.002;
     let ranks = |slack: f64| {
-        let s = PlannerSettings {
-            bounds_slack: slack,
-            ..PlannerSettings::default()
+        let s = {
+            let mut s = PlannerSettings::default();
+            s.repair.bounds_slack = slack;
+            s
         };
         let m = model(&s);
         let lp = LinearisedProblem::new(&s, &m, None, &p);
         let constraint = SafetyConstraint::new(&p, &s);
-        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety.safety_min);
         let mut cv = ConstantVelocity::default();
         cv.set_scene(&h).unwrap();
         let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut cv);
@@ -1497,10 +1380,10 @@ fn the_speed_floor_takes_the_bounds_within_their_slack() {
             (c, excess)
         };
         let (hold, hold_excess) = check(0.0);
-        let (brake, _) = check(s.a_min);
-        (hold, hold_excess, brake, s.bounds_slack)
+        let (brake, _) = check(s.bounds.a_min);
+        (hold, hold_excess, brake, s.repair.bounds_slack)
     };
-    let (hold, excess, brake, slack) = ranks(PlannerSettings::default().bounds_slack);
+    let (hold, excess, brake, slack) = ranks(PlannerSettings::default().repair.bounds_slack);
     assert!(
         !hold.predicted_safe && !brake.predicted_safe,
         "both are inside the ellipse"
@@ -1563,78 +1446,35 @@ fn predicted_contacts(plan: &Plan, h: &History, sizes: &[[f64; 2]]) -> usize {
     contacts
 }
 
-/// Nothing is admissible for the squeezed truck, and the least total violation steers it
-/// towards the target lane, away from the slow car ahead, which swings its tail into the car
-/// beside it (a contact by the separating-axis test at the constant-velocity positions), with
-/// one ellipse for the whole truck or with 6 m slices; with `contact_first` the fallback
-/// touches nobody, and still with `bounds_first` too (the fallback that touches nobody is
-/// within the state bounds). The planning predictor here is the constant-velocity one, so
-/// `fallback_avoid_nonreactive` alone keeps the tail off the car as well: it is off where
-/// `contact_first` is tested, and tested on its own (at the truck's 18.6 m/s, above its
-/// speed floor).
+/// Nothing is admissible for the squeezed truck, and the least total violation would steer it
+/// towards the target lane, away from the slow car ahead, swinging its tail into the car
+/// beside it; ranked by predicted contact before the violation ([`RankKey::Contact`]), with
+/// one ellipse for the whole truck or with 6 m slices, the fallback touches nobody (the
+/// separating-axis test at the constant-velocity positions).
 #[test]
-fn contact_first_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
+fn contact_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
     let (h, sizes) = squeezed_truck();
     let mut p = problem(&h, &sizes, 18.6);
     p.y_target = 3.44;
     p.road = [-5.16, 5.16];
     p.y_retreat = Some(0.0);
-    let plan_with = |ego_segment_length: f64, contact_first: bool, bounds_first: bool| {
-        let s = PlannerSettings {
-            ego_segment_length,
-            contact_first,
-            bounds_first,
-            fallback_avoid_nonreactive: false,
-            ..PlannerSettings::default()
-        };
-        let mut planner = Planner::new(s).unwrap();
-        planner
-            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+    for segment in [0.0, 6.0] {
+        let mut s = PlannerSettings::default();
+        s.safety.ego_segment_length = segment;
+        let plan = Planner::new(s)
             .unwrap()
-    };
-    let inadmissible = |plan: &Plan| {
+            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+            .unwrap();
         assert!(
             plan.min_safety.is_some_and(|b| b < 0.0),
             "nothing admissible: {:?}",
             plan.min_safety
         );
-    };
-    for segment in [0.0, 6.0] {
-        let off = plan_with(segment, false, false);
-        inadmissible(&off);
-        assert!(
-            predicted_contacts(&off, &h, &sizes) > 0,
-            "segment {segment}: without the rule the fallback touches a car: {:?}",
-            off.states
-        );
-        for bounds_first in [false, true] {
-            let on = plan_with(segment, true, bounds_first);
-            inadmissible(&on);
-            assert_eq!(
-                predicted_contacts(&on, &h, &sizes),
-                0,
-                "segment {segment}, bounds_first {bounds_first}: with it nobody: {:?}",
-                on.states
-            );
-        }
-        let s = PlannerSettings {
-            ego_segment_length: segment,
-            contact_first: false,
-            bounds_first: false,
-            fallback_avoid_nonreactive: true,
-            ..PlannerSettings::default()
-        };
-        assert!(p.ego.v >= s.avoid_min_speed);
-        let avoid = Planner::new(s)
-            .unwrap()
-            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
-            .unwrap();
-        inadmissible(&avoid);
         assert_eq!(
-            predicted_contacts(&avoid, &h, &sizes),
+            predicted_contacts(&plan, &h, &sizes),
             0,
-            "segment {segment}: fallback_avoid_nonreactive alone: {:?}",
-            avoid.states
+            "segment {segment}: the fallback touches nobody: {:?}",
+            plan.states
         );
     }
 }
@@ -1679,79 +1519,18 @@ fn edge_excess_is_how_far_the_box_s_corners_leave_the_road() {
     );
 }
 
-/// Among inadmissible candidates the `edge_first` rank puts the smaller road-edge excess
-/// first, whatever the violation; equal edge excesses (0 when the rule is off) leave the
-/// speed floor and the total violation to decide as before; an admissible candidate still
-/// beats every inadmissible one.
-#[test]
-fn edge_and_contact_rank_before_the_total_violation() {
-    let r = |value: f64, edge: f64, contact: f64, clear: bool| super::repair::Rank {
-        safe: false,
-        unbegun: false,
-        clear,
-        value,
-        out_of_bounds: false,
-        contact,
-        edge,
-        hits_nonreactive: false,
-        ahead: 0.0,
-        leaves_lane: false,
-    };
-    assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.05, 0.0, false)));
-    assert!(!r(1.0, 0.05, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
-    assert!(r(1.0, 0.0, 0.0, false).beats(&r(5.0, 0.0, 0.0, false)));
-    assert!(r(5.0, 0.0, 0.0, true).beats(&r(1.0, 0.0, 0.0, false)));
-    // Contact before the road edge, the road edge before the speed floor.
-    assert!(r(5.0, 0.3, 0.0, false).beats(&r(1.0, 0.0, 0.2, true)));
-    assert!(r(5.0, 0.0, 0.0, false).beats(&r(1.0, 0.3, 0.0, true)));
-    // A lane entered before it begins after contact and road edge, before the speed floor.
-    let unbegun = |rank: super::repair::Rank| super::repair::Rank {
-        unbegun: true,
-        ..rank
-    };
-    assert!(r(5.0, 0.0, 0.0, false).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
-    assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
-    assert!(unbegun(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.3, 0.0, true)));
-    // A box that meets somebody at constant velocity after the unbegun lane, before the
-    // speed floor and the total violation.
-    let hits = |rank: super::repair::Rank| super::repair::Rank {
-        hits_nonreactive: true,
-        ..rank
-    };
-    assert!(r(5.0, 0.0, 0.0, false).beats(&hits(r(1.0, 0.0, 0.0, true))));
-    assert!(!hits(r(1.0, 0.0, 0.0, true)).beats(&r(5.0, 0.0, 0.0, false)));
-    assert!(hits(r(5.0, 0.0, 0.0, false)).beats(&unbegun(r(1.0, 0.0, 0.0, true))));
-    assert!(hits(r(5.0, 0.0, 0.0, false)).beats(&r(1.0, 0.0, 0.2, true)));
-    assert!(hits(r(1.0, 0.0, 0.0, false)).beats(&hits(r(5.0, 0.0, 0.0, false))));
-    assert!(admissible_rank(100.0).beats(&hits(r(0.0, 0.0, 0.0, true))));
-    assert!(admissible_rank(100.0).beats(&r(0.0, 0.0, 0.0, true)));
-}
-
 /// The rank of an admissible candidate of cost `value`.
 fn admissible_rank(value: f64) -> super::repair::Rank {
-    super::repair::Rank {
-        safe: true,
-        unbegun: false,
-        clear: false,
-        value,
-        out_of_bounds: false,
-        contact: 0.0,
-        edge: 0.0,
-        hits_nonreactive: false,
-        ahead: 0.0,
-        leaves_lane: false,
-    }
+    super::repair::Rank::admissible(false, value)
 }
 
-/// Two inadmissible fallbacks of a squeezed car: a swerve past the heading bound that is
-/// predicted to touch less (0.1 m of overlap, bound excess 0.4) and a plan within the state
-/// bounds that touches more (0.8 m). With `contact_first` alone the swerve wins; with
-/// `bounds_first` too the plan within the bounds wins, and contact, the road edge and the
-/// total violation decide only between candidates on the same side of the bounds. Off, the
-/// rule changes nothing; an admissible candidate still beats both.
+/// The fixed key order of the ranking ([`RANK_ORDER`]), key by key: each decides only on a tie
+/// of those before it, an admissible candidate beats every inadmissible one, and `decide`
+/// names the key that separated two candidates.
 #[test]
-fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
+fn the_ranking_compares_its_keys_in_order() {
     use super::repair::{Rank, Violations};
+    let s = PlannerSettings::default();
     let v = |bound_excess: f64, contact: f64, edge: f64, value: f64| Violations {
         unbegun: false,
         clear: false,
@@ -1759,162 +1538,131 @@ fn bounds_first_ranks_the_state_bounds_before_predicted_contact() {
         bound_excess,
         contact,
         edge,
-        hits_nonreactive: false,
         ahead: 0.0,
         leaves_lane: false,
     };
+    let rank = |x: Violations| Rank::inadmissible(&s, &x);
+    // Within the bounds (up to the slack of 0.05) beats a swerve past them that touches less.
     let swerve = v(0.4, 0.1, 0.0, 4.5);
     let within = v(0.0, 0.8, 0.0, 6.0);
-    // Strict (no slack) unless stated: the defaults' slack is set below.
-    let settings = |contact_first: bool, bounds_first: bool| PlannerSettings {
-        contact_first,
-        bounds_first,
-        bounds_slack: 0.0,
-        edge_first: true,
-        ..PlannerSettings::default()
-    };
-    let first = settings(true, false);
-    let bounds = settings(true, true);
-    let rank = Rank::inadmissible;
-    // `contact_first` alone: less contact wins, the heading bound notwithstanding.
-    assert!(rank(&first, &swerve).beats(&rank(&first, &within)));
-    assert!(!rank(&first, &within).beats(&rank(&first, &swerve)));
-    // `bounds_first`: the candidate within the bounds wins whatever its contact, edge excess
-    // or total violation.
-    assert!(rank(&bounds, &within).beats(&rank(&bounds, &swerve)));
-    assert!(!rank(&bounds, &swerve).beats(&rank(&bounds, &within)));
-    let over_edge = v(0.3, 0.0, 0.3, 0.1);
-    assert!(rank(&bounds, &within).beats(&rank(&bounds, &over_edge)));
-    // Below the rounding tolerance counts as within.
-    assert!(rank(&bounds, &v(1e-12, 0.8, 0.0, 6.0)).beats(&rank(&bounds, &swerve)));
-    // On the same side of the bounds, contact decides first, then the road edge, then the
-    // total violation.
-    assert!(rank(&bounds, &v(0.9, 0.1, 0.5, 9.0)).beats(&rank(&bounds, &v(0.2, 0.2, 0.0, 1.0))));
-    assert!(rank(&bounds, &v(0.0, 0.1, 0.0, 9.0)).beats(&rank(&bounds, &v(0.0, 0.2, 0.0, 1.0))));
-    assert!(rank(&bounds, &v(0.9, 0.1, 0.0, 9.0)).beats(&rank(&bounds, &v(0.2, 0.1, 0.2, 1.0))));
-    assert!(rank(&bounds, &v(0.9, 0.1, 0.2, 1.0)).beats(&rank(&bounds, &v(0.2, 0.1, 0.2, 9.0))));
-    // A slack: an excess up to it counts as within the bounds (the truck whose contact-free
-    // fallbacks leave its lateral band by 1.5 cm), a larger one still loses.
+    assert_eq!(rank(within).decide(&rank(swerve)), (RankKey::WithinBounds, true));
+    assert_eq!(rank(swerve).decide(&rank(within)), (RankKey::WithinBounds, false));
     let dip = v(0.015, 0.0, 0.0, 1.4);
     let turn = v(0.0, 0.3, 0.0, 2.7);
-    assert!(rank(&bounds, &turn).beats(&rank(&bounds, &dip)));
-    // The defaults: `bounds_first` with a slack of 0.05, `contact_first`, `edge_first`.
-    let slack = PlannerSettings::default();
-    assert!(slack.bounds_first && slack.contact_first && slack.edge_first);
-    assert_eq!(slack.bounds_slack, 0.05);
-    assert!(rank(&slack, &dip).beats(&rank(&slack, &turn)));
-    assert!(rank(&slack, &turn).beats(&rank(&slack, &v(0.06, 0.0, 0.0, 1.4))));
-    assert!(rank(&slack, &within).beats(&rank(&slack, &swerve)));
-    // Without `contact_first` the rule still puts the bounds first, then the total
-    // violation (edge_first on here: equal edges).
-    let alone = settings(false, true);
-    assert!(rank(&alone, &within).beats(&rank(&alone, &swerve)));
-    assert!(rank(&alone, &v(0.0, 0.0, 0.0, 6.0)).beats(&rank(&alone, &v(0.0, 0.0, 0.0, 7.0))));
-    // All three rules off: the total violation decides, as before them.
-    let off = PlannerSettings {
-        contact_first: false,
-        bounds_first: false,
-        edge_first: false,
-        ..PlannerSettings::default()
+    assert_eq!(rank(dip).decide(&rank(turn)), (RankKey::Contact, true));
+    assert!(rank(turn).beats(&rank(v(0.06, 0.0, 0.0, 1.4))));
+    // Then contact, then the road edge, then the value.
+    assert_eq!(
+        rank(v(0.0, 0.1, 0.5, 9.0)).decide(&rank(v(0.0, 0.2, 0.0, 1.0))),
+        (RankKey::Contact, true)
+    );
+    assert_eq!(
+        rank(v(0.0, 0.1, 0.0, 9.0)).decide(&rank(v(0.0, 0.1, 0.2, 1.0))),
+        (RankKey::RoadEdge, true)
+    );
+    assert_eq!(
+        rank(v(0.0, 0.1, 0.2, 1.0)).decide(&rank(v(0.0, 0.1, 0.2, 9.0))),
+        (RankKey::Value, true)
+    );
+    // Differences below the rounding tolerance tie.
+    assert_eq!(
+        rank(v(0.0, 0.1 + 1e-12, 0.0, 1.0)).decide(&rank(v(0.0, 0.1, 0.0, 2.0))),
+        (RankKey::Value, true)
+    );
+    // A lane entered before it begins loses after contact and the edge, before the floor.
+    let r = |value: f64, edge: f64, contact: f64, clear: bool| Rank {
+        clear,
+        ..rank(v(0.0, contact, edge, value))
     };
-    assert!(rank(&off, &swerve).beats(&rank(&off, &within)));
-    assert!(!rank(&off, &within).beats(&rank(&off, &swerve)));
-    assert!(admissible_rank(100.0).beats(&rank(&bounds, &within)));
+    let unbegun = |rank: Rank| Rank {
+        unbegun: true,
+        ..rank
+    };
+    assert_eq!(
+        r(5.0, 0.0, 0.0, false).decide(&unbegun(r(1.0, 0.0, 0.0, true))),
+        (RankKey::LaneBegun, true)
+    );
+    assert_eq!(
+        unbegun(r(5.0, 0.0, 0.0, false)).decide(&r(1.0, 0.3, 0.0, true)),
+        (RankKey::RoadEdge, true)
+    );
+    // The clear path beats a smaller value; on a tie of value the incumbent stays.
+    assert_eq!(
+        r(5.0, 0.0, 0.0, true).decide(&r(1.0, 0.0, 0.0, false)),
+        (RankKey::ClearPath, true)
+    );
+    assert_eq!(
+        r(1.0, 0.0, 0.0, false).decide(&r(1.0, 0.0, 0.0, false)),
+        (RankKey::Value, false)
+    );
+    // Admissible first, then its cost.
+    assert_eq!(
+        admissible_rank(100.0).decide(&r(0.0, 0.0, 0.0, true)),
+        (RankKey::Admissible, true)
+    );
+    assert_eq!(
+        admissible_rank(1.0).decide(&admissible_rank(2.0)),
+        (RankKey::Value, true)
+    );
+    assert_eq!(RANK_ORDER[0], RankKey::Admissible);
+    assert_eq!(RANK_ORDER[RANK_ORDER.len() - 1], RankKey::Value);
 }
 
 /// A car at 12 m/s, heading 0.1 rad towards the lane on its left, 7 m behind a car at 6 m/s
 /// in its own lane, with a previous plan that steers left at the steering bound (0.15 rad):
-/// nothing is admissible. With `contact_first` the fallback with the least predicted contact
-/// is that previous plan, shifted: a swerve past the heading bound (0.2 rad), out of the
-/// lateral corridor and off the road, the failure of the test split in log replay. With
-/// `bounds_first` too, the fallback stays within the heading bound, the corridor and the road,
-/// though it is predicted to touch the car ahead more. The rank rules are tested alone, with
-/// the heading governor off (it keeps even the contact-first swerve within the heading bound,
-/// checked at the end).
+/// nothing is admissible. The least predicted contact is that previous plan, shifted: a swerve
+/// past the heading bound (0.2 rad), out of the lateral corridor and off the road. The
+/// fallback ranks the state bounds first and governs the heading, so it stays within the
+/// heading bound, the corridor and the road (checked from the rotated corners of its box).
 #[test]
-fn bounds_first_keeps_a_squeezed_car_s_fallback_within_the_heading_bound() {
+fn the_fallback_of_a_squeezed_car_stays_within_the_heading_bound() {
     let (h, sizes) = scene(12.0, 0.0, &[(7.0, 0.0, 6.0)]);
     let mut p = problem(&h, &sizes, 12.0);
     p.ego.psi = 0.1;
-    let plan_governed = |bounds_first: bool, heading_governor: bool| {
-        let s = PlannerSettings {
-            ego_segment_length: 6.0,
-            contact_first: true,
-            edge_first: true,
-            bounds_first,
-            heading_governor,
-            ..PlannerSettings::default()
-        };
-        let mut planner = Planner::new(s).unwrap();
-        planner.warm = Some(super::linearised::WarmStart {
-            delta: vec![0.15; 6],
-            accel: vec![0.0; 6],
-            duals: vec![State::zeros(); 6],
-        });
-        planner
-            .plan(&p, &mut ConstantVelocity::new(6).unwrap())
-            .unwrap()
-    };
-    let plan_with = |bounds_first: bool| plan_governed(bounds_first, false);
-    let (first, bounds) = (plan_with(false), plan_with(true));
-    let heading_max = PlannerSettings::default().heading_max;
-    let max_heading = |plan: &Plan| plan.states.iter().map(|z| z[2].abs()).fold(0.0, f64::max);
+    let mut s = PlannerSettings::default();
+    s.safety.ego_segment_length = 6.0;
+    let mut planner = Planner::new(s).unwrap();
+    planner.warm = Some(super::linearised::WarmStart {
+        delta: vec![0.15; 6],
+        accel: vec![0.0; 6],
+    });
+    let plan = planner
+        .plan(&p, &mut ConstantVelocity::new(6).unwrap())
+        .unwrap();
+    let heading_max = PlannerSettings::default().bounds.heading_max;
+    let max_heading = plan.states.iter().map(|z| z[2].abs()).fold(0.0, f64::max);
     // The box's lateral extent from its corners, rotated (independent of the planner's
     // half-extent formula).
-    let on_road = |plan: &Plan| {
-        plan.states.iter().all(|z| {
-            let (sn, cs) = z[2].sin_cos();
-            [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
-                .iter()
-                .map(|(u, v)| z[1] + 0.5 * (u * sizes[0][0] * sn + v * sizes[0][1] * cs))
-                .all(|y| (p.road[0]..=p.road[1]).contains(&y))
-        })
-    };
+    let on_road = plan.states.iter().all(|z| {
+        let (sn, cs) = z[2].sin_cos();
+        [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
+            .iter()
+            .map(|(u, v)| z[1] + 0.5 * (u * sizes[0][0] * sn + v * sizes[0][1] * cs))
+            .all(|y| (p.road[0]..=p.road[1]).contains(&y))
+    });
     assert!(
-        first.min_safety.is_some_and(|b| b < 0.0) && bounds.min_safety.is_some_and(|b| b < 0.0),
-        "nothing admissible either way: {:?} {:?}",
-        first.min_safety,
-        bounds.min_safety
+        plan.min_safety.is_some_and(|b| b < 0.0),
+        "nothing admissible: {:?}",
+        plan.min_safety
     );
     assert!(
-        max_heading(&first) > heading_max + 0.1 && !on_road(&first),
-        "contact first: the swerve past the heading bound and off the road: {:?}",
-        first.states
+        max_heading <= heading_max + 1e-12 && on_road,
+        "within the heading bound and on the road: {:?}",
+        plan.states
     );
+    let corridor = -PlannerSettings::default().bounds.overshoot_max
+        ..=p.y_target + PlannerSettings::default().bounds.overshoot_max;
     assert!(
-        predicted_contacts(&first, &h, &sizes) < predicted_contacts(&bounds, &h, &sizes),
-        "the swerve is predicted to touch less: {} vs {}",
-        predicted_contacts(&first, &h, &sizes),
-        predicted_contacts(&bounds, &h, &sizes)
-    );
-    assert!(
-        max_heading(&bounds) <= heading_max && on_road(&bounds),
-        "bounds first: within the heading bound and on the road: {:?}",
-        bounds.states
-    );
-    let corridor = -PlannerSettings::default().overshoot_max
-        ..=p.y_target + PlannerSettings::default().overshoot_max;
-    assert!(
-        bounds.states.iter().all(|z| corridor.contains(&z[1])),
+        plan.states.iter().all(|z| corridor.contains(&z[1])),
         "and within the lateral corridor: {:?}",
-        bounds.states
+        plan.states
     );
-    // The governor alone keeps every candidate, the contact-first swerve included, within the
-    // heading bound (the ego starts within it, at 0.1 rad).
-    for bounds_first in [false, true] {
-        let governed = plan_governed(bounds_first, true);
-        assert!(
-            max_heading(&governed) <= heading_max + 1e-12,
-            "governed, bounds_first {bounds_first}: {:?}",
-            governed.states
-        );
-    }
 }
 
-/// With `heading_governor`, an ADMM answer whose nonlinear roll-out passed the heading bound
-/// only by the linearisation's error is admissible once governed, and the plan is the
-/// optimiser's own (not the refinement's); its states are the roll-out of its inputs and keep
-/// the bound. The same call without the governor needs the refinement.
+/// The heading governor: an ADMM answer whose nonlinear roll-out passed the heading bound only
+/// by the linearisation's error is admissible once governed, and the plan is the optimiser's
+/// own (not the refinement's), recorded as the ADMM inputs governed; its states are the
+/// roll-out of its inputs and keep the bound.
 #[test]
 fn the_heading_governor_adopts_the_optimisers_plan() {
     let (h, sizes) = scene(10.5, 0.0, &[(8.0, 3.7, 10.5)]);
@@ -1928,18 +1676,11 @@ fn the_heading_governor_adopts_the_optimisers_plan() {
         },
         ..p
     };
-    let plan_with = |heading_governor: bool| {
-        let s = PlannerSettings {
-            heading_governor,
-            ..PlannerSettings::default()
-        };
-        let mut planner = Planner::new(s).unwrap();
-        planner.plan(&q, &mut ConstantVelocity::default()).unwrap()
-    };
-    assert!(PlannerSettings::default().heading_governor);
-    let without = plan_with(false);
-    let with = plan_with(true);
-    assert_eq!(without.status, PlanStatus::Refined, "{without:?}");
+    let s = PlannerSettings::default();
+    let with = Planner::new(s.clone())
+        .unwrap()
+        .plan(&q, &mut ConstantVelocity::default())
+        .unwrap();
     assert!(
         matches!(
             with.status,
@@ -1947,156 +1688,45 @@ fn the_heading_governor_adopts_the_optimisers_plan() {
         ),
         "{with:?}"
     );
-    let s = PlannerSettings::default();
+    assert_eq!(with.decided_by, DecidedBy::AdmmGoverned);
     let mut rollout = vec![State::zeros(); with.states.len()];
     let start = State::new(0.0, 0.0, 0.12, 10.5);
     model(&s).rollout(&start, &with.delta, &with.accel, &mut rollout);
     for (z, r) in with.states.iter().zip(&rollout) {
         assert!((0..4).all(|j| (z[j] - r[j]).abs() < 1e-9), "{z:?} vs {r:?}");
-        assert!(z[2].abs() <= s.heading_max + 1e-12, "{z:?}");
+        assert!(z[2].abs() <= s.bounds.heading_max + 1e-12, "{z:?}");
     }
 }
 
-/// The acceleration profiles of the fallback: the four constants, with `fallback_full_accel`
-/// the constant a_max, and with `fallback_brake_hold` a_min for ⌈T/3⌉ and ⌈2T/3⌉ steps
-/// followed by 0, each the fastest the jerk bound allows towards its target (from the last
-/// applied acceleration 0): written out by hand for T = 6. The simple and retreat sequences
-/// take theirs from them.
+/// The acceleration profiles of the fallback: the four constants, each the fastest the jerk
+/// bound allows towards its target (from the last applied acceleration 0): written out by
+/// hand for T = 6. The simple and retreat sequences take theirs from them.
 #[test]
-fn the_fallback_profiles_brake_then_hold_within_the_jerk_bound() {
-    let mut s = PlannerSettings::default();
+fn the_fallback_profiles_reach_their_constants_within_the_jerk_bound() {
+    let s = PlannerSettings::default();
     let (h, sizes) = scene(12.0, 1.6, &[(-40.0, 3.7, 12.0)]);
     let mut p = problem(&h, &sizes, 12.0);
     p.ego.y = 1.6;
     p.y_retreat = Some(0.0);
-    assert_eq!((s.a_min, s.a_max, s.da_max), (-5.0, 3.0, 1.5));
-    let constants: Vec<Vec<f64>> = vec![
+    assert_eq!((s.bounds.a_min, s.bounds.a_max, s.bounds.da_max), (-5.0, 3.0, 1.5));
+    let want: Vec<Vec<f64>> = vec![
         vec![0.0; 6],
         vec![-1.5, -2.5, -2.5, -2.5, -2.5, -2.5],
         vec![-1.5, -3.0, -4.5, -5.0, -5.0, -5.0],
         vec![1.5; 6],
     ];
-    let brake_hold: Vec<Vec<f64>> = vec![
-        vec![-1.5, -3.0, -1.5, 0.0, 0.0, 0.0],
-        vec![-1.5, -3.0, -4.5, -5.0, -3.5, -2.0],
-    ];
-    let full = vec![1.5, 3.0, 3.0, 3.0, 3.0, 3.0];
     let accels =
         |inputs: Vec<Inputs>| -> Vec<Vec<f64>> { inputs.into_iter().map(|(_, a)| a).collect() };
-    for (hold, escape) in [(false, false), (true, false), (false, true), (true, true)] {
-        s.fallback_brake_hold = hold;
-        s.fallback_full_accel = escape;
-        let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-        let mut want = constants.clone();
-        if escape {
-            want.push(full.clone());
-        }
-        if hold {
-            want.extend(brake_hold.iter().cloned());
-        }
-        assert_eq!(fallback_accels(&s, &lp), want);
-        // Twice each (aligned with the road, towards the goal), in their order; once each
-        // towards the retreat.
-        let twice: Vec<Vec<f64>> = want.iter().flat_map(|a| [a.clone(), a.clone()]).collect();
-        assert_eq!(accels(simple_inputs(&s, &model(&s), &lp)), twice);
-        assert_eq!(accels(retreat_inputs(&s, &model(&s), &lp)), want);
-    }
+    let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
+    assert_eq!(fallback_accels(&s, &lp), want);
+    // Twice each (aligned with the road, towards the goal), in their order; once each
+    // towards the retreat.
+    let twice: Vec<Vec<f64>> = want.iter().flat_map(|a| [a.clone(), a.clone()]).collect();
+    assert_eq!(accels(simple_inputs(&s, &model(&s), &lp)), twice);
+    assert_eq!(accels(retreat_inputs(&s, &model(&s), &lp)), want);
 }
 
-/// A gate ahead of the ego, placed so that of the constant profiles only a_min ends short of
-/// it: the fallback no longer has only the full brake to choose; it takes "brake, then hold"
-/// (a_min for 4 of 6 steps), which also ends short of it and keeps more speed. Independent
-/// check: a candidate is safe iff its road-aligned roll-out ends short of the gate.
-#[test]
-fn the_fallback_brakes_then_holds_when_that_stops_short() {
-    // The four constants and the two brake-then-hold profiles (indices 4 and 5).
-    let s = PlannerSettings {
-        fallback_brake_hold: true,
-        fallback_full_accel: false,
-        ..repairs_only()
-    };
-    let m = model(&s);
-    let (h, sizes) = car_behind_in_target_lane();
-    let mut p = problem(&h, &sizes, 12.0);
-    p.y_target = 0.0;
-    let lp = LinearisedProblem::new(&s, &m, None, &p);
-    let zero_steer = vec![0.0; 6];
-    let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5];
-    let profiles = fallback_accels(&s, &lp);
-    let (half, full, brake_hold) = (&profiles[1], &profiles[2], &profiles[5]);
-    let (end_half, end_full, end_hold) = (end(half), end(full), end(brake_hold));
-    assert!(end_full[0] < end_hold[0] && end_hold[0] < end_half[0]);
-    assert!(
-        end_hold[3] > end_full[3] + 1.0,
-        "{end_hold:?} vs {end_full:?}"
-    );
-    let limit = 0.5 * (end_hold[0] + end_half[0]);
-    let constraint = SafetyConstraint::new(&p, &s);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-    let mut gate = Gate::ahead(limit);
-    gate.set_scene(&h).unwrap();
-    let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
-    // Of the constants only a_min ends short of the gate; of the others the longer brake.
-    for (i, a) in profiles.iter().enumerate() {
-        let c = r.check(zero_steer.clone(), a.clone()).unwrap();
-        assert_eq!(c.rollout[5][0] <= limit, i == 2 || i == 5, "profile {i}");
-        assert_eq!(c.rank.safe, c.rollout[5][0] <= limit, "profile {i}: {a:?}");
-    }
-    let best = r.best_fallback().unwrap();
-    assert!(best.rank.safe);
-    assert_eq!(&best.accel, brake_hold);
-    assert!(best.rollout[5][3] > end_full[3] + 1.0);
-}
 
-/// A vehicle closing from behind catches every candidate that ends short of a line ahead,
-/// placed so that of the constant profiles only a_max (with `fallback_full_accel`) gets past
-/// it. Without the setting no fallback is safe (the least-violating one is applied); with it
-/// the fallback accelerates at a_max and is safe. Independent check: a candidate is safe iff
-/// its road-aligned roll-out ends beyond the line. The lattice, which holds the same ramp, is
-/// off: this is the constant profiles alone.
-#[test]
-fn the_fallback_escapes_forwards_at_a_max_when_only_that_gets_clear() {
-    let (h, sizes) = car_behind_in_target_lane();
-    let zero_steer = vec![0.0; 6];
-    for on in [false, true] {
-        let s = PlannerSettings {
-            fallback_full_accel: on,
-            fallback_lattice: false,
-            ..repairs_only()
-        };
-        let m = model(&s);
-        let mut p = problem(&h, &sizes, 12.0);
-        p.y_target = 0.0;
-        let lp = LinearisedProblem::new(&s, &m, None, &p);
-        let end = |a: &[f64]| rollout_world(&s, &p, &zero_steer, a)[5];
-        let profiles = fallback_accels(&s, &lp);
-        assert_eq!(profiles.len(), if on { 5 } else { 4 });
-        let full = vec![1.5, 3.0, 3.0, 3.0, 3.0, 3.0];
-        assert_eq!(profiles.last() == Some(&full), on, "{profiles:?}");
-        // The line: between where a_max/2 and a_max end (both from the last acceleration 0).
-        let (end_half, end_full) = (end(&[1.5; 6]), end(&full));
-        assert!(
-            end_full[0] > end_half[0] + 1.0,
-            "{end_full:?} vs {end_half:?}"
-        );
-        let limit = 0.5 * (end_half[0] + end_full[0]);
-        let constraint = SafetyConstraint::new(&p, &s);
-        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
-        let mut gate = Gate::behind(limit);
-        gate.set_scene(&h).unwrap();
-        let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
-        for a in &profiles {
-            let c = r.check(zero_steer.clone(), a.clone()).unwrap();
-            assert_eq!(c.rank.safe, c.rollout[5][0] >= limit, "{a:?}");
-        }
-        let best = r.best_fallback().unwrap();
-        assert_eq!(best.rank.safe, on, "{:?}", best.accel);
-        if on {
-            assert_eq!(best.accel, full);
-            assert!(best.rollout[5][0] >= limit);
-        }
-    }
-}
 
 /// The fallback's input lattice keeps the box and rate bounds from the inputs applied last,
 /// holds no sequence twice, and holds the extreme ramps (full acceleration, full braking,
@@ -2156,9 +1786,10 @@ fn a_long_horizon_lattice_branches_over_the_first_six_steps_only() {
     let p = problem(&h, &sizes, 12.0);
     let six = lattice_inputs(&LinearisedProblem::new(&short, &m, None, &p));
     for horizon in [10, 60] {
-        let long = PlannerSettings {
-            horizon,
-            ..repairs_only()
+        let long = {
+            let mut s = repairs_only();
+            s.model.horizon = horizon;
+            s
         };
         long.validate().unwrap();
         let lattice = lattice_inputs(&LinearisedProblem::new(&long, &m, None, &p));
@@ -2173,16 +1804,19 @@ fn a_long_horizon_lattice_branches_over_the_first_six_steps_only() {
 
 /// With nothing else admissible the lattice finds the escape: a vehicle closing from behind
 /// catches every candidate that ends short of a line only the full-acceleration ramp reaches.
-/// Without `fallback_lattice` (and without `fallback_full_accel`) no fallback is safe; with it
+/// Without the lattice (its speed floor above the ego's speed) no fallback is safe; with it
 /// the fallback is safe and ends beyond the line, within the input bounds. Independent check:
 /// every lattice sequence's safety is whether its own roll-out ends beyond the line.
 #[test]
 fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
     let (h, sizes) = car_behind_in_target_lane();
     for on in [false, true] {
-        let s = PlannerSettings {
-            fallback_lattice: on,
-            ..repairs_only()
+        let s = {
+            let mut s = repairs_only();
+            if !on {
+                s.repair.lattice_min_speed = 100.0;
+            }
+            s
         };
         let m = model(&s);
         let mut p = problem(&h, &sizes, 12.0);
@@ -2194,7 +1828,7 @@ fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
         let (end_half, end_full) = (end(&[1.5; 6]), end(&full));
         let limit = 0.5 * (end_half[0] + end_full[0]);
         let constraint = SafetyConstraint::new(&p, &s);
-        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety.safety_min);
         let mut gate = Gate::behind(limit);
         gate.set_scene(&h).unwrap();
         let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);
@@ -2210,9 +1844,9 @@ fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
             assert!(best.rollout[5][0] >= limit);
             let (mut pd, mut pa) = (lp.delta_box.prev, lp.accel_box.prev);
             for (&dk, &ak) in best.delta.iter().zip(&best.accel) {
-                assert!(dk.abs() <= s.delta_max && ak >= s.a_min && ak <= s.a_max);
-                assert!((dk - pd).abs() <= s.ddelta_max + 1e-12);
-                assert!((ak - pa).abs() <= s.da_max + 1e-12);
+                assert!(dk.abs() <= s.bounds.delta_max && ak >= s.bounds.a_min && ak <= s.bounds.a_max);
+                assert!((dk - pd).abs() <= s.bounds.ddelta_max + 1e-12);
+                assert!((ak - pa).abs() <= s.bounds.da_max + 1e-12);
                 (pd, pa) = (dk, ak);
             }
         }
@@ -2269,7 +1903,7 @@ fn with_yield_repairer<R>(
     let lp = LinearisedProblem::new(s, &m, None, &p);
     let limit = full_ramp_line(s, &p);
     let constraint = SafetyConstraint::new(&p, s);
-    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+    let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety.safety_min);
     let mut planning = YieldUnless { limit };
     let mut cv = ConstantVelocity::new(6).unwrap();
     cv.set_scene(h).unwrap();
@@ -2311,14 +1945,14 @@ impl Predictor for YieldUnless {
     }
 }
 
-/// `lattice_clear_nonreactive`: a car closes from behind in the ego's lane at 30 m/s. By the
+/// The lattice's clearance without reaction: a car closes from behind in the ego's lane at 30 m/s. By the
 /// planning predictor it yields to any candidate that ends beyond a line only the
 /// full-acceleration ramp passes, and hits every other; at constant velocity it drives
-/// through the ego whatever the ego does. Without the rule the lattice's escape is taken as
-/// admissible, and its roll-out overlaps the car at constant velocity (checked with the boxes,
-/// independently of the planner). With the rule every lattice sequence the planning predictor
-/// admits is such a one (checked the same way), so none replaces the fallback and the plan is
-/// not admissible.
+/// through the ego whatever the ego does. Without the check (no constant-velocity predictor)
+/// the lattice's escape is taken as admissible, and its roll-out overlaps the car at constant
+/// velocity (checked with the boxes, independently of the planner). With it every lattice
+/// sequence the planning predictor admits is such a one (checked the same way), so none
+/// replaces the fallback and the plan is not admissible.
 #[test]
 fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_without_reaction() {
     let car = (-12.0, 0.0, 30.0);
@@ -2327,12 +1961,11 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
         hits_car_at_constant_velocity(&rollout_world(s, p, d, a), car)
     };
     for clear in [false, true] {
-        let s = PlannerSettings {
-            fallback_lattice: true,
-            lattice_clear_nonreactive: clear,
-            ..repairs_only()
-        };
+        let s = repairs_only();
         with_yield_repairer(&s, &h, &sizes, |r, p, lp, _| {
+            if !clear {
+                r.nonreactive = None;
+            }
             let admitted: Vec<(Vec<f64>, Vec<f64>)> = lattice_inputs(lp)
                 .into_iter()
                 .filter_map(|(d, a)| {
@@ -2351,62 +1984,6 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
     }
 }
 
-/// `lattice_when_fallback_hits`: by the planning predictor the other car sits on every
-/// candidate that ends short of a line only the full-acceleration ramp reaches (and yields to
-/// the others), so no simple fallback is
-/// admissible and the lattice holds the escape. Whether the lattice is searched turns on the
-/// other car at constant velocity, checked with the boxes independently of the planner:
-/// - 40 m behind in the next lane at the ego's speed, it touches no fallback: the rule keeps
-///   the simple fallback (inadmissible), where without the rule the lattice's escape is taken;
-/// - 12 m behind in the ego's lane at 30 m/s, it drives through the simple fallback: the
-///   lattice is searched with the rule too, and its escape is taken (the escape's own
-///   clearance without reaction, `lattice_clear_nonreactive`, is off here: the car at 30 m/s
-///   would catch it).
-#[test]
-fn the_lattice_is_searched_only_when_the_fallback_hits_somebody_without_reaction() {
-    for (car, fallback_hits) in [((-40.0, 3.7, 12.0), false), ((-12.0, 0.0, 30.0), true)] {
-        let (h, sizes) = scene(12.0, 0.0, &[car]);
-        let hits = |z: &[[f64; 4]]| hits_car_at_constant_velocity(z, car);
-        let mut simple_fallback = None;
-        for rule in [false, true] {
-            let s = PlannerSettings {
-                fallback_lattice: true,
-                lattice_clear_nonreactive: false,
-                lattice_when_fallback_hits: rule,
-                ..repairs_only()
-            };
-            let searched = !rule || fallback_hits;
-            with_yield_repairer(&s, &h, &sizes, |r, p, _, limit| {
-                let best = r.best_fallback().unwrap();
-                assert_eq!(
-                    best.rank.safe, searched,
-                    "{car:?} rule {rule}: {:?}",
-                    best.accel
-                );
-                if searched {
-                    assert!(best.rollout[5][0] >= limit);
-                } else {
-                    let world = rollout_world(&s, p, &best.delta, &best.accel);
-                    assert!(!hits(&world), "{car:?}: the kept fallback hits the car");
-                    simple_fallback = Some(best.accel.clone());
-                }
-            });
-            if rule && fallback_hits {
-                // The simple fallback (lattice off) does hit the car at constant velocity.
-                let off = PlannerSettings {
-                    fallback_lattice: false,
-                    ..s.clone()
-                };
-                with_yield_repairer(&off, &h, &sizes, |r, p, _, _| {
-                    let simple = r.best_fallback().unwrap();
-                    assert!(!simple.rank.safe);
-                    assert!(hits(&rollout_world(&off, p, &simple.delta, &simple.accel)));
-                });
-            }
-        }
-        assert_eq!(simple_fallback.is_some(), !fallback_hits);
-    }
-}
 
 /// `lattice_min_speed`: the lattice escape of
 /// [`the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss`] is searched for at the
@@ -2415,10 +1992,10 @@ fn the_lattice_is_searched_only_when_the_fallback_hits_somebody_without_reaction
 fn the_lattice_is_searched_only_from_its_minimum_speed() {
     let (h, sizes) = car_behind_in_target_lane();
     for (floor, searched) in [(0.0, true), (12.0, true), (12.5, false)] {
-        let s = PlannerSettings {
-            fallback_lattice: true,
-            lattice_min_speed: floor,
-            ..repairs_only()
+        let s = {
+            let mut s = repairs_only();
+            s.repair.lattice_min_speed = floor;
+            s
         };
         s.validate().unwrap();
         let m = model(&s);
@@ -2427,7 +2004,7 @@ fn the_lattice_is_searched_only_from_its_minimum_speed() {
         let lp = LinearisedProblem::new(&s, &m, None, &p);
         let limit = full_ramp_line(&s, &p);
         let constraint = SafetyConstraint::new(&p, &s);
-        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety_min);
+        let mut safety = SafetyEval::new(&constraint, lp.origin, 6, 2, s.safety.safety_min);
         let mut gate = Gate::behind(limit);
         gate.set_scene(&h).unwrap();
         let mut r = plain_repairer(&s, &m, &lp, &mut safety, &mut gate);

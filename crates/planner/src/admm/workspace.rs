@@ -64,8 +64,8 @@ impl Curvature {
             .max(1e-9);
         let mut pinned = h.clone();
         for k in 0..t {
-            pinned[(4 * k, 4 * k)] += s.pin_weight;
-            pinned[(4 * k + 1, 4 * k + 1)] += s.pin_weight;
+            pinned[(4 * k, 4 * k)] += s.admm.pin_weight;
+            pinned[(4 * k + 1, 4 * k + 1)] += s.admm.pin_weight;
         }
         Self {
             lipschitz,
@@ -84,7 +84,7 @@ pub(crate) fn hessian(s: &PlannerSettings, lp: &LinearisedProblem) -> DMatrix<f6
     for i in 0..m4 {
         for j in 0..m4 {
             let mut v: f64 = (0..m4).map(|r| c[r * m4 + i] * c[r * m4 + j]).sum();
-            v *= s.rho;
+            v *= s.admm.rho;
             if i == j {
                 v += 2.0 * lp.weights[i % 4];
             }
@@ -206,11 +206,11 @@ impl Workspace {
         let f = &mut self.scratch.residual;
         lp.linearisation.residual(&it.delta, &it.accel, &it.z, f);
         for (mu, fk) in it.duals.iter_mut().zip(f.iter()) {
-            *mu += s.rho * fk;
+            *mu += s.admm.rho * fk;
         }
         let primal = max_abs(f);
         self.change = max_diff(&it.z, &self.scratch.z_prev);
-        primal <= s.eps_primal && self.change <= s.eps_change
+        primal <= s.admm.eps_primal && self.change <= s.admm.eps_change
     }
 }
 

@@ -34,7 +34,7 @@ impl Lagrangian<'_> {
             .residual(self.delta, self.accel, z, residual);
         let mut g = self.lp.tracking_cost(z);
         for (mu, f) in self.duals.iter().zip(residual.iter()) {
-            g += mu.dot(f) + 0.5 * self.s.rho * f.norm_squared();
+            g += mu.dot(f) + 0.5 * self.s.admm.rho * f.norm_squared();
         }
         g
     }
@@ -49,7 +49,7 @@ impl Lagrangian<'_> {
         gradient: &mut [State],
     ) {
         for ((w, mu), f) in weighted.iter_mut().zip(self.duals).zip(residual) {
-            *w = mu + self.s.rho * f;
+            *w = mu + self.s.admm.rho * f;
         }
         self.lp.linearisation.apply_ct(weighted, gradient);
         for (g, zk) in gradient.iter_mut().zip(z) {
@@ -91,7 +91,7 @@ impl Trial {
     fn halvings(self, s: &PlannerSettings) -> usize {
         match self {
             Self::PinnedNewton => 0,
-            Self::Newton | Self::Gradient => s.pgd_halvings,
+            Self::Newton | Self::Gradient => s.admm.pgd_halvings,
         }
     }
 }
@@ -166,7 +166,7 @@ impl Workspace {
         };
         let z = &mut iterates.z;
         let mut g_current = g.value(z, &mut scratch.residual);
-        for _ in 0..s.pgd_steps {
+        for _ in 0..s.admm.pgd_steps {
             g.gradient(
                 z,
                 &scratch.residual,

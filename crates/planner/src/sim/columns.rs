@@ -61,8 +61,9 @@ pub const RUN_COLUMNS: [&str; 42] = [
 /// Step columns, in order (one row per planning step of every run that ran). The metric
 /// columns are those of [`crate::sim::metrics::StepMetrics`]; `lane_violation` is the plan
 /// step (1..T) of the applied plan's first state in a lane that has not begun or has ended
-/// ([`crate::Plan::lane_violation`]), −1 when none.
-pub const STEP_COLUMNS: [&str; 37] = [
+/// ([`crate::Plan::lane_violation`]), −1 when none; `decided_by` is
+/// [`crate::DecidedBy::label`]: `admm` exactly when the ADMM iterate was applied unchanged.
+pub const STEP_COLUMNS: [&str; 38] = [
     "run",
     "step",
     "mpc_s",
@@ -76,6 +77,7 @@ pub const STEP_COLUMNS: [&str; 37] = [
     "min_b",
     "collision",
     "status",
+    "decided_by",
     "delta",
     "accel",
     "x",
@@ -407,6 +409,10 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
         (
             "status",
             Column::Text(steps.iter().map(|(_, s)| s.status.to_string()).collect()),
+        ),
+        (
+            "decided_by",
+            Column::Text(steps.iter().map(|(_, s)| s.decided_by.label()).collect()),
         ),
         ("delta", float(&|s| s.delta)),
         ("accel", float(&|s| s.accel)),

@@ -59,13 +59,13 @@
 use std::path::{Path, PathBuf};
 
 use nudge_predictor::{DT, T_OBS};
-use serde::{Deserialize, Serialize};
+
 use serde_json::Value;
 
 use crate::error::{SimConfigError, WorldFileError};
 use crate::model::State;
 use crate::scenario::{LaneExtent, Scenario};
-use crate::settings::{FieldRange, closed};
+use crate::settings::schema::{closed, first_out_of_range, open_min};
 
 /// The schema string of the world file.
 pub const IDM_SCHEMA: &str = "nudge.idm/1";
@@ -217,89 +217,46 @@ impl IntrusionRule {
     }
 }
 
-/// How an IDM vehicle whose lane really ends merges (the world file's optional `lane_end`
-/// section; absent, the defaults). Units: m, m/s, m/s².
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct LaneEndMerge {
-    /// Distance to the end of its lane (m) within which a vehicle looks for a gap.
-    pub zone_m: f64,
-    /// Safety criterion (m/s², > 0): the change is acceptable only if the new follower's IDM
-    /// acceleration behind the merging vehicle, and the merging vehicle's behind its new
-    /// leader, are both at least −`b_safe_mps2`.
-    pub b_safe_mps2: f64,
-    /// Smallest bumper-to-bumper gap (m) to the new leader and to the new follower.
-    pub min_gap_m: f64,
-    /// Lateral speed of the change (m/s, > 0).
-    pub lateral_speed_mps: f64,
-    /// Where a vehicle that finds no acceptable gap stops: this far before its lane's end
-    /// (m), the end leading it as a standing vehicle there.
-    pub stop_margin_m: f64,
-}
-
-impl Default for LaneEndMerge {
-    fn default() -> Self {
-        Self {
-            zone_m: 200.0,
-            b_safe_mps2: 4.0,
-            min_gap_m: 2.0,
-            lateral_speed_mps: 1.0,
-            stop_margin_m: 2.0,
-        }
-    }
-}
-
-/// The range (0, 1e3] of a positive lane-end setting in `unit`.
-const fn positive_bounded(field: &'static str, unit: &'static str) -> FieldRange {
-    FieldRange {
-        field,
-        min: 0.0,
-        min_open: true,
-        max: 1e3,
-        max_open: false,
-        unit,
+crate::settings_struct! {
+    /// How an IDM vehicle whose lane really ends merges (the world file's optional `lane_end`
+    /// section; absent, the defaults). Units: m, m/s, m/s².
+    #[derive(Copy)]
+    pub struct LaneEndMerge("lane_end.") {
+        /// Distance to the end of its lane within which a vehicle looks for a gap (m).
+        zone_m: f64 = 200.0, closed(0.0, 1e4, "m");
+        /// Safety criterion: the new follower's and the merging vehicle's IDM accelerations
+        /// must both be at least −this (m/s²).
+        b_safe_mps2: f64 = 4.0, open_min(0.0, 1e3, "m/s²");
+        /// Smallest bumper-to-bumper gap to the new leader and to the new follower (m).
+        min_gap_m: f64 = 2.0, closed(0.0, 1e3, "m");
+        /// Lateral speed of the change (m/s).
+        lateral_speed_mps: f64 = 1.0, open_min(0.0, 1e3, "m/s");
+        /// A vehicle that finds no gap stops this far before its lane's end (m).
+        stop_margin_m: f64 = 2.0, closed(0.0, 1e3, "m");
     }
 }
 
 impl LaneEndMerge {
-    /// Every field's admissible range.
-    pub const RANGES: [FieldRange; 5] = [
-        closed("zone_m", 0.0, 1e4, "m"),
-        positive_bounded("b_safe_mps2", "m/s²"),
-        closed("min_gap_m", 0.0, 1e3, "m"),
-        positive_bounded("lateral_speed_mps", "m/s"),
-        closed("stop_margin_m", 0.0, 1e3, "m"),
-    ];
-
     /// The value of field `field` (`None` for an unknown name).
     #[must_use]
     pub fn numeric(&self, field: &str) -> Option<f64> {
-        Some(match field {
-            "zone_m" => self.zone_m,
-            "b_safe_mps2" => self.b_safe_mps2,
-            "min_gap_m" => self.min_gap_m,
-            "lateral_speed_mps" => self.lateral_speed_mps,
-            "stop_margin_m" => self.stop_margin_m,
-            _ => return None,
-        })
+        self.value(field)
     }
 
-    /// Checks every field against [`Self::RANGES`] (NaN and infinity never are in range).
+    /// Checks every field against its range in [`Self::FIELDS`] (NaN and infinity never are
+    /// in range).
     ///
     /// # Errors
     /// [`SimConfigError::OutOfRange`] naming the first field out of its range.
     pub fn validate(&self) -> Result<(), SimConfigError> {
-        for r in Self::RANGES {
-            let value = self.numeric(r.field).unwrap_or(f64::NAN);
-            if !r.contains(value) {
-                return Err(SimConfigError::OutOfRange {
-                    field: r.field,
-                    value,
-                    range: r,
-                });
-            }
+        match first_out_of_range(Self::FIELDS, |f| self.value(f)) {
+            Some((range, value)) => Err(SimConfigError::OutOfRange {
+                field: range.field,
+                value,
+                range,
+            }),
+            None => Ok(()),
         }
-        Ok(())
     }
 
     /// The MOBIL-style safety criterion of a change: `follower` = (its driver, speed (m/s),

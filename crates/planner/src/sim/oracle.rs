@@ -150,13 +150,13 @@ impl OracleLimits {
     #[must_use]
     pub fn of(settings: &PlannerSettings) -> Self {
         Self {
-            delta_max: settings.delta_max,
-            ddelta_max: settings.ddelta_max,
-            accel: [settings.a_min, settings.a_max],
-            da_max: settings.da_max,
-            v_max: settings.v_max,
-            heading_max: settings.heading_max,
-            heading_recovery: settings.heading_recovery,
+            delta_max: settings.bounds.delta_max,
+            ddelta_max: settings.bounds.ddelta_max,
+            accel: [settings.bounds.a_min, settings.bounds.a_max],
+            da_max: settings.bounds.da_max,
+            v_max: settings.bounds.v_max,
+            heading_max: settings.bounds.heading_max,
+            heading_recovery: settings.bounds.heading_recovery,
             hold: Self::DEFAULT_HOLD,
             max_nodes: Self::DEFAULT_MAX_NODES,
         }

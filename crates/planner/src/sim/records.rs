@@ -34,6 +34,8 @@ pub struct StepRecord {
     pub collision: bool,
     /// How the applied plan came about.
     pub status: StepStatus,
+    /// What decided the applied plan's inputs ([`crate::DecidedBy`]).
+    pub decided_by: crate::DecidedBy,
     /// Applied steering (rad).
     pub delta: f64,
     /// Applied acceleration (m/s²).

@@ -103,7 +103,7 @@ impl BatchRequest<'_> {
             self.world_predictor,
             self.idm,
             self.assets,
-            self.settings.horizon,
+            self.settings.model.horizon,
         )?;
         let mut fits = vec![(
             predictors.planning.kind().as_str(),
@@ -309,13 +309,15 @@ mod tests {
             ..SimConfig::default()
         };
         let teacher = SimConfig::default();
-        let h7 = PlannerSettings {
-            horizon: 7,
-            ..PlannerSettings::default()
+        let h7 = {
+            let mut s = PlannerSettings::default();
+            s.model.horizon = 7;
+            s
         };
-        let slow = PlannerSettings {
-            dt: 0.5,
-            ..PlannerSettings::default()
+        let slow = {
+            let mut s = PlannerSettings::default();
+            s.model.dt = 0.5;
+            s
         };
         let bad_cfg = SimConfig {
             max_steps: 0,
@@ -335,7 +337,7 @@ mod tests {
                     settings: &slow,
                     ..base
                 },
-                "planner setting `dt` = 0.5 does not fit",
+                "planner setting `model.dt` = 0.5 does not fit",
             ),
             (
                 BatchRequest {
@@ -343,7 +345,7 @@ mod tests {
                     predictor: Path::new("student"),
                     ..base
                 },
-                "planner setting `horizon` = 7 does not fit: the student predicts 6 steps",
+                "planner setting `model.horizon` = 7 does not fit: the student predicts 6 steps",
             ),
             (
                 BatchRequest {
@@ -381,9 +383,10 @@ mod tests {
         .unwrap();
         assert_eq!(batch.predictors.planning.horizon(), 7);
         // A student decodes 6 steps in one pass: any other horizon is refused, naming it.
-        let h10 = PlannerSettings {
-            horizon: 10,
-            ..PlannerSettings::default()
+        let h10 = {
+            let mut s = PlannerSettings::default();
+            s.model.horizon = 10;
+            s
         };
         assert!(matches!(
             BatchRequest {
@@ -393,7 +396,7 @@ mod tests {
             }
             .prepare(),
             Err(SimError::Settings(SettingsError::Incompatible {
-                field: "horizon",
+                field: "model.horizon",
                 value,
                 ..
             })) if value == 10.0
@@ -541,7 +544,7 @@ mod tests {
         assert!(matches!(
             req.prepare_foreign("foreign", 7),
             Err(SimError::Settings(SettingsError::Incompatible {
-                field: "horizon",
+                field: "model.horizon",
                 ..
             }))
         ));

@@ -41,7 +41,7 @@ fn splitmix(seed: u64) -> u64 {
 #[must_use]
 pub fn target_reach(sc: &Scenario, settings: &PlannerSettings, cfg: &SimConfig) -> f64 {
     let v0 = sc.speed.first().copied().unwrap_or(0.0).max(0.0);
-    cfg.max_steps as f64 * settings.dt * v0 + settings.deadline_distance
+    cfg.max_steps as f64 * settings.model.dt * v0 + settings.lane_ends.deadline_distance
 }
 
 /// The target lane drawn from `seed` for a run of `sc` under `settings` and `cfg`: an adjacent
@@ -144,12 +144,12 @@ impl ClosedLoop<'_> {
                 length: o.bbox.length,
             })
             .collect();
-        let horizon_s = self.settings.horizon as f64 * self.settings.dt;
+        let horizon_s = self.settings.model.horizon as f64 * self.settings.model.dt;
         let e = &self.ego;
         let v = self
             .lane
             .v_ref(self.v_ref, [e[0], e[1], e[2], e[3]], &others, horizon_s);
-        v.min(self.settings.v_max.max(self.v_ref))
+        v.min(self.settings.bounds.v_max.max(self.v_ref))
     }
 
     /// The observed history as the predictors take it.
@@ -183,14 +183,14 @@ impl ClosedLoop<'_> {
         let mut prediction = vec![0.0; n_others * t * 2];
         if n_others > 0 {
             // With the reaction ablated the planner's safety check saw the keep-lane path.
-            let candidate: Vec<f64> = if self.settings.ablate_reaction {
+            let candidate: Vec<f64> = if self.settings.safety.ablate_reaction {
                 let e = EgoState {
                     x: ego[0],
                     y: ego[1],
                     psi: ego[2],
                     v: ego[3],
                 };
-                crate::keep_lane_path(&e, t, self.settings.dt)
+                crate::keep_lane_path(&e, t, self.settings.model.dt)
             } else {
                 plan.states.iter().flat_map(|z| [z[0], z[1]]).collect()
             };
@@ -306,6 +306,7 @@ impl ClosedLoop<'_> {
             min_b: constraint.executed_min_b([next[0], next[1], next[2], next[3]], &moved),
             collision: !touching.is_empty(),
             status,
+            decided_by: plan.decided_by,
             delta: plan.delta[0],
             accel: plan.accel[0],
             ego: [next[0], next[1], next[2], next[3]],
@@ -403,7 +404,7 @@ pub fn simulate_with(
     }
     crate::fit::check_closed_loop(settings, &fit)?;
     let lane = target_lane(sc, seed, settings, cfg)?;
-    let mut mover = Mover::new(cfg, world, sc, seed, settings.horizon)?;
+    let mut mover = Mover::new(cfg, world, sc, seed, settings.model.horizon)?;
     let y_target = sc.lane_centres[lane];
     let p0 = sc.position(0, T_OBS - 1);
     let mut run = ClosedLoop {
@@ -428,7 +429,7 @@ pub fn simulate_with(
         .with_start_abort(cfg.start_abort_after, p0[1])
         .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0])
         .with_crawl_reference(cfg.crawl_fraction),
-        observer: RunObserver::new(sc, lane, cfg.fault_brake_limit, settings.l_r),
+        observer: RunObserver::new(sc, lane, cfg.fault_brake_limit, settings.model.l_r),
         trace: control.trace,
     };
     let mut rec = RunRecord {
@@ -493,7 +494,7 @@ pub fn simulate_with(
             Some((_, LaneViolationKind::Ended)) => RunOutcome::LaneEnded,
             Some((_, LaneViolationKind::NotBegun)) => RunOutcome::LaneNotBegun,
             None if rec.success => RunOutcome::Success,
-            None if waiting(sc, &run.ego, settings.deadline_distance) => RunOutcome::Waiting,
+            None if waiting(sc, &run.ego, settings.lane_ends.deadline_distance) => RunOutcome::Waiting,
             None => RunOutcome::Unfinished,
         }
     };

@@ -57,7 +57,7 @@ impl fmt::Display for Family {
 /// a_max/2, each made feasible for the box and jerk bounds from the previous acceleration.
 pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<Vec<f64>> {
     let t = lp.horizon;
-    let mut profiles: Vec<Vec<f64>> = [0.0, 0.5 * s.a_min, s.a_min, 0.5 * s.a_max]
+    let mut profiles: Vec<Vec<f64>> = [0.0, 0.5 * s.bounds.a_min, s.bounds.a_min, 0.5 * s.bounds.a_max]
         .into_iter()
         .map(|a_cmd| vec![a_cmd; t])
         .collect();
@@ -227,13 +227,13 @@ pub(crate) fn stop_accels(s: &PlannerSettings, lp: &LinearisedProblem, line: f64
         let wanted = if v <= 0.0 {
             0.0
         } else if gap <= 0.0 {
-            s.a_min
+            s.bounds.a_min
         } else {
             -v * v / (2.0 * gap)
         };
         let a = wanted.clamp(b.lo.max(prev - b.rate), b.hi.min(prev + b.rate));
-        let v_next = (v + a * s.dt).max(0.0);
-        x += 0.5 * (v + v_next) * s.dt;
+        let v_next = (v + a * s.model.dt).max(0.0);
+        x += 0.5 * (v + v_next) * s.model.dt;
         v = v_next;
         prev = a;
         out.push(a);

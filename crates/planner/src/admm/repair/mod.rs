@@ -33,11 +33,9 @@ use super::refine;
 
 pub use families::Family;
 pub(crate) use families::{LATTICE_HOLD, LATTICE_RATES};
+pub(crate) use families::{Inputs, lattice_inputs, retreat_inputs, simple_families};
 #[cfg(test)]
-pub(crate) use families::{
-    fallback_accels, lattice_inputs, retreat_inputs, simple_inputs, steer_towards,
-};
-use families::{Inputs, lattice_inputs, retreat_inputs, simple_families};
+pub(crate) use families::{align_with_road, fallback_accels, simple_inputs};
 pub use rank::{RANK_ORDER, RankKey};
 pub(crate) use rank::{EXCESS_TOLERANCE, EXCESS_WEIGHT, Rank, Violations};
 
@@ -142,7 +140,7 @@ impl Repairer<'_, '_> {
             _ => self.lp.bound_excess(&rollout),
         };
         let rows = self.safety.rows.clone();
-        let predicted_safe = e.is_safe(self.s.safety_min);
+        let predicted_safe = e.is_safe(self.s.safety.safety_min);
         let unbegun = self.lp.lanes.as_ref().is_some_and(|lanes| {
             let lanes = lanes.view();
             self.lp.to_world(&rollout).iter().any(|z| {
@@ -179,17 +177,17 @@ impl Repairer<'_, '_> {
         unbegun: bool,
     ) -> Violations {
         let s = self.s;
-        let floor = s.fallback_speed_floor;
+        let floor = s.repair.fallback_speed_floor;
         let v_end = rollout.last().map_or(self.lp.start[3], |z| z[3]);
         let clear = floor > 0.0
-            && excess <= s.bounds_slack.max(EXCESS_TOLERANCE)
-            && safety_violation(e.path_min_b, e.path_violation, s.safety_min) == 0.0
+            && excess <= s.repair.bounds_slack.max(EXCESS_TOLERANCE)
+            && safety_violation(e.path_min_b, e.path_violation, s.safety.safety_min) == 0.0
             && v_end >= floor * self.lp.reference[3];
         let lead = self.lead_applies();
         Violations {
             unbegun,
             clear,
-            value: safety_violation(e.min_b, e.violation, s.safety_min) + EXCESS_WEIGHT * excess,
+            value: safety_violation(e.min_b, e.violation, s.safety.safety_min) + EXCESS_WEIGHT * excess,
             bound_excess: excess,
             contact: e.overlap,
             edge: self.lp.edge_excess(rollout),
@@ -203,7 +201,7 @@ impl Repairer<'_, '_> {
     /// the call and its box spanning no lane line there
     /// ([`LinearisedProblem::starts_in_one_lane`]).
     fn lead_applies(&self) -> bool {
-        self.lp.start[3] >= self.s.lead_min_speed && self.lp.starts_in_one_lane()
+        self.lp.start[3] >= self.s.repair.lead_min_speed && self.lp.starts_in_one_lane()
     }
 
     /// Up to `refine_iters` SQP steps ([`refine::step`]) from the inadmissible `from`; the
@@ -211,7 +209,7 @@ impl Repairer<'_, '_> {
     pub(crate) fn refine(&mut self, from: &Candidate) -> Result<Option<Candidate>, PlannerError> {
         let (mut delta, mut accel, mut rows) =
             (from.delta.clone(), from.accel.clone(), from.rows.clone());
-        for _ in 0..self.s.refine_iters {
+        for _ in 0..self.s.repair.refine_iters {
             let Some((d, a)) = refine::step(self.s, self.model, self.lp, &delta, &accel, &rows)
             else {
                 return Ok(None);
@@ -268,7 +266,7 @@ impl Repairer<'_, '_> {
             let c = self.check_within(d, a, Goal::Retreat)?;
             best = keep_better(best, c, Family::Retreat);
         }
-        if !best.rank.safe && self.lp.start[3] >= self.s.lattice_min_speed {
+        if !best.rank.safe && self.lp.start[3] >= self.s.repair.lattice_min_speed {
             best = self.best_of_lattice(best, lattice_inputs(self.lp))?;
         }
         Ok(best)

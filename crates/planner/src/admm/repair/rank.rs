@@ -138,7 +138,7 @@ impl Rank {
             unbegun: violations.unbegun,
             clear: violations.clear,
             value: violations.value,
-            out_of_bounds: violations.bound_excess > s.bounds_slack.max(EXCESS_TOLERANCE),
+            out_of_bounds: violations.bound_excess > s.repair.bounds_slack.max(EXCESS_TOLERANCE),
             contact: violations.contact,
             edge: violations.edge,
             ahead: violations.ahead,
