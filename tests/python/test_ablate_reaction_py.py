@@ -14,18 +14,18 @@ TIMING = {"mpc_s", "z_s", "z_median_s"}
 
 
 def test_setting_is_described_with_its_default() -> None:
-    assert nudge.PlannerSettings.default().ablate_reaction is False
-    s = nudge.PlannerSettings(ablate_reaction=True)
-    assert s.ablate_reaction is True
+    assert nudge.PlannerSettings.default().safety["ablate_reaction"] is False
+    s = nudge.PlannerSettings(safety={"ablate_reaction": True})
+    assert s.safety["ablate_reaction"] is True
     assert nudge.PlannerSettings.from_json(s.to_json()) == s
-    row = next(r for r in nudge.PlannerSettings.describe() if r["field"] == "ablate_reaction")
+    row = next(r for r in nudge.PlannerSettings.describe() if r["field"] == "safety.ablate_reaction")
     assert row["default"] is False and row["range"] == "true or false"
     assert "keep-lane" in row["doc"]
 
 
 def test_constant_velocity_runs_are_unaffected(scenes: list[Path]) -> None:
     kw = {"seed": 3, "runs": 2, "threads": 1, "max_steps": 6}
-    on = nudge.simulate(scenes[:3], "constant_velocity", settings=nudge.PlannerSettings(ablate_reaction=True), **kw)
+    on = nudge.simulate(scenes[:3], "constant_velocity", settings=nudge.PlannerSettings(safety={"ablate_reaction": True}), **kw)
     off = nudge.simulate(scenes[:3], "constant_velocity", **kw)
     for table in ("runs", "steps"):
         for k, v in off[table].items():
@@ -40,6 +40,6 @@ def test_constant_velocity_runs_are_unaffected(scenes: list[Path]) -> None:
 
 
 def test_ablated_student_calls_its_predictor_once_per_step(scenes: list[Path]) -> None:
-    r = nudge.simulate(scenes[:2], "student", settings=nudge.PlannerSettings(ablate_reaction=True), runs=1,
+    r = nudge.simulate(scenes[:2], "student", settings=nudge.PlannerSettings(safety={"ablate_reaction": True}), runs=1,
                        threads=1, max_steps=4)
     assert np.all(r["steps"]["predictor_calls"] <= 1)

@@ -79,7 +79,7 @@ def test_resume_reads_the_cache_and_recomputes_a_part_whose_inputs_changed(repo:
     np.testing.assert_array_equal(fourth[0].steps["cost"], first[0].steps["cost"])
     # Other settings are another chunk.
     s = tmp_path / "s.json"
-    s.write_text(json.dumps({"max_iter": 3}))
+    s.write_text(json.dumps({"admm": {"max_iter": 3}}))
     other, _ = collect(_cfg(repo, tmp_path, worlds=("log_replay",), settings=s), log=lambda m: None)
     assert other[0].computed_s > 0 and other[0].arm.settings == "s"
 
@@ -140,7 +140,7 @@ def test_command_writes_the_report(repo: Path, tmp_path: Path) -> None:
 def test_compare_runs_two_settings_on_the_same_pairs(repo: Path, tmp_path: Path) -> None:
     a, b = tmp_path / "base.json", tmp_path / "fewer_iterations.json"
     a.write_text("{}")
-    b.write_text(json.dumps({"max_iter": 2}))
+    b.write_text(json.dumps({"admm": {"max_iter": 2}}))
     out = tmp_path / "cmp.md"
     rc = main(["closed-loop", "--scenes", str(repo / "assets" / "scenes"), "--n", "2", "--seeds", "1",
                "--planners", "constant_velocity", "--worlds", "log_replay", "--compare", str(a), str(b),

@@ -84,7 +84,7 @@ def test_solution_starts_at_the_logged_state_in_file_coordinates(tmp_path: Path)
     first = ET.parse(out).getroot().find("ksTrajectory/ksState")
     step = int(first.findtext("time"))
     x, y, psi = _logged(FIXTURE, 484, step)
-    shift = 1.4227170936 - nudge.PlannerSettings().l_r
+    shift = 1.4227170936 - nudge.PlannerSettings().model["l_r"]
     assert abs(float(first.findtext("x")) - (x + shift * math.cos(psi))) < 1e-5
     assert abs(float(first.findtext("y")) - (y + shift * math.sin(psi))) < 1e-5
     assert abs(float(first.findtext("orientation")) - psi) < 1e-6

@@ -383,8 +383,8 @@ def test_simulate_gives_typed_errors_or_valid_columns(data: st.DataObject) -> No
         "on_error": st.sampled_from(["raise", "skip", "ignore"]),
         "settle_y": wild_float,
         "abort_after": wild_int,
-        "settings": st.sampled_from([nudge.PlannerSettings(horizon=5), nudge.PlannerSettings(dt=0.5),
-                                     nudge.PlannerSettings(max_iter=2)]),
+        "settings": st.sampled_from([nudge.PlannerSettings(model={"horizon": 5}), nudge.PlannerSettings(model={"dt": 0.5}),
+                                     nudge.PlannerSettings(admm={"max_iter": 2})]),
         "record": st.booleans(),
         "trace": st.booleans(),
     }

@@ -139,7 +139,7 @@ def test_the_target_lane_is_one_rule_for_scenario_and_simulate(tmp_path: Path) -
     seeds = range(16)
     assert {sc.target_lane(s) for s in seeds} == {2}
     short = nudge.SimConfig(max_steps=1, world="log_replay")
-    near = nudge.PlannerSettings(deadline_distance=10.0)
+    near = nudge.PlannerSettings(lane_ends={"deadline_distance": 10.0})
     drawn = [sc.target_lane(s, near, short) for s in seeds]
     assert set(drawn) == {0, 2}
     # The draw of a scene without real ends, seed for seed.

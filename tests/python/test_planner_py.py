@@ -46,9 +46,9 @@ def _rollout(ego: np.ndarray, delta: np.ndarray, accel: np.ndarray, s: nudge.Pla
     x, y, psi, v = (float(c) for c in ego)
     out = []
     for d, a in zip(delta, accel):
-        beta = np.arctan(s.l_r / (s.l_f + s.l_r) * np.tan(d))
-        x, y, psi, v = (x + s.dt * v * np.cos(psi + beta), y + s.dt * v * np.sin(psi + beta),
-                        psi + s.dt * v * np.sin(beta) / s.l_r, max(v + s.dt * a, 0.0))
+        beta = np.arctan(s.model["l_r"] / (s.model["l_f"] + s.model["l_r"]) * np.tan(d))
+        x, y, psi, v = (x + s.model["dt"] * v * np.cos(psi + beta), y + s.model["dt"] * v * np.sin(psi + beta),
+                        psi + s.model["dt"] * v * np.sin(beta) / s.model["l_r"], max(v + s.model["dt"] * a, 0.0))
         out.append((x, y, psi, v))
     return np.array(out)
 
@@ -69,13 +69,13 @@ def _check_plan(plan: dict, ego: np.ndarray, s: nudge.PlannerSettings, horizon: 
     assert plan["min_safety"] == plan["rollout_min_safety"]
     assert (plan["min_safety"] is None) == (plan["checked"] == 0)
     if status == "Converged":
-        assert plan["primal_residual"] <= s.eps_primal or plan["iterations"] < s.max_iter
+        assert plan["primal_residual"] <= s.admm["eps_primal"] or plan["iterations"] < s.admm["max_iter"]
     if status == "MaxIterations":
-        assert plan["iterations"] == s.max_iter
+        assert plan["iterations"] == s.admm["max_iter"]
     if status != "Unsafe":
         # Admissible: safe, heading within its bound (the ego starts inside it here), on the road.
-        assert plan["min_safety"] is None or plan["min_safety"] > s.safety_min
-        assert (np.abs(plan["states"][:, 2]) <= s.heading_max + 1e-9).all(), plan["states"][:, 2]
+        assert plan["min_safety"] is None or plan["min_safety"] > s.safety["safety_min"]
+        assert (np.abs(plan["states"][:, 2]) <= s.bounds["heading_max"] + 1e-9).all(), plan["states"][:, 2]
     assert status in ("Converged", "MaxIterations", "Refined", "Backtracked", "Fallback",
                       "SolverFailed", "BudgetExhausted", "Unsafe"), status
 
@@ -116,7 +116,7 @@ def test_settings_that_would_overflow_a_qp_are_refused(scenario: nudge.Scenario)
     `SolverFailed` plan); validation now refuses such a weight, naming it, and an ordinary plan
     reports no solver failure."""
     with pytest.raises(nudge.SettingsError, match="w_a"):
-        nudge.PlannerSettings(w_a=1e308)
+        nudge.PlannerSettings(cost={"w_a": 1e308})
     plan = nudge.Planner(None, nudge.Predictor.constant_velocity()).plan_scenario(scenario, seed=0)
     assert plan["status"] != "SolverFailed" and plan["solver_failure"] is None
 
@@ -133,8 +133,8 @@ def test_planner_is_deterministic_and_reset_restores_cold_start(student: nudge.P
 
 def test_horizon_mismatch_and_bad_lane(scenario: nudge.Scenario) -> None:
     # Refused when the planner is built, before any plan (nudge_planner::fit).
-    with pytest.raises(nudge.SettingsError, match="`horizon` = 5 does not fit: the constant_velocity predicts 6"):
-        nudge.Planner(nudge.PlannerSettings(horizon=5), nudge.Predictor.constant_velocity(6))
+    with pytest.raises(nudge.SettingsError, match="`model.horizon` = 5 does not fit: the constant_velocity predicts 6"):
+        nudge.Planner(nudge.PlannerSettings(model={"horizon": 5}), nudge.Predictor.constant_velocity(6))
     pl6 = nudge.Planner(None, nudge.Predictor.constant_velocity())
     with pytest.raises(nudge.InputError, match="target_lane 99"):
         pl6.plan_scenario(scenario, target_lane=99)

@@ -272,11 +272,11 @@ def test_a_bad_horizon_attribute_is_refused(horizon: object) -> None:
 def test_the_horizon_attribute_must_fit_the_settings(scenario: nudge.Scenario, scenes: list[Path]) -> None:
     p = ConstantVelocity()
     p.horizon = 5  # type: ignore[attr-defined]
-    with pytest.raises(nudge.SettingsError, match=r"`horizon` = 6 does not fit: the Python predictor predicts 5 steps"):
+    with pytest.raises(nudge.SettingsError, match=r"`model.horizon` = 6 does not fit: the Python predictor predicts 5 steps"):
         nudge.Planner(None, predictor=p)
-    with pytest.raises(nudge.SettingsError, match=r"`horizon` = 6 does not fit"):
+    with pytest.raises(nudge.SettingsError, match=r"`model.horizon` = 6 does not fit"):
         nudge.simulate(scenes[:1], p, world="log_replay", max_steps=2)
-    s = nudge.PlannerSettings.default().replace(horizon=5)
+    s = nudge.PlannerSettings.default().replace(model={"horizon": 5})
     plan = nudge.Planner(s, predictor=p).plan_scenario(scenario)
     assert plan["states"].shape == (5, 4)
 

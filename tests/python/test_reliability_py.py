@@ -121,7 +121,7 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: _native.simulate([""], assets=c["assets"]),
         lambda c: _native.simulate([c["scene"]], "", assets=c["assets"]),
         lambda c: _native.simulate([c["scene"]], "constant_velocity", world="log_replay",
-                                   settings=nudge.PlannerSettings(horizon=1), max_steps=1, assets=c["assets"]),
+                                   settings=nudge.PlannerSettings(model={"horizon": 1}), max_steps=1, assets=c["assets"]),
         lambda c: _native.simulate([c["scene"]], "constant_velocity", world="log_replay", max_steps=1,
                                    assets="", runs=1, seed=2**64 - 1),
     ],
@@ -173,28 +173,28 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: c["cv"].predict(np.float64(0.0), np.float64(0.0)),
     ],
     "PlannerSettings.__new__": [
-        lambda c: nudge.PlannerSettings(horizon=0),
-        lambda c: nudge.PlannerSettings(max_iter=0),
-        lambda c: nudge.PlannerSettings(pgd_steps=0),
+        lambda c: nudge.PlannerSettings(model={"horizon": 0}),
+        lambda c: nudge.PlannerSettings(admm={"max_iter": 0}),
+        lambda c: nudge.PlannerSettings(admm={"pgd_steps": 0}),
     ],
     "PlannerSettings.default": [lambda c: nudge.PlannerSettings.default()],
     "PlannerSettings.from_dict": [
         lambda c: nudge.PlannerSettings.from_dict({}),
-        lambda c: nudge.PlannerSettings.from_dict({"horizon": 0}),
+        lambda c: nudge.PlannerSettings.from_dict({"model": {"horizon": 0}}),
         lambda c: nudge.PlannerSettings.from_dict([]),
     ],
     "PlannerSettings.from_json": [
         lambda c: nudge.PlannerSettings.from_json(""),
         lambda c: nudge.PlannerSettings.from_json("[]"),
         lambda c: nudge.PlannerSettings.from_json("{}"),
-        lambda c: nudge.PlannerSettings.from_json('{"horizon": 0}'),
+        lambda c: nudge.PlannerSettings.from_json('{"model": {"horizon": 0}}'),
     ],
     "PlannerSettings.to_dict": [lambda c: c["settings"].to_dict()],
     "PlannerSettings.to_json": [lambda c: c["settings"].to_json()],
     "PlannerSettings.describe": [lambda c: nudge.PlannerSettings.describe(), lambda c: c["settings"].describe()],
     "PlannerSettings.replace": [
         lambda c: c["settings"].replace(),
-        lambda c: c["settings"].replace(horizon=0),
+        lambda c: c["settings"].replace(model={"horizon": 0}),
     ],
     "SimConfig.__new__": [lambda c: nudge.SimConfig(max_steps=0), lambda c: nudge.SimConfig(settle_steps=0)],
     "SimConfig.default": [lambda c: nudge.SimConfig.default()],
@@ -218,7 +218,7 @@ DEGENERATE: dict[str, list[Call]] = {
     "Scenario.target_lane": [lambda c: c["sc"].target_lane(0), lambda c: c["sc"].nearest(0).target_lane(2**64 - 1)],
     "Planner.__new__": [
         lambda c: nudge.Planner(None, c["cv"]),
-        lambda c: nudge.Planner(nudge.PlannerSettings(horizon=1), c["cv"]),
+        lambda c: nudge.Planner(nudge.PlannerSettings(model={"horizon": 1}), c["cv"]),
     ],
     "Planner.settings": [lambda c: c["planner"].settings],
     "Planner.predictor": [lambda c: c["planner"].predictor],
@@ -333,11 +333,11 @@ def test_huge_arrays_are_refused_before_copying() -> None:
 
 
 @pytest.mark.parametrize(("overrides", "field", "predictor"), [
-    ({"horizon": 7}, "horizon", "student"),
-    ({"horizon": 10}, "horizon", "student"),
-    ({"dt": 0.5}, "dt", "teacher"),
-    ({"dt": 0.5}, "dt", "student"),
-    ({"dt": 0.2}, "dt", "constant_velocity"),
+    ({"model.horizon": 7}, "model.horizon", "student"),
+    ({"model.horizon": 10}, "model.horizon", "student"),
+    ({"model.dt": 0.5}, "model.dt", "teacher"),
+    ({"model.dt": 0.5}, "model.dt", "student"),
+    ({"model.dt": 0.2}, "model.dt", "constant_velocity"),
 ])
 def test_settings_that_do_not_fit_are_refused_before_any_run(scenes: list[Path], overrides: dict[str, Any],
                                                              field: str, predictor: str) -> None:
@@ -347,10 +347,10 @@ def test_settings_that_do_not_fit_are_refused_before_any_run(scenes: list[Path],
 
 
 def test_planner_refuses_a_predictor_of_another_horizon_at_construction() -> None:
-    with pytest.raises(nudge.SettingsError, match="`horizon`"):
-        nudge.Planner(nudge.PlannerSettings(horizon=5), nudge.Predictor.constant_velocity(6))
-    with pytest.raises(nudge.SettingsError, match="`dt`"):
-        nudge.Planner(nudge.PlannerSettings(dt=0.5), nudge.Predictor.load(nudge.model_path("student")))
+    with pytest.raises(nudge.SettingsError, match="`model.horizon`"):
+        nudge.Planner(nudge.PlannerSettings(model={"horizon": 5}), nudge.Predictor.constant_velocity(6))
+    with pytest.raises(nudge.SettingsError, match="`model.dt`"):
+        nudge.Planner(nudge.PlannerSettings(model={"dt": 0.5}), nudge.Predictor.load(nudge.model_path("student")))
 
 
 # ------------------------------------------------------------------------------------------

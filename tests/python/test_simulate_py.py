@@ -149,8 +149,8 @@ def test_errors(scenes: list[Path], tmp_path: Path) -> None:
         nudge.simulate(scenes[:1], "constant_velocity", on_error="ignore")
     # The student decodes a fixed 6 steps; the teacher rolls out any horizon
     # (python/train/tests/test_horizon.py plans with it at 10).
-    with pytest.raises(nudge.SettingsError, match="`horizon` = 5 does not fit: the student predicts 6"):
-        nudge.simulate(scenes[:1], "student", settings=nudge.PlannerSettings(horizon=5))
+    with pytest.raises(nudge.SettingsError, match="`model.horizon` = 5 does not fit: the student predicts 6"):
+        nudge.simulate(scenes[:1], "student", settings=nudge.PlannerSettings(model={"horizon": 5}))
 
 
 def test_one_lane_scene_raises_or_is_skipped(scenes: list[Path], tmp_path: Path) -> None:

@@ -185,6 +185,17 @@ pub fn with_overrides<T: Settings>(base: &T, d: &Bound<'_, PyAny>) -> PyResult<T
         if let Some(e) = T::old_key(&key) {
             return Err(e);
         }
+        // A dotted key (`"cost.w_y"`, as `describe()` names fields) sets one field of a group.
+        let (top, v) = match key.split_once('.') {
+            Some((group, leaf)) => {
+                let py = v.py();
+                let one = PyDict::new(py);
+                one.set_item(leaf, &v)?;
+                (group.to_owned(), one.into_any())
+            }
+            None => (key.clone(), v),
+        };
+        let key = top;
         let Some(default) = obj.get(&key) else {
             let mut known: Vec<&str> = obj.keys().map(String::as_str).collect();
             known.sort_unstable();
@@ -224,7 +235,12 @@ fn field<'py, T: Settings>(
     class: &str,
     name: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
-    match as_object(s)?.get(name) {
+    let obj = as_object(s)?;
+    let found = match name.split_once('.') {
+        Some((group, leaf)) => obj.get(group).and_then(|g| g.get(leaf)),
+        None => obj.get(name),
+    };
+    match found {
         Some(v) => value_to_py(py, v),
         None => Err(pyo3::exceptions::PyAttributeError::new_err(format!(
             "{class} has no field `{name}`"

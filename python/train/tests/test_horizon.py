@@ -45,7 +45,7 @@ class Recording:
 
 
 def _settings(horizon: int) -> nudge.PlannerSettings:
-    return nudge.PlannerSettings(horizon=horizon)
+    return nudge.PlannerSettings(model={"horizon": horizon})
 
 
 def _scenes() -> list[Path]:
@@ -92,9 +92,9 @@ def test_student_refuses_horizon_10_naming_it() -> None:
     with pytest.raises(nudge.InputError, match=r"student predicts exactly 6 steps; horizon 10 steps"):
         nudge.Predictor.load(STUDENT, horizon=HORIZON)
     student = nudge.Predictor.load(STUDENT)
-    with pytest.raises(nudge.SettingsError, match=r"`horizon` = 10 does not fit: the student predicts 6 steps"):
+    with pytest.raises(nudge.SettingsError, match=r"`model.horizon` = 10 does not fit: the student predicts 6 steps"):
         nudge.Planner(_settings(HORIZON), student)
-    with pytest.raises(nudge.SettingsError, match=r"`horizon` = 10 does not fit: the student predicts 6 steps"):
+    with pytest.raises(nudge.SettingsError, match=r"`model.horizon` = 10 does not fit: the student predicts 6 steps"):
         nudge.simulate(_scenes()[:1], "student", settings=_settings(HORIZON), max_steps=1, threads=1)
 
 

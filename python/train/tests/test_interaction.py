@@ -122,8 +122,6 @@ def test_start_geometry_by_hand() -> None:
     # Level with it, the ego's centre stays sqrt(2) * 1.9 + 0.3 below 3.7; its edge 0.95 above that.
     assert depth == pytest.approx((3.7 - 1.85) - (np.sqrt(2.0) * 1.9 + 0.3) + 0.95)
     assert start_geometry(sc, 0, s) is None
-    with pytest.raises(ValueError, match="ellipse_lateral_scale"):
-        start_geometry(sc, 2, s.replace(ellipse_lateral_scale=1.25))
 
 
 def test_horizon_10_leaves_the_6_step_students_out(tmp_path: Path) -> None:
@@ -135,7 +133,7 @@ def test_horizon_10_leaves_the_6_step_students_out(tmp_path: Path) -> None:
     student.write_bytes(nudge.model_path("student").read_bytes())
     cfg = InteractionConfig(horizon=10, candidate=student)
     assert cfg.planners() == [("teacher", "teacher")]
-    assert cfg.arm_settings(True).horizon == 10 and cfg.arm_settings(True).ablate_reaction
+    assert cfg.arm_settings(True).model["horizon"] == 10 and cfg.arm_settings(True).safety["ablate_reaction"]
     assert [p for p, _ in InteractionConfig(candidate=student).planners()] == ["teacher", "student", "student_react"]
     assert [p for p, _ in InteractionConfig(horizon=6, compare_horizon=10).planners()] == ["teacher"]
     assert serves("teacher", 10) and not serves("student", 10) and serves("student", 6)
@@ -152,21 +150,21 @@ def test_settings_file_is_the_base_of_every_arm(tmp_path: Path) -> None:
     """``--settings``: every arm starts from the file (``ablate_reaction`` is set per arm); a
     missing file or a bad field is refused naming it."""
     assert InteractionConfig().base_settings() == nudge.PlannerSettings.default()
-    good = tmp_path / "boxes.json"
-    good.write_text('{"safety_geometry": "boxes", "contingency": true}')
+    good = tmp_path / "wide.json"
+    good.write_text('{"safety": {"margin_y": 0.5}, "cost": {"w_y": 20.0}}')
     cfg = InteractionConfig(settings=good)
     cfg.validate()
     s = cfg.base_settings()
-    assert s.safety_geometry == "boxes" and s.contingency and not s.ablate_reaction
+    assert s.safety["margin_y"] == 0.5 and s.cost["w_y"] == 20.0 and not s.safety["ablate_reaction"]
     with pytest.raises(ValueError, match="no such file"):
         InteractionConfig(settings=tmp_path / "none.json").validate()
     bad = tmp_path / "bad.json"
-    bad.write_text('{"contingency_accel": 5.0}')
-    with pytest.raises(ValueError, match="contingency_accel"):
+    bad.write_text('{"safety": {"margin_y": 50.0}}')
+    with pytest.raises(ValueError, match="margin_y"):
         InteractionConfig(settings=bad).validate()
     # The arm's horizon overrides the file's; ablate_reaction is per arm.
     arm = InteractionConfig(settings=good, horizon=10).arm_settings(True)
-    assert arm.safety_geometry == "boxes" and arm.horizon == 10 and arm.ablate_reaction
+    assert arm.safety["margin_y"] == 0.5 and arm.model["horizon"] == 10 and arm.safety["ablate_reaction"]
 
 
 def test_merge_runs_are_the_scenes_whose_ego_lane_ends() -> None:

@@ -43,7 +43,7 @@ def test_categories() -> None:
 
 def test_settings_label() -> None:
     assert slow_plans.settings_label(nudge.PlannerSettings().to_json()) == "default"
-    other = nudge.PlannerSettings.from_json(json.dumps({"fallback_brake_hold": True})).to_json()
+    other = nudge.PlannerSettings.from_json(json.dumps({"cost": {"w_y": 20.0}})).to_json()
     assert slow_plans.settings_label(other).startswith("settings ")
 
 

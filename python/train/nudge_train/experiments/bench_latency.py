@@ -355,9 +355,9 @@ def collect(cfg: LatencyConfig, log: Callable[[str], None] = print) -> tuple[lis
             idx = [i for i in chunk if arm.predictor != "teacher" or i in teacher_set]
             if not idx:
                 continue
-            settings = base if arm.budget_ms is None else base.replace(budget_s=arm.budget_ms / 1e3)
+            settings = base if arm.budget_ms is None else base.replace(budget={"seconds": arm.budget_ms / 1e3})
             if arm.horizon is not None:
-                settings = settings.replace(horizon=arm.horizon)
+                settings = settings.replace(model={"horizon": arm.horizon})
             t0, c0 = time.perf_counter(), time.process_time()
             out = nudge.simulate([scenes[i] for i in idx], arm.predictor, scene_seeds=[scene_seeds[i] for i in idx],
                                  runs=cfg.runs, threads=1, settings=settings, config=sim_cfg, on_error="skip")

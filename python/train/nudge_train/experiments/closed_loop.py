@@ -44,7 +44,7 @@ __all__ = ["Arm", "Chunk", "EvalConfig", "collect", "explain", "report", "run"]
 
 CACHE_SCHEMA = "nudge.closed_loop_cache/1"
 STRATA = ("dense", "medium", "sparse")
-STEP_KEEP = ("run", "mpc_s", "status", "cost")
+STEP_KEEP = ("run", "mpc_s", "status", "decided_by", "cost")
 """Step columns kept in the cache (the run columns hold every per-step metric's count)."""
 
 RUN_NEEDED = ("success", "collisions_at_fault", "collisions_not_at_fault", "collisions_at_fault_nuplan",
@@ -150,7 +150,7 @@ def _settings_arms(cfg: EvalConfig) -> list[tuple[str, nudge.PlannerSettings]]:
     """(label, settings) of every settings arm (``ablate_reaction`` applied, labelled)."""
     arms = _loaded_settings_arms(cfg)
     if cfg.ablate_reaction:
-        arms = [(f"{label}, reaction ablated", s.replace(ablate_reaction=True)) for label, s in arms]
+        arms = [(f"{label}, reaction ablated", s.replace(safety={"ablate_reaction": True})) for label, s in arms]
     return arms
 
 

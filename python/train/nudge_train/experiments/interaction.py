@@ -72,7 +72,7 @@ TARGET_PP = 10.0
 """Success gain (percentage points) the issue asks of the aware planner, interval above 0."""
 TARGET_S = 0.5
 """Time-to-lane gain (s) the issue asks of the aware planner, interval below 0."""
-DEFAULT_HORIZON = int(nudge.PlannerSettings.default().horizon)
+DEFAULT_HORIZON = int(nudge.PlannerSettings.default().model["horizon"])
 """The planner's default horizon (steps): the shipped student's."""
 
 
@@ -127,7 +127,7 @@ class InteractionConfig:
             h = getattr(self, name)
             if h is not None:
                 try:
-                    nudge.PlannerSettings(horizon=h)
+                    nudge.PlannerSettings(model={"horizon": h})
                 except nudge.NudgeError as err:
                     raise ValueError(f"--{name.replace('_', '-')}: {err}") from None
         for name in ("seeds", "threads", "batch"):
@@ -184,8 +184,7 @@ class InteractionConfig:
         """The planner settings of an arm: the base settings (``--settings``, else the defaults) at
         ``horizon`` (default: ``self.horizon``, which overrides a horizon in the file),
         ``ablate_reaction`` as given."""
-        return self.base_settings().replace(ablate_reaction=ablated,
-                                            horizon=self.horizon if horizon is None else horizon)
+        return self.base_settings().replace(safety={"ablate_reaction": ablated}, model={"horizon": self.horizon if horizon is None else horizon})
 
 
 def load_predictor(predictor: str, horizon: int) -> nudge.Predictor:
@@ -501,8 +500,7 @@ def start_gaps(runs: list[tuple[Path, list[int]]], settings: nudge.PlannerSettin
     ``ellipse_scale * (W_ego + W) / 2 + margin_y``; negative: the edge stays short of the line).
 
     The isotropic, unsliced ellipse: for an ego longer than ``ego_segment_length`` the planner's
-    sliced ellipses reach less far along the road, so ``need`` is an upper bound there; a
-    non-zero ``ellipse_lateral_scale`` is refused (:func:`start_geometry`)."""
+    sliced ellipses reach less far along the road, so ``need`` is an upper bound there."""
     rows = []
     for path, seeds in runs:
         sc = nudge.Scenario.load(path)
@@ -517,15 +515,7 @@ def start_gaps(runs: list[tuple[Path, list[int]]], settings: nudge.PlannerSettin
 def start_geometry(sc: nudge.Scenario, lane: int, settings: nudge.PlannerSettings) -> tuple[float, float, float] | None:
     """(gap, need, depth) of :func:`start_gaps` for one start (``sc``: anything with ``history``
     ``[n, 8, 2]``, ``size`` ``[n, 2]`` (length, width) and ``lane_bounds``), or None when no
-    vehicle is in the target lane.
-
-    Raises:
-        ValueError: ``settings.ellipse_lateral_scale`` is not 0 (the gaps here are those of the
-            isotropic ellipse).
-    """
-    if settings.ellipse_lateral_scale != 0.0:
-        raise ValueError(f"start_geometry: ellipse_lateral_scale = {settings.ellipse_lateral_scale} "
-                         "is not supported (the start gaps are those of the isotropic ellipse)")
+    vehicle is in the target lane."""
     pos = sc.history[:, -1, :]
     length, width = sc.size[:, 0], sc.size[:, 1]
     lo, hi = _lane(sc.lane_bounds, lane)
@@ -535,8 +525,8 @@ def start_geometry(sc: nudge.Scenario, lane: int, settings: nudge.PlannerSetting
             half = (length[0] + length[j]) / 2.0
             gap = abs(pos[j, 0] - pos[0, 0]) - half
             if best is None or gap < best[0]:
-                req = settings.ellipse_scale * half + settings.margin_x - half
-                b = settings.ellipse_scale * (width[0] + width[j]) / 2.0 + settings.margin_y
+                req = settings.safety["ellipse_scale"] * half + settings.safety["margin_x"] - half
+                b = settings.safety["ellipse_scale"] * (width[0] + width[j]) / 2.0 + settings.safety["margin_y"]
                 line = lo if (lo + hi) / 2.0 > pos[0, 1] else hi
                 best = (float(gap), float(req), float(abs(pos[j, 1] - line) - b + width[0] / 2.0))
     return best
@@ -900,7 +890,7 @@ def run(cfg: InteractionConfig, out: Path, json_path: Path | None, command: str)
         if g["gap"].size:
             extra.append(f"- `{data['split']}` ({g['gap'].size} {cfg.scenes} (scene, target lane) starts): bumper gap to the "
                          f"nearest target-lane vehicle median {np.median(g['gap']):+.2f} m (negative = overlapping "
-                         f"along the road); the √2 ellipse with margin_x {settings.margin_x} m needs a gap of "
+                         f"along the road); the √2 ellipse with margin_x {settings.safety['margin_x']} m needs a gap of "
                          f"{np.median(g['need']):.2f} m (median) to have the ego level with it in the target lane; "
                          f"{100.0 * np.mean(g['gap'] < g['need']):.0f} % of the starts have less. While that "
                          f"vehicle is level with the ego, the ellipse lets the ego's near edge at most "
