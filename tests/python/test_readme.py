@@ -1,6 +1,7 @@
 """The README is a README: at most 12,000 characters, one Rust and one Python example, its Python
 example runs as written (the Rust one is a doctest of the facade crate, `src/lib.rs`), its picture
-is a run `make demo` writes, and every relative link of it and of the results index resolves."""
+is a run `make demo` writes, every relative link of it, the changelog and the results index
+resolves, and the results index has a row, with its status, for every report."""
 
 from __future__ import annotations
 
@@ -89,3 +90,17 @@ def test_relative_links_resolve(doc: str) -> None:
     assert targets, f"{doc} links nothing"
     missing = [t for t in targets if not (path.parent / t).exists()]
     assert not missing, f"{doc} links to missing files: {missing}"
+
+
+def test_results_index_lists_every_report() -> None:
+    results = ROOT / "docs" / "results"
+    index = (results / "README.md").read_text()
+    rows = set(re.findall(r"^\| \[([^\]]+\.md)\]\(\1\) \|", index, flags=re.M))
+    reports = {p.name for p in results.glob("*.md")} - {"README.md"}
+    assert rows == reports, (
+        f"docs/results/README.md: reports without a row {sorted(reports - rows)}, rows without a report "
+        f"{sorted(rows - reports)}"
+    )
+    for row in re.findall(r"^\| \[[^\]]+\.md\]\(.*$", index, flags=re.M):
+        status = row.rstrip(" |").rsplit("|", 1)[1]
+        assert re.search(r"\b(adopted|not adopted|measurement)\b", status), f"a row without its status: {row}"
