@@ -255,13 +255,14 @@ interaction-merge: develop
 # The main job: closed-loop lane changes on the shipped real NGSIM scenes (one run each),
 # planned with the shipped distilled student (PREDICTOR=teacher|constant_velocity for the
 # others), the trained teacher moving the other vehicles; per-step table of one run, summary
-# over all, records (CSV/JSON), an animation of the first run (out/demo/animations/) and a
-# picture in out/demo/, drawn in the light environment $(DEMO_VENV).
+# over all, records (CSV/JSON), an animation of every run (out/demo/animations/<scene>-seed<seed>.gif;
+# the README's picture is one of them) and a picture in out/demo/, drawn in the light environment
+# $(DEMO_VENV).
 PREDICTOR ?= student
 demo: venv-demo build
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes --predictor $(PREDICTOR) \
 		--world teacher --seed 0 --runs 1 --threads 2 --out out/demo --verbose-run \
-		--animate --animate-runs 1
+		--animate
 	$(DEMO_VENV)/bin/nudge-train figures runs out/demo --scenes assets/scenes --png out/demo/runs.png
 	@echo "== the shipped real merges (assets/scenes/merge: the ego's lane ends) =="
 	$(CARGO) run --release --bin nudge -- simulate --scenes assets/scenes/merge --predictor $(PREDICTOR) \

@@ -12,7 +12,9 @@ pub mod commonroad;
 pub use nudge_planner as planner;
 pub use nudge_predictor as predictor;
 
-/// The README's code blocks, compiled and run as doctests.
+/// The README's Rust example, compiled and run as a doctest (`cargo test --doc -p nudge`, part of
+/// `cargo test --workspace`), from the repository root: the example fails the tests when it stops
+/// running.
 #[cfg(doctest)]
 #[doc = include_str!("../README.md")]
 pub struct ReadmeDoctests;

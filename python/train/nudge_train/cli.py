@@ -1,24 +1,9 @@
 """``nudge-train``: the one command of the training package.
 
-    nudge-train data build|report|scenes|frames   NGSIM pipeline: windows, report, planner scenes, road frames
-    nudge-train train --config FILE        train one configuration (teacher or student)
-    nudge-train teacher                    the teacher experiments (Table I), docs/results/teacher.md
-    nudge-train distill                    the distillation set (planner + teacher), data/distill
-    nudge-train student                    distil, evaluate and export the student
-    nudge-train student-react              distil a student with a loss on its reaction to the ego
-    nudge-train reaction                   reaction of teacher / students vs real cut-ins, docs/results/reaction.md
-    nudge-train horizon                    the teacher over 3 s (accuracy, cut-ins, latency), docs/results/horizon.md
-    nudge-train closed-loop                planners x worlds x seeds on a split, docs/results/closed_loop.md
-    nudge-train slow-plans                 what the plans ending slow on a free road in a closed-loop cache brake for
-    nudge-train paper [--quick]            the paper's Tables I-II and Figures 7-10 into docs/paper
-    nudge-train interaction                aware planner vs its reaction ablated on dense or merge scenes, docs/results/interaction.md
-    nudge-train bench inference|planner|python|python-predictor|latency   benchmark tables
-    nudge-train goldens [--check]          golden files of the Rust predictor tests
-    nudge-train figures runs|curves        figures of closed-loop runs and training curves
-    nudge-train commonroad                 shipped scenes planned in their CommonRoad files, solutions
-                                           checked by the drivability checker (docs/results/commonroad.md)
-    nudge-train idm fit|cutins|report|all  IDM fitted to real car-following, real cut-ins,
-                                           the IDM world's intrusion rule (docs/results/idm_fit.md)
+Its subcommands (data pipeline, training, distillation, experiments, benches, golden files,
+figures, CommonRoad checks, the IDM world's fit) are registered in :func:`build_parser`, and
+``nudge-train --help`` lists them from that registration, each with its one-line help: the parser
+is the only list of them.
 
 Default paths come from :mod:`nudge_train.paths` (``NUDGE_REPO``, ``NUDGE_ASSETS``,
 ``NUDGE_NGSIM``). This module imports only the standard library and the light configuration
@@ -53,6 +38,12 @@ class _Formatter(argparse.HelpFormatter):
         return text
 
 
+def _subcommands(parser: argparse.ArgumentParser, dest: str) -> argparse._SubParsersAction:
+    """The subcommands of ``parser``. Its help lists them from their registration (``add_parser``
+    with a ``help``), each with its one-line help, under "commands"; nothing else names them."""
+    return parser.add_subparsers(dest=dest, required=True, title="commands", metavar="COMMAND")
+
+
 def _command(sub: argparse._SubParsersAction, name: str, help_text: str, run: Handler) -> argparse.ArgumentParser:
     p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=_Formatter)
     p.set_defaults(run=run)
@@ -62,7 +53,7 @@ def _command(sub: argparse._SubParsersAction, name: str, help_text: str, run: Ha
 # ---- data -------------------------------------------------------------------------------------
 def _add_data(sub: argparse._SubParsersAction) -> None:
     data = sub.add_parser("data", help="NGSIM data pipeline", description="NGSIM data pipeline")
-    dsub = data.add_subparsers(dest="data_cmd", required=True, metavar="{build,report,scenes,frames}")
+    dsub = _subcommands(data, "data_cmd")
 
     b = _command(dsub, "build", "build training windows (safetensors shards + manifest)", _run_data_build)
     b.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
@@ -584,7 +575,7 @@ def _run_interaction(a: argparse.Namespace) -> int:
 # ---- benches, goldens, figures -----------------------------------------------------------------
 def _add_bench(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmark tables", description="benchmark tables")
-    bsub = bench.add_subparsers(dest="bench_cmd", required=True, metavar="{inference,planner,python,python-predictor,latency}")
+    bsub = _subcommands(bench, "bench_cmd")
 
     i = _command(bsub, "inference", "PyTorch vs Rust (criterion) inference times on the same weights and inputs",
                  _run_bench_inference)
@@ -712,7 +703,7 @@ def _run_goldens(a: argparse.Namespace) -> int:
 
 def _add_figures(sub: argparse._SubParsersAction) -> None:
     figures = sub.add_parser("figures", help="figures (light: numpy + matplotlib)", description="figures")
-    fsub = figures.add_subparsers(dest="figures_cmd", required=True, metavar="{runs,curves}")
+    fsub = _subcommands(figures, "figures_cmd")
 
     r = _command(fsub, "runs", "draw closed-loop runs written by `nudge simulate --out DIR` as one PNG",
                  _run_figures_runs)
@@ -781,8 +772,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Default paths: the repository of this checkout; NUDGE_REPO, NUDGE_ASSETS and NUDGE_NGSIM "
                "override them.",
     )
-    sub = parser.add_subparsers(dest="cmd", required=True,
-                                metavar="{data,train,teacher,student,distill,closed-loop,slow-plans,interaction,paper,bench,goldens,figures,idm,replay-extrapolation}")
+    sub = _subcommands(parser, "cmd")
     _add_data(sub)
     _add_train(sub)
     _add_teacher(sub)
