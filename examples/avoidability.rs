@@ -63,7 +63,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         world: World::LogReplay,
         ..SimConfig::default()
     };
-    let mut predictor = PredictorSpec::resolve(&args.planner, &assets, settings.model.horizon)?.build();
+    let mut predictor =
+        PredictorSpec::resolve(&args.planner, &assets, settings.model.horizon)?.build();
     let mut limits = OracleLimits::of(&settings);
     limits.hold = args.hold;
     limits.max_nodes = args.max_nodes;
@@ -87,7 +88,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             WorldModel::LogReplay,
         )?;
         let traffic = LoggedTraffic::new(&sc, cfg.max_steps, cfg.replay_lateral_decay);
-        let observer = RunObserver::new(&sc, run.target_lane, cfg.fault_brake_limit, settings.model.l_r);
+        let observer = RunObserver::new(
+            &sc,
+            run.target_lane,
+            cfg.fault_brake_limit,
+            settings.model.l_r,
+        );
         let world = OracleWorld {
             bicycle: nudge::planner::Bicycle {
                 l_f: settings.model.l_f,

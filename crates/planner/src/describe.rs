@@ -288,16 +288,30 @@ mod tests {
         for (r, spec) in rows.iter().zip(T::FIELDS) {
             let leaf = r.field.rsplit('.').next().unwrap_or(&r.field);
             assert_eq!(r.default, defaults[leaf], "{}.{} default", T::NAME, r.field);
-            assert!(r.doc.len() > 10, "{}.{} has no doc comment", T::NAME, r.field);
+            assert!(
+                r.doc.len() > 10,
+                "{}.{} has no doc comment",
+                T::NAME,
+                r.field
+            );
             assert!(!r.range.is_empty(), "{}.{} has no range", T::NAME, r.field);
             if let Some(x) = r.default.as_f64() {
                 let range = spec
                     .range
                     .unwrap_or_else(|| panic!("{}.{}: no range", T::NAME, r.field));
-                assert!(range.contains(x), "{}.{} default outside its range", T::NAME, r.field);
+                assert!(
+                    range.contains(x),
+                    "{}.{} default outside its range",
+                    T::NAME,
+                    r.field
+                );
             }
         }
-        assert!(struct_doc::<T>().len() > 20, "{} has no doc comment", T::NAME);
+        assert!(
+            struct_doc::<T>().len() > 20,
+            "{} has no doc comment",
+            T::NAME
+        );
     }
 
     #[test]

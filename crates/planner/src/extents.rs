@@ -177,7 +177,8 @@ impl StopRule {
     /// turn rate of the bicycle (`l_f`, `l_r`) at full steering `delta_max`.
     #[must_use]
     pub fn new(s: &crate::PlannerSettings) -> Self {
-        let beta_max = (s.model.l_r / (s.model.l_f + s.model.l_r) * s.bounds.delta_max.tan()).atan();
+        let beta_max =
+            (s.model.l_r / (s.model.l_f + s.model.l_r) * s.bounds.delta_max.tan()).atan();
         Self {
             decel: s.lane_ends.stop_decel,
             margin: s.lane_ends.stop_margin,

@@ -109,7 +109,10 @@ mod tests {
         for name in ["teacher", "student"] {
             assert!(matches!(
                 check_predictor(&slow, name, 6),
-                Err(SettingsError::Incompatible { field: "model.dt", .. })
+                Err(SettingsError::Incompatible {
+                    field: "model.dt",
+                    ..
+                })
             ));
         }
         // Constant velocity extrapolates whatever step its history has ...

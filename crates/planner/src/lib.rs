@@ -31,9 +31,9 @@ pub mod sim;
 
 pub use ablation::keep_lane_path;
 pub use admm::{
-    BindingVehicle, CheckedVehicle, DecidedBy, EgoState, Family, JointSolution, PhaseTimings,
-    Plan, PlanStatus, Planner, PlanningProblem, RANK_ORDER, RankKey, SafetyConstraint,
-    StepStatus,
+    BindingVehicle, CheckedVehicle, DecidedBy, EgoState, Family, JointSolution, PairGeometry,
+    PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, RANK_ORDER, RankKey,
+    SafetyConstraint, StepStatus,
 };
 pub use error::{
     PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
@@ -42,8 +42,8 @@ pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
 pub use safety::{
-    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents,
-    box_separation, clip_segment_to_box, motion_axis, motion_direction, motion_heading,
+    Ellipse, MAX_MOTION_HEADING, MIN_MOTION_DX, OrientedBox, bounding_half_extents, box_separation,
+    clip_segment_to_box, motion_axis, motion_direction, motion_heading,
 };
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;

@@ -134,7 +134,11 @@ fn a_found_sequence_keeps_the_input_bounds_and_replays_clean() {
     }
     let (states, violation) = replay(&world, &limits, &start, &inputs);
     assert_eq!(violation, None);
-    assert!(states.iter().all(|z| z[2].abs() <= s.bounds.heading_max + 1e-12));
+    assert!(
+        states
+            .iter()
+            .all(|z| z[2].abs() <= s.bounds.heading_max + 1e-12)
+    );
 }
 
 /// A search cut short says so.

@@ -61,7 +61,10 @@ fn assert_bounds(s: &PlannerSettings, delta: &[f64], accel: &[f64], states: &[[f
             "steering rate {d} after {pd}"
         );
         assert!(*a >= s.bounds.a_min && *a <= s.bounds.a_max, "accel {a}");
-        assert!((a - pa).abs() <= s.bounds.da_max + 1e-12, "jerk {a} after {pa}");
+        assert!(
+            (a - pa).abs() <= s.bounds.da_max + 1e-12,
+            "jerk {a} after {pa}"
+        );
         pd = *d;
         pa = *a;
     }
@@ -287,7 +290,10 @@ fn invalid_settings_are_typed_errors() {
     }
     assert!(PlannerSettings::from_json(r#"{"cost": {"w_y": 2.0, "bogus": 1}}"#).is_err());
     let e = PlannerSettings::from_json(r#"{"w_y": 2.0}"#).unwrap_err();
-    assert!(e.to_string().contains("`w_y` moved: it is now `cost.w_y`"), "{e}");
+    assert!(
+        e.to_string().contains("`w_y` moved: it is now `cost.w_y`"),
+        "{e}"
+    );
     let e = PlannerSettings::from_json(r#"{"z_safe_step": true}"#).unwrap_err();
     assert!(e.to_string().contains("`z_safe_step` was removed"), "{e}");
     let ok = PlannerSettings::from_json(r#"{"cost": {"w_y": 2.0}}"#).unwrap();

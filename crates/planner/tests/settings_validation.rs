@@ -67,7 +67,16 @@ fn shipped_defaults_are_valid_and_unchanged() {
     let names: Vec<&str> = GROUPS.iter().map(|(g, _)| *g).collect();
     assert_eq!(
         names,
-        ["model", "cost", "bounds", "safety", "admm", "repair", "budget", "lane_ends"]
+        [
+            "model",
+            "cost",
+            "bounds",
+            "safety",
+            "admm",
+            "repair",
+            "budget",
+            "lane_ends"
+        ]
     );
 }
 
@@ -98,7 +107,8 @@ fn old_flat_keys_are_refused_with_their_new_place_or_the_reason() {
     for (old, new) in MOVED {
         let err = PlannerSettings::from_json(&json!({ *old: 1 }).to_string()).unwrap_err();
         assert!(
-            err.to_string().contains(&format!("`{old}` moved: it is now `{new}`")),
+            err.to_string()
+                .contains(&format!("`{old}` moved: it is now `{new}`")),
             "{err}"
         );
         assert!(leaves.iter().any(|l| l == new), "{new} is not a field");
@@ -175,9 +185,7 @@ fn range_table_matches_the_fields_and_is_enforced() {
         .filter(|(_, v)| v.is_number())
         .map(|(k, _)| k.as_str())
         .collect();
-    let ranges: Vec<_> = PlannerSettings::fields()
-        .filter_map(|f| f.range)
-        .collect();
+    let ranges: Vec<_> = PlannerSettings::fields().filter_map(|f| f.range).collect();
     let mut table: Vec<&str> = ranges.iter().map(|r| r.field).collect();
     let mut sorted_numeric = numeric.clone();
     sorted_numeric.sort_unstable();

@@ -107,8 +107,13 @@ pub fn commonroad_solution<'py>(
         let sol = py
             .detach(|| {
                 let (scene, t0, sc) = build(&path, ego, t0, neighbour_range)?;
-                let sol =
-                    Solution::of_inputs(&scene, (ego, t0), &sc, (&inputs, None), (s.model.l_f, s.model.l_r))?;
+                let sol = Solution::of_inputs(
+                    &scene,
+                    (ego, t0),
+                    &sc,
+                    (&inputs, None),
+                    (s.model.l_f, s.model.l_r),
+                )?;
                 sol.write(&out)?;
                 Ok::<_, CommonRoadError>(sol)
             })

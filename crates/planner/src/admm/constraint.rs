@@ -32,6 +32,33 @@ pub struct CheckedVehicle {
     pub axis: [f64; 2],
 }
 
+/// The geometry of the ego at one step against one checked vehicle at that step
+/// ([`SafetyConstraint::pair`]): computed once, read by b, its gradient, the beside test and
+/// the box overlap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PairGeometry {
+    /// The ego (x, y, ψ, v) (m, m, rad, m/s).
+    pub ego: [f64; 4],
+    /// (sin ψ, cos ψ) of the ego.
+    pub sin_cos: [f64; 2],
+    /// The other vehicle's position one step earlier (m).
+    pub previous: [f64; 2],
+    /// The other vehicle's position (m).
+    pub other: [f64; 2],
+    /// (|cos|, |sin|) of the other vehicle's motion from `previous` ([`motion_direction`]).
+    pub other_direction: [f64; 2],
+    /// The closing-speed margin (m) at the horizon's last step, else 0.
+    pub closing: f64,
+}
+
+impl PairGeometry {
+    /// (|cos ψ|, |sin ψ|) of the ego.
+    #[must_use]
+    pub fn ego_direction(&self) -> [f64; 2] {
+        [self.sin_cos[1].abs(), self.sin_cos[0].abs()]
+    }
+}
+
 /// The safety constraint of one MPC call: the vehicles within `check_range` of the ego's
 /// measured position, and the ellipse b_i of [`Ellipse::oriented`] sized by both vehicles'
 /// bounding boxes at their headings (the ego's from its heading ψ, the other's from the
@@ -89,6 +116,34 @@ impl SafetyConstraint {
         &self.vehicles
     }
 
+    /// The geometry of the ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) against `vehicle` at
+    /// `other` (m), which was at `previous` one step earlier, at the `terminal` step of the
+    /// horizon or not: evaluated once per (vehicle, step) and shared by b, its gradient, the
+    /// beside test and the box overlap.
+    #[must_use]
+    pub fn pair(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego: [f64; 4],
+        previous: [f64; 2],
+        other: [f64; 2],
+        terminal: bool,
+    ) -> PairGeometry {
+        let (sin, cos) = ego[2].sin_cos();
+        PairGeometry {
+            ego,
+            sin_cos: [sin, cos],
+            previous,
+            other,
+            other_direction: motion_direction(previous, other, vehicle.direction),
+            closing: if terminal {
+                self.closing_margin([ego[0], ego[1]], ego[3], previous, other)
+            } else {
+                0.0
+            },
+        }
+    }
+
     /// The ellipse around `vehicle` at `other` (m), which was at `previous` one step earlier,
     /// for an ego whose heading has direction `ego_direction` = (|cos ψ|, |sin ψ|).
     #[must_use]
@@ -99,11 +154,25 @@ impl SafetyConstraint {
         previous: [f64; 2],
         other: [f64; 2],
     ) -> Ellipse {
+        self.ellipse_of(
+            vehicle,
+            ego_direction,
+            motion_direction(previous, other, vehicle.direction),
+        )
+    }
+
+    /// [`Self::ellipse`] for the other vehicle's motion direction `other_direction`.
+    fn ellipse_of(
+        &self,
+        vehicle: &CheckedVehicle,
+        ego_direction: [f64; 2],
+        other_direction: [f64; 2],
+    ) -> Ellipse {
         Ellipse::oriented(
             self.ego_size,
             ego_direction,
             vehicle.size,
-            motion_direction(previous, other, vehicle.direction),
+            other_direction,
             self.scale,
             self.margins[0],
             self.margins[1],
@@ -122,17 +191,23 @@ impl SafetyConstraint {
         previous: [f64; 2],
         other: [f64; 2],
     ) -> bool {
+        self.beside_of(vehicle, &self.pair(vehicle, ego, previous, other, false))
+    }
+
+    /// [`Self::beside`] of a [`PairGeometry`].
+    #[must_use]
+    pub fn beside_of(&self, vehicle: &CheckedVehicle, pair: &PairGeometry) -> bool {
         let reach = Ellipse::oriented(
             self.ego_size,
-            heading_direction(ego[2]),
+            pair.ego_direction(),
             vehicle.size,
-            motion_direction(previous, other, vehicle.direction),
+            pair.other_direction,
             1.0,
             0.0,
             self.margins[1],
         )
         .a_y;
-        (other[1] - ego[1]).abs() >= reach
+        (pair.other[1] - pair.ego[1]).abs() >= reach
     }
 
     /// The closing-speed margin (m) added to the ellipse's longitudinal semi-axis: the extra
@@ -168,15 +243,14 @@ impl SafetyConstraint {
     }
 
     /// b of the ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) against `vehicle` at `other`
-    /// (m), which was at `previous` one step earlier, in the settings' geometry
-    /// ([`SafetyGeometry`]): the [`SafetyConstraint::ellipse`], with the
+    /// (m), which was at `previous` one step earlier: the [`SafetyConstraint::ellipse`] (of
+    /// each slice of a long ego, [`PlannerSettings::ego_segment_length`]), with the
     /// [`SafetyConstraint::closing_margin`] added to its longitudinal semi-axis at the
     /// `terminal` step of the horizon (a terminal condition: the plan must end where the rear
     /// vehicle can still match the front one's speed; within the horizon the predictions
     /// themselves show the gap closing, and a margin there would forbid the very braking that
-    /// recovers from a short gap); or the [`box_separation`] of the two oriented boxes with
-    /// the margins as clearance, the closing margin added to the longitudinal one. The ellipse
-    /// (the drawn safety region, whatever the geometry) is returned with it.
+    /// recovers from a short gap). The ellipse of the whole ego (the drawn safety region) is
+    /// returned with it.
     #[must_use]
     pub fn b(
         &self,
@@ -186,15 +260,11 @@ impl SafetyConstraint {
         other: [f64; 2],
         terminal: bool,
     ) -> (f64, Ellipse) {
-        let mut ellipse = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
-        let closing = if terminal {
-            self.closing_margin([ego[0], ego[1]], ego[3], previous, other)
-        } else {
-            0.0
-        };
-        ellipse.a_x += closing;
+        let pair = self.pair(vehicle, ego, previous, other, terminal);
+        let mut ellipse = self.ellipse_of(vehicle, pair.ego_direction(), pair.other_direction);
+        ellipse.a_x += pair.closing;
         let b = if self.segments > 1 {
-            self.sliced(vehicle, ego, previous, other, closing).0
+            self.sliced(vehicle, &pair).0
         } else {
             ellipse.value([ego[0], ego[1]], other)
         };
@@ -202,7 +272,7 @@ impl SafetyConstraint {
     }
 
     /// b as [`SafetyConstraint::b`] and its gradient ∂b/∂(x, y) of the ego's position (the
-    /// prediction, the headings and the sizes of the ellipse or boxes held fixed).
+    /// prediction, the headings and the sizes of the ellipses held fixed).
     #[must_use]
     pub fn b_and_gradient(
         &self,
@@ -212,48 +282,52 @@ impl SafetyConstraint {
         other: [f64; 2],
         terminal: bool,
     ) -> (f64, [f64; 2]) {
-        let closing = if terminal {
-            self.closing_margin([ego[0], ego[1]], ego[3], previous, other)
-        } else {
-            0.0
-        };
+        self.b_and_gradient_of(vehicle, &self.pair(vehicle, ego, previous, other, terminal))
+    }
+
+    /// [`Self::b_and_gradient`] of a [`PairGeometry`].
+    #[must_use]
+    pub fn b_and_gradient_of(
+        &self,
+        vehicle: &CheckedVehicle,
+        pair: &PairGeometry,
+    ) -> (f64, [f64; 2]) {
         if self.segments > 1 {
-            self.sliced(vehicle, ego, previous, other, closing)
+            self.sliced(vehicle, pair)
         } else {
-            let mut e = self.ellipse(vehicle, heading_direction(ego[2]), previous, other);
-            e.a_x += closing;
-            let p = [ego[0], ego[1]];
-            (e.value(p, other), e.gradient(p, other))
+            let mut e = self.ellipse_of(vehicle, pair.ego_direction(), pair.other_direction);
+            e.a_x += pair.closing;
+            let p = [pair.ego[0], pair.ego[1]];
+            (e.value(p, pair.other), e.gradient(p, pair.other))
         }
     }
 
     /// b of the sliced ego ([`PlannerSettings::ego_segment_length`]) and its gradient
-    /// ∂b/∂(x, y) of the ego's centre: the ego at `ego` = (x, y, ψ, v) is cut along its
-    /// heading into `segments` slices of length L/k, and b is the smallest over the slices of
-    /// the [`Ellipse::oriented`] of one slice (size (L/k, W) at the ego's heading) and the
-    /// vehicle (at `other`, heading of its motion from `previous`), `closing` (m) added to the
-    /// longitudinal semi-axis, evaluated at the slice's centre ([`Ellipse::sliced`]).
-    fn sliced(
-        &self,
-        vehicle: &CheckedVehicle,
-        ego: [f64; 4],
-        previous: [f64; 2],
-        other: [f64; 2],
-        closing: f64,
-    ) -> (f64, [f64; 2]) {
+    /// ∂b/∂(x, y) of the ego's centre: the ego is cut along its heading into `segments`
+    /// slices of length L/k, and b is the smallest over the slices of the
+    /// [`Ellipse::oriented`] of one slice (size (L/k, W) at the ego's heading) and the
+    /// vehicle, the pair's closing margin added to the longitudinal semi-axis, evaluated at
+    /// the slice's centre ([`Ellipse::sliced`]).
+    fn sliced(&self, vehicle: &CheckedVehicle, pair: &PairGeometry) -> (f64, [f64; 2]) {
         let k = self.segments;
         let mut e = Ellipse::oriented(
             [self.ego_size[0] / k as f64, self.ego_size[1]],
-            heading_direction(ego[2]),
+            pair.ego_direction(),
             vehicle.size,
-            motion_direction(previous, other, vehicle.direction),
+            pair.other_direction,
             self.scale,
             self.margins[0],
             self.margins[1],
         );
-        e.a_x += closing;
-        let (sn, cs) = ego[2].sin_cos();
-        e.sliced([ego[0], ego[1]], [cs, sn], self.ego_size[0], k, other)
+        e.a_x += pair.closing;
+        let [sn, cs] = pair.sin_cos;
+        e.sliced(
+            [pair.ego[0], pair.ego[1]],
+            [cs, sn],
+            self.ego_size[0],
+            k,
+            pair.other,
+        )
     }
 
     /// How deep the ego's box at `ego` = (x, y, ψ, v) overlaps the vehicle's box at `other`
@@ -267,10 +341,16 @@ impl SafetyConstraint {
         previous: [f64; 2],
         other: [f64; 2],
     ) -> f64 {
-        let (sn, cs) = ego[2].sin_cos();
-        let a = OrientedBox::along([ego[0], ego[1]], [cs, sn], self.ego_size);
-        let axis = motion_axis(previous, other, vehicle.axis);
-        let b = OrientedBox::along(other, axis, vehicle.size);
+        self.overlap_of(vehicle, &self.pair(vehicle, ego, previous, other, false))
+    }
+
+    /// [`Self::overlap`] of a [`PairGeometry`].
+    #[must_use]
+    pub fn overlap_of(&self, vehicle: &CheckedVehicle, pair: &PairGeometry) -> f64 {
+        let [sn, cs] = pair.sin_cos;
+        let a = OrientedBox::along([pair.ego[0], pair.ego[1]], [cs, sn], self.ego_size);
+        let axis = motion_axis(pair.previous, pair.other, vehicle.axis);
+        let b = OrientedBox::along(pair.other, axis, vehicle.size);
         let sep = box_separation(&a, &b, [0.0, 0.0]).0;
         if sep.is_nan() {
             f64::INFINITY
@@ -370,12 +450,6 @@ pub(crate) fn ego_slice_count(length: f64, segment: f64) -> f64 {
 #[must_use]
 pub(crate) fn ego_segments(length: f64, segment: f64) -> usize {
     ego_slice_count(length, segment) as usize
-}
-
-/// (|cos ψ|, |sin ψ|).
-fn heading_direction(psi: f64) -> [f64; 2] {
-    let (sn, cs) = psi.sin_cos();
-    [cs.abs(), sn.abs()]
 }
 
 /// The minimum of `a` and `b`, NaN when either is (`f64::min` would drop a NaN `b`).
@@ -717,12 +791,13 @@ impl<'c> SafetyEval<'c> {
                     self.prediction[base + 2 * k + 1],
                 ];
                 let ego_state = [ego[0], ego[1], self.ego_heading[k], self.ego_speed[k]];
-                let (b, g) =
-                    self.constraint
-                        .b_and_gradient(v, ego_state, previous, other, k + 1 == t);
-                let in_path = !self.constraint.beside(v, ego_state, previous, other);
+                let pair = self
+                    .constraint
+                    .pair(v, ego_state, previous, other, k + 1 == t);
+                let (b, g) = self.constraint.b_and_gradient_of(v, &pair);
+                let in_path = !self.constraint.beside_of(v, &pair);
                 if self.count_overlap {
-                    overlap += self.constraint.overlap(v, ego_state, previous, other);
+                    overlap += self.constraint.overlap_of(v, &pair);
                 }
                 previous = other;
                 if in_path {

@@ -154,7 +154,10 @@ fn ahead_ranks_after_contact_and_edge_before_the_total_violation() {
     let touches = v(0.3, 0.0, 0.0, false, 0.5);
     let over_edge = v(0.0, 0.2, 0.0, false, 0.5);
     assert_eq!(rank(brake).decide(&rank(touches)), (RankKey::Contact, true));
-    assert_eq!(rank(brake).decide(&rank(over_edge)), (RankKey::RoadEdge, true));
+    assert_eq!(
+        rank(brake).decide(&rank(over_edge)),
+        (RankKey::RoadEdge, true)
+    );
     // Equal ahead: the total violation decides.
     assert_eq!(
         rank(v(0.0, 0.0, 0.1, false, 1.0)).decide(&rank(brake)),
@@ -175,7 +178,10 @@ fn lead_rule_brakes_a_squeezed_ego_instead_of_speeding_up_towards_its_leader() {
         s.repair.lead_min_speed = lead_min_speed;
         plan_in_lanes(1.85, s)
     };
-    let (off, on) = (plan_at(100.0), plan_at(PlannerSettings::default().repair.lead_min_speed));
+    let (off, on) = (
+        plan_at(100.0),
+        plan_at(PlannerSettings::default().repair.lead_min_speed),
+    );
     // At its speed floor the rule applies; just above it, it does not.
     assert_eq!(plan_at(20.5).accel, off.accel);
     assert_eq!(plan_at(20.0).accel, on.accel);
@@ -287,7 +293,10 @@ fn keeping_the_lane_ranks_before_the_violation_ahead() {
     let rank = |x: Violations| Rank::inadmissible(&s, &x);
     let keeps = v(0.0, 0.5, false);
     let leaves = v(0.0, 0.1, true);
-    assert_eq!(rank(keeps).decide(&rank(leaves)), (RankKey::KeepsLane, true));
+    assert_eq!(
+        rank(keeps).decide(&rank(leaves)),
+        (RankKey::KeepsLane, true)
+    );
     // Contact still decides first.
     assert_eq!(
         rank(leaves).decide(&rank(v(0.2, 0.5, false))),

@@ -3,7 +3,6 @@
 //! shifted previous plan, or constant velocity on a cold start), the linearised dynamics
 //! around it, the input and state bounds, and the cost J = Φ1 + Φ2 + Φ3.
 
-
 use crate::extents::{LaneTable, StopRule, deadline_factor};
 use crate::model::{Bicycle, Linearisation, State};
 use crate::qp::{RateBox, repair_box_rate};
@@ -380,7 +379,8 @@ fn stop_line(s: &PlannerSettings, p: &PlanningProblem<'_>) -> Option<StopLine> {
     // Out of reach: no plan (accelerating at a_max all along) could break the stopping rule.
     let time = s.model.horizon as f64 * s.model.dt;
     let v_far = p.ego.v + s.bounds.a_max.max(0.0) * time;
-    let reach = p.ego.x + 0.5 * (p.ego.v + v_far) * time + v_far * v_far / (2.0 * s.lane_ends.stop_decel);
+    let reach =
+        p.ego.x + 0.5 * (p.ego.v + v_far) * time + v_far * v_far / (2.0 * s.lane_ends.stop_decel);
     if reach < x {
         return None;
     }
@@ -441,7 +441,8 @@ fn state_bounds(
     for k in 0..t {
         let (heading, half_extent) = if bounded {
             let h = s
-                .bounds.heading_max
+                .bounds
+                .heading_max
                 .max(p.ego.psi.abs() - (k + 1) as f64 * s.bounds.heading_recovery);
             (h, half_extent_across(length, width, h))
         } else {

@@ -48,12 +48,12 @@ use crate::model::{Bicycle, State};
 use crate::qp::QpFailure;
 use crate::settings::PlannerSettings;
 
-pub use constraint::{BindingVehicle, CheckedVehicle, SafetyConstraint};
+pub use constraint::{BindingVehicle, CheckedVehicle, PairGeometry, SafetyConstraint};
 pub use problem::{
     DecidedBy, EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus,
 };
-pub use repair::{Family, RANK_ORDER, RankKey};
 pub use reference::JointSolution;
+pub use repair::{Family, RANK_ORDER, RankKey};
 
 use constraint::{Budget, SafetyEval};
 use inputs::Input;
@@ -572,8 +572,13 @@ impl Planner {
             predictor.set_scene(problem.history)?;
         }
         let n_agents = problem.history.n_agents();
-        let mut safety =
-            SafetyEval::new(&constraint, lp.origin, lp.horizon, n_agents, s.safety.safety_min);
+        let mut safety = SafetyEval::new(
+            &constraint,
+            lp.origin,
+            lp.horizon,
+            n_agents,
+            s.safety.safety_min,
+        );
         safety.budget = Budget::new(s, start);
         safety.count_overlap = true;
         safety.ego_last = Some(problem.history.at(0, nudge_predictor::T_OBS - 1));
@@ -586,14 +591,7 @@ impl Planner {
         let current = CurrentSafety::new(first, &safety);
         let mut ws = Workspace::new(s, &lp, iterates, current);
         // ADMM: loop {(re-linearisation;) Δ-update; α-update; Z-update; dual update}.
-        let run = admm_loop(
-            s,
-            &mut lp,
-            &mut ws,
-            &mut safety,
-            predictor,
-            &mut timings,
-        )?;
+        let run = admm_loop(s, &mut lp, &mut ws, &mut safety, predictor, &mut timings)?;
         let admm = AdmmResult::new(ws, run.stop, run.iterations, run.qp_solves);
         // Execution check: the roll-out of (Δ, α), repaired when unsafe; it may use the calls
         // the budget held back.
@@ -626,7 +624,7 @@ impl Planner {
         let s = &self.settings;
         let ego_length = problem.sizes[0][0];
         if constraint::ego_slice_count(ego_length, s.safety.ego_segment_length)
-                > PlannerSettings::MAX_EGO_SEGMENTS as f64
+            > PlannerSettings::MAX_EGO_SEGMENTS as f64
         {
             return Err(PlannerError::BadProblem {
                 field: "sizes",
@@ -808,7 +806,12 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
         let c = r.best_fallback()?;
         let by = fallback(&c);
         if c.rank.safe {
-            return Ok(Finished::adopt(c, admm_z, (PlanStatus::Fallback, by), counts));
+            return Ok(Finished::adopt(
+                c,
+                admm_z,
+                (PlanStatus::Fallback, by),
+                counts,
+            ));
         }
         (c, by)
     };
@@ -818,7 +821,12 @@ fn check_execution(r: &mut Repairer<'_, '_>, admm: AdmmResult) -> Result<Finishe
     } else {
         (rollout, admm_by)
     };
-    Ok(Finished::adopt(best, admm_z, (PlanStatus::Unsafe, by), counts))
+    Ok(Finished::adopt(
+        best,
+        admm_z,
+        (PlanStatus::Unsafe, by),
+        counts,
+    ))
 }
 
 /// What decided a candidate returned by [`Repairer::best_fallback`].

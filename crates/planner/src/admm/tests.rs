@@ -570,7 +570,12 @@ fn a_candidate_the_predictors_refuse_is_unsafe_and_never_predicted() {
 
     let mut nan = near.clone();
     nan[2][1] = f64::NAN;
-    assert!(!safety.eval(&mut cv, &nan).unwrap().is_safe(s.safety.safety_min));
+    assert!(
+        !safety
+            .eval(&mut cv, &nan)
+            .unwrap()
+            .is_safe(s.safety.safety_min)
+    );
     assert_eq!((safety.calls, safety.refused), (1, 2));
 
     safety.ego_last = None;
@@ -804,20 +809,15 @@ fn executed_min_b_is_the_planners_step_one_constraint() {
     );
     assert!((executed - want).abs() < 1e-12, "{executed} vs {want}");
     assert_eq!(
-        SafetyConstraint::new(
-            &problem(&h, &sizes[..], 12.0),
-            &{
-                let mut s = s;
-                s.safety.check_range = 1.0;
-                s
-            }
-        )
+        SafetyConstraint::new(&problem(&h, &sizes[..], 12.0), &{
+            let mut s = s;
+            s.safety.check_range = 1.0;
+            s
+        })
         .executed_min_b(ego_next, &positions),
         None
     );
 }
-
-
 
 /// From call `from` on, predicts agent 1 moving to a fixed road position `at` at 29 m per step
 /// (a plausible prediction: the planner refuses motions beyond 30 m per step) and staying
@@ -906,7 +906,10 @@ fn an_inadmissible_rollout_is_refined_on_the_nonlinear_model() {
         let b = constraint.ellipse(&v, dir, at, at).value([z[0], z[1]], at);
         min_b = min_b.min(b);
     }
-    assert!(min_b > s.safety.safety_min, "refined plan unsafe: b = {min_b}");
+    assert!(
+        min_b > s.safety.safety_min,
+        "refined plan unsafe: b = {min_b}"
+    );
     assert_eq!(
         plan.min_safety,
         Some(min_b).map(|_| plan.min_safety.unwrap())
@@ -1012,7 +1015,10 @@ fn align_with_road_turns_parallel_to_the_road() {
     let mut prev = 0.1;
     for dk in &d {
         // Within the bounds, and never steering further left once the heading is left.
-        assert!((dk - prev).abs() <= s.bounds.ddelta_max + 1e-12 && dk.abs() <= s.bounds.delta_max + 1e-12);
+        assert!(
+            (dk - prev).abs() <= s.bounds.ddelta_max + 1e-12
+                && dk.abs() <= s.bounds.delta_max + 1e-12
+        );
         prev = *dk;
         z = m.advance(&z, *dk, 0.0);
         assert!(z[2] > -0.02, "turned past the road's direction: {z:?}");
@@ -1189,14 +1195,11 @@ fn binding_vehicle_is_the_planners_minimum_over_the_plan() {
     let value = ((ego[0] - other[0]) / ax).powi(2) + ((ego[1] - other[1]) / ay).powi(2) - 1.0;
     assert!((value - b.b).abs() < 1e-12, "{value} vs {}", b.b);
     // Nothing in range: no binding vehicle.
-    let far = SafetyConstraint::new(
-        &p,
-        &{
-            let mut s = s;
-            s.safety.check_range = 1.0;
-            s
-        },
-    );
+    let far = SafetyConstraint::new(&p, &{
+        let mut s = s;
+        s.safety.check_range = 1.0;
+        s
+    });
     assert_eq!(far.binding(&plan.states, &prediction), None);
 }
 
@@ -1232,7 +1235,8 @@ fn deadline_weight_and_its_gradient_against_finite_differences() {
         ..problem(&h, &sizes, 20.0)
     };
     let lp = LinearisedProblem::new(&s, &model(&s), None, &p);
-    let w = s.cost.w_y + s.lane_ends.w_deadline * deadline_factor(40.0, s.lane_ends.deadline_distance);
+    let w =
+        s.cost.w_y + s.lane_ends.w_deadline * deadline_factor(40.0, s.lane_ends.deadline_distance);
     assert_eq!(lp.weights[1], w);
     assert!(
         w > 2.0 * s.cost.w_y,
@@ -1545,8 +1549,14 @@ fn the_ranking_compares_its_keys_in_order() {
     // Within the bounds (up to the slack of 0.05) beats a swerve past them that touches less.
     let swerve = v(0.4, 0.1, 0.0, 4.5);
     let within = v(0.0, 0.8, 0.0, 6.0);
-    assert_eq!(rank(within).decide(&rank(swerve)), (RankKey::WithinBounds, true));
-    assert_eq!(rank(swerve).decide(&rank(within)), (RankKey::WithinBounds, false));
+    assert_eq!(
+        rank(within).decide(&rank(swerve)),
+        (RankKey::WithinBounds, true)
+    );
+    assert_eq!(
+        rank(swerve).decide(&rank(within)),
+        (RankKey::WithinBounds, false)
+    );
     let dip = v(0.015, 0.0, 0.0, 1.4);
     let turn = v(0.0, 0.3, 0.0, 2.7);
     assert_eq!(rank(dip).decide(&rank(turn)), (RankKey::Contact, true));
@@ -1708,7 +1718,10 @@ fn the_fallback_profiles_reach_their_constants_within_the_jerk_bound() {
     let mut p = problem(&h, &sizes, 12.0);
     p.ego.y = 1.6;
     p.y_retreat = Some(0.0);
-    assert_eq!((s.bounds.a_min, s.bounds.a_max, s.bounds.da_max), (-5.0, 3.0, 1.5));
+    assert_eq!(
+        (s.bounds.a_min, s.bounds.a_max, s.bounds.da_max),
+        (-5.0, 3.0, 1.5)
+    );
     let want: Vec<Vec<f64>> = vec![
         vec![0.0; 6],
         vec![-1.5, -2.5, -2.5, -2.5, -2.5, -2.5],
@@ -1725,8 +1738,6 @@ fn the_fallback_profiles_reach_their_constants_within_the_jerk_bound() {
     assert_eq!(accels(simple_inputs(&s, &model(&s), &lp)), twice);
     assert_eq!(accels(retreat_inputs(&s, &model(&s), &lp)), want);
 }
-
-
 
 /// The fallback's input lattice keeps the box and rate bounds from the inputs applied last,
 /// holds no sequence twice, and holds the extreme ramps (full acceleration, full braking,
@@ -1844,7 +1855,9 @@ fn the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss() {
             assert!(best.rollout[5][0] >= limit);
             let (mut pd, mut pa) = (lp.delta_box.prev, lp.accel_box.prev);
             for (&dk, &ak) in best.delta.iter().zip(&best.accel) {
-                assert!(dk.abs() <= s.bounds.delta_max && ak >= s.bounds.a_min && ak <= s.bounds.a_max);
+                assert!(
+                    dk.abs() <= s.bounds.delta_max && ak >= s.bounds.a_min && ak <= s.bounds.a_max
+                );
                 assert!((dk - pd).abs() <= s.bounds.ddelta_max + 1e-12);
                 assert!((ak - pa).abs() <= s.bounds.da_max + 1e-12);
                 (pd, pa) = (dk, ak);
@@ -1983,7 +1996,6 @@ fn a_lattice_escape_that_counts_on_a_yield_is_refused_when_it_must_be_clear_with
         });
     }
 }
-
 
 /// `lattice_min_speed`: the lattice escape of
 /// [`the_fallback_lattice_finds_the_escape_the_simple_fallbacks_miss`] is searched for at the

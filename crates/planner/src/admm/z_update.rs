@@ -181,14 +181,7 @@ impl Workspace {
             }
             let moved = if current.is_safe(safety.threshold()) {
                 descend(
-                    &g,
-                    curvature,
-                    z,
-                    g_current,
-                    scratch,
-                    current,
-                    safety,
-                    predictor,
+                    &g, curvature, z, g_current, scratch, current, safety, predictor,
                 )?
             } else {
                 restore(&g, curvature, z, scratch, current, safety, predictor)?

@@ -290,46 +290,133 @@ pub const MOVED: &[(&str, &str)] = &[
 /// measured and refused (their code is gone; the report names the last commit that had it),
 /// their parameters, and adopted rules that lost their switch (always on now).
 pub const REMOVED: &[(&str, &str)] = &[
-    ("z_safe_step", "refused: docs/results/planner.md"),
-    ("z_step_margin", "refused with z_safe_step: docs/results/planner.md"),
-    ("z_cuts", "refused: docs/results/planner.md"),
-    ("z_rollout_trial", "refused: docs/results/planner.md"),
-    ("relinearise", "refused: docs/results/planner.md"),
-    ("safe_start", "refused: docs/results/planner.md"),
-    ("z_retighten", "refused: docs/results/planner.md"),
-    ("warm_start_dual", "refused: docs/results/planner.md"),
-    ("plan_buffer", "refused: docs/results/planner.md"),
-    ("ellipse_lateral_scale", "refused: docs/results/ellipse_lateral.md"),
-    ("safety_geometry", "refused (boxes, grown_boxes): docs/results/nudge_safety.md"),
-    ("contingency", "refused: docs/results/gap_seeking.md"),
-    ("contingency_accel", "refused with contingency: docs/results/gap_seeking.md"),
-    ("contingency_steps", "refused with contingency: docs/results/gap_seeking.md"),
+    ("z_safe_step", "refused: docs/results/latency.md"),
+    (
+        "z_step_margin",
+        "refused with z_safe_step: docs/results/latency.md",
+    ),
+    ("z_cuts", "refused: docs/results/latency.md"),
+    ("z_rollout_trial", "refused: docs/results/latency.md"),
+    ("relinearise", "refused: docs/results/latency.md"),
+    ("safe_start", "refused: docs/results/latency.md"),
+    ("z_retighten", "refused: docs/results/latency.md"),
+    (
+        "warm_start_dual",
+        "refused, the duals start at 0: docs/results/settings_v2.md",
+    ),
+    ("plan_buffer", "refused: docs/results/latency.md"),
+    (
+        "ellipse_lateral_scale",
+        "refused: docs/results/ellipse_lateral.md",
+    ),
+    (
+        "safety_geometry",
+        "refused (boxes, grown_boxes): docs/results/nudge_safety.md",
+    ),
+    ("contingency", "refused: docs/results/nudge_safety.md"),
+    (
+        "contingency_accel",
+        "refused with contingency: docs/results/nudge_safety.md",
+    ),
+    (
+        "contingency_steps",
+        "refused with contingency: docs/results/nudge_safety.md",
+    ),
     ("follower_ttc", "refused: docs/results/follower_gap.md"),
-    ("follower_min_gap", "refused with follower_ttc: docs/results/follower_gap.md"),
-    ("follower_clearance", "refused with follower_ttc: docs/results/follower_gap.md"),
-    ("fallback_brake_hold", "refused: docs/results/planned_slow.md"),
-    ("fallback_full_accel", "refused: docs/results/fallback_escape.md"),
+    (
+        "follower_min_gap",
+        "refused with follower_ttc: docs/results/follower_gap.md",
+    ),
+    (
+        "follower_clearance",
+        "refused with follower_ttc: docs/results/follower_gap.md",
+    ),
+    (
+        "fallback_brake_hold",
+        "refused: docs/results/planned_slow.md",
+    ),
+    (
+        "fallback_full_accel",
+        "refused: docs/results/fallback_escape.md",
+    ),
     ("fallback_shy", "refused: docs/results/planned_slow.md"),
-    ("fallback_match_speed", "refused: docs/results/match_speed.md"),
-    ("match_admissible_only", "refused with fallback_match_speed: docs/results/match_speed.md"),
-    ("match_min_speed", "refused with fallback_match_speed: docs/results/match_speed.md"),
-    ("lattice_when_fallback_hits", "refused: docs/results/avoidability.md"),
-    ("fallback_nonreactive", "refused: docs/results/follower_gap.md"),
-    ("fallback_avoid_nonreactive", "refused: docs/results/avoidability.md"),
-    ("avoid_min_speed", "refused with fallback_avoid_nonreactive: docs/results/avoidability.md"),
+    (
+        "fallback_match_speed",
+        "refused: docs/results/match_speed.md",
+    ),
+    (
+        "match_admissible_only",
+        "refused with fallback_match_speed: docs/results/match_speed.md",
+    ),
+    (
+        "match_min_speed",
+        "refused with fallback_match_speed: docs/results/match_speed.md",
+    ),
+    (
+        "lattice_when_fallback_hits",
+        "refused: docs/results/avoidability.md",
+    ),
+    (
+        "fallback_nonreactive",
+        "refused: docs/results/follower_gap.md",
+    ),
+    (
+        "fallback_avoid_nonreactive",
+        "refused: docs/results/avoidability.md",
+    ),
+    (
+        "avoid_min_speed",
+        "refused with fallback_avoid_nonreactive: docs/results/avoidability.md",
+    ),
     ("lateral_drift", "refused: docs/results/avoidability.md"),
-    ("lateral_drift_min_speed", "refused with lateral_drift: docs/results/avoidability.md"),
-    ("lead_first", "adopted, always on: docs/results/lead_first.md"),
-    ("lead_in_lane", "adopted, always on: docs/results/lead_first.md"),
-    ("lead_keep_lane", "adopted, always on: docs/results/lead_first.md"),
-    ("bounds_first", "adopted, always on: docs/results/long_egos.md"),
-    ("contact_first", "adopted, always on: docs/results/long_egos.md"),
-    ("edge_first", "adopted, always on: docs/results/long_egos.md"),
-    ("fallback_lattice", "adopted, always on: docs/results/avoidability.md"),
-    ("lattice_clear_nonreactive", "adopted, always on: docs/results/avoidability.md"),
-    ("heading_governor", "adopted, always on: docs/results/heading_governor.md"),
-    ("hessian_scaled", "adopted, always on: docs/results/planner.md"),
-    ("rollout_check", "the execution check is the planner's safety; always on"),
+    (
+        "lateral_drift_min_speed",
+        "refused with lateral_drift: docs/results/avoidability.md",
+    ),
+    (
+        "lead_first",
+        "adopted, always on: docs/results/lead_first.md",
+    ),
+    (
+        "lead_in_lane",
+        "adopted, always on: docs/results/lead_first.md",
+    ),
+    (
+        "lead_keep_lane",
+        "adopted, always on: docs/results/lead_first.md",
+    ),
+    (
+        "bounds_first",
+        "adopted, always on: docs/results/long_egos.md",
+    ),
+    (
+        "contact_first",
+        "adopted, always on: docs/results/long_egos.md",
+    ),
+    (
+        "edge_first",
+        "adopted, always on: docs/results/long_egos.md",
+    ),
+    (
+        "fallback_lattice",
+        "adopted, always on: docs/results/avoidability.md",
+    ),
+    (
+        "lattice_clear_nonreactive",
+        "adopted, always on: docs/results/avoidability.md",
+    ),
+    (
+        "heading_governor",
+        "adopted, always on: docs/results/heading_governor.md",
+    ),
+    (
+        "hessian_scaled",
+        "adopted, always on: docs/results/settings_v2.md",
+    ),
+    (
+        "rollout_check",
+        "the execution check is the planner's safety, always on: docs/results/settings_v2.md",
+    ),
 ];
 
 fn json_kind(v: &serde_json::Value) -> &'static str {

@@ -494,7 +494,9 @@ pub fn simulate_with(
             Some((_, LaneViolationKind::Ended)) => RunOutcome::LaneEnded,
             Some((_, LaneViolationKind::NotBegun)) => RunOutcome::LaneNotBegun,
             None if rec.success => RunOutcome::Success,
-            None if waiting(sc, &run.ego, settings.lane_ends.deadline_distance) => RunOutcome::Waiting,
+            None if waiting(sc, &run.ego, settings.lane_ends.deadline_distance) => {
+                RunOutcome::Waiting
+            }
             None => RunOutcome::Unfinished,
         }
     };

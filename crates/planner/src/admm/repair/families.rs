@@ -57,10 +57,15 @@ impl fmt::Display for Family {
 /// a_max/2, each made feasible for the box and jerk bounds from the previous acceleration.
 pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Vec<Vec<f64>> {
     let t = lp.horizon;
-    let mut profiles: Vec<Vec<f64>> = [0.0, 0.5 * s.bounds.a_min, s.bounds.a_min, 0.5 * s.bounds.a_max]
-        .into_iter()
-        .map(|a_cmd| vec![a_cmd; t])
-        .collect();
+    let mut profiles: Vec<Vec<f64>> = [
+        0.0,
+        0.5 * s.bounds.a_min,
+        s.bounds.a_min,
+        0.5 * s.bounds.a_max,
+    ]
+    .into_iter()
+    .map(|a_cmd| vec![a_cmd; t])
+    .collect();
     for a in &mut profiles {
         repair_box_rate(a, lp.accel_box);
     }
@@ -172,7 +177,11 @@ pub(crate) fn simple_families(
         );
         out.push((Family::SteerToGoal, (d, a)));
     }
-    out.extend(stop_inputs(s, model, lp).into_iter().map(|i| (Family::Stop, i)));
+    out.extend(
+        stop_inputs(s, model, lp)
+            .into_iter()
+            .map(|i| (Family::Stop, i)),
+    );
     out
 }
 

@@ -32,12 +32,12 @@ use super::linearised::LinearisedProblem;
 use super::refine;
 
 pub use families::Family;
-pub(crate) use families::{LATTICE_HOLD, LATTICE_RATES};
 pub(crate) use families::{Inputs, lattice_inputs, retreat_inputs, simple_families};
+pub(crate) use families::{LATTICE_HOLD, LATTICE_RATES};
 #[cfg(test)]
 pub(crate) use families::{align_with_road, fallback_accels, simple_inputs};
-pub use rank::{RANK_ORDER, RankKey};
 pub(crate) use rank::{EXCESS_TOLERANCE, EXCESS_WEIGHT, Rank, Violations};
+pub use rank::{RANK_ORDER, RankKey};
 
 /// An input sequence checked on its roll-out.
 #[derive(Debug, Clone, PartialEq)]
@@ -187,7 +187,8 @@ impl Repairer<'_, '_> {
         Violations {
             unbegun,
             clear,
-            value: safety_violation(e.min_b, e.violation, s.safety.safety_min) + EXCESS_WEIGHT * excess,
+            value: safety_violation(e.min_b, e.violation, s.safety.safety_min)
+                + EXCESS_WEIGHT * excess,
             bound_excess: excess,
             contact: e.overlap,
             edge: self.lp.edge_excess(rollout),
