@@ -114,6 +114,13 @@ impl PlanningProblem<'_> {
     /// [`PlannerError::BadProblem`] naming the first offending field,
     /// [`PlannerError::BadLane`] naming the lane and field of a bad lane layout.
     pub fn check(&self) -> Result<(), PlannerError> {
+        self.check_ego()?;
+        self.check_road()?;
+        self.check_agents()
+    }
+
+    /// The ego's state and previous inputs ([`Self::check`]).
+    fn check_ego(&self) -> Result<(), PlannerError> {
         use crate::settings::show;
         use nudge_predictor::limits::MAX_ABS_POSITION;
         let bad =
@@ -183,6 +190,15 @@ impl PlanningProblem<'_> {
                 ),
             );
         }
+        Ok(())
+    }
+
+    /// The road, the lateral goals and the reference speed ([`Self::check`]).
+    fn check_road(&self) -> Result<(), PlannerError> {
+        use crate::settings::show;
+        use nudge_predictor::limits::MAX_ABS_POSITION;
+        let bad =
+            |field: &'static str, reason: String| Err(PlannerError::BadProblem { field, reason });
         let [right, left] = self.road;
         if right >= left {
             return bad(
@@ -222,6 +238,13 @@ impl PlanningProblem<'_> {
                 format!("{} m/s is outside 0..={} m/s", self.v_ref, Self::MAX_V_REF),
             );
         }
+        Ok(())
+    }
+
+    /// One positive size per agent and the lane layout ([`Self::check`]).
+    fn check_agents(&self) -> Result<(), PlannerError> {
+        let bad =
+            |field: &'static str, reason: String| Err(PlannerError::BadProblem { field, reason });
         let n = self.history.n_agents();
         if self.sizes.len() != n {
             return bad(

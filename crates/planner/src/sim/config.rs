@@ -217,124 +217,46 @@ mod tests {
 
     #[test]
     fn every_field_is_validated_by_name() {
-        let bad = [
-            (
-                "max_steps",
-                SimConfig {
-                    max_steps: 0,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "max_steps",
-                SimConfig {
-                    max_steps: 1001,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "settle_y",
-                SimConfig {
-                    settle_y: f64::NAN,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "settle_y",
-                SimConfig {
-                    settle_y: 0.0,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "settle_psi",
-                SimConfig {
-                    settle_psi: -0.1,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "settle_steps",
-                SimConfig {
-                    settle_steps: 0,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "abort_after",
-                SimConfig {
-                    abort_after: 5000,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "abort_hold",
-                SimConfig {
-                    abort_hold: 5000,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "gap_speed",
-                SimConfig {
-                    gap_speed: -1.0,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "gap_speed",
-                SimConfig {
-                    gap_speed: f64::NAN,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "start_abort_after",
-                SimConfig {
-                    start_abort_after: 5000,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "gap_window",
-                SimConfig {
-                    gap_window: 1000.0,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "fault_brake_limit",
-                SimConfig {
-                    fault_brake_limit: 0.0,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "fault_brake_limit",
-                SimConfig {
-                    fault_brake_limit: f64::INFINITY,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "replay_lateral_decay",
-                SimConfig {
-                    replay_lateral_decay: 1.5,
-                    ..SimConfig::default()
-                },
-            ),
-            (
-                "replay_lateral_decay",
-                SimConfig {
-                    replay_lateral_decay: f64::NAN,
-                    ..SimConfig::default()
-                },
-            ),
+        let bad: [(&str, f64); 18] = [
+            ("max_steps", 0.0),
+            ("max_steps", 1001.0),
+            ("settle_y", f64::NAN),
+            ("settle_y", 0.0),
+            ("settle_psi", -0.1),
+            ("settle_steps", 0.0),
+            ("abort_after", 5000.0),
+            ("abort_hold", 5000.0),
+            ("gap_speed", -1.0),
+            ("gap_speed", f64::NAN),
+            ("start_abort_after", 5000.0),
+            ("gap_window", 1000.0),
+            ("fault_brake_limit", 0.0),
+            ("fault_brake_limit", f64::INFINITY),
+            ("replay_lateral_decay", 1.5),
+            ("replay_lateral_decay", f64::NAN),
+            ("stall_progress", 2.0),
+            ("crawl_fraction", -0.5),
         ];
-        for (field, c) in bad {
+        for (field, v) in bad {
+            let mut c = SimConfig::default();
+            match field {
+                "max_steps" => c.max_steps = v as usize,
+                "settle_y" => c.settle_y = v,
+                "settle_psi" => c.settle_psi = v,
+                "settle_steps" => c.settle_steps = v as usize,
+                "abort_after" => c.abort_after = v as usize,
+                "abort_hold" => c.abort_hold = v as usize,
+                "gap_speed" => c.gap_speed = v,
+                "start_abort_after" => c.start_abort_after = v as usize,
+                "gap_window" => c.gap_window = v,
+                "fault_brake_limit" => c.fault_brake_limit = v,
+                "replay_lateral_decay" => c.replay_lateral_decay = v,
+                "stall_progress" => c.stall_progress = v,
+                _ => c.crawl_fraction = v,
+            }
             match c.validate() {
                 Err(SimConfigError::OutOfRange { field: f, .. }) => assert_eq!(f, field),
-                other => panic!("{field}: expected an error, got {other:?}"),
+                other => panic!("{field} = {v}: expected an error, got {other:?}"),
             }
         }
         for text in [r#"{"bogus": 1}"#, r#"{"world": "predictor"}"#, "[30]"] {

@@ -482,7 +482,17 @@ pub fn simulate_with(
             break;
         }
     }
-    // A run with any collision is never a success.
+    let waits = waiting(sc, &run.ego, settings.lane_ends.deadline_distance);
+    finish_record(&mut rec, lane_out, waits);
+    rec.aborts = run.lane.aborts();
+    (rec.collisions, rec.metrics) = run.observer.finish(rec.success);
+    Ok(rec)
+}
+
+/// Success and outcome of a run that has stopped: a run with any collision is never a success;
+/// `lane_out` is the lane violation that ended it, `waits` whether the ego waits at the end of
+/// its lane for a gap.
+fn finish_record(rec: &mut RunRecord, lane_out: Option<(usize, LaneViolationKind)>, waits: bool) {
     if rec.collision {
         rec.steps_to_target = None;
     }
@@ -494,13 +504,8 @@ pub fn simulate_with(
             Some((_, LaneViolationKind::Ended)) => RunOutcome::LaneEnded,
             Some((_, LaneViolationKind::NotBegun)) => RunOutcome::LaneNotBegun,
             None if rec.success => RunOutcome::Success,
-            None if waiting(sc, &run.ego, settings.lane_ends.deadline_distance) => {
-                RunOutcome::Waiting
-            }
+            None if waits => RunOutcome::Waiting,
             None => RunOutcome::Unfinished,
         }
     };
-    rec.aborts = run.lane.aborts();
-    (rec.collisions, rec.metrics) = run.observer.finish(rec.success);
-    Ok(rec)
 }
