@@ -101,12 +101,12 @@ test-rust:
 
 # The examples/ of the facade crate and examples/python/*.py, run as users would (from the
 # repository root; tests/python/test_examples.py also checks the quick start's output), and the
-# fuzzing suite of the unpublished crate fuzz/ (nudge-fuzz).
+# command-line tools of the unpublished crates fuzz/ (nudge-fuzz) and research/ (avoidability).
 test-examples: develop
 	$(CARGO) run --release --quiet --example plan_one_step
 	$(CARGO) run --release --quiet --example custom_predictor
 	$(CARGO) run --release --quiet -p nudge-fuzz -- --tries 50 > /dev/null
-	$(CARGO) run --release --quiet --example avoidability -- assets/scenes/us101-11_1-t02.1-ego132.safetensors:0 > /dev/null
+	$(CARGO) run --release --quiet -p nudge-research --bin avoidability -- assets/scenes/us101-11_1-t02.1-ego132.safetensors:0 > /dev/null
 	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
 	$(PY) examples/python_predictor.py
 

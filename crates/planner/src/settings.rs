@@ -312,7 +312,7 @@ pub struct PlannerSettings {
     /// or + their rate bounds per step, clipped to their boxes, the last inputs held after
     /// them: at most 729 sequences whatever the horizon), each on its own roll-out and
     /// prediction like every fallback, and keep the best by the same rank.
-    /// The log-replay oracle (`crate::sim::oracle`) found every at-fault collision of the
+    /// The log-replay oracle (`nudge_research::oracle`) found every at-fault collision of the
     /// development runs avoidable from a state 0.6–1.5 s before the contact where the planner
     /// already had nothing admissible; the simple fallbacks miss the sequences that avoid it.
     /// On by default, with `lattice_clear_nonreactive` and `lattice_min_speed`: alone, on 600
