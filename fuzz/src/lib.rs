@@ -28,8 +28,7 @@
     clippy::print_stdout,
     clippy::print_stderr,
     clippy::unwrap_used,
-    clippy::cast_possible_truncation,
-    dead_code
+    clippy::cast_possible_truncation
 )]
 
 use std::collections::BTreeMap;
@@ -394,12 +393,6 @@ impl Image {
         } else {
             self.data[o..o + 4].copy_from_slice(&(v as f32).to_le_bytes());
         }
-    }
-
-    fn get_f64(&self, name: &str, i: usize) -> Option<f64> {
-        let (b, e) = self.span(name)?;
-        let o = b + i * 8;
-        (o + 8 <= e).then(|| f64::from_le_bytes(self.data[o..o + 8].try_into().unwrap()))
     }
 
     fn f64s(&self, name: &str) -> Vec<f64> {

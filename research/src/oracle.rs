@@ -36,8 +36,8 @@ pub struct LoggedTraffic {
 
 impl LoggedTraffic {
     /// The others of `sc` after steps `0..steps`, moved by the log exactly as the simulator's
-    /// log-replay world with [`SimConfig::replay_lateral_decay`](nudge_planner::SimConfig::replay_lateral_decay) = `lateral_decay`
-    /// moves them.
+    /// log-replay world with [`nudge_planner::SimConfig::replay_lateral_decay`] =
+    /// `lateral_decay` moves them.
     #[must_use]
     pub fn new(sc: &Scenario, steps: usize, lateral_decay: f64) -> Self {
         let mut observed: Vec<Vec<[f64; 2]>> = (0..sc.n_agents)
@@ -205,7 +205,7 @@ pub struct OracleWorld<'a> {
     /// The road's lane bounds `[L + 1]` (y, m).
     pub bounds: &'a [f64],
     /// How far a corner may lie beyond the road's edges (m): the run's off-road tolerance
-    /// ([`RunObserver::off_road_tolerance`](nudge_planner::sim::metrics::RunObserver::off_road_tolerance)).
+    /// ([`nudge_planner::sim::metrics::RunObserver::off_road_tolerance`]).
     pub road_tolerance: f64,
     /// The others at every step.
     pub traffic: &'a LoggedTraffic,
