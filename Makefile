@@ -100,12 +100,13 @@ test-rust:
 	$(CARGO) test --workspace --release
 
 # The examples/ of the facade crate and examples/python/*.py, run as users would (from the
-# repository root; tests/python/test_examples.py also checks the quick start's output).
+# repository root; tests/python/test_examples.py also checks the quick start's output), and the
+# command-line tools of the unpublished crates fuzz/ (nudge-fuzz) and research/ (avoidability).
 test-examples: develop
 	$(CARGO) run --release --quiet --example plan_one_step
 	$(CARGO) run --release --quiet --example custom_predictor
-	$(CARGO) run --release --quiet --example fuzz -- --tries 50 > /dev/null
-	$(CARGO) run --release --quiet --example avoidability -- assets/scenes/us101-11_1-t02.1-ego132.safetensors:0 > /dev/null
+	$(CARGO) run --release --quiet -p nudge-fuzz -- --tries 50 > /dev/null
+	$(CARGO) run --release --quiet -p nudge-research --bin avoidability -- assets/scenes/us101-11_1-t02.1-ego132.safetensors:0 > /dev/null
 	set -e; for f in examples/python/*.py; do echo "== $$f"; $(PY) "$$f"; done
 	$(PY) examples/python_predictor.py
 
@@ -132,18 +133,18 @@ commonroad: $(CR_VENV)/.nudge-stamp build
 
 # ---- fuzzing --------------------------------------------------------------------------------
 # Structure-aware mutation of weights, scenario and settings files and of planning problems
-# (examples/fuzz), then hypothesis property tests of the Python entry points
-# (tests/python/test_fuzz_py.py); every try must end in a typed error or a valid result.
+# (the unpublished crate fuzz/, nudge-fuzz), then hypothesis property tests of the Python entry
+# points (tests/python/test_fuzz_py.py); every try must end in a typed error or a valid result.
 # FUZZ_SECONDS is the budget per Rust target; add e.g. FUZZ_ARGS="--seed 7 --tries 100000
 # --target plan". FUZZ_EXAMPLES is the number of examples per Python property. The short modes
-# run in `make test` (tests/fuzz.rs, test_fuzz_py.py with its default examples).
+# run in `make test` (fuzz/tests/short_mode.rs, test_fuzz_py.py with its default examples).
 FUZZ_SECONDS ?= 300
 FUZZ_ARGS ?=
 FUZZ_EXAMPLES ?= 5000
 fuzz: fuzz-rust fuzz-python
 
 fuzz-rust:
-	$(CARGO) run --release --example fuzz -- --seconds $(FUZZ_SECONDS) $(FUZZ_ARGS)
+	$(CARGO) run --release -p nudge-fuzz -- --seconds $(FUZZ_SECONDS) $(FUZZ_ARGS)
 
 fuzz-python: develop
 	NUDGE_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest -q -s tests/python/test_fuzz_py.py

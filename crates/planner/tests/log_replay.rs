@@ -1,10 +1,10 @@
 //! Log replay past the end of a vehicle's log: its speed along the road is held and its
 //! sideways motion fades by `SimConfig::replay_lateral_decay` per step. Checked against the
 //! closed form of the geometric series, in the simulator's own world (through each step's
-//! nearest-vehicle record) and in the oracle's `LoggedTraffic`.
+//! nearest-vehicle record). `nudge-research` checks its oracle's `LoggedTraffic` against the
+//! same runs (`research/tests/oracle.rs`).
 #![allow(clippy::unwrap_used)]
 
-use nudge_planner::sim::oracle::LoggedTraffic;
 use nudge_planner::{PlannerSettings, SimConfig, World, WorldModel, simulate};
 use nudge_predictor::{ConstantVelocity, DT};
 
@@ -18,21 +18,7 @@ const DY: f64 = -0.1;
 /// An ego at 10 m/s in lane 0 and, 30 m ahead in lane 1 at 10 m/s, a vehicle whose log ends
 /// after [`LOG`] steps, the last two of them moving it [`DY`] sideways each.
 fn scene() -> nudge_planner::Scenario {
-    let mut sc = logged::logged_scene(
-        "drift-at-log-end",
-        &[(0.0, 0.0, 10.0), (30.0, 3.5, 10.0)],
-        &[-1.75, 1.75, 5.25],
-        None,
-    );
-    let nf = sc.n_future;
-    for k in LOG - 1..=LOG {
-        // future step k (1-based) of agent 1
-        sc.future[(nf + k - 1) * 2 + 1] = 3.5 + DY * (k + 2 - LOG) as f64;
-    }
-    for k in LOG..nf {
-        sc.future_valid[nf + k] = false;
-    }
-    sc
+    logged::drifting_at_log_end(LOG, DY)
 }
 
 /// Where agent 1 is after closed-loop step `s` (0-based; the log gives future step k = s + 1),
@@ -73,19 +59,15 @@ fn past_its_log_a_vehicle_keeps_its_speed_and_its_sideways_motion_fades() {
         let mut cv = ConstantVelocity::default();
         let run = simulate(&sc, &s, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap();
         assert_eq!(run.steps.len(), 20, "rho {rho}: the run goes the distance");
-        let traffic = LoggedTraffic::new(&sc, run.steps.len(), rho);
         for (k, st) in run.steps.iter().enumerate() {
             let want = expected(k, rho);
             let (agent, dx, dy) = st.nearest.unwrap();
             assert_eq!(agent, 1);
-            let got = [st.ego[0] + dx, st.ego[1] + dy];
-            let oracle = &traffic.steps[k][0].bbox;
-            for (name, p) in [("simulator", got), ("oracle", [oracle.x, oracle.y])] {
-                assert!(
-                    (p[0] - want[0]).abs() < 1e-9 && (p[1] - want[1]).abs() < 1e-9,
-                    "rho {rho}, {name}, step {k}: {p:?} vs {want:?}"
-                );
-            }
+            let p = [st.ego[0] + dx, st.ego[1] + dy];
+            assert!(
+                (p[0] - want[0]).abs() < 1e-9 && (p[1] - want[1]).abs() < 1e-9,
+                "rho {rho}, step {k}: {p:?} vs {want:?}"
+            );
         }
     }
     // The default keeps a wobble within its bound: at most DY·ρ/(1 − ρ) beyond the log.

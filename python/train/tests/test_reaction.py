@@ -1,7 +1,8 @@
-"""Reaction measures (nudge_train.experiments.reaction*, nudge_train.training.reaction): the metric on
-synthetic cases with a known answer, the reaction loss against its pairwise definition, a
-synthetic cut-in against the analytic fall-back, a collapse guard on the shipped teacher, and the
-student report's training stages read from a weights file's provenance."""
+"""Reaction measures (nudge_train.training.reaction_measure, nudge_train.experiments.reaction_*,
+nudge_train.training.reaction): the metric on synthetic cases with a known answer, the reaction
+loss against its pairwise definition, a synthetic cut-in against the analytic fall-back, a collapse
+guard on the shipped teacher, and the student report's training stages read from a weights file's
+provenance."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import torch
 
 from nudge_train.data.tracks import LaneMap, TrackTable
 from nudge_train.distill.contexts import Context
-from nudge_train.experiments.reaction import (
+from nudge_train.training.reaction_measure import (
     follower_row,
     keep_lane,
     lane_change_candidates,

@@ -60,7 +60,6 @@ use inputs::Input;
 use inputs::InputQps;
 use linearised::{LinearisedProblem, WarmStart};
 use repair::{Candidate, Repairer};
-pub(crate) use repair::{LATTICE_HOLD, LATTICE_RATES};
 use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 
 /// The ADMM MPC planner of the paper's Algorithm 1. One call of [`Planner::plan`] is

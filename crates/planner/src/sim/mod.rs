@@ -12,8 +12,6 @@
 //! * [`metrics`]: what a run is judged by (collisions at fault or not, off-road, straddling,
 //!   slow steps in a live lane, time to collision, progress, comfort, the score, the density
 //!   of the target lane), computed from the run's states;
-//! * [`oracle`]: whether a log-replay collision could have been avoided at all, and from
-//!   which step ([`avoid`], searching the ego's inputs against the known logged future);
 //! * [`records`]: what a run records ([`RunRecord`], [`StepRecord`], [`StepStatus`]);
 //! * [`batch`]: the run-spec rule ([`run_specs`]), the predictors of a batch loaded once
 //!   ([`Predictors`]) and [`simulate_many`] (or [`Runs`], with a planning predictor built per
@@ -31,7 +29,6 @@ pub mod columns;
 pub mod config;
 pub mod idm;
 pub mod metrics;
-pub mod oracle;
 pub mod records;
 pub mod request;
 pub mod run;
@@ -48,9 +45,6 @@ pub use columns::{
 pub use config::{SimConfig, World};
 pub use idm::{IdmPopulation, IdmTraffic, LaneEndMerge, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
-pub use oracle::{
-    Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, Violation, avoid, replay,
-};
 pub use records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
 pub use run::{RunControl, simulate, simulate_with, target_lane, target_reach};

@@ -178,7 +178,7 @@ impl<'p> Mover<'p> {
 /// `lateral_decay` (in [0, 1]) times it across (y). Applied step after step, a vehicle whose
 /// log ends after a lateral displacement Δy is Δy·ρ(1 − ρᵏ)/(1 − ρ) further across k steps
 /// later (ρ = `lateral_decay`; k·Δy at ρ = 1). The one rule of log replay (the simulator's
-/// world and [`super::oracle::LoggedTraffic`]).
+/// world, and the `LoggedTraffic` of the log-replay oracle in `nudge-research`).
 #[must_use]
 pub fn logged_position(
     sc: &Scenario,

@@ -49,3 +49,28 @@ pub fn logged_scene(
         metadata: HashMap::new(),
     }
 }
+
+/// An ego at 10 m/s in lane 0 and, 30 m ahead in lane 1 at 10 m/s, a vehicle whose log ends
+/// after `log` (≥ 2) future steps, the last two of them moving it `dy` (m) sideways each: the
+/// scene of the log-replay tests past the end of a log (here and in `nudge-research`).
+#[allow(
+    dead_code,
+    reason = "shared by several test crates, not all of which replay a drifting log"
+)]
+pub fn drifting_at_log_end(log: usize, dy: f64) -> Scenario {
+    let mut sc = logged_scene(
+        "drift-at-log-end",
+        &[(0.0, 0.0, 10.0), (30.0, 3.5, 10.0)],
+        &[-1.75, 1.75, 5.25],
+        None,
+    );
+    let nf = sc.n_future;
+    for k in log - 1..=log {
+        // future step k (1-based) of agent 1
+        sc.future[(nf + k - 1) * 2 + 1] = 3.5 + dy * (k + 2 - log) as f64;
+    }
+    for k in log..nf {
+        sc.future_valid[nf + k] = false;
+    }
+    sc
+}

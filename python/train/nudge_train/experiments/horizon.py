@@ -40,8 +40,8 @@ from nudge_train.idm.sources import load_sources
 from nudge_train.provenance import git_commit, sha256_file
 from nudge_train.training.evaluate import Metrics, evaluate_constant_velocity_at, evaluate_generator_at
 from nudge_train.training.export import load_generator
+from nudge_train.training.reaction_measure import model_predictor
 
-from .reaction import model_predictor
 from .reaction_cutins import cutin_case, cutin_reactions
 
 __all__ = ["HORIZONS", "run"]

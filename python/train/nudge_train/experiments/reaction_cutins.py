@@ -7,7 +7,7 @@ within ``radius`` m (longitudinal) of the intruder, and
 
 * the candidate is the intruder's logged path over the next 6 steps (1.8 s);
 * its keep-lane counterfactual is the same path with the lateral position held at the intruder's
-  at ``t_s`` (the same rule as for planner candidates, :func:`nudge_train.experiments.reaction.keep_lane`);
+  at ``t_s`` (the same rule as for planner candidates, :func:`nudge_train.training.reaction_measure.keep_lane`);
 * the truth is the real follower's fall-back 1.8 s after ``t_s``: ``x_F(t_s + 1.8) − x_F(t_s) −
   v_F(t_s) · 1.8`` (m, negative = behind its constant-speed path, :func:`nudge_train.idm.cutins.fall_back`),
   and the same minus the median fall-back of followers WITHOUT a cut-in in the same source
@@ -27,8 +27,7 @@ import numpy as np
 
 from nudge_train.constants import DT, OBS_LEN, PRED_LEN
 from nudge_train.idm.cutins import CutIn, Tracks, fall_back
-
-from .reaction import REACTION_STEP, PredictFn, keep_lane
+from nudge_train.training.reaction_measure import REACTION_STEP, PredictFn, keep_lane
 
 __all__ = ["CutInCase", "cutin_case", "cutin_reactions"]
 

@@ -1,6 +1,6 @@
 """``nudge-train reaction``: the reaction table of docs/results/reaction.md.
 
-Measures (definitions in :mod:`nudge_train.experiments.reaction` and
+Measures (definitions in :mod:`nudge_train.training.reaction_measure` and
 :mod:`nudge_train.experiments.reaction_cutins`) for the teacher, the shipped student and any
 ``--candidate`` student:
 
@@ -32,8 +32,8 @@ from nudge_train.idm.sources import load_sources
 from nudge_train.provenance import git_commit, sha256_file
 from nudge_train.training.export import load_generator
 from nudge_train.training.reaction import fidelity
+from nudge_train.training.reaction_measure import model_predictor, per_context, planner_reactions
 
-from .reaction import model_predictor, per_context, planner_reactions
 from .reaction_cutins import HORIZON_S, cutin_case, cutin_reactions
 
 __all__ = ["CUTIN_LEADS", "MIN_LATERAL", "TARGET_SHARE", "meets_target", "planner_table", "run"]

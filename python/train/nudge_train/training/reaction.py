@@ -23,7 +23,7 @@ before training with the Rust teacher, which the tests check against PyTorch).
 Selection on the distillation validation split: every ``eval_every`` steps, the position fidelity
 (ADE over 6 steps against the teacher on up to 16 candidates per validation context) and the
 reaction error (median over validation contexts of |student − teacher| target-lane follower
-reaction at 1.8 s, :mod:`nudge_train.experiments.reaction`). The kept checkpoint is the one with
+reaction at 1.8 s, :mod:`nudge_train.training.reaction_measure`). The kept checkpoint is the one with
 the lowest reaction error among those whose fidelity is not worse than the reference student's
 (``reference``, the shipped one) on the same validation sample; the lowest ADE when none is.
 """
@@ -45,10 +45,10 @@ import torch
 from nudge_train.artefacts import atomic_write_text
 from nudge_train.distill.contexts import Context, load_contexts
 from nudge_train.errors import ConfigError, TrainingError
-from nudge_train.experiments.reaction import keep_lane, model_predictor, per_context, planner_reactions
 from nudge_train.models.config import ModelConfig, student_config
 from nudge_train.models.networks import PoolHiddenNet, TrajectoryGenerator, build_model
 from nudge_train.training.export import export_generator, load_generator, read_weights
+from nudge_train.training.reaction_measure import keep_lane, model_predictor, per_context, planner_reactions
 
 __all__ = ["ReactionTrainConfig", "TrainSet", "build_train_set", "load_reaction_config", "reaction_loss", "train"]
 

@@ -75,8 +75,8 @@ pub(crate) fn fallback_accels(s: &PlannerSettings, lp: &LinearisedProblem) -> Ve
 /// Steps each choice of the fallback's input lattice is held ([`lattice_inputs`]).
 pub(crate) const LATTICE_HOLD: usize = 2;
 
-/// The choices of one block of an input lattice ([`lattice_inputs`], and the log-replay
-/// oracle's `crate::sim::oracle::avoid`): the change per step of the steering and of the
+/// The choices of one block of an input lattice ([`lattice_inputs`]; the log-replay oracle of
+/// `nudge-research` searches the same choices): the change per step of the steering and of the
 /// acceleration, in units of their rate bounds; holding the inputs first, then braking, then
 /// the rest.
 pub(crate) const LATTICE_RATES: [(f64, f64); 9] = [

@@ -33,7 +33,6 @@ use super::refine;
 
 pub use families::Family;
 pub(crate) use families::{Inputs, lattice_inputs, retreat_inputs, simple_families};
-pub(crate) use families::{LATTICE_HOLD, LATTICE_RATES};
 #[cfg(test)]
 pub(crate) use families::{align_with_road, fallback_accels, simple_inputs};
 pub(crate) use rank::{EXCESS_TOLERANCE, EXCESS_WEIGHT, Rank, Violations};

@@ -1,4 +1,9 @@
-//! Structure-aware mutation fuzzing of nudge's input files: weights, scenarios, settings.
+//! # nudge-fuzz
+//!
+//! Structure-aware mutation fuzzing of nudge's input files (weights, scenarios, settings) and
+//! planning problems. Not published: a development tool of the workspace, run by `make fuzz`
+//! (the `nudge-fuzz` binary, `src/main.rs`) and, in its short mode, by `make test`
+//! (`tests/short_mode.rs`).
 //!
 //! Every try takes a valid seed input, applies one to three mutations drawn from a seeded
 //! generator (try `i` of target `T` under seed `s` is reproducible on its own: `--replay`), and
@@ -23,8 +28,7 @@
     clippy::print_stdout,
     clippy::print_stderr,
     clippy::unwrap_used,
-    clippy::cast_possible_truncation,
-    dead_code
+    clippy::cast_possible_truncation
 )]
 
 use std::collections::BTreeMap;
@@ -34,16 +38,16 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use nudge::planner::scenario::{
+use nudge_planner::scenario::{
     EGO_LANE_TOLERANCE, LANE_WIDTH, MAX_HEADING, MAX_SPEED, ROAD_TOLERANCE,
 };
-use nudge::planner::{
+use nudge_planner::{
     EgoState, PlanStatus, Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, State,
     World, WorldModel, simulate,
 };
-use nudge::predictor::limits::{MAX_STEP, canonical_scene};
-use nudge::predictor::weights::{restamp, synthetic_weights};
-use nudge::predictor::{
+use nudge_predictor::limits::{MAX_STEP, canonical_scene};
+use nudge_predictor::weights::{restamp, synthetic_weights};
+use nudge_predictor::{
     ConstantVelocity, History, ModelConfig, ModelKind, ModelWeights, Predictor, Student, T_OBS,
     Teacher,
 };
@@ -51,6 +55,14 @@ use nudge::predictor::{
 // ---------------------------------------------------------------------------------------------
 // Configuration and report.
 // ---------------------------------------------------------------------------------------------
+
+/// The repository root, whose `assets/` hold the seed inputs: the directory above this crate's
+/// (`fuzz/` sits at the root of the workspace).
+#[must_use]
+pub fn repo_root() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    manifest.parent().unwrap_or(manifest).to_path_buf()
+}
 
 /// One fuzz target.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -382,12 +394,6 @@ impl Image {
         }
     }
 
-    fn get_f64(&self, name: &str, i: usize) -> Option<f64> {
-        let (b, e) = self.span(name)?;
-        let o = b + i * 8;
-        (o + 8 <= e).then(|| f64::from_le_bytes(self.data[o..o + 8].try_into().unwrap()))
-    }
-
     fn f64s(&self, name: &str) -> Vec<f64> {
         let Some((b, e)) = self.span(name) else {
             return Vec::new();
@@ -569,7 +575,7 @@ fn predictions_valid(history: &History, out: &[f64], t: usize) -> Result<(), Str
 
 /// Judges one plan: finite inputs, states and cost (else `Invalid`), states equal to the
 /// nonlinear roll-out of the inputs from `ego` to 1e-6 relative (else `NotRollout`).
-fn judge_plan(planner: &Planner, ego: EgoState, plan: &nudge::planner::Plan) -> Outcome {
+fn judge_plan(planner: &Planner, ego: EgoState, plan: &nudge_planner::Plan) -> Outcome {
     match plan_finite(plan) {
         Err(why) => Outcome::Invalid(why),
         Ok(()) => match rollout_consistent(planner, ego, plan) {
@@ -579,7 +585,7 @@ fn judge_plan(planner: &Planner, ego: EgoState, plan: &nudge::planner::Plan) -> 
     }
 }
 
-fn plan_finite(plan: &nudge::planner::Plan) -> Result<(), String> {
+fn plan_finite(plan: &nudge_planner::Plan) -> Result<(), String> {
     for (k, ((d, a), s)) in plan
         .delta
         .iter()
@@ -606,7 +612,7 @@ fn plan_finite(plan: &nudge::planner::Plan) -> Result<(), String> {
 fn rollout_consistent(
     planner: &Planner,
     ego: EgoState,
-    plan: &nudge::planner::Plan,
+    plan: &nudge_planner::Plan,
 ) -> Result<(), String> {
     let model = planner.model();
     let mut z = State::new(ego.x, ego.y, ego.psi, ego.v);
@@ -1280,10 +1286,10 @@ impl Predictor for Foreign {
     fn horizon(&self) -> usize {
         self.inner.horizon()
     }
-    fn set_scene(&mut self, history: &History) -> nudge::predictor::Result<()> {
+    fn set_scene(&mut self, history: &History) -> nudge_predictor::Result<()> {
         self.inner.set_scene(history)
     }
-    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge::predictor::Result<()> {
+    fn predict(&mut self, candidates: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
         self.inner.predict(candidates, out)?;
         if !out.is_empty() && self.rng.chance(self.rate) {
             let i = self.rng.below(out.len());
@@ -1525,9 +1531,9 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
         // The planner saw a corrupted prediction: a typed error naming it, or an Unsafe plan.
         return match result {
             Err(
-                e @ nudge::planner::PlannerError::Predictor(
-                    nudge::predictor::PredictorError::NonFiniteOutput { .. }
-                    | nudge::predictor::PredictorError::ImplausibleOutput { .. },
+                e @ nudge_planner::PlannerError::Predictor(
+                    nudge_predictor::PredictorError::NonFiniteOutput { .. }
+                    | nudge_predictor::PredictorError::ImplausibleOutput { .. },
                 ),
             ) => Outcome::LaterRefused(kind(&e)),
             Ok(plan) if plan.status == PlanStatus::Unsafe => Outcome::Valid,
@@ -1541,7 +1547,7 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
         };
     }
     match result {
-        Err(e @ nudge::planner::PlannerError::BadProblem { .. }) => Outcome::Refused(kind(&e)),
+        Err(e @ nudge_planner::PlannerError::BadProblem { .. }) => Outcome::Refused(kind(&e)),
         Err(e) => Outcome::LaterRefused(kind(&e)),
         Ok(plan) => {
             if let Err(why) = problem_in_range(&problem) {

@@ -1,13 +1,13 @@
 //! Could the collisions of log-replay runs have been avoided, and from which step? Runs each
 //! given (scene, seed) in the log-replay world on the shipped defaults, then, for every
 //! collision event (at fault only, unless `--all`), asks the oracle of
-//! `nudge::planner::sim::oracle` from the ego's recorded state before each of the last
+//! `nudge_research::oracle` from the ego's recorded state before each of the last
 //! `--look-back` steps up to the contact: is there any sequence of inputs within the planner's
 //! bounds that meets nobody, keeps the road and the heading bound until `--after` steps past
 //! the contact? Prints one markdown row per event.
 //!
 //! ```text
-//! cargo run --release --example avoidability -- [--planner student|teacher]
+//! cargo run --release -p nudge-research --bin avoidability -- [--planner student|teacher]
 //!     [--look-back 10] [--after 2] [--hold 2] [--max-nodes 2000000] [--all] PATH:SEED...
 //! ```
 //!
@@ -22,12 +22,12 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use nudge::planner::sim::metrics::RunObserver;
-use nudge::planner::sim::oracle::{
+use nudge_planner::sim::metrics::RunObserver;
+use nudge_planner::{PlannerSettings, Scenario, SimConfig, World, WorldModel, simulate};
+use nudge_predictor::{PredictorSpec, T_OBS, default_assets_dir};
+use nudge_research::oracle::{
     Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, avoid, replay,
 };
-use nudge::planner::{PlannerSettings, Scenario, SimConfig, World, WorldModel, simulate};
-use nudge::predictor::{PredictorSpec, T_OBS, default_assets_dir};
 
 #[derive(Parser, Debug)]
 #[command(about = "Were log-replay collisions avoidable, and from when?")]
@@ -95,7 +95,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             settings.model.l_r,
         );
         let world = OracleWorld {
-            bicycle: nudge::planner::Bicycle {
+            bicycle: nudge_planner::Bicycle {
                 l_f: settings.model.l_f,
                 l_r: settings.model.l_r,
                 dt: settings.model.dt,

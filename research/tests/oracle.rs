@@ -1,18 +1,19 @@
-//! The log-replay oracle (`nudge_planner::sim::oracle`) against truths known without it: the
+//! The log-replay oracle (`nudge_research::oracle`) against truths known without it: the
 //! stopping distance of the jerk-limited brake ramp (written out by hand), the simulator's own
 //! log-replay runs (the same states and the same contacts, step for step), and the bounds of
 //! every sequence it returns.
 #![allow(clippy::unwrap_used)]
 
 use nudge_planner::sim::metrics::{contacts, ego_box};
-use nudge_planner::sim::oracle::{
-    Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, Violation, avoid, replay,
-};
 use nudge_planner::{
     Bicycle, PlannerSettings, Scenario, SimConfig, State, World, WorldModel, simulate,
 };
 use nudge_predictor::ConstantVelocity;
+use nudge_research::oracle::{
+    Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, Violation, avoid, replay,
+};
 
+#[path = "../../crates/planner/tests/logged/mod.rs"]
 mod logged;
 
 /// Every vehicle's (length, width) in [`logged::logged_scene`] (m).
@@ -251,6 +252,41 @@ fn the_constant_velocity_extrapolation_of_a_steady_log_is_the_log() {
         // From step 4 on the guess keeps lane 1's centre line.
         if s >= 4 {
             assert!((g.bbox.y - 3.5).abs() < 1e-9);
+        }
+    }
+}
+
+/// Past the end of a vehicle's log the oracle's traffic moves it as the simulator's log-replay
+/// world does (speed along the road held, sideways motion fading by `replay_lateral_decay` per
+/// step; the simulator against the closed form: `crates/planner/tests/log_replay.rs`), for
+/// decays from none to full.
+#[test]
+fn past_the_end_of_a_log_the_logged_traffic_is_the_simulators() {
+    let sc = logged::drifting_at_log_end(5, -0.1);
+    let s = PlannerSettings::default();
+    for rho in [0.0, 0.5, SimConfig::default().replay_lateral_decay, 1.0] {
+        let cfg = SimConfig {
+            world: World::LogReplay,
+            max_steps: 20,
+            settle_steps: SimConfig::MAX_STEPS,
+            replay_lateral_decay: rho,
+            ..SimConfig::default()
+        };
+        let mut cv = ConstantVelocity::default();
+        let run = simulate(&sc, &s, &cfg, 0, &mut cv, WorldModel::LogReplay).unwrap();
+        assert_eq!(run.steps.len(), 20, "rho {rho}: the run goes the distance");
+        let traffic = LoggedTraffic::new(&sc, run.steps.len(), rho);
+        for (k, st) in run.steps.iter().enumerate() {
+            let (agent, dx, dy) = st.nearest.unwrap();
+            assert_eq!(agent, 1);
+            let simulated = [st.ego[0] + dx, st.ego[1] + dy];
+            let oracle = &traffic.steps[k][0].bbox;
+            assert!(
+                (oracle.x - simulated[0]).abs() < 1e-9 && (oracle.y - simulated[1]).abs() < 1e-9,
+                "rho {rho}, step {k}: oracle ({}, {}) vs simulator {simulated:?}",
+                oracle.x,
+                oracle.y
+            );
         }
     }
 }

@@ -1,12 +1,12 @@
 //! Could a log-replay collision have been avoided at all, and from when? An oracle that knows
 //! the whole logged future searches the ego's inputs for a continuation without contact.
 //!
-//! In a [`crate::World::LogReplay`] run the other vehicles follow the log whatever the ego
-//! does ([`super::world::logged_position`]), so their boxes at every step are known in
+//! In a [`World::LogReplay`](nudge_planner::World::LogReplay) run the other vehicles follow the
+//! log whatever the ego does ([`logged_position`]), so their boxes at every step are known in
 //! advance ([`LoggedTraffic`]). From the ego's state before closed-loop step `k` (and the inputs
 //! it applied at step `k − 1`), [`avoid`] searches sequences of inputs (δ, a) for steps
 //! `k..=until` for one along which the ego's box overlaps no other vehicle's at any step
-//! (the separating-axis test of the collision metric, [`super::metrics::contacts`]), no corner
+//! (the separating-axis test of the collision metric, [`contacts`]), no corner
 //! leaves the road by more than the run's off-road tolerance, the heading stays within the
 //! planner's bound and the speed within `[0, v_max]`. The inputs keep the planner's own bounds
 //! ([`OracleLimits::of`]): box bounds on δ and a, and their per-step rates.
@@ -19,14 +19,10 @@
 //! the lattice avoids it, a strong indication rather than a proof for the continuum of inputs
 //! between; [`Avoidance::Undecided`] means the search hit [`OracleLimits::max_nodes`].
 
-use crate::admm::{LATTICE_HOLD, LATTICE_RATES};
-use crate::model::{Bicycle, State};
-use crate::scenario::Scenario;
-use crate::settings::PlannerSettings;
-
-use super::metrics::{Vehicle, contacts, ego_box, others_from_history, road_excess};
-use super::world::logged_position;
-use nudge_predictor::T_OBS;
+use nudge_planner::sim::metrics::{Vehicle, contacts, ego_box, others_from_history, road_excess};
+use nudge_planner::sim::world::logged_position;
+use nudge_planner::{Bicycle, PlannerSettings, Scenario, State, motion_heading};
+use nudge_predictor::{DT, T_OBS};
 
 /// The other vehicles of a log-replay run of one scene at every closed-loop step, as the
 /// simulator sees them: `steps[k]` holds agents 1..n after step `k` (agent i at index i − 1),
@@ -40,8 +36,8 @@ pub struct LoggedTraffic {
 
 impl LoggedTraffic {
     /// The others of `sc` after steps `0..steps`, moved by the log exactly as the simulator's
-    /// log-replay world with [`crate::SimConfig::replay_lateral_decay`] = `lateral_decay`
-    /// moves them.
+    /// log-replay world with [`nudge_planner::SimConfig::replay_lateral_decay`] =
+    /// `lateral_decay` moves them.
     #[must_use]
     pub fn new(sc: &Scenario, steps: usize, lateral_decay: f64) -> Self {
         let mut observed: Vec<Vec<[f64; 2]>> = (0..sc.n_agents)
@@ -103,8 +99,8 @@ impl LoggedTraffic {
                     moved.bbox.x = b[0] + ahead * (b[0] - a[0]);
                     moved.bbox.y = b[1] + ahead * (b[1] - a[1]);
                     if k == 0 {
-                        moved.bbox.heading = crate::safety::motion_heading(a, b, sc.heading[i + 1]);
-                        moved.vx = (b[0] - a[0]) / nudge_predictor::DT;
+                        moved.bbox.heading = motion_heading(a, b, sc.heading[i + 1]);
+                        moved.vx = (b[0] - a[0]) / DT;
                     }
                     moved
                 })
@@ -141,7 +137,7 @@ pub struct OracleLimits {
 
 impl OracleLimits {
     /// Blocks of two steps (0.6 s at the default `dt`), as the planner's lattice fallback.
-    pub const DEFAULT_HOLD: usize = LATTICE_HOLD;
+    pub const DEFAULT_HOLD: usize = 2;
     /// At most two million blocks per search (a few seconds).
     pub const DEFAULT_MAX_NODES: usize = 2_000_000;
 
@@ -202,14 +198,14 @@ pub enum Avoidance {
 /// The scene and the run that a search or a replay is about.
 #[derive(Debug, Clone, Copy)]
 pub struct OracleWorld<'a> {
-    /// The ego's vehicle model (the planner's, [`crate::Planner::model`]).
+    /// The ego's vehicle model (the planner's, [`Planner::model`](nudge_planner::Planner::model)).
     pub bicycle: Bicycle,
     /// The ego's (length, width) (m).
     pub size: [f64; 2],
     /// The road's lane bounds `[L + 1]` (y, m).
     pub bounds: &'a [f64],
     /// How far a corner may lie beyond the road's edges (m): the run's off-road tolerance
-    /// ([`super::metrics::RunObserver::off_road_tolerance`]).
+    /// ([`nudge_planner::sim::metrics::RunObserver::off_road_tolerance`]).
     pub road_tolerance: f64,
     /// The others at every step.
     pub traffic: &'a LoggedTraffic,
@@ -353,8 +349,8 @@ impl Search<'_, '_> {
         self.nodes += 1;
         let l = self.limits;
         let steps = l.hold.max(1).min(self.until + 1 - step);
-        let mut tried: Vec<(f64, f64)> = Vec::with_capacity(LATTICE_RATES.len());
-        for (rd, ra) in LATTICE_RATES {
+        let mut tried: Vec<(f64, f64)> = Vec::with_capacity(9);
+        for (rd, ra) in lattice_rates() {
             let next = |p: (f64, f64)| {
                 (
                     (p.0 + rd * l.ddelta_max).clamp(-l.delta_max, l.delta_max),
@@ -389,5 +385,44 @@ impl Search<'_, '_> {
             self.inputs.truncate(mark);
         }
         Some(false)
+    }
+}
+
+/// The 9 choices of one lattice block: the change per step of the steering and of the
+/// acceleration, in units of their rate bounds (−1, 0 or +1 each). Holding the inputs comes
+/// first, then braking (straight, then steering either way), steering alone, and accelerating;
+/// the order of the planner's own input-lattice fallback, so that a search tries first what the
+/// planner's fallback would.
+fn lattice_rates() -> impl Iterator<Item = (f64, f64)> {
+    let steer = [0.0, -1.0, 1.0];
+    std::iter::once((0.0, 0.0)).chain(
+        [-1.0, 0.0, 1.0]
+            .into_iter()
+            .flat_map(move |accel| steer.into_iter().map(move |d| (d, accel)))
+            .filter(|&c| c != (0.0, 0.0)),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lattice_rates;
+
+    #[test]
+    fn the_lattice_holds_first_then_brakes_then_steers_then_accelerates() {
+        let rates: Vec<(f64, f64)> = lattice_rates().collect();
+        assert_eq!(
+            rates,
+            [
+                (0.0, 0.0),
+                (0.0, -1.0),
+                (-1.0, -1.0),
+                (1.0, -1.0),
+                (-1.0, 0.0),
+                (1.0, 0.0),
+                (0.0, 1.0),
+                (-1.0, 1.0),
+                (1.0, 1.0),
+            ]
+        );
     }
 }

@@ -1,9 +1,9 @@
 //! The fuzzing suite of nudge's input files (weights, scenarios, settings) and planning
 //! problems: structure-aware mutations, seeded and deterministic, judged by per-target oracles
-//! (see `harness.rs`).
+//! (see the library, `lib.rs`).
 //!
 //! ```text
-//! cargo run --release --example fuzz -- [--seconds S] [--tries N] [--seed K]
+//! cargo run --release -p nudge-fuzz -- [--seconds S] [--tries N] [--seed K]
 //!     [--target weights|scenarios|settings|plan]... [--replay TARGET:TRY] [--lenient-rollout]
 //! ```
 //!
@@ -13,15 +13,13 @@
 //! `--seconds` is the budget per target (default 60), `--tries` caps the tries per target.
 //! Prints the counts per target and exits 1 when any defect was found (a hang exits 3 from
 //! the watchdog). `make fuzz FUZZ_SECONDS=…` runs it; `make test` runs the short mode
-//! (`tests/fuzz.rs`).
+//! (`fuzz/tests/short_mode.rs`).
 #![allow(clippy::print_stdout, clippy::print_stderr)]
 
-mod harness;
-
-use harness::{Config, Target};
+use nudge_fuzz::{Config, Target};
 
 fn main() {
-    let repo = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let repo = nudge_fuzz::repo_root();
     let mut cfg = Config {
         seconds_per_target: 60.0,
         max_tries: None,
@@ -87,7 +85,7 @@ fn main() {
         cfg.targets = targets;
     }
     if let Some((t, i)) = replay {
-        println!("{}", harness::replay(&repo, cfg.seed, t, i));
+        println!("{}", nudge_fuzz::replay(&repo, cfg.seed, t, i));
         return;
     }
     println!(
@@ -102,7 +100,7 @@ fn main() {
         cfg.max_tries
             .map_or("unbounded".to_owned(), |n| n.to_string())
     );
-    let report = harness::run(&cfg);
+    let report = nudge_fuzz::run(&cfg);
     print!("{}", report.render());
     if report.defects() > 0 {
         std::process::exit(1);

@@ -8,6 +8,9 @@ the nearest vehicle behind the ego (last observed x below the ego's) whose last 
 lies in the lane the candidate moves into; the measure is its longitudinal position at 1.8 s
 (step 6), in metres, negative = the follower is predicted to fall back.
 
+The measure is shared by the training library (the checkpoint selection of
+:mod:`nudge_train.training.reaction`) and the experiments (``nudge-train reaction``, ``horizon``).
+
 Two places it is measured (:func:`planner_reactions`, :mod:`nudge_train.experiments.reaction_cutins`):
 
 * held-out planner candidates (the distillation set's test split): for every planner call whose
