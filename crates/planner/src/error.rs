@@ -305,7 +305,7 @@ pub enum SimConfigError {
     /// UTF-8).
     #[error("cannot read closed-loop settings: {0}")]
     File(String),
-    /// A numeric field lies outside its range in [`crate::SimConfig::RANGES`].
+    /// A numeric field lies outside its range in [`crate::SimConfig::FIELDS`].
     #[error(
         "invalid closed-loop setting `{field}` = {shown}: must be in {range}",
         shown = crate::settings::show(*.value)

@@ -71,7 +71,7 @@ pub struct SafetyConstraint {
     scale: f64,
     margins: [f64; 2],
     /// Slices the ego is cut into along its heading for the ellipse geometry
-    /// ([`PlannerSettings::ego_segment_length`]; 1: one ellipse for the whole ego).
+    /// (`safety.ego_segment_length`; 1: one ellipse for the whole ego).
     segments: usize,
     /// Step length (s), for the other vehicles' speeds from their predicted positions.
     dt: f64,
@@ -244,7 +244,7 @@ impl SafetyConstraint {
 
     /// b of the ego at `ego` = (x, y, ψ, v) (m, m, rad, m/s) against `vehicle` at `other`
     /// (m), which was at `previous` one step earlier: the [`SafetyConstraint::ellipse`] (of
-    /// each slice of a long ego, [`PlannerSettings::ego_segment_length`]), with the
+    /// each slice of a long ego, `safety.ego_segment_length`), with the
     /// [`SafetyConstraint::closing_margin`] added to its longitudinal semi-axis at the
     /// `terminal` step of the horizon (a terminal condition: the plan must end where the rear
     /// vehicle can still match the front one's speed; within the horizon the predictions
@@ -302,7 +302,7 @@ impl SafetyConstraint {
         }
     }
 
-    /// b of the sliced ego ([`PlannerSettings::ego_segment_length`]) and its gradient
+    /// b of the sliced ego (`safety.ego_segment_length`) and its gradient
     /// ∂b/∂(x, y) of the ego's centre: the ego is cut along its heading into `segments`
     /// slices of length L/k, and b is the smallest over the slices of the
     /// [`Ellipse::oriented`] of one slice (size (L/k, W) at the ego's heading) and the
@@ -484,7 +484,7 @@ pub(crate) struct Evaluation {
     pub path_violation: f64,
     /// `violation` over the pairs whose vehicle is not beside the ego and whose centre is
     /// ahead of the ego's along the road at that step: the vehicles the ego drives into
-    /// (`PlannerSettings::lead_first`).
+    /// ([`crate::RankKey::Ahead`]).
     pub ahead_violation: f64,
     /// Σ over the pairs of how deep the boxes overlap (m, [`SafetyConstraint::overlap`]); 0
     /// unless the evaluator counts it ([`SafetyEval::count_overlap`]).
@@ -517,7 +517,7 @@ pub(crate) struct SafetyEval<'c> {
     constraint: &'c SafetyConstraint,
     origin: [f64; 2],
     horizon: usize,
-    /// The Z-update's threshold b_min (safety_min + plan_buffer) for the violation.
+    /// The Z-update's threshold b_min (`safety.safety_min`) for the violation.
     threshold: f64,
     /// Ego candidate `[T, 2]` in the road frame (m).
     candidate: Vec<f64>,
@@ -540,7 +540,7 @@ pub(crate) struct SafetyEval<'c> {
     /// With `PlannerSettings::ablate_reaction`: the path the predictor sees instead of every
     /// candidate.
     keep_lane: Option<KeepLane>,
-    /// Count [`Evaluation::overlap`] (`PlannerSettings::contact_first`).
+    /// Count [`Evaluation::overlap`] ([`crate::RankKey::Contact`]).
     pub count_overlap: bool,
     /// The ego's last observed position (road frame, m), the origin of the predictors'
     /// candidate range: when set, a candidate they would refuse (non-finite, or beyond

@@ -3,8 +3,8 @@
 //!
 //! The ADMM iterates keep |ψ_k| within the heading bound on the *linearised* dynamics only;
 //! the nonlinear roll-out of their inputs, which is what the vehicle does, can pass it by a
-//! few milliradians, and a plan that nothing admissible beats is returned as it is. With
-//! `PlannerSettings::heading_governor` every candidate's steering goes through
+//! few milliradians, and a plan that nothing admissible beats is returned as it is. So
+//! every candidate's steering goes through
 //! [`govern_heading`] before its roll-out is checked.
 //!
 //! The rule looks ahead because the steering rate is bounded: a heading may be within the

@@ -1,21 +1,17 @@
 //! The ADMM MPC of the paper's Algorithm 1. One call of [`Planner::plan`] is
 //!
 //! 1. **set-up** ([`linearised`]): the nominal trajectory (the shifted previous plan), the
-//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), the
-//!    start of the iterates (the nominal, or the best safe simple candidate when it is unsafe,
-//!    [`start`]), and a workspace allocated once for the call ([`workspace`]);
+//!    dynamics linearised around it, the bounds, the checked vehicles ([`constraint`]), and a
+//!    workspace allocated once for the call ([`workspace`]);
 //! 2. **the ADMM loop**, until ‖F‖∞ ≤ eps_primal and ‖Z − Z_prev‖∞ ≤ eps_change or `max_iter`:
-//!    the re-linearisation around the current inputs and their roll-out
-//!    ([`LinearisedProblem::relinearise`]), the Δ-update and α-update (box/rate QPs solved
-//!    by Clarabel, [`inputs`]), the Z-update (projected descent whose every trial point is
-//!    checked by the predictor, [`z_update`], the linearised-safety step [`safe_step`]
-//!    and the projection onto the linearised safe set [`projection`] among them, with
-//!    feasibility restoration from an unsafe Z, [`restoration`]), and the
-//!    dual update μ ← μ + ρF; a converged loop whose roll-out is unsafe may go on inside a
-//!    raised threshold ([`retighten`]);
+//!    the Δ-update and α-update (box/rate QPs solved by Clarabel, [`inputs`]), the Z-update
+//!    (projected descent whose every trial point is checked by the predictor, [`z_update`],
+//!    with feasibility restoration from an unsafe Z, [`restoration`]), and the dual update
+//!    μ ← μ + ρF;
 //! 3. **the execution check** ([`repair`]): the nonlinear roll-out of (Δ, α) is checked by
-//!    the predictor and repaired (backtracking, then simple fallbacks) when unsafe; a QP
-//!    failure goes straight to the fallbacks.
+//!    the predictor and repaired (refinement, backtracking, then the ranked fallback families)
+//!    when it is not admissible; a QP failure goes straight to the fallbacks. The plan records
+//!    what decided it ([`DecidedBy`]).
 //!
 //! The solution warm-starts the next call. [`Planner::reference_qp`] solves the same
 //! linearised problem as one joint QP ([`reference`]).
@@ -68,356 +64,58 @@ use workspace::{CurrentSafety, Iterates, Workspace, max_abs};
 ///    cold start), the dynamics linearised around it, the input and state bounds, the
 ///    vehicles the safety constraint checks ([`SafetyConstraint`]), and a workspace allocated
 ///    once for the call;
-/// 2. **the ADMM loop**, until ‖F‖∞ ≤ `eps_primal` and ‖Z − Z_prev‖∞ ≤ `eps_change` or
-///    `max_iter`: the re-linearisation around the current inputs (`relinearise`), the
-///    Δ-update and the α-update (box/rate QPs solved by Clarabel), the Z-update (projected
-///    descent on G whose every trial point, the roll-out of the inputs and the
-///    linearised-safety step among them, is checked by the predictor; feasibility
-///    restoration from an unsafe Z), the dual update μ ← μ + ρF;
+/// 2. **the ADMM loop**, until ‖F‖∞ ≤ `admm.eps_primal` and ‖Z − Z_prev‖∞ ≤ `admm.eps_change`
+///    or `admm.max_iter`: the Δ-update and the α-update (box/rate QPs solved by Clarabel), the
+///    Z-update (Newton, pinned-Newton or gradient trials on G, each checked by the predictor;
+///    feasibility restoration from an unsafe Z), the dual update μ ← μ + ρF;
 /// 3. **the execution check**: the nonlinear roll-out of (Δ, α), which is what the vehicle
 ///    does and what the plan's states always are (its steering first governed to the heading
-///    bound, `heading_governor`), must be *admissible*: safe by the predictor
-///    (b > `safety_min` at every step, with the closing-speed margin `brake_decel` at the
-///    last), within the heading bound `heading_max` relative to the road, within the lateral
-///    corridor between the start and the target widened by `overshoot_max`, and with every
-///    corner of the ego's box on the road. When it is not, **the refinement** takes up to
-///    `refine_iters` sequential-QP steps on the nonlinear model ([`PlanStatus::Refined`]),
-///    and only then the repairs ([`PlanStatus::Backtracked`], [`PlanStatus::Fallback`]); a
-///    QP failure goes straight to the fallbacks ([`PlanStatus::SolverFailed`]).
+///    bound), must be *admissible*: safe by the predictor (b > `safety.safety_min` at every
+///    step, with the closing-speed margin `safety.brake_decel` at the last), within the heading
+///    bound `bounds.heading_max` relative to the road, within the lateral corridor between the
+///    start and the target widened by `bounds.overshoot_max`, and with every corner of the
+///    ego's box on the road. When it is not, the refinement takes up to `repair.refine_iters`
+///    sequential-QP steps on the nonlinear model ([`PlanStatus::Refined`]), then backtracking
+///    towards the nominal ([`PlanStatus::Backtracked`]), then the best of the fallback families
+///    by the fixed key order [`RANK_ORDER`] ([`PlanStatus::Fallback`], or
+///    [`PlanStatus::Unsafe`] when nothing is admissible: the least-violating plan); a QP
+///    failure goes straight to the fallbacks ([`PlanStatus::SolverFailed`]).
 ///
-/// **Convergence by design.** Only the ADMM's own iterate whose nonlinear roll-out is
-/// admissible (checked by the predictor, within the state bounds) is [`PlanStatus::Converged`]
-/// (or [`PlanStatus::MaxIterations`] when the loop stopped at `max_iter`); every repair keeps
-/// its own status. Measured on validation scenes (student planner, teacher world, 269 scenes,
-/// 3802 steps), the steps that did not end `Converged` failed because (1) the loop reached
-/// `max_iter` in 63 % of the steps, in 96 % of those with Z frozen on the safety boundary:
-/// every Newton trial crossed it, so the Z-update stalled while F stayed above `eps_primal`;
-/// (2) the nominal (shifted previous plan) was already unsafe in 28 %; (3) in 10 % ADMM
-/// converged but its roll-out, off Z by a median 0.07 m, left the safe set or the state
-/// bounds. The loop therefore has four rules, each a setting (off by default, see below):
+/// Every plan says what decided it ([`Plan::decided_by`]): [`DecidedBy::Admm`] exactly when
+/// the ADMM iterate's inputs were applied unchanged. The measurements behind each rule are in
+/// `docs/results` (`docs/results/README.md` indexes them).
 ///
-/// * `z_safe_step`: the Z-update tries G's minimiser under the safety rows of Z linearised in
-///   the ego's position, so Z slides along the boundary instead of stalling on it;
-/// * `z_rollout_trial`: its first trial is the nonlinear roll-out of the current (Δ, α), where
-///   F is the linearisation error alone;
-/// * `relinearise`: the dynamics are linearised again around the current inputs and their
-///   roll-out at every iteration (a sequential-convex ADMM), so F measures Z's distance from
-///   the nonlinear roll-out rather than from the roll-out of the first linearisation;
-/// * `plan_buffer` = 0.03: Z is kept that far inside the safe set, the measured drop of b from
-///   Z to the roll-out of converged calls (10th percentile −0.03).
+/// ```
+/// use nudge_planner::{EgoState, Planner, PlannerSettings, PlanningProblem};
+/// use nudge_predictor::{ConstantVelocity, History, T_OBS};
 ///
-/// Together (`{"z_safe_step": true, "z_rollout_trial": true, "relinearise": true,
-/// "plan_buffer": 0.03}`), on the same validation runs: `Converged` 23.1 % → 44.5 % of the steps, Fallback
-/// 7.2 → 5.3 %, Unsafe 9.2 → 7.1 %, success 253 → 257 of 269, no collision (teacher planner,
-/// 80 scenes: 24.1 → 40.2 %, success 73 → 72; IDM and log-replay worlds alike,
-/// `docs/results/latency.md`); without one of them (the others on) 41.1 % (no re-linearisation),
-/// 37.6 % (no roll-out trial), 39.4 % (no safe step), 31.9 % (`plan_buffer` 0). What still
-/// keeps the share below 90 %: the loop reaches `max_iter` in 44 % of the steps (82 % of those
-/// with Z frozen on the tightened boundary, and 44 % from an unsafe nominal), and the
-/// converged Z still differs from its roll-out by a median 0.07 m (F ≤ `eps_primal` per step
-/// compounds over the horizon). The steps cost more: student p50 10.9 → 16.1 ms, p99 37.8 →
-/// 59.3 ms on that machine (more predictor calls per Z-update).
-///
-/// **Projection, safe start and re-tightening** (`z_cuts`, `safe_start`, `z_retighten`; off by
-/// default). With the rules on, on the curvilinear-frame validation split (300 of its 713
-/// scenes, the seeds of `nudge-train closed-loop --seed 0`, student planner, teacher world),
-/// the loop still stopped at `max_iter` with an inadmissible roll-out in 38 % of the steps.
-/// Two causes, two rules:
-///
-/// * Z stuck on the tightened boundary. The Newton step's halvings stop Z where the first
-///   halving is safe, on the boundary along the one direction of the unconstrained minimiser;
-///   the safe step, whose rows hold the prediction fixed, lands outside the boundary when the
-///   other vehicles react to the new Z (or the ellipse turns with the ego's heading), and
-///   its trial point was then halved back along the same direction, or clamped by the state
-///   bounds back onto the unsafe point. With `z_cuts` the Z-update tries, right after the
-///   full Newton step, the **projection onto the linearised safe set**
-///   (module `projection`): G's minimiser subject to the safety rows of Z, the state bounds as
-///   rows (so the step needs no clamping), and, when the predictor finds the trial point
-///   unsafe, the cuts of that trial point (its violated rows linearised there, under its own
-///   prediction), solved again up to `z_cuts` times; only then the halvings.
-/// * An unsafe start. With `safe_start` a nominal whose Z is unsafe is replaced by the best
-///   safe simple candidate (keep lane or steer towards the goal at a constant acceleration,
-///   least cost J; module `start`), instead of starting in the feasibility restoration.
-///
-/// Measured (validation, 300 scenes, paired; `docs/results/latency.md`), defaults → the rules
-/// → the rules with `z_cuts` 3 and `safe_start`: `Converged` 21.5 → 39.0 → 46.4 % of the
-/// steps (teacher world), 24.9 → 39.8 → 47.1 % (IDM), 20.7 → 35.1 → 41.8 % (log replay);
-/// loop at `max_iter` with an inadmissible roll-out 51.7 → 38.2 → 26.2 % (teacher world);
-/// Fallback 8.4 → 6.5 → 5.7 %; success 256 → 258 → 261, 262 → 267 → 265, 257 → 253 → 258 of
-/// 300; at-fault collision events 0 → 0 → 0, 0 → 1 → 1 (one IDM run, the same with the rules
-/// alone), 3 → 2 → 2; the teacher planner (teacher world, 60 scenes) 23.4 → 42.3 → 54.6 %,
-/// success 55 → 52 → 54 of 60, no at-fault event. On their own account (teacher world, with the rules): the projection
-/// 45.1 %, the safe start 42.7 %; the projection and the safe start without the other rules
-/// 32.0 %. More loops now converge with an inadmissible roll-out (13.7 → 20.8 %: Z on the
-/// boundary, the roll-out just outside it); `z_retighten` 2 (the Z-update's threshold raised
-/// by the roll-out's drop from Z when a converged loop's roll-out is unsafe, and the loop
-/// goes on; module `retighten`) halves that class (20.8 → 9.9 %) but sends more loops to
-/// `max_iter` (26.2 → 33.0 %): `Converged` 46.4 → 48.3 %, success 261 → 259, Fallback
-/// 5.7 → 6.7 %. **What bounds the share**: in 12.3 % of the steps (teacher world; 12.1 % IDM,
-/// 19.5 % log replay) no candidate at all is admissible (`Unsafe`: the fallbacks and the
-/// refinement find none either), so no rule of the optimiser can make those steps
-/// `Converged`; 90 % needs the problem itself to change for them (a relaxed, least-violation
-/// problem with its own status), not a better loop.
-///
-/// **Why the rules are off by default.** With them the planner finds admissible plans where
-/// it found none before, and the lane-change abort of [`crate::lane`], which fires after
-/// consecutive steps *without* an admissible plan, no longer fires in front of a closed convoy
-/// in the log-replay world: the ego edges over the lane line with admissible plans and idles
-/// there, the behaviour that abort exists to prevent
-/// (`blocked_target_lane_aborts_instead_of_idling_across_the_boundary`). The closed loop's
-/// stalled-change abort ([`crate::SimConfig::stall_progress`], 0.05 m per step with the rules)
-/// closes that gap: a step whose ego moved less than that towards the target lane while its
-/// box straddles the line, before the crossing, counts towards the abort like a step without
-/// an admissible plan. With it, paired on the validation scenes (269 scenes, one run each, the
-/// seeds of `nudge-train closed-loop --seed 0`; the teacher planner on its 60-scene subset),
-/// the rules lose no success and add no collision in any world (student planner: teacher
-/// world 252 → 255, 5 lost / 8 gained, McNemar p = 0.58; IDM 253 → 257, 5 / 9, p = 0.42;
-/// log replay 252 → 254, 0 / 2, p = 0.5; at-fault collision events 0 → 0, 1 → 1, 0 → 0;
-/// teacher planner, teacher world: 57 → 58 of 60, 1 / 2) and raise `Converged` from 23.0 to
-/// 44.3 % (teacher world), 28.8 → 48.4 % (IDM), 24.4 → 42.0 % (log replay), 28.1 → 47.2 %
-/// (teacher planner). They stay off by default because the test split has not been run with
-/// them (the note in `docs/results/latency.md` has the commands), and because they are not
-/// the cure for what is left: in the teacher world with the rules on, 34.8 % of the steps end
-/// with the loop at `max_iter` and an inadmissible roll-out (Z frozen on the tightened
-/// boundary, or an unsafe nominal), 11.2 % with a converged loop whose roll-out is
-/// inadmissible, and 9.7 % at `max_iter` with an admissible roll-out (ρ adaptation and a
-/// convergence test on the roll-out were not tried).
-///
-/// **The refinement.** When the ADMM roll-out is not admissible, the refinement works on the
-/// nonlinear model directly: single shooting in the inputs with the roll-out's sensitivities,
-/// the safety rows linearised at the current roll-out with its own prediction (re-predicted
-/// after every step) and tightened by `refine_margin`, elastic rows so every step is defined,
-/// and a trust region. The refinement's answer is checked like everything else; the repairs
-/// remain as the last resort and are counted by status.
-///
-/// **Retreat.** When neither the refinement nor backtracking finds an admissible plan, the
-/// fallbacks also steer back to [`PlanningProblem::y_retreat`] (the lane the ego came from),
-/// checked within the corridor of a plan aiming there, but only when the best plan towards the
-/// target is unsafe by the prediction: the minimum-risk choice between holding, finishing and
-/// cancelling a lane change is then the least-violating. The simulator offers the retreat
-/// before the ego's centre crosses the line between the lanes, and after it only while the
-/// ego is stuck across the line ([`crate::lane::LaneChange::retreat`]: `abort_after`
-/// consecutive steps without an admissible plan, not yet inside the target lane). Measured on
-/// validation (269 scenes × 3 seeds, student): the retreat before the crossing cut at-fault
-/// collisions in the IDM world 5 → 3 and planned slow steps in 15–46 → 8–34 runs, success
-/// unchanged in every world; offering it after every crossing removed 4 of 5 log-replay
-/// at-fault collisions but cost 2.3 pp of success in the teacher's world (p = 0.007), so it
-/// is not done. Offering it after the crossing only when stuck (an ego holding a straddle in
-/// front of a target-lane follower that never yields) cut log-replay at-fault events 5 → 2
-/// (student) and 9 → 6 (teacher planner, 60 scenes) with success unchanged in every world
-/// (2 of 807 pairs discordant, p = 0.5). The remaining validation cases: a follower that
-/// never yields hits an ego that slowed down during aborted attempts; lane changes begun with
-/// almost no margin (b < 0.02) next to a target-lane vehicle that the IDM world moves
-/// differently from the prediction. Test split: `docs/results/closed_loop.md`.
-///
-/// **Speed floor** (`fallback_speed_floor`, 0.5 by default). The √2 ellipse reaches 3.4–3.5 m
-/// across the road for two cars, about one lane: a vehicle passing in the next lane, both
-/// centred in their lanes, makes every candidate inadmissible, and the least total violation
-/// was braking at a_min, a planned standstill in a live lane (on validation, student planner,
-/// 300 scenes × 3 seeds: the planned-slow steps of the idm and log-replay worlds were almost
-/// all `Unsafe` steps of this kind). With the floor, an inadmissible candidate whose only
-/// violations come from vehicles beside the ego ([`SafetyConstraint::beside`]: their boxes
-/// cannot touch at any offset along the road), within the state bounds, and ending at or
-/// above the floor × `v_ref` beats the others; every other case ranks as before (a vehicle
-/// in the ego's path still brakes it). Ranking by the violation in the path first (instead of
-/// this one class) or choosing by cost among the clear ones was tried and raised the
-/// log-replay at-fault collisions (8 → 13 and 20 of 900 runs: a truck ego's swinging tail, and
-/// logged drivers drifting into an ego that accelerated beside them). Measured on those
-/// validation runs, paired with the floor off (student planner, 900 runs per world, teacher /
-/// idm / log replay): runs slow in a live lane (executed) 0 / 4 / 6 → 0 / 0 / 0, planned
-/// 8 / 10 / 25 → 4 / 3 / 12; success 86.0 → 85.3 (7 runs lost, 1 gained), 89.4 → 89.8,
-/// 84.4 → 84.8 %; at-fault collisions 0 → 0, 1 → 1, 8 → 8 (the same events). Teacher planner,
-/// log replay, 100 scenes × 3: success 89.0 → 88.7 %, 0 at-fault collisions either way, slow
-/// runs 3 → 0 (planned 12 → 4).
-///
-/// **Long egos, contact and the road edge** (`ego_segment_length` 6 m, `contact_first`,
-/// `edge_first`; the defaults together with `bounds_first`, below: alone they failed the test
-/// split). The √2 ellipse of a 19.8 m truck and a car reaches 18.7 m
-/// along the road where the boxes touch at 12.2 m, so a car 20 m ahead in the truck's lateral
-/// position made every plan inadmissible (validation, `us101-2_1-t06.6-ego513`). Cut into
-/// slices of at most 6 m ([`crate::safety::Ellipse::sliced`]) the ellipses still exclude
-/// overlap (the slices' union is the box) and reach 15.6 m. Slicing alone let the
-/// least-violating fallback steer the truck away from the cars ahead and behind and swing its
-/// tail into a car beside it (student planner on the 15 drawn validation scenes with an ego
-/// of 6 m or more, × 3 seeds: at-fault runs 0 → 5 in the teacher world), because the
-/// total violation weighs a margin violation like a contact; with `contact_first` a fallback
-/// predicted to overlap another vehicle's box less (separating-axis depth, m) wins first,
-/// and with `edge_first` one whose box's corners reach less far beyond the road's edges
-/// wins next (the 6.1 m truck `us101-2_1-t02.7-ego500`, starting 0.62 m over the edge, left
-/// the road by 0.008 m beyond the allowance when its fallback steered towards the road and
-/// swung its rear corner out). Measured together on validation (300 scenes × 3 seeds,
-/// teacher planner on 100; paired with the three off): success teacher world 85.3 → 85.3 %
-/// (student) and 86.7 → 87.7 % (teacher planner), idm 89.8 → 89.9 / 93.0 → 93.0 %, log
-/// replay 84.8 → 85.3 / 88.7 → 88.7 %, no world losing more than one run and none more than
-/// it gained (lost / gained 0 / 0, 0 / 3, 1 / 2, 1 / 1, 0 / 5, 0 / 0); at-fault runs in log
-/// replay 8 → 5 (student: the truck starting across the line, `t04.5-ego513`, no longer hit),
-/// 0 → 0 elsewhere; off-road runs of the teacher planner 3 → 0 in every world. The long-ego
-/// failures of the student in the teacher world stay (37 runs): those trucks ride beside a
-/// target-lane car of their own speed, which no geometry lets them pass. The test split, run
-/// once with the three on (300 scenes × 3 seeds, teacher planner on 150), confirmed the other
-/// worlds (teacher 88.8 → 88.6 / 88.7 → 88.4 %, idm 91.8 → 92.1 / 90.9 → 91.8 %, no at-fault
-/// collision) but not log replay: student at-fault runs 6 → 7, off-road runs 0 → 5 (student)
-/// and 0 → 1 (teacher planner), the heading bound broken (0.46 and 0.445 rad), all on cars
-/// (3.7–6.1 m): with `contact_first` above the state bounds, a fallback that is predicted to
-/// touch nobody beats one within the heading bound and on the road, so a squeezed car swerved
-/// across a lane (`us101-11_1-t03.0-ego135`: 7.9 m beyond the target lane's centre). So the
-/// three alone did not become the defaults (`docs/results/long_egos.md`).
-///
-/// **Contact within the state bounds** (`bounds_first` with `bounds_slack` 0.05: the defaults,
-/// with the three long-ego settings). Among candidates of
-/// which none is admissible, each rule below decides only on a tie of those before it:
-/// 1. within the state bounds beats outside them: the roll-out's state-bound excess (heading
-///    relative to the road, the lateral corridor of the lane change, speed, the box's corners
-///    beyond the road's edges, lane extents and the lane-end stopping rule: the excess the
-///    total violation weighs) is at most `bounds_slack` (default 0.05; 0: none, up to
-///    rounding) (`bounds_first`);
-/// 2. the smaller predicted box overlap (`contact_first`);
-/// 3. the smaller road-edge excess (`edge_first`);
-/// 4. no centre in a lane before it begins; the speed floor's clear path; the smaller total
-///    violation (as without these settings).
-///
-/// The state bounds are what the planner promises about its own motion whatever the
-/// prediction says; predicted contact is a prediction, and in log replay, where nobody
-/// reacts, the swerve that the prediction saw touching nobody took a car past the heading
-/// bound, across a lane and off the road. Ranked after the bounds, contact still decides
-/// between fallbacks on the same side of them, which keeps the squeezed truck's tail off the
-/// car beside it (its least-contact fallback is within the bounds). The follower-gap rule is
-/// not a state bound: it counts in the total violation only. Measured on validation with the
-/// three long-ego settings (300 scenes × 3 seeds, teacher planner on 100; paired with the
-/// shipped defaults): success teacher world 85.3 → 85.3 / 86.7 → 88.3 % (student / teacher
-/// planner), idm 89.8 → 89.8 / 93.0 → 93.0 %, log replay 84.8 → 85.3 / 88.7 → 88.7 %; the
-/// teacher planner's off-road runs 3 → 0 in every world; max |ψ| 0.200 rad before and after
-/// (validation has no swerve past the bound); but at-fault runs 0 → 2 (teacher world),
-/// 1 → 3 (idm), 8 → 7 (log replay; `contact_first` without the rule: 0, 1, 5), all the
-/// 19.8 m truck `us101-2_1-t04.5-ego513`: its contact-free fallbacks leave its lateral band by
-/// 1.5 cm (Σ over the horizon), and the yes-or-no test weighs that like a swerve, so the
-/// rule picks a turn into the car beside it. With `bounds_slack` 0.05 (an excess up to it
-/// counts as within; the test split's swerves were 0.46 rad and 7.9 m) the same validation
-/// runs give success 85.3 / 87.7 %, 89.9 / 93.0 %, 85.1 / 88.7 %, at-fault runs 0, 1, 5 (the
-/// truck no longer hit), the teacher planner's off-road runs 0, max |ψ| 0.200 rad. On the test
-/// split, once (300 scenes × 3 seeds, teacher planner on 150): no world loses success (every
-/// paired interval includes 0), log-replay at-fault runs 6 → 5 (student) and 7 → 4 (teacher
-/// planner), 0 elsewhere, 0 off-road runs and max |ψ| 0.200 rad as with the previous
-/// defaults. So the five settings (6 m slices, `bounds_first`, `bounds_slack` 0.05,
-/// `contact_first`, `edge_first`) are the defaults, and every figure that depends on the
-/// planner was regenerated with them (`docs/results/long_egos.md`,
-/// `docs/results/closed_loop.md`, `docs/paper`).
-///
-/// **The heading governor** (`heading_governor`, on by default). The ADMM iterates keep the
-/// heading bound on the linearised dynamics only; the roll-out of their inputs could pass it
-/// by a few milliradians. That sent a plan that was safe by the prediction to the repairs,
-/// and when nothing was admissible `bounds_slack` let the least-violating plan keep the
-/// excess. On the test split one run of 4050 went to 0.2011 rad. Every candidate's steering
-/// now goes through the governor before its roll-out is checked. At each step it takes the
-/// steering nearest to the candidate's, within the box and rate bounds, from which unwinding
-/// the steering as fast as the rate allows, at the fastest speeds `a_max` allows, keeps the
-/// heading within the bound for the rest of the horizon on the exact model (looking ahead,
-/// because a turn can be within the bound after this step and past stopping before it; at the
-/// fastest speeds, because the next planning step may brake less than this candidate: with
-/// the candidate's own accelerations a train-split run reached 0.2010 rad); a sequence every
-/// step of which passes this test is unchanged, bit for bit.
-/// Measured on validation (300 scenes × 3 seeds, teacher planner on 100; paired with it off):
-/// * success rose in five of six arms: teacher world 85.3 → 86.4 / 87.7 → 90.0 % (student /
-///   teacher planner), idm 89.9 → 90.4 / 93.0 → 92.3 %, log replay 85.1 → 86.4 /
-///   88.7 → 89.7 %;
-/// * no collision was added; the student's log-replay at-fault runs went 5 → 0, knock-on
-///   changes of near misses;
-/// * the optimiser's own plan (`Converged` + `MaxIterations`) rose by 2.9–5.4 pp of the steps.
-///
-/// A first version without the look-ahead passed validation too but broke the bound twice on
-/// the test split (0.2054 and 0.2002 rad); both runs and the test split's numbers are in
-/// `docs/results/heading_governor.md`.
-///
-/// **Safety geometry and contingency** (`safety_geometry`, `contingency`; both off by
-/// default). The √2 ellipse couples the two directions: it keeps the boxes apart at every
-/// angle, so while a target-lane vehicle is level with the ego it asks for 2.85 m between the
-/// centres across the road where the boxes need 1.8–1.9 m, and its bumper gap on the axis is
-/// 3.4–3.6 m; the ego's near edge stays about 0.4 m short of the lane line (median, dense
-/// starts) while the fitted idm followers yield only once it is 0.7 m inside their lane.
-/// `SafetyGeometry::Boxes` replaces it by the exact separating-axis distance of the two
-/// oriented boxes less the clearances `margin_x` (along the road) and `margin_y` (across),
-/// b in metres, with its (sub)gradient for the Z-update, the safe step and the refinement
-/// ([`crate::safety::box_separation`]; tested against an independent corner-projection
-/// separating-axis test, `OrientedBox::overlaps` and finite differences). The contingency
-/// rule (`PlannerSettings::contingency`) makes a plan that takes the ego's box across the line
-/// between its own lane and the target lane admissible only if a fixed retreat from the plan's first state
-/// across the line (no later than step T − `contingency_steps`) back towards the own lane's
-/// centre, braking at `contingency_accel` or else holding acceleration 0, is safe under the
-/// predictor's prediction for that retreat path; it is checked in the execution check, so the
-/// refinement, backtracking and fallbacks all respect it. Measured on validation (269 scenes ×
-/// 3 seeds, paired with the defaults; `docs/results/nudge_safety.md`), no variant passes the
-/// bar "at-fault collisions down, success not lower in any world", so both stay off:
-///
-/// * boxes with the default margins (1.5 m / 0.3 m): more calls converge (`Converged` 2701 →
-///   3566 steps, student, teacher world) but the ego drives closer (1.5 m bumper to bumper
-///   where the ellipse kept 3.4–3.6 m): student success 94.1 → 85.9, 94.5 → 90.2, 93.2 →
-///   88.1 % (teacher, idm, log-replay worlds), log-replay at-fault runs 2 → 18, mostly the ego
-///   running into a replayed vehicle it joins or passes;
-/// * boxes with `margin_x` 3.4 m (the ellipse's bumper gap): the clearance rectangle is
-///   projected on the yawed ego's axes, so it widens the lateral clearance by
-///   `margin_x`·|sin ψ| during the lane change: success 68–80 %, log-replay at-fault runs 25;
-///   growing the ego's box in its own frame instead (`SafetyGeometry::GrownBoxes`) fares as
-///   badly (72–80 %, 18 at-fault runs): its longer ends still swing across the road;
-/// * boxes and the contingency: a further 2.6–3.7 pp of success lost, log-replay at-fault
-///   runs 13: a retreat that must leave the target lane within 3–5 steps is often unsafe
-///   while a target-lane vehicle closes in, so the change is refused, the fallbacks steer
-///   back and the ego spends more time across the line (straddle 2.5–2.8 s per run against
-///   1.9–2.0 s); and the rule only applies while the own lane is still offered as a retreat.
-///
-/// **Followers that do not yield** (`follower_ttc`, `follower_min_gap`,
-/// `follower_clearance`; off by default). The predictors learned from traffic in which drivers
-/// make room, so they predict a target-lane follower yielding to an ego that cuts in, and the
-/// safety constraint (checked against that prediction) lets the ego in. Recorded traffic never
-/// yields. On the validation scenes (student planner, log-replay world, 300 scenes × 3 seeds)
-/// the 8 at-fault runs had three causes: (1) an ego that entered the target lane 1–2 m ahead
-/// of a follower 3 m/s faster (22 vs 20 m/s; b of the entry 0.05), then, with no admissible
-/// plan, held its straddle and was hit in the side (3 runs, one scene); (2) a 19.8 m truck
-/// whose scene starts with its centre already across the line next to a car in the target
-/// lane and 2 m behind a slower car in its own lane: no admissible plan from the first step,
-/// the least-violating one holds the straddle, and the logged car drifts 0.3 m into it (3
-/// runs); (3) an ego squeezed between a faster own-lane follower and a vehicle ahead-left
-/// whose log ended and whose constant-velocity extrapolation drifts into the ego's lane:
-/// the least-violating fallback accelerates into it (2 runs). The follower-gap rule (the
-/// planner's `follower_gap` module) removes cause (1): a plan may not narrow the lateral
-/// clearance to a follower on the goal's side below `follower_clearance` (0.8 m) while that
-/// follower, driving on at its observed speed, is less than `follower_min_gap` (0.5 m) + its
-/// closing speed × `follower_ttc` behind the ego. Tuned in the log-replay world (student):
-/// a time gap (0.5 s, or 0.2 s, of the follower's speed) instead of the closing-speed term
-/// lost 20 and 10 points of success (the ego waits behind slower followers it was pulling
-/// away from); closing speed × 3 s with a 2 m minimum gap lost 7 points; with a 0.5 m minimum
-/// gap, 3 s and 2 s lost 1.2 and 1.5 points, all with 5 at-fault runs left (causes 2 and 3).
-/// At 2 s in every world (paired with the rule off, 300 scenes × 3 seeds, the teacher
-/// planner on 100 of them): log-replay at-fault runs 8 → 5 (student), but success fell in
-/// every world (student: teacher world 86.0 → 81.3 %, IDM 89.4 → 86.4 %, log replay 84.4 →
-/// 82.9 %; teacher planner 86.7 → 80.7, 92.7 → 88.3, 89.0 → 83.7 %), the lost runs all
-/// unfinished lane changes (reactive followers would have yielded), and new at-fault runs
-/// appeared (student, teacher world 0 → 3: the truck of cause 2 in another window, yawing its
-/// tail into the car beside it; teacher planner, log replay 0 → 3). So the rule stays off
-/// (`docs/results/follower_gap.md`). Down-weighting, in the fallbacks' ranking, the
-/// violation against vehicles behind the ego in its lane (for cause 3) was tried and dropped:
-/// at weight 0.25 it added at-fault and not-at-fault collisions.
-///
-/// **Bounded work.** `budget_s` (wall time) and `budget_calls` (predictor calls), when set,
-/// end the call with [`PlanStatus::BudgetExhausted`] and a checked plan: one predictor call is
-/// held back for the shifted previous plan (or the straight fallback).
-///
-/// **Trial points the predictors refuse.** Every candidate is checked against the predictors'
-/// input range (`nudge_predictor::limits::check_candidates` from the ego's last observed
-/// position: finite, at most 1 km per step) before the predictor sees it; one outside gets no
-/// prediction and is not safe, as after a spent budget, and is counted in
-/// [`Plan::refused_candidates`]. ADMM's duals grow over a call whose
-/// linearised dynamics the bounded inputs cannot meet, and Z's trial points then overshoot: on
-/// one train-split closed-loop run (`heading_max` 0.15) a Z-update tried a point 1.05 km from
-/// the previous one, and the predictor's error ended the run. The roll-outs of the execution
-/// check are always in range. Bounding Z by the ego's reach along the road instead (no trial
-/// point beyond what input sequences within the boxes can drive, 1 m of slack) also keeps
-/// the predictor's candidates physical, but changed outcomes: on 600 train scenes × 3 seeds
-/// (student planner) log-replay at-fault runs rose 17 → 23 (two scenes) and success fell
-/// 81.9 → 81.7 %, IDM 87.4 → 87.5 %, teacher world unchanged; it was not kept.
-///
-/// Keeps the solution to warm-start the next call; call [`Planner::reset`] between
-/// unrelated runs. [`Planner::reference_qp`] solves the same linearised problem as one joint
-/// QP.
+/// // The ego at 12 m/s in its lane, a car 40 m behind in the target lane 3.7 m to the left.
+/// let mut pos = Vec::new();
+/// for (x, y) in [(0.0, 0.0), (-40.0, 3.7)] {
+///     for t in 0..T_OBS {
+///         pos.extend([x - 12.0 * 0.3 * (T_OBS - 1 - t) as f64, y]);
+///     }
+/// }
+/// let history = History::new(pos, 2).unwrap();
+/// let sizes = [[4.5, 1.9], [4.5, 1.9]];
+/// let problem = PlanningProblem {
+///     ego: EgoState { x: 0.0, y: 0.0, psi: 0.0, v: 12.0 },
+///     last_delta: 0.0,
+///     last_accel: 0.0,
+///     history: &history,
+///     sizes: &sizes,
+///     y_target: 3.7,
+///     v_ref: 12.0,
+///     road: [-1.85, 5.55],
+///     y_retreat: None,
+///     lanes: None,
+/// };
+/// let mut planner = Planner::new(PlannerSettings::default()).unwrap();
+/// let mut cv = ConstantVelocity::new(6).unwrap();
+/// let plan = planner.plan(&problem, &mut cv).unwrap();
+/// assert_eq!(plan.states.len(), 6);
+/// println!("{} decided by {}", plan.status.name(), plan.decided_by);
+/// ```
 #[derive(Debug, Clone)]
 pub struct Planner {
     settings: PlannerSettings,

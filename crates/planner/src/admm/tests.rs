@@ -1348,7 +1348,7 @@ fn a_vehicle_passing_beside_does_not_brake_the_ego_to_a_standstill() {
     );
 }
 
-/// The speed floor's path test takes "within the state bounds" as `bounds_first` does: up to
+/// The speed floor's path test takes "within the state bounds" as the within-bounds rank key does: up to
 /// `bounds_slack`. The ego, changing lanes to the left (its corridor's lower bound is its
 /// start y), heads 2 mrad to the right while a wide vehicle passes 3.3 m to its left in the
 /// target lane, inside the ellipse but never able to touch it. Holding its speed and
@@ -1483,7 +1483,7 @@ fn contact_keeps_a_squeezed_truck_s_tail_off_the_car_beside_it() {
     }
 }
 
-/// The road-edge excess the `edge_first` rule ranks by, against the corners of the ego's box
+/// The road-edge excess the road-edge rank key ranks by, against the corners of the ego's box
 /// computed by rotation (independent of the half-extent formula): Σ over the states of how
 /// far the lowest corner lies below the right edge and the highest above the left one, the
 /// edges widened by the start overhang plus its slack.

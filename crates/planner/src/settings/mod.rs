@@ -1,7 +1,7 @@
 //! [`PlannerSettings`]: every weight, bound, tolerance and limit of the ADMM MPC, grouped by
 //! the phase of the MPC call that uses it, validated, serde-(de)serialisable.
 //!
-//! Each group is declared once, a line per field ([`settings_struct!`]): the struct, its
+//! Each group is declared once, a line per field ([`settings_struct!`](crate::settings_struct)): the struct, its
 //! default, its range table and its value lookup all come from that declaration, and
 //! `docs/reference/settings.md` is generated from it (`nudge settings --format markdown`).
 //! In JSON the groups are nested objects (`{"cost": {"w_y": 20}}`); every field may be

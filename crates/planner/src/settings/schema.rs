@@ -1,4 +1,4 @@
-//! One declaration per field: [`settings_struct!`] generates a settings struct, its
+//! One declaration per field: [`settings_struct!`](crate::settings_struct) generates a settings struct, its
 //! [`Default`], its field table ([`FieldSpec`]: name, unit, admissible range) and the lookup of
 //! a field's value, so that the validation, the reference docs and the Python classes all read
 //! the same declaration. Used by every group of [`super::PlannerSettings`] and by

@@ -40,7 +40,7 @@ pub enum RankKey {
     /// ego) and that ends at or above `fallback_speed_floor` · v_ref first.
     ClearPath,
     /// Smaller value: the cost J of an admissible candidate, the total violation (safety
-    /// violation + [`EXCESS_WEIGHT`] × bound excess) of an inadmissible one.
+    /// violation + 10 × bound excess) of an inadmissible one.
     Value,
 }
 
