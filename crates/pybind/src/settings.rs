@@ -410,7 +410,10 @@ macro_rules! settings_class {
 
 /// The opening of `PlannerSettings`'s docstring (the fields follow, [`document_fields`]).
 const PLANNER_DOC: &str = "Planner settings: every weight, bound, tolerance and limit of the ADMM MPC \
-     (units: m, s, rad, m/s, m/s²). Construct with overrides (`PlannerSettings(max_iter=50)`); \
+     (units: m, s, rad, m/s, m/s²), in groups by phase (model, cost, bounds, safety, admm, \
+     repair, budget, lane_ends). Construct with group overrides \
+     (`PlannerSettings(admm={\"max_iter\": 50})`) or dotted keys \
+     (`PlannerSettings(**{\"admm.max_iter\": 50})`); a group reads as a dict (`s.admm`); \
      `describe()` lists every field, as does docs/reference/settings.md.";
 
 /// The opening of `SimConfig`'s docstring (the fields follow, [`document_fields`]).

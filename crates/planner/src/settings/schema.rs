@@ -258,6 +258,13 @@ macro_rules! settings_struct {
                 $($crate::settings::schema::spec(concat!($prefix, stringify!($field)), $bounds),)*
             ];
 
+            /// The first field out of its range, with its value (NaN and infinity never are in
+            /// range); `None` when every field is in range.
+            #[must_use]
+            pub fn out_of_range(&self) -> Option<($crate::settings::schema::FieldRange, f64)> {
+                $crate::settings::schema::first_out_of_range(Self::FIELDS, |f| self.value(f))
+            }
+
             /// The value of field `field` (its name, with or without the group prefix) as f64;
             /// `None` for a switch, a name or an unknown field.
             #[must_use]

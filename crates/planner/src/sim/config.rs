@@ -7,7 +7,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SimConfigError;
-use crate::settings::schema::{any, closed, first_out_of_range, positive};
+use crate::settings::schema::{FieldRange, any, closed, positive};
 
 /// How the other vehicles move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
@@ -61,6 +61,18 @@ impl FromStr for World {
                 value: format!("{s:?}"),
                 reason: "must be \"teacher\", \"idm\" or \"log_replay\"",
             })
+    }
+}
+
+/// `Ok` when nothing is out of its range, else the error naming the first field that is.
+pub(crate) fn in_range(out: Option<(FieldRange, f64)>) -> Result<(), SimConfigError> {
+    match out {
+        Some((range, value)) => Err(SimConfigError::OutOfRange {
+            field: range.field,
+            value,
+            range,
+        }),
+        None => Ok(()),
     }
 }
 
@@ -136,14 +148,7 @@ impl SimConfig {
     /// [`SimConfigError::OutOfRange`] naming the first field out of its range (NaN and
     /// infinity never are in range), with the range in the message.
     pub fn validate(&self) -> Result<(), SimConfigError> {
-        match first_out_of_range(Self::FIELDS, |f| self.value(f)) {
-            Some((range, value)) => Err(SimConfigError::OutOfRange {
-                field: range.field,
-                value,
-                range,
-            }),
-            None => Ok(()),
-        }
+        in_range(self.out_of_range())
     }
 
     /// Parses JSON (missing fields default, unknown fields rejected) and validates.

@@ -65,7 +65,7 @@ use serde_json::Value;
 use crate::error::{SimConfigError, WorldFileError};
 use crate::model::State;
 use crate::scenario::{LaneExtent, Scenario};
-use crate::settings::schema::{closed, first_out_of_range, open_min};
+use crate::settings::schema::{closed, open_min};
 
 /// The schema string of the world file.
 pub const IDM_SCHEMA: &str = "nudge.idm/1";
@@ -249,14 +249,7 @@ impl LaneEndMerge {
     /// # Errors
     /// [`SimConfigError::OutOfRange`] naming the first field out of its range.
     pub fn validate(&self) -> Result<(), SimConfigError> {
-        match first_out_of_range(Self::FIELDS, |f| self.value(f)) {
-            Some((range, value)) => Err(SimConfigError::OutOfRange {
-                field: range.field,
-                value,
-                range,
-            }),
-            None => Ok(()),
-        }
+        super::config::in_range(self.out_of_range())
     }
 
     /// The MOBIL-style safety criterion of a change: `follower` = (its driver, speed (m/s),
