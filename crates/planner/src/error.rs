@@ -14,7 +14,7 @@ pub enum SettingsError {
     /// A numeric field lies outside its documented range ([`crate::settings::FieldSpec`]).
     #[error(
         "invalid planner setting `{field}` = {shown}: must be in {range}",
-        shown = crate::settings::show(*.value)
+        shown = crate::settings::schema::show(*.value)
     )]
     OutOfRange {
         /// Dotted name of the field (as in JSON).
@@ -22,7 +22,7 @@ pub enum SettingsError {
         /// The value found.
         value: f64,
         /// Its admissible range.
-        range: crate::settings::FieldRange,
+        range: crate::settings::schema::FieldRange,
     },
     /// A key of the flat settings of earlier versions that moved into a group.
     #[error("planner setting `{key}` moved: it is now `{to}` (settings are grouped by phase)")]
@@ -308,7 +308,7 @@ pub enum SimConfigError {
     /// A numeric field lies outside its range in [`crate::SimConfig::FIELDS`].
     #[error(
         "invalid closed-loop setting `{field}` = {shown}: must be in {range}",
-        shown = crate::settings::show(*.value)
+        shown = crate::settings::schema::show(*.value)
     )]
     OutOfRange {
         /// Name of the field (as in the serde representation).
@@ -316,7 +316,7 @@ pub enum SimConfigError {
         /// The value found.
         value: f64,
         /// Its admissible range.
-        range: crate::settings::FieldRange,
+        range: crate::settings::schema::FieldRange,
     },
     /// The settings text does not parse.
     #[error("invalid closed-loop setting `{field}` = {value}: {reason}")]

@@ -106,8 +106,21 @@
 
 use serde::{Deserialize, Serialize};
 
+/// Where one lane lies along the road (schema "nudge.scenario/2"), road-frame x (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneExtent {
+    /// x where the lane begins (m); `begin < end`.
+    pub begin: f64,
+    /// x where the lane ends (m).
+    pub end: f64,
+    /// The lane really begins at `begin` (an on-ramp joining); `false`: the lane map starts there.
+    pub begins: bool,
+    /// The lane really ends at `end` (an acceleration or exit lane: a vehicle staying on the road
+    /// must leave it before); `false`: the lane map stops there.
+    pub ends: bool,
+}
+
 use crate::error::PlannerError;
-use crate::scenario::LaneExtent;
 
 /// The lane layout of a planning problem: boundaries across the road and each lane's extent
 /// along it (road frame, m).

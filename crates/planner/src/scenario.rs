@@ -41,19 +41,7 @@ pub const SCHEMA_EXTENTS: &str = "nudge.scenario/2";
 /// How far (m) along x the ego's centre may lie outside the extent of its `ego_lane`.
 pub const EGO_EXTENT_TOLERANCE: f64 = 0.5;
 
-/// Where one lane lies along the road (schema "nudge.scenario/2"), road-frame x (m).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LaneExtent {
-    /// x where the lane begins (m); `begin < end`.
-    pub begin: f64,
-    /// x where the lane ends (m).
-    pub end: f64,
-    /// The lane really begins at `begin` (an on-ramp joining); `false`: the lane map starts there.
-    pub begins: bool,
-    /// The lane really ends at `end` (an acceleration or exit lane: a vehicle staying on the road
-    /// must leave it before); `false`: the lane map stops there.
-    pub ends: bool,
-}
+pub use crate::extents::LaneExtent;
 
 /// Largest scenario file accepted (bytes): 16 MiB; real scenes are 3–10 kB.
 pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;

@@ -17,8 +17,10 @@
 //! linearised problem as one joint QP ([`reference`]).
 
 mod constraint;
+mod decision;
 mod heading;
 mod inputs;
+mod lagrangian;
 mod linearised;
 mod problem;
 mod reference;
@@ -45,11 +47,9 @@ use crate::qp::QpFailure;
 use crate::settings::PlannerSettings;
 
 pub use constraint::{BindingVehicle, CheckedVehicle, PairGeometry, SafetyConstraint};
-pub use problem::{
-    DecidedBy, EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus,
-};
+pub use decision::{DecidedBy, Family, RANK_ORDER, RankKey};
+pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
 pub use reference::JointSolution;
-pub use repair::{Family, RANK_ORDER, RankKey};
 
 use constraint::{Budget, SafetyEval};
 use inputs::Input;

@@ -9,7 +9,7 @@ use crate::extents::{LaneViolation, Lanes};
 use crate::qp::{QpName, QpStatus};
 use crate::scenario::Scenario;
 
-use super::repair::{Family, RankKey};
+use super::decision::DecidedBy;
 
 /// The ego's measured state in the road frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -400,65 +400,6 @@ impl From<PlanStatus> for StepStatus {
 impl std::fmt::Display for StepStatus {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.as_str())
-    }
-}
-
-/// What decided the applied plan's inputs: the stage of the MPC call that produced them and,
-/// for a fallback, its candidate family and the rank key that chose it. `Admm` exactly when
-/// the ADMM iterate's inputs were applied unchanged (whatever the [`PlanStatus`] says of their
-/// safety).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DecidedBy {
-    /// The ADMM iterate's inputs, unchanged.
-    Admm,
-    /// The ADMM iterate's inputs with the steering governed to the heading bound.
-    AdmmGoverned,
-    /// The refinement's SQP steps from the ADMM inputs ([`PlanStatus::Refined`]).
-    Refined,
-    /// The ADMM inputs pulled towards the nominal ([`PlanStatus::Backtracked`]).
-    Backtracked,
-    /// The nominal (the shifted previous plan), checked with the budget's reserved call.
-    Nominal,
-    /// A fallback candidate.
-    Fallback {
-        /// The family that generated it.
-        family: Family,
-        /// The rank key by which it beat the best before it; `None` for the nominal when
-        /// nothing beat it.
-        key: Option<RankKey>,
-    },
-}
-
-impl DecidedBy {
-    /// The label in records (`steps.csv`'s `decided_by`): `admm`, `admm_governed`, `refined`,
-    /// `backtracked`, `nominal`, or `fallback:<family>[:<rank key>]`.
-    #[must_use]
-    pub fn label(&self) -> String {
-        match self {
-            Self::Admm => "admm".to_owned(),
-            Self::AdmmGoverned => "admm_governed".to_owned(),
-            Self::Refined => "refined".to_owned(),
-            Self::Backtracked => "backtracked".to_owned(),
-            Self::Nominal => "nominal".to_owned(),
-            Self::Fallback { family, key: None } => format!("fallback:{family}"),
-            Self::Fallback {
-                family,
-                key: Some(key),
-            } => format!("fallback:{family}:{key}"),
-        }
-    }
-
-    /// The plan is the ADMM iterate's, unchanged.
-    #[must_use]
-    pub fn is_admm(&self) -> bool {
-        matches!(self, Self::Admm)
-    }
-}
-
-impl std::fmt::Display for DecidedBy {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.label())
     }
 }
 

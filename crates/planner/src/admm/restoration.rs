@@ -9,9 +9,9 @@ use crate::model::State;
 use crate::settings::PlannerSettings;
 
 use super::constraint::SafetyEval;
+use super::lagrangian::Lagrangian;
 use super::linearised::LinearisedProblem;
 use super::workspace::{CurrentSafety, Curvature, Scratch, mat_vec};
-use super::z_update::Lagrangian;
 
 /// A restoration move from Z.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

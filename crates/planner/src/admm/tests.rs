@@ -7,11 +7,11 @@ use nudge_predictor::{ConstantVelocity, History, Predictor, T_OBS};
 
 use super::constraint::{Evaluation, SafetyEval};
 use super::inputs::{Input, InputQps};
+use super::lagrangian::Lagrangian;
 use super::linearised::LinearisedProblem;
 use super::repair::{Repairer, fallback_accels, lattice_inputs, retreat_inputs, simple_inputs};
 use super::restoration::restore;
 use super::workspace::{CurrentSafety, Iterates, Workspace, mat_vec};
-use super::z_update::Lagrangian;
 use super::*;
 use crate::qp::{BoxRateQp, QpName, QpStatus, RateBox};
 

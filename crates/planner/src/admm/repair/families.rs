@@ -2,56 +2,15 @@
 //! acceleration, `[T]` each) from the call's linearised problem. None of them calls the
 //! predictor; [`super::Repairer::best_fallback`] checks and ranks what they generate.
 
-use std::fmt;
-
 use crate::model::{Bicycle, State};
 use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
 
+use super::super::decision::Family;
 use super::super::linearised::LinearisedProblem;
 
 /// An input sequence: steering `[T]` (rad) and acceleration `[T]` (m/s²).
 pub(crate) type Inputs = (Vec<f64>, Vec<f64>);
-
-/// Where a fallback candidate comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Family {
-    /// The nominal: the previous plan shifted by one step.
-    Nominal,
-    /// A constant acceleration profile with the steering that aligns the ego with the road.
-    KeepLane,
-    /// A constant acceleration profile with the steering towards the lateral goal.
-    SteerToGoal,
-    /// The braking profile that stops before the end of a lane that ends, with the steering
-    /// that keeps the lane, returns to the own lane's centre or steers to the goal.
-    Stop,
-    /// A constant acceleration profile with the steering towards the retreat lane's centre.
-    Retreat,
-    /// The input lattice: blocks of steering and acceleration rate choices.
-    Lattice,
-}
-
-impl Family {
-    /// The family's name in records and docs (snake case).
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Nominal => "nominal",
-            Self::KeepLane => "keep_lane",
-            Self::SteerToGoal => "steer_to_goal",
-            Self::Stop => "stop",
-            Self::Retreat => "retreat",
-            Self::Lattice => "lattice",
-        }
-    }
-}
-
-impl fmt::Display for Family {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
 
 /// The fallbacks' constant acceleration profiles (m/s², `[T]` each): 0, a_min/2, a_min and
 /// a_max/2, each made feasible for the box and jerk bounds from the previous acceleration.

@@ -27,16 +27,15 @@ use crate::qp::{RateBox, repair_box_rate};
 use crate::settings::PlannerSettings;
 
 use super::constraint::{Evaluation, SafetyEval, SafetyRow};
+use super::decision::{Family, RankKey};
 use super::heading::govern_heading;
 use super::linearised::LinearisedProblem;
 use super::refine;
 
-pub use families::Family;
 pub(crate) use families::{Inputs, lattice_inputs, retreat_inputs, simple_families};
 #[cfg(test)]
 pub(crate) use families::{align_with_road, fallback_accels, simple_inputs};
 pub(crate) use rank::{EXCESS_TOLERANCE, EXCESS_WEIGHT, Rank, Violations};
-pub use rank::{RANK_ORDER, RankKey};
 
 /// An input sequence checked on its roll-out.
 #[derive(Debug, Clone, PartialEq)]

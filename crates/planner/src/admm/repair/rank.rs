@@ -1,9 +1,9 @@
 //! How candidates of the execution check are compared: the ranking is a fixed list of keys
 //! ([`RANK_ORDER`]), compared in order, each deciding only on a tie of those before it.
 
-use std::fmt;
-
 use crate::settings::PlannerSettings;
+
+use super::super::decision::{RANK_ORDER, RankKey};
 
 /// Weight of the state-bound excess (per m, rad or m/s) against the safety violation (units of
 /// b) in [`Rank::value`] of an inadmissible candidate.
@@ -11,75 +11,6 @@ pub(crate) const EXCESS_WEIGHT: f64 = 10.0;
 
 /// A difference below this (bound excess, overlap, violation) counts as a tie (rounding).
 pub(crate) const EXCESS_TOLERANCE: f64 = 1e-9;
-
-/// One key of the ranking of candidates. An admissible candidate has every inadmissible
-/// key at its best value (false or 0), so only [`RankKey::Admissible`], [`RankKey::LaneBegun`]
-/// and [`RankKey::Value`] (its cost J) ever separate two admissible ones.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RankKey {
-    /// Admissible (safe by the predictor at `safety_min` and within the state bounds) first.
-    Admissible,
-    /// Within the state bounds (heading, corridor, speed, road edge, lane extents, stopping
-    /// rule; excess at most `bounds_slack`) first: predicted contact never buys a swerve past
-    /// the heading bound or off the road.
-    WithinBounds,
-    /// Less predicted box overlap with the other vehicles (m, Σ over vehicles and steps).
-    Contact,
-    /// Less road-edge excess of the box's corners (m, Σ over the horizon).
-    RoadEdge,
-    /// While the lead rule applies (ego at least `lead_min_speed` and wholly inside one lane at
-    /// the start), a roll-out whose box stays off every lane line first.
-    KeepsLane,
-    /// While the lead rule applies, less safety violation against the vehicles ahead of the
-    /// ego in its path (units of b).
-    Ahead,
-    /// A roll-out that never puts its centre in a lane before that lane begins first.
-    LaneBegun,
-    /// An inadmissible roll-out whose path is clear (violations only from vehicles beside the
-    /// ego) and that ends at or above `fallback_speed_floor` · v_ref first.
-    ClearPath,
-    /// Smaller value: the cost J of an admissible candidate, the total violation (safety
-    /// violation + 10 × bound excess) of an inadmissible one.
-    Value,
-}
-
-/// The keys of the ranking, in the order they are compared.
-pub const RANK_ORDER: [RankKey; 9] = [
-    RankKey::Admissible,
-    RankKey::WithinBounds,
-    RankKey::Contact,
-    RankKey::RoadEdge,
-    RankKey::KeepsLane,
-    RankKey::Ahead,
-    RankKey::LaneBegun,
-    RankKey::ClearPath,
-    RankKey::Value,
-];
-
-impl RankKey {
-    /// The key's name in records and docs (snake case).
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Admissible => "admissible",
-            Self::WithinBounds => "within_bounds",
-            Self::Contact => "contact",
-            Self::RoadEdge => "road_edge",
-            Self::KeepsLane => "keeps_lane",
-            Self::Ahead => "ahead",
-            Self::LaneBegun => "lane_begun",
-            Self::ClearPath => "clear_path",
-            Self::Value => "value",
-        }
-    }
-}
-
-impl fmt::Display for RankKey {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
 
 /// A candidate's rank: the value of every [`RankKey`].
 #[derive(Debug, Clone, Copy, PartialEq)]
