@@ -486,46 +486,17 @@ fn pack_gates(w: &[f32], b: &[f32], h: usize, in_dim: usize) -> (Vec<Block>, Vec
 }
 
 impl Lstm {
-    /// From the PyTorch tensors: `emb_w [E, 2]`, `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`,
-    /// `b_ih`, `b_hh` `[4H]`. Folding is done in f64 and rounded once.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn new(
-        emb_w: &[f32],
-        emb_b: &[f32],
-        w_ih: &[f32],
-        w_hh: &[f32],
-        b_ih: &[f32],
-        b_hh: &[f32],
-        h: usize,
-        acc: Accumulate,
-    ) -> Self {
-        Self::with_cell(
-            emb_w,
-            emb_b,
-            w_ih,
-            w_hh,
-            b_ih,
-            b_hh,
-            h,
-            acc,
-            acc == Accumulate::F32,
-        )
+    /// From the PyTorch tensors `[emb_w, emb_b, w_ih, w_hh, b_ih, b_hh]`: `emb_w [E, 2]`,
+    /// `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`, `b_ih`, `b_hh` `[4H]`, with `h` = H. Folding
+    /// is done in f64 and rounded once.
+    pub(crate) fn new(t: [&[f32]; 6], h: usize, acc: Accumulate) -> Self {
+        Self::with_cell(t, h, acc, acc == Accumulate::F32)
     }
 
     /// As [`Lstm::new`]; `fused` selects [`LstmCell::Fused`] (f32 sums only).
-    #[allow(clippy::too_many_arguments)]
-    fn with_cell(
-        emb_w: &[f32],
-        emb_b: &[f32],
-        w_ih: &[f32],
-        w_hh: &[f32],
-        b_ih: &[f32],
-        b_hh: &[f32],
-        h: usize,
-        acc: Accumulate,
-        fused: bool,
-    ) -> Self {
+    fn with_cell(t: [&[f32]; 6], h: usize, acc: Accumulate, fused: bool) -> Self {
         debug_assert!(!fused || acc == Accumulate::F32);
+        let [emb_w, emb_b, w_ih, w_hh, b_ih, b_hh] = t;
         let e = emb_b.len();
         let rows = 4 * h;
         let in_dim = 2 + h;
@@ -812,17 +783,8 @@ pub(crate) struct Pool {
 impl Pool {
     /// From the PyTorch tensors: `emb_w [E,2]`, `emb_b [E]`, `w1 [P, E+H]`, `b1 [P]`,
     /// `w2 [B, P]`, `b2 [B]`; `h` is the size of the pooled hidden states.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn new(
-        emb_w: &[f32],
-        emb_b: &[f32],
-        w1: &[f32],
-        b1: &[f32],
-        w2: &[f32],
-        b2: &[f32],
-        h: usize,
-        acc: Accumulate,
-    ) -> Self {
+    pub(crate) fn new(t: [&[f32]; 6], h: usize, acc: Accumulate) -> Self {
+        let [emb_w, emb_b, w1, b1, w2, b2] = t;
         let e = emb_b.len();
         let p = b1.len();
         let b = b2.len();
@@ -1111,15 +1073,10 @@ pub(crate) struct Mlp2 {
 }
 
 impl Mlp2 {
-    /// From `w1 [M, in]`, `b1 [M]`, `w2 [out, M]`, `b2 [out]`.
-    pub(crate) fn new(
-        w1: &[f32],
-        b1: &[f32],
-        w2: &[f32],
-        b2: &[f32],
-        in_dim: usize,
-        acc: Accumulate,
-    ) -> Self {
+    /// From the PyTorch tensors `[w1, b1, w2, b2]`: `w1 [M, in]`, `b1 [M]`, `w2 [out, M]`,
+    /// `b2 [out]`, with `in_dim` = in.
+    pub(crate) fn new(t: [&[f32]; 4], in_dim: usize, acc: Accumulate) -> Self {
+        let [w1, b1, w2, b2] = t;
         let m = b1.len();
         let out = b2.len();
         Self {
@@ -1524,19 +1481,8 @@ mod tests {
             let w_hh: Vec<f32> = values(24, 4 * h * h).iter().map(|v| v * 0.5).collect();
             let b_ih = values(25, 4 * h);
             let b_hh = values(26, 4 * h);
-            let make = |fused| {
-                Lstm::with_cell(
-                    &emb_w,
-                    &emb_b,
-                    &w_ih,
-                    &w_hh,
-                    &b_ih,
-                    &b_hh,
-                    h,
-                    Accumulate::F32,
-                    fused,
-                )
-            };
+            let t = [&emb_w, &emb_b, &w_ih, &w_hh, &b_ih, &b_hh].map(Vec::as_slice);
+            let make = |fused| Lstm::with_cell(t, h, Accumulate::F32, fused);
             let (fused, two_pass) = (make(true), make(false));
             assert!(matches!(fused.cell, LstmCell::Fused { .. }));
             assert!(matches!(two_pass.cell, LstmCell::Dense(_)));
@@ -1684,7 +1630,11 @@ mod tests {
         let hs = values(7, n * h);
         let pos: Vec<f32> = values(8, n * 2).iter().map(|v| v * 30.0).collect();
         for acc in [Accumulate::F32, Accumulate::F64] {
-            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let pool = Pool::new(
+                [&emb_w, &emb_b, &w1, &b1, &w2, &b2].map(Vec::as_slice),
+                h,
+                acc,
+            );
             let (ts, al) = (pool.term_stride(), pool.acc_len());
             let mut val = vec![0.0f32; pool.val_len()];
             let pairs: Vec<Pair> = (0..n)
@@ -1965,7 +1915,11 @@ mod tests {
         assert!(want[2 * bd..3 * bd].iter().all(|v| v.is_nan()));
         assert!(want.iter().filter(|v| v.is_finite()).count() == (n - 1) * bd);
         for acc in [Accumulate::F32, Accumulate::F64] {
-            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let pool = Pool::new(
+                [&emb_w, &emb_b, &w1, &b1, &w2, &b2].map(Vec::as_slice),
+                h,
+                acc,
+            );
             let (ts, al) = (pool.term_stride(), pool.acc_len());
             let mut val = vec![0.0f32; pool.val_len()];
             let mut first: Option<Vec<u32>> = None;
@@ -2021,17 +1975,8 @@ mod tests {
         let b_ih = values(55, 4 * h);
         let b_hh = values(56, 4 * h);
         for fused in [true, false] {
-            let lstm = Lstm::with_cell(
-                &emb_w,
-                &emb_b,
-                &w_ih,
-                &w_hh,
-                &b_ih,
-                &b_hh,
-                h,
-                Accumulate::F32,
-                fused,
-            );
+            let t = [&emb_w, &emb_b, &w_ih, &w_hh, &b_ih, &b_hh].map(Vec::as_slice);
+            let lstm = Lstm::with_cell(t, h, Accumulate::F32, fused);
             let rl = lstm.row_len();
             let mut xh0 = values(57, m * rl);
             let mut c0 = values(58, m * h);
