@@ -18,6 +18,7 @@ use crate::T_OBS;
 use crate::nn::{Accumulate, Dense, Lstm, Mlp2, PairGrid, Pool};
 use crate::simd::Isa;
 use crate::weights::{ModelConfig, ModelKind, ModelWeights};
+use crate::weights_file::{Layout, LstmModule, MlpModule, Module, PoolModule};
 
 /// The loaded, repacked generator.
 #[derive(Debug, Clone)]
@@ -88,82 +89,20 @@ impl Generator {
     /// Builds the fast generator from validated weights, its kernels running on `isa`.
     pub(crate) fn new(w: &ModelWeights, isa: Isa) -> Self {
         let cfg = w.config().clone();
-        let (he, hd) = (cfg.encoder_h_dim, cfg.decoder_h_dim);
+        let he = cfg.encoder_h_dim;
         let acc = accumulate(cfg.kind);
-        let enc = Lstm::new(
-            w.get("encoder.spatial_embedding.weight"),
-            w.get("encoder.spatial_embedding.bias"),
-            w.get("encoder.encoder.weight_ih_l0"),
-            w.get("encoder.encoder.weight_hh_l0"),
-            w.get("encoder.encoder.bias_ih_l0"),
-            w.get("encoder.encoder.bias_hh_l0"),
-            he,
-            acc,
-        );
-        let pool = Pool::new(
-            w.get("pool_net.spatial_embedding.weight"),
-            w.get("pool_net.spatial_embedding.bias"),
-            w.get("pool_net.mlp_pre_pool.0.weight"),
-            w.get("pool_net.mlp_pre_pool.0.bias"),
-            w.get("pool_net.mlp_pre_pool.2.weight"),
-            w.get("pool_net.mlp_pre_pool.2.bias"),
-            he,
-            acc,
-        );
-        let ctx = Mlp2::new(
-            w.get("mlp_decoder_context.0.weight"),
-            w.get("mlp_decoder_context.0.bias"),
-            w.get("mlp_decoder_context.2.weight"),
-            w.get("mlp_decoder_context.2.bias"),
-            he + cfg.bottleneck_dim,
-            acc,
-        );
-        let dec = Lstm::new(
-            w.get("decoder.spatial_embedding.weight"),
-            w.get("decoder.spatial_embedding.bias"),
-            w.get("decoder.decoder.weight_ih_l0"),
-            w.get("decoder.decoder.weight_hh_l0"),
-            w.get("decoder.decoder.bias_ih_l0"),
-            w.get("decoder.decoder.bias_hh_l0"),
-            hd,
-            acc,
-        );
-        let h2p = Dense::new(
-            w.get("decoder.hidden2pos.weight"),
-            w.get("decoder.hidden2pos.bias"),
-            2,
-            hd,
-            acc,
-        );
-        let (dec_pool, dec_mlp) = if cfg.pool_every_timestep {
-            (
-                Some(Pool::new(
-                    w.get("decoder.pool_net.spatial_embedding.weight"),
-                    w.get("decoder.pool_net.spatial_embedding.bias"),
-                    w.get("decoder.pool_net.mlp_pre_pool.0.weight"),
-                    w.get("decoder.pool_net.mlp_pre_pool.0.bias"),
-                    w.get("decoder.pool_net.mlp_pre_pool.2.weight"),
-                    w.get("decoder.pool_net.mlp_pre_pool.2.bias"),
-                    hd,
-                    acc,
-                )),
-                Some(Mlp2::new(
-                    w.get("decoder.mlp.0.weight"),
-                    w.get("decoder.mlp.0.bias"),
-                    w.get("decoder.mlp.2.weight"),
-                    w.get("decoder.mlp.2.bias"),
-                    hd + cfg.bottleneck_dim,
-                    acc,
-                )),
-            )
-        } else {
-            (None, None)
+        let l = Layout::new(&cfg);
+        let lstm = |m: &LstmModule| Lstm::new(m.values(w), m.h, acc);
+        let pool = |m: &PoolModule| Pool::new(m.values(w), m.h, acc);
+        let mlp = |m: &MlpModule| Mlp2::new(m.values(w), m.inp, acc);
+        let [h2p_w, h2p_b] = l.h2p.values(w);
+        let (dec_pool, dec_mlp) = match &l.dec_pool {
+            Some((p, m)) => (Some(pool(p)), Some(mlp(m))),
+            None => (None, None),
         };
-        let fixed_noise = if cfg.noise_dim > 0 {
-            w.get("fixed_noise").to_vec()
-        } else {
-            Vec::new()
-        };
+        let fixed_noise = l.fixed_noise(w).to_vec();
+        let (enc, pool, ctx, dec) = (lstm(&l.enc), pool(&l.pool), mlp(&l.ctx), lstm(&l.dec));
+        let h2p = Dense::new(h2p_w, h2p_b, l.h2p.out, l.h2p.inp, acc);
         let mut generator = Self {
             cfg,
             isa,

@@ -46,6 +46,7 @@ mod generator;
 mod history;
 pub mod json;
 pub mod limits;
+mod network;
 mod nn;
 mod recording;
 #[doc(hidden)]

@@ -3,52 +3,38 @@
 //! pooling module. Every kernel is generic over the instruction set ([`Simd`]) and runs through
 //! [`Isa::run`], so one build carries a portable, an AVX2 and an AVX-512 version of each.
 //!
-//! Weights are repacked at load time into blocks of 16 output rows stored input-major
-//! (`[n_blocks][in][16]`). A layer applied to `m` rows (agents, or agent pairs) is a small
-//! matrix product evaluated in register tiles of `TILE_ROWS` rows × `TILE_BLOCKS` 16-lane
-//! output blocks: per input `k`, one load of each weight block is reused for every row of the
-//! tile (one broadcast multiply-add each). Every output still sums its terms in input order,
-//! starting from its bias, so the result of a row does not depend on the tiling, the number of
-//! rows, nor (between the fused paths) the vector width: see [`simd`](crate::simd).
+//! Weights are repacked at load time into blocks of one vector's lanes (16 f32 or 8 f64)
+//! stored input-major (`[n_blocks][in][lanes]`). A layer applied to `m` rows (agents, or agent
+//! pairs) is a small matrix product evaluated in register tiles of `TILE_ROWS` rows ×
+//! `TILE_BLOCKS` output blocks: per input `k`, one load of each weight block is reused for every
+//! row of the tile (one broadcast multiply-add each). The one tile ([`tile`]) serves both
+//! precisions of the sums ([`Elem`]: f32, or f64 with the f32 inputs widened exactly). Every
+//! output still sums its terms in input order, starting from its bias, so the result of a row
+//! does not depend on the tiling, the number of rows, nor (between the fused paths) the vector
+//! width: see [`simd`](crate::simd).
 
-use crate::simd::{Isa, Kernel, LANES, LANES_D, Simd, SimdPath, max_nan};
+use crate::simd::{Elem, Isa, Kernel, LANES, Simd, SimdPath, max_nan};
 
-/// 16 output lanes of one packed weight row.
+/// 16 output lanes of one packed f32 weight row.
 type Block = [f32; LANES];
-/// 8 output lanes of one packed f64 weight row.
-type BlockD = [f64; LANES_D];
 
-/// Packs a row-major `[out, in]` matrix into `[ceil(out/8)][in]` rows of 8 f64 lanes, zero
-/// padded.
-fn pack_d(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<BlockD> {
-    let nblk = out_dim.div_ceil(LANES_D);
-    let mut p = vec![[0.0f64; LANES_D]; nblk * in_dim];
+/// Packs a row-major `[out, in]` matrix into `[ceil(out/lanes)][in]` blocks of
+/// [`Elem::LANES`] lanes in precision `E` (widened exactly), zero padded.
+fn pack<E: Elem>(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<E::Block> {
+    let nblk = out_dim.div_ceil(E::LANES);
+    let mut p = vec![E::Block::default(); nblk * in_dim];
     for o in 0..out_dim {
-        let (blk, l) = (o / LANES_D, o % LANES_D);
+        let (blk, l) = (o / E::LANES, o % E::LANES);
         for k in 0..in_dim {
-            p[blk * in_dim + k][l] = f64::from(w[o * in_dim + k]);
+            p[blk * in_dim + k].as_mut()[l] = E::widen(w[o * in_dim + k]);
         }
     }
     p
 }
 
-/// Packs a row-major `[out, in]` matrix into `[ceil(out/16)][in]` rows of 16 lanes, zero
-/// padded.
-fn pack(w: &[f32], out_dim: usize, in_dim: usize) -> Vec<Block> {
-    let nblk = out_dim.div_ceil(LANES);
-    let mut p = vec![[0.0f32; LANES]; nblk * in_dim];
-    for o in 0..out_dim {
-        let (blk, l) = (o / LANES, o % LANES);
-        for k in 0..in_dim {
-            p[blk * in_dim + k][l] = w[o * in_dim + k];
-        }
-    }
-    p
-}
-
-/// `v` zero padded to whole blocks.
-fn pad(v: &[f32]) -> Vec<Block> {
-    pack(v, v.len(), 1)
+/// `v` zero padded to whole blocks of precision `E`.
+fn pad<E: Elem>(v: &[f32]) -> Vec<E::Block> {
+    pack::<E>(v, v.len(), 1)
 }
 
 /// The 16-lane blocks of `x` (whose length must be a multiple of 16).
@@ -97,27 +83,27 @@ fn count_macs(n: usize) {
     let _ = n;
 }
 
-/// Calls `$f::<$S, MB, OB>($args)` for the runtime tile shape `($mb, $ob)`,
+/// Calls `$f::<$T.., MB, OB>($args)` for the runtime tile shape `($mb, $ob)`,
 /// `1 <= $mb <= 8`, `1 <= $ob <= 2`.
 macro_rules! by_tile {
-    ($mb:expr, $ob:expr, $f:ident::<$S:ty>($($arg:expr),* $(,)?)) => {
+    ($mb:expr, $ob:expr, $f:ident::<$($T:ty),+>($($arg:expr),* $(,)?)) => {
         match ($mb, $ob) {
-            (1, 1) => $f::<$S, 1, 1>($($arg),*),
-            (2, 1) => $f::<$S, 2, 1>($($arg),*),
-            (3, 1) => $f::<$S, 3, 1>($($arg),*),
-            (4, 1) => $f::<$S, 4, 1>($($arg),*),
-            (5, 1) => $f::<$S, 5, 1>($($arg),*),
-            (6, 1) => $f::<$S, 6, 1>($($arg),*),
-            (7, 1) => $f::<$S, 7, 1>($($arg),*),
-            (8, 1) => $f::<$S, 8, 1>($($arg),*),
-            (1, 2) => $f::<$S, 1, 2>($($arg),*),
-            (2, 2) => $f::<$S, 2, 2>($($arg),*),
-            (3, 2) => $f::<$S, 3, 2>($($arg),*),
-            (4, 2) => $f::<$S, 4, 2>($($arg),*),
-            (5, 2) => $f::<$S, 5, 2>($($arg),*),
-            (6, 2) => $f::<$S, 6, 2>($($arg),*),
-            (7, 2) => $f::<$S, 7, 2>($($arg),*),
-            (8, 2) => $f::<$S, 8, 2>($($arg),*),
+            (1, 1) => $f::<$($T),+, 1, 1>($($arg),*),
+            (2, 1) => $f::<$($T),+, 2, 1>($($arg),*),
+            (3, 1) => $f::<$($T),+, 3, 1>($($arg),*),
+            (4, 1) => $f::<$($T),+, 4, 1>($($arg),*),
+            (5, 1) => $f::<$($T),+, 5, 1>($($arg),*),
+            (6, 1) => $f::<$($T),+, 6, 1>($($arg),*),
+            (7, 1) => $f::<$($T),+, 7, 1>($($arg),*),
+            (8, 1) => $f::<$($T),+, 8, 1>($($arg),*),
+            (1, 2) => $f::<$($T),+, 1, 2>($($arg),*),
+            (2, 2) => $f::<$($T),+, 2, 2>($($arg),*),
+            (3, 2) => $f::<$($T),+, 3, 2>($($arg),*),
+            (4, 2) => $f::<$($T),+, 4, 2>($($arg),*),
+            (5, 2) => $f::<$($T),+, 5, 2>($($arg),*),
+            (6, 2) => $f::<$($T),+, 6, 2>($($arg),*),
+            (7, 2) => $f::<$($T),+, 7, 2>($($arg),*),
+            (8, 2) => $f::<$($T),+, 8, 2>($($arg),*),
             _ => unreachable!("tile shapes are at most 8 rows x 2 blocks"),
         }
     };
@@ -126,23 +112,23 @@ macro_rules! by_tile {
 /// Largest `TILE_ROWS` of any path (scratch sizing).
 pub(crate) const MAX_TILE_ROWS: usize = 8;
 
-/// The register tile: rows `r0..r0+MB` of `x` (row `r` is `x[r*ldx..][..k]`) times output
-/// blocks `blk0..blk0+OB` of the packed `w` (`[n_blocks][k]` blocks), accumulated onto
-/// `init` in input order.
+/// The register tile, in precision `E`: rows `r0..r0+MB` of `x` (row `r` is
+/// `x[r*ldx..][..k]`, f32, widened exactly) times output blocks `blk0..blk0+OB` of the packed
+/// `w` (`[n_blocks][k]` blocks), accumulated onto `init` in input order.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn tile<S: Simd, const MB: usize, const OB: usize>(
+fn tile<S: Simd, E: Elem, const MB: usize, const OB: usize>(
     s: S,
-    w: &[Block],
+    w: &[E::Block],
     k: usize,
     blk0: usize,
     x: &[f32],
     ldx: usize,
     r0: usize,
-    init: [S::V; OB],
-) -> [[S::V; OB]; MB] {
+    init: [E::V<S>; OB],
+) -> [[E::V<S>; OB]; MB] {
     // Slices of length exactly `k` (`[..k]`), so that the loop below needs no bounds checks.
-    let mut ws: [&[Block]; OB] = [&[]; OB];
+    let mut ws: [&[E::Block]; OB] = [&[]; OB];
     for (o, wo) in ws.iter_mut().enumerate() {
         *wo = &w[(blk0 + o) * k..][..k];
     }
@@ -154,50 +140,12 @@ fn tile<S: Simd, const MB: usize, const OB: usize>(
     for kk in 0..k {
         let mut wv = init;
         for o in 0..OB {
-            wv[o] = s.load(&ws[o][kk]);
+            wv[o] = E::load(s, &ws[o][kk]);
         }
         for r in 0..MB {
-            let xv = s.splat(xs[r][kk]);
+            let xv = E::splat(s, xs[r][kk]);
             for o in 0..OB {
-                acc[r][o] = s.mul_add(xv, wv[o], acc[r][o]);
-            }
-        }
-    }
-    acc
-}
-
-/// The f64 register tile of the dense layers: as [`tile`], with 8-lane f64 blocks and the
-/// f32 inputs widened exactly.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn tile_d<S: Simd, const MB: usize, const OB: usize>(
-    s: S,
-    w: &[BlockD],
-    k: usize,
-    blk0: usize,
-    x: &[f32],
-    ldx: usize,
-    r0: usize,
-    init: [S::D; OB],
-) -> [[S::D; OB]; MB] {
-    let mut ws: [&[BlockD]; OB] = [&[]; OB];
-    for (o, wo) in ws.iter_mut().enumerate() {
-        *wo = &w[(blk0 + o) * k..][..k];
-    }
-    let mut xs: [&[f32]; MB] = [&[]; MB];
-    for (r, xr) in xs.iter_mut().enumerate() {
-        *xr = &x[(r0 + r) * ldx..][..k];
-    }
-    let mut acc = [init; MB];
-    for kk in 0..k {
-        let mut wv = init;
-        for o in 0..OB {
-            wv[o] = s.load_d(&ws[o][kk]);
-        }
-        for r in 0..MB {
-            let xv = s.splat_d(f64::from(xs[r][kk]));
-            for o in 0..OB {
-                acc[r][o] = s.mul_add_d(xv, wv[o], acc[r][o]);
+                acc[r][o] = E::mul_add(s, xv, wv[o], acc[r][o]);
             }
         }
     }
@@ -214,13 +162,31 @@ pub(crate) enum Accumulate {
     F64,
 }
 
-/// Packed weights and bias of a [`Dense`] layer, in the precision of its sums.
+/// Weights `[n_blocks][in]` and bias `[n_blocks]` of a [`Dense`] layer packed in blocks of
+/// precision `E`.
 #[derive(Debug, Clone)]
-enum Packed {
-    /// `[n_blocks][in]` blocks of 16 f32 lanes, `[n_blocks]` bias blocks.
-    F32(Vec<Block>, Vec<Block>),
-    /// `[n_blocks][in]` blocks of 8 f64 lanes, `[n_blocks]` bias blocks.
-    F64(Vec<BlockD>, Vec<BlockD>),
+struct Packed<E: Elem> {
+    w: Vec<E::Block>,
+    b: Vec<E::Block>,
+}
+
+impl<E: Elem> Packed<E> {
+    /// Packs the row-major `[out, in]` weight `w` and the `[out]` bias `b`.
+    fn new(w: &[f32], b: &[f32], out_dim: usize, in_dim: usize) -> Self {
+        Self {
+            w: pack::<E>(w, out_dim, in_dim),
+            b: pad::<E>(b),
+        }
+    }
+}
+
+/// The packed weights of a [`Dense`] layer, in the precision of its sums.
+#[derive(Debug, Clone)]
+enum Weights {
+    /// Blocks of 16 f32 lanes.
+    F32(Packed<f32>),
+    /// Blocks of 8 f64 lanes.
+    F64(Packed<f64>),
 }
 
 /// `y = W x + b` with `W` `[out, in]`, repacked for vectorised evaluation, summing in the
@@ -229,7 +195,7 @@ enum Packed {
 pub(crate) struct Dense {
     in_dim: usize,
     out_dim: usize,
-    packed: Packed,
+    packed: Weights,
 }
 
 impl Dense {
@@ -244,8 +210,8 @@ impl Dense {
         debug_assert_eq!(w.len(), out_dim * in_dim);
         debug_assert_eq!(b.len(), out_dim);
         let packed = match acc {
-            Accumulate::F32 => Packed::F32(pack(w, out_dim, in_dim), pad(b)),
-            Accumulate::F64 => Packed::F64(pack_d(w, out_dim, in_dim), pack_d(b, out_dim, 1)),
+            Accumulate::F32 => Weights::F32(Packed::new(w, b, out_dim, in_dim)),
+            Accumulate::F64 => Weights::F64(Packed::new(w, b, out_dim, in_dim)),
         };
         Self {
             in_dim,
@@ -304,6 +270,7 @@ impl Kernel for DenseRows<'_> {
     }
 }
 
+/// [`Dense::rows`] on instruction set `s`, in the precision of `d`'s sums.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn dense_rows<S: Simd>(
@@ -318,8 +285,8 @@ fn dense_rows<S: Simd>(
 ) {
     count_macs(m * d.in_dim * d.out_dim);
     let nblk = match &d.packed {
-        Packed::F32(_, b) => b.len(),
-        Packed::F64(_, b) => b.len(),
+        Weights::F32(p) => p.b.len(),
+        Weights::F64(p) => p.b.len(),
     };
     let mut r = 0;
     while r < m {
@@ -328,15 +295,15 @@ fn dense_rows<S: Simd>(
         while blk < nblk {
             let ob = (nblk - blk).min(S::TILE_BLOCKS);
             match &d.packed {
-                Packed::F32(w, b) => by_tile!(
+                Weights::F32(p) => by_tile!(
                     mb,
                     ob,
-                    dense_tile::<S>(s, d, w, b, x, ldx, r, blk, y, ldy, relu)
+                    dense_tile::<S, f32>(s, d, p, x, ldx, r, blk, y, ldy, relu)
                 ),
-                Packed::F64(w, b) => by_tile!(
+                Weights::F64(p) => by_tile!(
                     mb,
                     ob,
-                    dense_tile_d::<S>(s, d, w, b, x, ldx, r, blk, y, ldy, relu)
+                    dense_tile::<S, f64>(s, d, p, x, ldx, r, blk, y, ldy, relu)
                 ),
             }
             blk += ob;
@@ -345,13 +312,13 @@ fn dense_rows<S: Simd>(
     }
 }
 
+/// One register tile of [`Dense::rows`]: rows `r0..r0+MB`, output blocks `blk0..blk0+OB`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn dense_tile<S: Simd, const MB: usize, const OB: usize>(
+fn dense_tile<S: Simd, E: Elem, const MB: usize, const OB: usize>(
     s: S,
     d: &Dense,
-    w: &[Block],
-    b: &[Block],
+    p: &Packed<E>,
     x: &[f32],
     ldx: usize,
     r0: usize,
@@ -360,64 +327,17 @@ fn dense_tile<S: Simd, const MB: usize, const OB: usize>(
     ldy: usize,
     relu: bool,
 ) {
-    let mut init = [s.splat(0.0); OB];
+    let mut init = [E::splat(s, 0.0); OB];
     for (o, v) in init.iter_mut().enumerate() {
-        *v = s.load(&b[blk0 + o]);
+        *v = E::load(s, &p.b[blk0 + o]);
     }
-    let acc = tile::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
-    let zero = s.splat(0.0);
-    for (r, row) in acc.into_iter().enumerate() {
-        for (o, mut v) in row.into_iter().enumerate() {
-            if relu {
-                v = s.max(v, zero);
-            }
-            let lane0 = (blk0 + o) * LANES;
-            let start = (r0 + r) * ldy + lane0;
-            let n = (d.out_dim - lane0).min(LANES);
-            let dst = &mut y[start..start + n];
-            if let Ok(full) = <&mut Block>::try_from(&mut *dst) {
-                s.store(v, full);
-            } else {
-                let mut t = [0.0f32; LANES];
-                s.store(v, &mut t);
-                dst.copy_from_slice(&t[..n]);
-            }
-        }
-    }
-}
-
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn dense_tile_d<S: Simd, const MB: usize, const OB: usize>(
-    s: S,
-    d: &Dense,
-    w: &[BlockD],
-    b: &[BlockD],
-    x: &[f32],
-    ldx: usize,
-    r0: usize,
-    blk0: usize,
-    y: &mut [f32],
-    ldy: usize,
-    relu: bool,
-) {
-    let mut init = [s.splat_d(0.0); OB];
-    for (o, v) in init.iter_mut().enumerate() {
-        *v = s.load_d(&b[blk0 + o]);
-    }
-    let acc = tile_d::<S, MB, OB>(s, w, d.in_dim, blk0, x, ldx, r0, init);
+    let acc = tile::<S, E, MB, OB>(s, &p.w, d.in_dim, blk0, x, ldx, r0, init);
     for (r, row) in acc.into_iter().enumerate() {
         for (o, v) in row.into_iter().enumerate() {
-            let lane0 = (blk0 + o) * LANES_D;
+            let lane0 = (blk0 + o) * E::LANES;
             let start = (r0 + r) * ldy + lane0;
-            let n = (d.out_dim - lane0).min(LANES_D);
-            let mut t = [0.0f32; LANES_D];
-            s.store_d_f32(v, &mut t);
-            if relu {
-                // Rounding is monotonic: relu after rounding equals rounding after relu.
-                t = t.map(relu_nan);
-            }
-            y[start..start + n].copy_from_slice(&t[..n]);
+            let n = (d.out_dim - lane0).min(E::LANES);
+            E::store_f32(s, v, relu, &mut y[start..start + n]);
         }
     }
 }
@@ -566,46 +486,17 @@ fn pack_gates(w: &[f32], b: &[f32], h: usize, in_dim: usize) -> (Vec<Block>, Vec
 }
 
 impl Lstm {
-    /// From the PyTorch tensors: `emb_w [E, 2]`, `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`,
-    /// `b_ih`, `b_hh` `[4H]`. Folding is done in f64 and rounded once.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn new(
-        emb_w: &[f32],
-        emb_b: &[f32],
-        w_ih: &[f32],
-        w_hh: &[f32],
-        b_ih: &[f32],
-        b_hh: &[f32],
-        h: usize,
-        acc: Accumulate,
-    ) -> Self {
-        Self::with_cell(
-            emb_w,
-            emb_b,
-            w_ih,
-            w_hh,
-            b_ih,
-            b_hh,
-            h,
-            acc,
-            acc == Accumulate::F32,
-        )
+    /// From the PyTorch tensors `[emb_w, emb_b, w_ih, w_hh, b_ih, b_hh]`: `emb_w [E, 2]`,
+    /// `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`, `b_ih`, `b_hh` `[4H]`, with `h` = H. Folding
+    /// is done in f64 and rounded once.
+    pub(crate) fn new(t: [&[f32]; 6], h: usize, acc: Accumulate) -> Self {
+        Self::with_cell(t, h, acc, acc == Accumulate::F32)
     }
 
     /// As [`Lstm::new`]; `fused` selects [`LstmCell::Fused`] (f32 sums only).
-    #[allow(clippy::too_many_arguments)]
-    fn with_cell(
-        emb_w: &[f32],
-        emb_b: &[f32],
-        w_ih: &[f32],
-        w_hh: &[f32],
-        b_ih: &[f32],
-        b_hh: &[f32],
-        h: usize,
-        acc: Accumulate,
-        fused: bool,
-    ) -> Self {
+    fn with_cell(t: [&[f32]; 6], h: usize, acc: Accumulate, fused: bool) -> Self {
         debug_assert!(!fused || acc == Accumulate::F32);
+        let [emb_w, emb_b, w_ih, w_hh, b_ih, b_hh] = t;
         let e = emb_b.len();
         let rows = 4 * h;
         let in_dim = 2 + h;
@@ -810,14 +701,7 @@ fn load_part<S: Simd>(s: S, x: &[f32], lane0: usize) -> S::V {
 #[inline(always)]
 fn store_part<S: Simd>(s: S, v: S::V, y: &mut [f32], lane0: usize) {
     let n = (y.len() - lane0).min(LANES);
-    let dst = &mut y[lane0..lane0 + n];
-    if let Ok(full) = <&mut Block>::try_from(&mut *dst) {
-        s.store(v, full);
-    } else {
-        let mut t = [0.0f32; LANES];
-        s.store(v, &mut t);
-        dst.copy_from_slice(&t[..n]);
-    }
+    f32::store_f32(s, v, false, &mut y[lane0..lane0 + n]);
 }
 
 #[inline(always)]
@@ -840,7 +724,7 @@ fn lstm_tile<S: Simd, const MB: usize>(
         for (g, v) in init.iter_mut().enumerate() {
             *v = s.load(&b[4 * hb + g]);
         }
-        let acc = tile::<S, MB, 4>(s, w, rl, 4 * hb, xh, ldx, r0, init);
+        let acc = tile::<S, f32, MB, 4>(s, w, rl, 4 * hb, xh, ldx, r0, init);
         for (r, [gi, gf, gg, go]) in acc.into_iter().enumerate() {
             let row = r0 + r;
             let (i, f, g, o) = (
@@ -899,17 +783,8 @@ pub(crate) struct Pool {
 impl Pool {
     /// From the PyTorch tensors: `emb_w [E,2]`, `emb_b [E]`, `w1 [P, E+H]`, `b1 [P]`,
     /// `w2 [B, P]`, `b2 [B]`; `h` is the size of the pooled hidden states.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn new(
-        emb_w: &[f32],
-        emb_b: &[f32],
-        w1: &[f32],
-        b1: &[f32],
-        w2: &[f32],
-        b2: &[f32],
-        h: usize,
-        acc: Accumulate,
-    ) -> Self {
+    pub(crate) fn new(t: [&[f32]; 6], h: usize, acc: Accumulate) -> Self {
+        let [emb_w, emb_b, w1, b1, w2, b2] = t;
         let e = emb_b.len();
         let p = b1.len();
         let b = b2.len();
@@ -934,10 +809,10 @@ impl Pool {
         Self {
             p,
             b,
-            wpx: pad(&wpx),
-            wpy: pad(&wpy),
+            wpx: pad::<f32>(&wpx),
+            wpy: pad::<f32>(&wpy),
             l1h: Dense::new(&w1h, &c, p, h, acc),
-            w2: pack(w2, b, p),
+            w2: pack::<f32>(w2, b, p),
             b2: b2.to_vec(),
         }
     }
@@ -1167,7 +1042,7 @@ fn pool_tile<S: Simd, const MB: usize, const OB: usize>(
 ) {
     let (p, al) = (pool.p, pool.acc_len());
     let zero = s.splat(0.0);
-    let sums = tile::<S, MB, OB>(s, &pool.w2, p, blk0, val, pool.term_stride(), 0, [zero; OB]);
+    let sums = tile::<S, f32, MB, OB>(s, &pool.w2, p, blk0, val, pool.term_stride(), 0, [zero; OB]);
     // Consecutive pairs of the same query are reduced in registers first, so that each
     // running-max row is read and written once per run instead of once per pair.
     let mut r = 0;
@@ -1198,15 +1073,10 @@ pub(crate) struct Mlp2 {
 }
 
 impl Mlp2 {
-    /// From `w1 [M, in]`, `b1 [M]`, `w2 [out, M]`, `b2 [out]`.
-    pub(crate) fn new(
-        w1: &[f32],
-        b1: &[f32],
-        w2: &[f32],
-        b2: &[f32],
-        in_dim: usize,
-        acc: Accumulate,
-    ) -> Self {
+    /// From the PyTorch tensors `[w1, b1, w2, b2]`: `w1 [M, in]`, `b1 [M]`, `w2 [out, M]`,
+    /// `b2 [out]`, with `in_dim` = in.
+    pub(crate) fn new(t: [&[f32]; 4], in_dim: usize, acc: Accumulate) -> Self {
+        let [w1, b1, w2, b2] = t;
         let m = b1.len();
         let out = b2.len();
         Self {
@@ -1460,6 +1330,94 @@ mod tests {
             .sum()
     }
 
+    /// Dense rows against a straightforward scalar reference, bit for bit, on every path and in
+    /// both precisions: each output starts from its bias and adds its terms in input order, one
+    /// multiply-add each, rounded as the path rounds (fused, or product then sum); f64 sums take
+    /// the f32 weights and inputs widened and are rounded to f32 once; ReLU last, NaN kept.
+    /// Random shapes (seeded), with row counts, output widths and input lengths that are and
+    /// are not multiples of the register tile's rows, the blocks' lanes (16 f32, 8 f64) and
+    /// the tile's blocks, and row strides with padding that must stay unwritten.
+    #[test]
+    fn dense_rows_equal_scalar_reference_bits() {
+        fn reference<T: Copy>(
+            fma: impl Fn(T, T, T) -> T,
+            widen: impl Fn(f32) -> T,
+            round: impl Fn(T) -> f32,
+            (w, b, x): (&[f32], &[f32], &[f32]),
+            relu: bool,
+        ) -> Vec<f32> {
+            let inp = x.len();
+            b.iter()
+                .enumerate()
+                .map(|(o, &bo)| {
+                    let mut acc = widen(bo);
+                    for (k, &xk) in x.iter().enumerate() {
+                        acc = fma(widen(xk), widen(w[o * inp + k]), acc);
+                    }
+                    let v = round(acc);
+                    if relu { max_nan(v, 0.0) } else { v }
+                })
+                .collect()
+        }
+        let mut seed = 0x2545_f491_u32;
+        let mut next = |n: usize| {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed as usize % n
+        };
+        // Fixed remainder cases first, then random shapes.
+        let mut shapes = vec![(1, 1, 1), (17, 9, 3), (8, 16, 5), (33, 1, 9), (47, 31, 13)];
+        for _ in 0..40 {
+            shapes.push((1 + next(70), 1 + next(40), 1 + next(19)));
+        }
+        for (case, &(out, inp, m)) in shapes.iter().enumerate() {
+            let w = values(100 + case as u32, out * inp);
+            let b = values(200 + case as u32, out);
+            let (ldx, ldy) = (inp + next(3), out + 1 + next(3));
+            let x = values(300 + case as u32, m * ldx);
+            for acc in [Accumulate::F32, Accumulate::F64] {
+                let d = Dense::new(&w, &b, out, inp, acc);
+                for isa in isas() {
+                    let fused = isa.path().is_fused();
+                    for relu in [false, true] {
+                        let mut y = vec![f32::NAN; m * ldy];
+                        d.rows(isa, &x, ldx, m, &mut y, ldy, relu);
+                        for r in 0..m {
+                            let args = (&w[..], &b[..], &x[r * ldx..r * ldx + inp]);
+                            let want = match acc {
+                                Accumulate::F32 => reference(
+                                    |a: f32, b, c| if fused { a.mul_add(b, c) } else { a * b + c },
+                                    |v| v,
+                                    |v| v,
+                                    args,
+                                    relu,
+                                ),
+                                Accumulate::F64 => reference(
+                                    |a: f64, b, c| if fused { a.mul_add(b, c) } else { a * b + c },
+                                    f64::from,
+                                    |v| v as f32,
+                                    args,
+                                    relu,
+                                ),
+                            };
+                            let got = &y[r * ldy..(r + 1) * ldy];
+                            let bits =
+                                |v: &[f32]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                            assert_eq!(
+                                bits(&got[..out]),
+                                bits(&want),
+                                "{} {acc:?} {out}x{inp}, {m} rows, row {r}, relu {relu}",
+                                isa.path()
+                            );
+                            assert!(got[out..].iter().all(|v| v.is_nan()), "wrote past the row");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Dense rows on every path and every row count / output width that exercises partial
     /// tiles and blocks: close to the f64 product, identical to row-by-row evaluation, and
     /// identical between the fused paths.
@@ -1523,19 +1481,8 @@ mod tests {
             let w_hh: Vec<f32> = values(24, 4 * h * h).iter().map(|v| v * 0.5).collect();
             let b_ih = values(25, 4 * h);
             let b_hh = values(26, 4 * h);
-            let make = |fused| {
-                Lstm::with_cell(
-                    &emb_w,
-                    &emb_b,
-                    &w_ih,
-                    &w_hh,
-                    &b_ih,
-                    &b_hh,
-                    h,
-                    Accumulate::F32,
-                    fused,
-                )
-            };
+            let t = [&emb_w, &emb_b, &w_ih, &w_hh, &b_ih, &b_hh].map(Vec::as_slice);
+            let make = |fused| Lstm::with_cell(t, h, Accumulate::F32, fused);
             let (fused, two_pass) = (make(true), make(false));
             assert!(matches!(fused.cell, LstmCell::Fused { .. }));
             assert!(matches!(two_pass.cell, LstmCell::Dense(_)));
@@ -1683,7 +1630,11 @@ mod tests {
         let hs = values(7, n * h);
         let pos: Vec<f32> = values(8, n * 2).iter().map(|v| v * 30.0).collect();
         for acc in [Accumulate::F32, Accumulate::F64] {
-            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let pool = Pool::new(
+                [&emb_w, &emb_b, &w1, &b1, &w2, &b2].map(Vec::as_slice),
+                h,
+                acc,
+            );
             let (ts, al) = (pool.term_stride(), pool.acc_len());
             let mut val = vec![0.0f32; pool.val_len()];
             let pairs: Vec<Pair> = (0..n)
@@ -1964,7 +1915,11 @@ mod tests {
         assert!(want[2 * bd..3 * bd].iter().all(|v| v.is_nan()));
         assert!(want.iter().filter(|v| v.is_finite()).count() == (n - 1) * bd);
         for acc in [Accumulate::F32, Accumulate::F64] {
-            let pool = Pool::new(&emb_w, &emb_b, &w1, &b1, &w2, &b2, h, acc);
+            let pool = Pool::new(
+                [&emb_w, &emb_b, &w1, &b1, &w2, &b2].map(Vec::as_slice),
+                h,
+                acc,
+            );
             let (ts, al) = (pool.term_stride(), pool.acc_len());
             let mut val = vec![0.0f32; pool.val_len()];
             let mut first: Option<Vec<u32>> = None;
@@ -2020,17 +1975,8 @@ mod tests {
         let b_ih = values(55, 4 * h);
         let b_hh = values(56, 4 * h);
         for fused in [true, false] {
-            let lstm = Lstm::with_cell(
-                &emb_w,
-                &emb_b,
-                &w_ih,
-                &w_hh,
-                &b_ih,
-                &b_hh,
-                h,
-                Accumulate::F32,
-                fused,
-            );
+            let t = [&emb_w, &emb_b, &w_ih, &w_hh, &b_ih, &b_hh].map(Vec::as_slice);
+            let lstm = Lstm::with_cell(t, h, Accumulate::F32, fused);
             let rl = lstm.row_len();
             let mut xh0 = values(57, m * rl);
             let mut c0 = values(58, m * h);

@@ -2,8 +2,9 @@
 //! `unsafe` code.
 //!
 //! One build runs on every x86-64 CPU: the kernels (module `nn`) are written once,
-//! generic over a `Simd` trait (16 f32 lanes with load, store, broadcast, multiply-add and max), and
-//! instantiated three times:
+//! generic over a `Simd` trait (16 f32 lanes with load, store, broadcast, multiply-add and max;
+//! 8 f64 lanes for the dense layers' sums, which the one register tile reaches through the
+//! precision trait `Elem`), and instantiated three times:
 //!
 //! | [`SimdPath`] | instructions | multiply-add |
 //! |---|---|---|
@@ -260,6 +261,102 @@ pub(crate) trait Simd: Copy {
     fn mul_add_d(self, a: Self::D, b: Self::D, c: Self::D) -> Self::D;
     /// The 8 lanes rounded to f32 (to nearest), written to `y`.
     fn store_d_f32(self, v: Self::D, y: &mut [f32; LANES_D]);
+}
+
+/// A precision the matrix kernels of `nn` sum in: `f32`, 16 lanes a vector ([`Simd::V`]), or
+/// `f64`, 8 lanes a vector ([`Simd::D`]). The kernels' inputs and outputs are f32 either way: an
+/// input is widened exactly ([`Elem::splat`]) and an output is rounded to f32 once
+/// ([`Elem::store_f32`]). The register tile is written once over this trait; every method is
+/// one [`Simd`] operation of the precision (inlined), so each instantiation is the code a
+/// hand-written copy for that precision would be, with the same operations in the same order.
+pub(crate) trait Elem: Copy + Default + fmt::Debug + 'static {
+    /// Lanes of one vector and of one packed weight block: 16 for f32, 8 for f64.
+    const LANES: usize;
+    /// One packed block, `[Self; LANES]`.
+    type Block: Copy + Default + fmt::Debug + AsMut<[Self]>;
+    /// [`Elem::LANES`] values in registers of the instruction set `S`.
+    type V<S: Simd>: Copy;
+    /// `x` in this precision (exact).
+    fn widen(x: f32) -> Self;
+    /// Every lane `x`, widened exactly.
+    fn splat<S: Simd>(s: S, x: f32) -> Self::V<S>;
+    /// The values of `x`.
+    fn load<S: Simd>(s: S, x: &Self::Block) -> Self::V<S>;
+    /// `a * b + c` per lane: fused on the FMA paths, two roundings on the portable one (as
+    /// [`Simd::mul_add`]).
+    fn mul_add<S: Simd>(s: S, a: Self::V<S>, b: Self::V<S>, c: Self::V<S>) -> Self::V<S>;
+    /// Writes the first `y.len()` lanes (at most [`Elem::LANES`]) of `v` to `y`, rounded to
+    /// f32 (to nearest; nothing to round for f32) and, when `relu`, passed through
+    /// `max_nan(x, 0)` (rounding is monotonic: ReLU before or after it gives the same bits).
+    fn store_f32<S: Simd>(s: S, v: Self::V<S>, relu: bool, y: &mut [f32]);
+}
+
+impl Elem for f32 {
+    const LANES: usize = LANES;
+    type Block = [f32; LANES];
+    type V<S: Simd> = S::V;
+
+    #[inline(always)]
+    fn widen(x: f32) -> Self {
+        x
+    }
+    #[inline(always)]
+    fn splat<S: Simd>(s: S, x: f32) -> S::V {
+        s.splat(x)
+    }
+    #[inline(always)]
+    fn load<S: Simd>(s: S, x: &Self::Block) -> S::V {
+        s.load(x)
+    }
+    #[inline(always)]
+    fn mul_add<S: Simd>(s: S, a: S::V, b: S::V, c: S::V) -> S::V {
+        s.mul_add(a, b, c)
+    }
+    #[inline(always)]
+    fn store_f32<S: Simd>(s: S, v: S::V, relu: bool, y: &mut [f32]) {
+        let v = if relu { s.max(v, s.splat(0.0)) } else { v };
+        if let Ok(full) = <&mut [f32; LANES]>::try_from(&mut *y) {
+            s.store(v, full);
+        } else {
+            let mut t = [0.0f32; LANES];
+            s.store(v, &mut t);
+            let n = y.len();
+            y.copy_from_slice(&t[..n]);
+        }
+    }
+}
+
+impl Elem for f64 {
+    const LANES: usize = LANES_D;
+    type Block = [f64; LANES_D];
+    type V<S: Simd> = S::D;
+
+    #[inline(always)]
+    fn widen(x: f32) -> Self {
+        f64::from(x)
+    }
+    #[inline(always)]
+    fn splat<S: Simd>(s: S, x: f32) -> S::D {
+        s.splat_d(f64::from(x))
+    }
+    #[inline(always)]
+    fn load<S: Simd>(s: S, x: &Self::Block) -> S::D {
+        s.load_d(x)
+    }
+    #[inline(always)]
+    fn mul_add<S: Simd>(s: S, a: S::D, b: S::D, c: S::D) -> S::D {
+        s.mul_add_d(a, b, c)
+    }
+    #[inline(always)]
+    fn store_f32<S: Simd>(s: S, v: S::D, relu: bool, y: &mut [f32]) {
+        let mut t = [0.0f32; LANES_D];
+        s.store_d_f32(v, &mut t);
+        if relu {
+            t = t.map(|x| max_nan(x, 0.0));
+        }
+        let n = y.len();
+        y.copy_from_slice(&t[..n]);
+    }
 }
 
 /// `max(a, b)` that propagates NaN: `a` when `a > b` or `a` is NaN, else `b` (so `b` when `b`

@@ -185,7 +185,7 @@ pub fn synthetic_weights(config: &ModelConfig, seed: u64) -> Result<Vec<u8>> {
         .into_iter()
         .map(|(name, shape)| {
             let len: usize = shape.iter().product();
-            let values: Vec<f32> = if name == "fixed_noise" {
+            let values: Vec<f32> = if name == FIXED_NOISE {
                 // Sum of 12 uniforms minus 6: approximately N(0, 1).
                 (0..len)
                     .map(|_| ((0..12).map(|_| next()).sum::<f64>() - 6.0) as f32)
@@ -372,55 +372,225 @@ impl ModelConfig {
 /// config `cfg` holds; `W` shapes are `[out, in]`.
 #[must_use]
 pub fn expected_tensors(cfg: &ModelConfig) -> Vec<(String, Vec<usize>)> {
-    let (e, he, hd) = (cfg.embedding_dim, cfg.encoder_h_dim, cfg.decoder_h_dim);
-    let (m, b, p, z) = (
-        cfg.mlp_dim,
-        cfg.bottleneck_dim,
-        cfg.pool_hidden_dim,
-        cfg.noise_dim,
-    );
-    let mut v: Vec<(String, Vec<usize>)> = Vec::new();
-    let mut add = |name: &str, shape: &[usize]| v.push((name.to_owned(), shape.to_vec()));
-    add("encoder.spatial_embedding.weight", &[e, 2]);
-    add("encoder.spatial_embedding.bias", &[e]);
-    add("encoder.encoder.weight_ih_l0", &[4 * he, e]);
-    add("encoder.encoder.weight_hh_l0", &[4 * he, he]);
-    add("encoder.encoder.bias_ih_l0", &[4 * he]);
-    add("encoder.encoder.bias_hh_l0", &[4 * he]);
-    add("pool_net.spatial_embedding.weight", &[e, 2]);
-    add("pool_net.spatial_embedding.bias", &[e]);
-    add("pool_net.mlp_pre_pool.0.weight", &[p, e + he]);
-    add("pool_net.mlp_pre_pool.0.bias", &[p]);
-    add("pool_net.mlp_pre_pool.2.weight", &[b, p]);
-    add("pool_net.mlp_pre_pool.2.bias", &[b]);
-    add("mlp_decoder_context.0.weight", &[m, he + b]);
-    add("mlp_decoder_context.0.bias", &[m]);
-    add("mlp_decoder_context.2.weight", &[hd - z, m]);
-    add("mlp_decoder_context.2.bias", &[hd - z]);
-    add("decoder.spatial_embedding.weight", &[e, 2]);
-    add("decoder.spatial_embedding.bias", &[e]);
-    add("decoder.decoder.weight_ih_l0", &[4 * hd, e]);
-    add("decoder.decoder.weight_hh_l0", &[4 * hd, hd]);
-    add("decoder.decoder.bias_ih_l0", &[4 * hd]);
-    add("decoder.decoder.bias_hh_l0", &[4 * hd]);
-    add("decoder.hidden2pos.weight", &[2, hd]);
-    add("decoder.hidden2pos.bias", &[2]);
-    if cfg.pool_every_timestep {
-        add("decoder.pool_net.spatial_embedding.weight", &[e, 2]);
-        add("decoder.pool_net.spatial_embedding.bias", &[e]);
-        add("decoder.pool_net.mlp_pre_pool.0.weight", &[p, e + hd]);
-        add("decoder.pool_net.mlp_pre_pool.0.bias", &[p]);
-        add("decoder.pool_net.mlp_pre_pool.2.weight", &[b, p]);
-        add("decoder.pool_net.mlp_pre_pool.2.bias", &[b]);
-        add("decoder.mlp.0.weight", &[m, hd + b]);
-        add("decoder.mlp.0.bias", &[m]);
-        add("decoder.mlp.2.weight", &[hd, m]);
-        add("decoder.mlp.2.bias", &[hd]);
+    Layout::new(cfg).tensors()
+}
+
+/// One tensor of a weights file: its PyTorch `state_dict` name and its shape (dimensions,
+/// outermost first).
+type Named = (String, Vec<usize>);
+
+/// A PyTorch submodule of the generator, described by its `N` tensors: the one place that
+/// names them and gives their shapes, for the loader's checks ([`expected_tensors`]) and for
+/// reading the checked values that build the networks.
+pub(crate) trait Module<const N: usize> {
+    /// Name and shape of every tensor, in `state_dict` order.
+    fn tensors(&self) -> [Named; N];
+
+    /// The values of the tensors (f32, row-major), in [`Module::tensors`] order, from weights
+    /// whose validation guaranteed them.
+    fn values<'a>(&self, w: &'a ModelWeights) -> [&'a [f32]; N] {
+        self.tensors().map(|(name, _)| w.get(&name))
     }
-    if z > 0 {
-        add("fixed_noise", &[z]);
+}
+
+/// The tensors of `Linear(inp, out)` at `name`: `{name}.weight` `[out, inp]`, `{name}.bias`
+/// `[out]`.
+fn linear(name: &str, inp: usize, out: usize) -> [Named; 2] {
+    [
+        (format!("{name}.weight"), vec![out, inp]),
+        (format!("{name}.bias"), vec![out]),
+    ]
+}
+
+/// The tensors of the `nn.Sequential` mlp at `name`: `Linear(inp, mid)` (`.0`), ReLU,
+/// `Linear(mid, out)` (`.2`), ReLU.
+fn mlp(name: &str, inp: usize, mid: usize, out: usize) -> [Named; 4] {
+    let [w1, b1] = linear(&format!("{name}.0"), inp, mid);
+    let [w2, b2] = linear(&format!("{name}.2"), mid, out);
+    [w1, b1, w2, b2]
+}
+
+/// `Linear(inp, out)` at `name` (the generator's `hidden2pos`): `weight [out, inp]`,
+/// `bias [out]`.
+#[derive(Debug, Clone)]
+pub(crate) struct LinearModule {
+    name: &'static str,
+    /// Input size.
+    pub(crate) inp: usize,
+    /// Output size.
+    pub(crate) out: usize,
+}
+
+impl Module<2> for LinearModule {
+    fn tensors(&self) -> [Named; 2] {
+        linear(self.name, self.inp, self.out)
     }
-    v
+}
+
+/// The two-layer `nn.Sequential` mlp at `prefix`: `Linear(inp, M)` (`.0`), ReLU,
+/// `Linear(M, out)` (`.2`), ReLU. Tensors `w1 [M, inp]`, `b1 [M]`, `w2 [out, M]`,
+/// `b2 [out]`.
+#[derive(Debug, Clone)]
+pub(crate) struct MlpModule {
+    prefix: &'static str,
+    /// Input size.
+    pub(crate) inp: usize,
+    mid: usize,
+    out: usize,
+}
+
+impl Module<4> for MlpModule {
+    fn tensors(&self) -> [Named; 4] {
+        mlp(self.prefix, self.inp, self.mid, self.out)
+    }
+}
+
+/// The spatial embedding `Linear(2, E)` at `{embed}.spatial_embedding` and the one-layer
+/// `nn.LSTM` at `lstm` (input E, hidden H) it feeds: the encoder or the decoder. Tensors
+/// `emb_w [E, 2]`, `emb_b [E]`, `w_ih [4H, E]`, `w_hh [4H, H]`, `b_ih [4H]`, `b_hh [4H]`
+/// (gate order i, f, g, o).
+#[derive(Debug, Clone)]
+pub(crate) struct LstmModule {
+    embed: &'static str,
+    lstm: &'static str,
+    e: usize,
+    /// Hidden size H.
+    pub(crate) h: usize,
+}
+
+impl Module<6> for LstmModule {
+    fn tensors(&self) -> [Named; 6] {
+        let (lstm, e, h) = (self.lstm, self.e, self.h);
+        let [emb_w, emb_b] = linear(&format!("{}.spatial_embedding", self.embed), 2, e);
+        [
+            emb_w,
+            emb_b,
+            (format!("{lstm}.weight_ih_l0"), vec![4 * h, e]),
+            (format!("{lstm}.weight_hh_l0"), vec![4 * h, h]),
+            (format!("{lstm}.bias_ih_l0"), vec![4 * h]),
+            (format!("{lstm}.bias_hh_l0"), vec![4 * h]),
+        ]
+    }
+}
+
+/// Social-GAN's `PoolHiddenNet` at `prefix`: the spatial embedding `Linear(2, E)`
+/// (`spatial_embedding`) of the offsets between agents, concatenated with hidden states of
+/// size H, then the mlp `mlp_pre_pool`: `Linear(E + H, P)`, ReLU, `Linear(P, B)`, ReLU.
+/// Tensors `emb_w [E, 2]`, `emb_b [E]`, `w1 [P, E + H]`, `b1 [P]`, `w2 [B, P]`, `b2 [B]`.
+#[derive(Debug, Clone)]
+pub(crate) struct PoolModule {
+    prefix: &'static str,
+    e: usize,
+    /// Size H of the pooled hidden states.
+    pub(crate) h: usize,
+    p: usize,
+    b: usize,
+}
+
+impl Module<6> for PoolModule {
+    fn tensors(&self) -> [Named; 6] {
+        let (prefix, e) = (self.prefix, self.e);
+        let [emb_w, emb_b] = linear(&format!("{prefix}.spatial_embedding"), 2, e);
+        let [w1, b1, w2, b2] = mlp(
+            &format!("{prefix}.mlp_pre_pool"),
+            e + self.h,
+            self.p,
+            self.b,
+        );
+        [emb_w, emb_b, w1, b1, w2, b2]
+    }
+}
+
+/// Name of the generator's noise parameter `[Z]`.
+const FIXED_NOISE: &str = "fixed_noise";
+
+/// The PyTorch modules of the Social-GAN generator for one [`ModelConfig`]: every tensor a
+/// weights file holds, named and shaped once, for the loader's checks
+/// ([`expected_tensors`]) and for building the networks from the checked values. Sizes as in
+/// [`ModelConfig`]: E `embedding_dim`, He / Hd `encoder_h_dim` / `decoder_h_dim`, M
+/// `mlp_dim`, B `bottleneck_dim`, P `pool_hidden_dim`, Z `noise_dim`.
+#[derive(Debug, Clone)]
+pub(crate) struct Layout {
+    /// `encoder`: embedding `Linear(2, E)`, LSTM (E → He).
+    pub(crate) enc: LstmModule,
+    /// `pool_net`: pooling of the encoder states (H = He).
+    pub(crate) pool: PoolModule,
+    /// `mlp_decoder_context`: `[h_enc ; pooled]` (He + B) → M → Hd − Z.
+    pub(crate) ctx: MlpModule,
+    /// `decoder`: embedding `Linear(2, E)`, LSTM (E → Hd).
+    pub(crate) dec: LstmModule,
+    /// `decoder.hidden2pos`: `Linear(Hd, 2)`, the predicted displacement in metres.
+    pub(crate) h2p: LinearModule,
+    /// With `pool_every_timestep`: `decoder.pool_net` (H = Hd) and the refinement mlp
+    /// `decoder.mlp` (`[h ; pooled]`, Hd + B → M → Hd).
+    pub(crate) dec_pool: Option<(PoolModule, MlpModule)>,
+    /// `fixed_noise` `[Z]`, when Z > 0.
+    noise: Option<usize>,
+}
+
+impl Layout {
+    /// The modules of a generator with config `cfg` (validated sizes).
+    #[must_use]
+    pub(crate) fn new(cfg: &ModelConfig) -> Self {
+        let (e, he, hd) = (cfg.embedding_dim, cfg.encoder_h_dim, cfg.decoder_h_dim);
+        let (m, b, p, z) = (
+            cfg.mlp_dim,
+            cfg.bottleneck_dim,
+            cfg.pool_hidden_dim,
+            cfg.noise_dim,
+        );
+        let lstm = |embed, lstm, h| LstmModule { embed, lstm, e, h };
+        let pool = |prefix, h| PoolModule { prefix, e, h, p, b };
+        let mlp = |prefix, inp, out| MlpModule {
+            prefix,
+            inp,
+            mid: m,
+            out,
+        };
+        Self {
+            enc: lstm("encoder", "encoder.encoder", he),
+            pool: pool("pool_net", he),
+            ctx: mlp("mlp_decoder_context", he + b, hd - z),
+            dec: lstm("decoder", "decoder.decoder", hd),
+            h2p: LinearModule {
+                name: "decoder.hidden2pos",
+                inp: hd,
+                out: 2,
+            },
+            dec_pool: cfg
+                .pool_every_timestep
+                .then(|| (pool("decoder.pool_net", hd), mlp("decoder.mlp", hd + b, hd))),
+            noise: (z > 0).then_some(z),
+        }
+    }
+
+    /// Every tensor's name and shape, in `state_dict` order.
+    #[must_use]
+    pub(crate) fn tensors(&self) -> Vec<Named> {
+        let mut v = Vec::new();
+        v.extend(self.enc.tensors());
+        v.extend(self.pool.tensors());
+        v.extend(self.ctx.tensors());
+        v.extend(self.dec.tensors());
+        v.extend(self.h2p.tensors());
+        if let Some((pool, mlp)) = &self.dec_pool {
+            v.extend(pool.tensors());
+            v.extend(mlp.tensors());
+        }
+        if let Some(z) = self.noise {
+            v.push((FIXED_NOISE.to_owned(), vec![z]));
+        }
+        v
+    }
+
+    /// The file's `fixed_noise` `[Z]` in validated weights (empty when Z = 0).
+    pub(crate) fn fixed_noise<'a>(&self, w: &'a ModelWeights) -> &'a [f32] {
+        if self.noise.is_some() {
+            w.get(FIXED_NOISE)
+        } else {
+            &[]
+        }
+    }
 }
 
 /// One float32 tensor: `data` is row-major with `shape`.
