@@ -117,7 +117,7 @@ impl fmt::Display for RankKey {
 
 /// What decided the applied plan's inputs: the stage of the MPC call that produced them and,
 /// for a fallback, its candidate family and the rank key that chose it. `Admm` exactly when
-/// the ADMM iterate's inputs were applied unchanged (whatever the [`PlanStatus`] says of their
+/// the ADMM iterate's inputs were applied unchanged (whatever the [`crate::PlanStatus`] says of their
 /// safety).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -126,9 +126,9 @@ pub enum DecidedBy {
     Admm,
     /// The ADMM iterate's inputs with the steering governed to the heading bound.
     AdmmGoverned,
-    /// The refinement's SQP steps from the ADMM inputs ([`PlanStatus::Refined`]).
+    /// The refinement's SQP steps from the ADMM inputs ([`crate::PlanStatus::Refined`]).
     Refined,
-    /// The ADMM inputs pulled towards the nominal ([`PlanStatus::Backtracked`]).
+    /// The ADMM inputs pulled towards the nominal ([`crate::PlanStatus::Backtracked`]).
     Backtracked,
     /// The nominal (the shifted previous plan), checked with the budget's reserved call.
     Nominal,
