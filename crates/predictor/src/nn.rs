@@ -1752,7 +1752,7 @@ mod tests {
     /// and last in its query's pair list, since a running maximum that drops a NaN only keeps
     /// it when it comes last. Every path gives the same bits.
     #[test]
-    fn non_finite_values_propagate_through_every_kernel_on_every_path() {
+    fn non_finite_values_propagate_through_vector_max_and_min() {
         // Vector max/min on every ordered pair of special values.
         struct MaxMin<'a> {
             a: &'a [f32],
@@ -1822,7 +1822,11 @@ mod tests {
                 Some(f) => assert_eq!(f, &got, "{p}: max/min bits differ between paths"),
             }
         }
+    }
 
+    /// NaN and ±inf through the dense rows, with and without ReLU, in both accumulations.
+    #[test]
+    fn non_finite_values_propagate_through_the_dense_rows() {
         // Dense rows: row 1 holds a NaN, row 3 +inf, row 5 -inf, the others are finite.
         let (out, inp, m) = (20, 7, 7);
         let w = values(31, out * inp);
@@ -1863,7 +1867,11 @@ mod tests {
                 }
             }
         }
+    }
 
+    /// NaN through the pooling's running maximum and `finish` on every path.
+    #[test]
+    fn non_finite_values_propagate_through_the_pooling() {
         // Pooling: the pair (query 2, neighbour 3) has a NaN offset; its query's pooled vector
         // is NaN wherever that pair comes in the list, every other query's is finite.
         let (e, h, p, bd, n) = (6, 5, 24, 18, 5);
@@ -1964,7 +1972,11 @@ mod tests {
                 }
             }
         }
+    }
 
+    /// NaN and ±inf through the LSTM step on every path (see the first of these tests).
+    #[test]
+    fn non_finite_values_propagate_through_the_lstm_step() {
         // LSTM step: row 1's cell state and row 3's displacement are NaN, row 4's hidden
         // state holds +inf; the f64 LSTM equations say which outputs are NaN.
         let (h, e, m) = (20, 5, 6);
