@@ -65,7 +65,7 @@
 //! Why these. The admissibility rule is what makes a lane's end binding: without it nothing
 //! stops a plan from driving on past the end. The deadline term is the urgency; the stopping
 //! rule makes the end binding early enough to brake for it (the horizon, 1.8 s, is shorter
-//! than the braking from 20 m/s). Measured (`cargo run --release -p nudge-planner --example
+//! than the braking from 20 m/s). Measured (`cargo run --release -p nudge-sim --example
 //! merge_deadline`): an ego at 20 m/s in an acceleration lane ending at x = 120 m beside a
 //! 25 m/s platoon with one 30 m gap (its front 20, 60 or 100 m behind the ego), 40 closed-loop
 //! steps, constant-velocity planning predictor. Without the stopping rule, in the `idm` world
