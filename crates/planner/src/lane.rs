@@ -59,7 +59,7 @@
 //!   to 57.0 % and cut the runs with planned slow steps from 99 to 21
 //!   (`docs/results/crawl_reference.md`).
 //!
-//! The simulator (the `nudge-sim` crate) applies it in every closed loop; a user embedding the planner
+//! The closed-loop simulator applies it in every closed loop; a user embedding the planner
 //! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
 
 use crate::admm::StepStatus;

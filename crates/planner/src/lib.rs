@@ -8,7 +8,7 @@
 //! safetensors files, [`Scenario`]), lanes that begin and end ([`extents`]), the lane-change
 //! logic a closed loop applies around the planner ([`lane`]) and the settings reference
 //! ([`describe`]). The closed-loop simulator that drives the planner (worlds, metrics,
-//! records, batches) is the `nudge-sim` crate.
+//! records, batches) is a crate of its own, built on this one.
 //!
 //! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
 //! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.

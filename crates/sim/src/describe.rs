@@ -81,7 +81,7 @@ mod tests {
     }
 
     #[test]
-    fn the_page_has_a_row_per_closed_loop_field() {
+    fn the_page_has_a_row_per_closed_loop_field_and_escapes_pipes() {
         let page = settings_markdown();
         assert!(page.starts_with(&planner::settings_markdown()));
         for r in &describe::<SimConfig>() {
@@ -91,6 +91,7 @@ mod tests {
                 r.field
             );
         }
+        assert!(page.contains(r"\|y − y_target\| ≤ this"));
         for line in page.lines().filter(|l| l.starts_with("| `")) {
             assert_eq!(line.replace(r"\|", "").matches('|').count(), 6, "{line}");
         }
