@@ -14,10 +14,9 @@ use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nudge::animate::{AnimationSettings, Reel, animate, draw_frame, frame_size};
-use nudge::planner::{
-    Cancel, PlannerSettings, RunControl, Scenario, SimConfig, World, WorldModel, simulate_with,
-};
+use nudge::planner::{PlannerSettings, Scenario};
 use nudge::predictor::ConstantVelocity;
+use nudge::sim::{Cancel, RunControl, SimConfig, World, WorldModel, simulate_with};
 
 fn reel() -> Reel {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -8,10 +8,11 @@
 //! Run from the repository root: `cargo run --release --example custom_predictor`.
 #![allow(clippy::print_stdout)]
 
-use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, target_lane};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario};
 use nudge::predictor::{
     ConstantVelocity, History, Predictor, PredictorError, T_OBS, default_assets_dir,
 };
+use nudge::sim::{SimConfig, target_lane};
 
 /// Constant velocity plus a lateral drift of `drift` m per step towards the ego candidate.
 struct CuttingIn {

@@ -4,8 +4,9 @@
 //! Run from the repository root: `cargo run --release --example plan_one_step`.
 #![allow(clippy::print_stdout)]
 
-use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, target_lane};
+use nudge::planner::{Planner, PlannerSettings, PlanningProblem, Scenario};
 use nudge::predictor::{History, PredictorSpec, default_assets_dir};
+use nudge::sim::{SimConfig, target_lane};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let assets = default_assets_dir();

@@ -6,11 +6,9 @@
 use std::path::PathBuf;
 
 use nudge::animate::{AnimateError, AnimationSettings, Reel, animate};
-use nudge::planner::{
-    Cancel, PlannerSettings, RunControl, RunRecord, Scenario, SimConfig, World, WorldModel,
-    simulate_with,
-};
+use nudge::planner::{PlannerSettings, Scenario};
 use nudge::predictor::{ConstantVelocity, ModelKind, T_OBS, load_predictor, model_path};
+use nudge::sim::{Cancel, RunControl, RunRecord, SimConfig, World, WorldModel, simulate_with};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -1,4 +1,4 @@
-//! The `nudge simulate` CLI writes exactly the shared columns (`nudge::planner::sim::columns`)
+//! The `nudge simulate` CLI writes exactly the shared columns (`nudge::sim::columns`)
 //! of the runs the library computes for the same scenes, seeds and settings (wall-clock
 //! timings excepted), and refuses bad arguments with the library's typed messages.
 #![allow(clippy::unwrap_used)]
@@ -6,12 +6,11 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use nudge::planner::sim::{
+use nudge::planner::{PlannerSettings, Scenario};
+use nudge::sim::{
     COLLISION_COLUMNS, RUN_COLUMNS, STEP_COLUMNS, Table, collision_table, run_table, step_table,
 };
-use nudge::planner::{
-    Cancel, Keep, PlannerSettings, Predictors, Scenario, SimConfig, World, run_specs, simulate_many,
-};
+use nudge::sim::{Cancel, Keep, Predictors, SimConfig, World, run_specs, simulate_many};
 
 const TIMING: [&str; 3] = ["mpc_s", "z_s", "z_median_s"];
 

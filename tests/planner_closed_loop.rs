@@ -3,13 +3,13 @@
 
 use std::path::{Path, PathBuf};
 
-use nudge::planner::SimError;
-use nudge::planner::sim::idm_path;
-use nudge::planner::{
-    IdmPopulation, PlannerSettings, RunRecord, Scenario, SimConfig, StepRecord, World, WorldModel,
-    simulate, target_lane,
-};
+use nudge::planner::{PlannerSettings, Scenario};
 use nudge::predictor::{ConstantVelocity, ModelKind, load_predictor, model_path};
+use nudge::sim::SimError;
+use nudge::sim::idm_path;
+use nudge::sim::{
+    IdmPopulation, RunRecord, SimConfig, StepRecord, World, WorldModel, simulate, target_lane,
+};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

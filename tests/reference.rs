@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use nudge::planner::describe::{settings_json, settings_markdown};
+use nudge::sim::describe::{settings_json, settings_markdown};
 
 const PAGE: &str = "docs/reference/settings.md";
 

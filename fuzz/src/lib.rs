@@ -42,8 +42,7 @@ use nudge_planner::scenario::{
     EGO_LANE_TOLERANCE, LANE_WIDTH, MAX_HEADING, MAX_SPEED, ROAD_TOLERANCE,
 };
 use nudge_planner::{
-    EgoState, PlanStatus, Planner, PlannerSettings, PlanningProblem, Scenario, SimConfig, State,
-    World, WorldModel, simulate,
+    EgoState, PlanStatus, Planner, PlannerSettings, PlanningProblem, Scenario, State,
 };
 use nudge_predictor::limits::{MAX_STEP, canonical_scene};
 use nudge_predictor::weights::{restamp, synthetic_weights};
@@ -51,6 +50,7 @@ use nudge_predictor::{
     ConstantVelocity, History, ModelConfig, ModelKind, ModelWeights, Predictor, Student, T_OBS,
     Teacher,
 };
+use nudge_sim::{SimConfig, World, WorldModel, simulate};
 
 // ---------------------------------------------------------------------------------------------
 // Configuration and report.

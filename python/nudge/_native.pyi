@@ -24,7 +24,7 @@ class _Defaults(TypedDict):
     runs: int  # 1 per scene
 
 DEFAULTS: _Defaults
-"""The front ends' defaults, from Rust (``nudge_planner::sim::defaults``)."""
+"""The front ends' defaults, from Rust (``nudge_sim::defaults``)."""
 
 class _FieldDoc(TypedDict):
     field: str  # name, as a keyword and in JSON
@@ -395,7 +395,7 @@ def simulate(
     else ``seed + i * runs + r``.
 
     Every argument is checked before any run starts, by the validation the CLI uses
-    (``nudge_planner::BatchRequest::prepare``): at least one scene, at most 1,000,000 runs,
+    (``nudge_sim::BatchRequest::prepare``): at least one scene, at most 1,000,000 runs,
     1..=256 threads, settings that fit the predictors (same horizon, ``dt`` = 0.3 s), loadable
     models and scenes. Ctrl-C stops the batch and raises ``KeyboardInterrupt`` within about a
     second.
@@ -428,7 +428,7 @@ def simulate(
     Log replay past a vehicle's log: it keeps its last displacement along the road and
     repeats ``replay_lateral_decay`` (in [0, 1]; 0.75, fitted to real tracks) of its last
     sideways one per step (1: constant velocity; 0: its lateral position held).
-    The metrics and their rules: ``nudge_planner::sim::metrics`` (docs/results/closed_loop.md).
+    The metrics and their rules: ``nudge_sim::metrics`` (docs/results/closed_loop.md).
 
     ``trace``: keep every step's plan and the planning predictor's predicted reaction to it
     (one more predictor call per step; off by default, the other outputs are the same either
@@ -436,7 +436,7 @@ def simulate(
     for a run that could not run), which :func:`animate` draws.
 
     Returns ``{"runs": ..., "steps": ..., "collisions": ...}`` (+ ``"examples"`` when
-    ``record``, ``"traces"`` when ``trace``), the columns of ``nudge_planner::sim::columns`` (the CLI's CSV has the same names
+    ``record``, ``"traces"`` when ``trace``), the columns of ``nudge_sim::columns`` (the CLI's CSV has the same names
     and values):
 
     - runs (one row per run): scenario list[str], scene_index i64, seed u64,

@@ -1,7 +1,7 @@
 //! Could a log-replay collision have been avoided at all, and from when? An oracle that knows
 //! the whole logged future searches the ego's inputs for a continuation without contact.
 //!
-//! In a [`World::LogReplay`](nudge_planner::World::LogReplay) run the other vehicles follow the
+//! In a [`World::LogReplay`](nudge_sim::World::LogReplay) run the other vehicles follow the
 //! log whatever the ego does ([`logged_position`]), so their boxes at every step are known in
 //! advance ([`LoggedTraffic`]). From the ego's state before closed-loop step `k` (and the inputs
 //! it applied at step `k − 1`), [`avoid`] searches sequences of inputs (δ, a) for steps
@@ -19,10 +19,10 @@
 //! the lattice avoids it, a strong indication rather than a proof for the continuum of inputs
 //! between; [`Avoidance::Undecided`] means the search hit [`OracleLimits::max_nodes`].
 
-use nudge_planner::sim::metrics::{Vehicle, contacts, ego_box, others_from_history, road_excess};
-use nudge_planner::sim::world::logged_position;
 use nudge_planner::{Bicycle, PlannerSettings, Scenario, State, motion_heading};
 use nudge_predictor::{DT, T_OBS};
+use nudge_sim::metrics::{Vehicle, contacts, ego_box, others_from_history, road_excess};
+use nudge_sim::world::logged_position;
 
 /// The other vehicles of a log-replay run of one scene at every closed-loop step, as the
 /// simulator sees them: `steps[k]` holds agents 1..n after step `k` (agent i at index i − 1),
@@ -36,7 +36,7 @@ pub struct LoggedTraffic {
 
 impl LoggedTraffic {
     /// The others of `sc` after steps `0..steps`, moved by the log exactly as the simulator's
-    /// log-replay world with [`nudge_planner::SimConfig::replay_lateral_decay`] =
+    /// log-replay world with [`nudge_sim::SimConfig::replay_lateral_decay`] =
     /// `lateral_decay` moves them.
     #[must_use]
     pub fn new(sc: &Scenario, steps: usize, lateral_decay: f64) -> Self {
@@ -205,7 +205,7 @@ pub struct OracleWorld<'a> {
     /// The road's lane bounds `[L + 1]` (y, m).
     pub bounds: &'a [f64],
     /// How far a corner may lie beyond the road's edges (m): the run's off-road tolerance
-    /// ([`nudge_planner::sim::metrics::RunObserver::off_road_tolerance`]).
+    /// ([`nudge_sim::metrics::RunObserver::off_road_tolerance`]).
     pub road_tolerance: f64,
     /// The others at every step.
     pub traffic: &'a LoggedTraffic,

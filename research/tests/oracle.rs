@@ -4,16 +4,15 @@
 //! every sequence it returns.
 #![allow(clippy::unwrap_used)]
 
-use nudge_planner::sim::metrics::{contacts, ego_box};
-use nudge_planner::{
-    Bicycle, PlannerSettings, Scenario, SimConfig, State, World, WorldModel, simulate,
-};
+use nudge_planner::{Bicycle, PlannerSettings, Scenario, State};
 use nudge_predictor::ConstantVelocity;
 use nudge_research::oracle::{
     Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, Violation, avoid, replay,
 };
+use nudge_sim::metrics::{contacts, ego_box};
+use nudge_sim::{SimConfig, World, WorldModel, simulate};
 
-#[path = "../../crates/planner/tests/logged/mod.rs"]
+#[path = "../../crates/sim/tests/logged/mod.rs"]
 mod logged;
 
 /// Every vehicle's (length, width) in [`logged::logged_scene`] (m).
@@ -225,8 +224,7 @@ fn the_constant_velocity_extrapolation_of_a_steady_log_is_the_log() {
         &bounds,
     );
     let log = LoggedTraffic::new(&steady, 12, SimConfig::default().replay_lateral_decay);
-    let close = |a: &nudge_planner::sim::metrics::Vehicle,
-                 b: &nudge_planner::sim::metrics::Vehicle| {
+    let close = |a: &nudge_sim::metrics::Vehicle, b: &nudge_sim::metrics::Vehicle| {
         (a.bbox.x - b.bbox.x).abs() < 1e-9
             && (a.bbox.y - b.bbox.y).abs() < 1e-9
             && (a.bbox.heading - b.bbox.heading).abs() < 1e-12
@@ -258,7 +256,7 @@ fn the_constant_velocity_extrapolation_of_a_steady_log_is_the_log() {
 
 /// Past the end of a vehicle's log the oracle's traffic moves it as the simulator's log-replay
 /// world does (speed along the road held, sideways motion fading by `replay_lateral_decay` per
-/// step; the simulator against the closed form: `crates/planner/tests/log_replay.rs`), for
+/// step; the simulator against the closed form: `crates/sim/tests/log_replay.rs`), for
 /// decays from none to full.
 #[test]
 fn past_the_end_of_a_log_the_logged_traffic_is_the_simulators() {

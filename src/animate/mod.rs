@@ -17,7 +17,7 @@
 //! * a caption: the run, the step, the plan's status, the speed, the planning time and the
 //!   binding vehicle with its b.
 //!
-//! The run must have been simulated with tracing on ([`nudge_planner::RunControl::trace`]);
+//! The run must have been simulated with tracing on ([`nudge_sim::RunControl::trace`]);
 //! [`Reel::from_run`] gathers what is drawn, [`animate`] writes it.
 
 mod canvas;

@@ -2,8 +2,9 @@
 //! a traced run ([`Reel::from_run`]) or handed in (from Python) and checked
 //! ([`Reel::validate`]).
 
-use nudge_planner::{BindingVehicle, RunRecord, Scenario, StepStatus, motion_heading};
+use nudge_planner::{BindingVehicle, Scenario, StepStatus, motion_heading};
 use nudge_predictor::T_OBS;
+use nudge_sim::RunRecord;
 
 use super::error::AnimateError;
 
@@ -11,8 +12,8 @@ use super::error::AnimateError;
 pub const MAX_VEHICLE_M: f64 = 100.0;
 
 /// Most frames a reel may hold: the states of the longest run
-/// ([`nudge_planner::SimConfig::MAX_STEPS`] steps, plus the end).
-pub const MAX_SHOTS: usize = nudge_planner::SimConfig::MAX_STEPS + 1;
+/// ([`nudge_sim::SimConfig::MAX_STEPS`] steps, plus the end).
+pub const MAX_SHOTS: usize = nudge_sim::SimConfig::MAX_STEPS + 1;
 
 /// What one planning step planned and expected (drawn on the frame of the state it planned
 /// from).
@@ -61,7 +62,7 @@ pub struct Reel {
 
 impl Reel {
     /// The reel of `rec`, a run of scenario `sc` simulated with tracing on
-    /// ([`nudge_planner::RunControl::trace`]): the first shot is the scene's last observed
+    /// ([`nudge_sim::RunControl::trace`]): the first shot is the scene's last observed
     /// state, each later one the state after a step; the others' headings are read off their
     /// motion ([`motion_heading`]).
     ///

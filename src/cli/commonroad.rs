@@ -5,7 +5,8 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use nudge_planner::{PlannerSettings, RunOutput, Scenario};
+use nudge_planner::{PlannerSettings, Scenario};
+use nudge_sim::RunOutput;
 
 use crate::commonroad::scene::NEIGHBOUR_RANGE;
 use crate::commonroad::{CommonRoadScene, Ego, Solution};

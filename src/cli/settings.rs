@@ -1,6 +1,6 @@
 //! `nudge settings`: the reference of every planner and closed-loop setting (unit, default,
 //! valid values, meaning), as the Markdown page `docs/reference/settings.md` or as JSON, both
-//! from `nudge_planner::describe`.
+//! from `nudge_sim::describe`.
 
 use clap::{Args, ValueEnum};
 
@@ -25,7 +25,7 @@ pub struct SettingsArgs {
 /// The text `nudge settings` prints.
 #[must_use]
 pub fn render(args: &SettingsArgs) -> String {
-    use nudge_planner::describe::{settings_json, settings_markdown};
+    use nudge_sim::describe::{settings_json, settings_markdown};
     match args.format {
         Format::Markdown => settings_markdown(),
         Format::Json => serde_json::to_string_pretty(&settings_json()).unwrap_or_default() + "\n",

@@ -1,17 +1,16 @@
 //! `nudge simulate`: closed-loop runs in parallel over a directory of scenes, the per-step
 //! table of one run, the summary, and the records as CSV and JSON. Everything but the
-//! argument parsing and the file writing is `nudge_planner::sim`, shared with Python.
+//! argument parsing and the file writing is `nudge_sim`, shared with Python.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
-use nudge_planner::sim::defaults;
-use nudge_planner::sim::{Summary, collision_table, run_table, step_listing, step_table};
-use nudge_planner::{
-    BatchRequest, Cancel, Keep, PlannerSettings, RunRecord, Scenario, SimConfig, World,
-};
+use nudge_planner::{PlannerSettings, Scenario};
 use nudge_predictor::{assets_dir, scenes_dir};
+use nudge_sim::defaults;
+use nudge_sim::{BatchRequest, Cancel, Keep, RunRecord, SimConfig, World};
+use nudge_sim::{Summary, collision_table, run_table, step_listing, step_table};
 
 use crate::animate::{AnimationSettings, Reel, animate, find_ffmpeg};
 
@@ -148,7 +147,7 @@ pub struct SimulateArgs {
 
 fn parse_world(s: &str) -> Result<World, String> {
     s.parse()
-        .map_err(|e: nudge_planner::SimConfigError| e.to_string())
+        .map_err(|e: nudge_sim::SimConfigError| e.to_string())
 }
 
 impl SimulateArgs {
@@ -205,7 +204,7 @@ fn output_dir(dir: &Path) -> Result<(), String> {
 fn write_outputs(
     dir: &Path,
     scenes: &[Scenario],
-    outputs: &[nudge_planner::RunOutput],
+    outputs: &[nudge_sim::RunOutput],
 ) -> Result<(), String> {
     let io = |p: &Path, e: &dyn std::fmt::Display| format!("{}: {e}", p.display());
     for (name, table) in [
@@ -232,7 +231,7 @@ fn write_outputs(
 fn animate_runs(
     dir: &Path,
     scenes: &[Scenario],
-    outputs: &[nudge_planner::RunOutput],
+    outputs: &[nudge_sim::RunOutput],
     n: usize,
 ) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;

@@ -21,8 +21,9 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use nudge_planner::{RunRecord, Scenario};
+use nudge_planner::Scenario;
 use nudge_predictor::T_OBS;
+use nudge_sim::RunRecord;
 
 use super::error::CommonRoadError;
 use super::scene::{CommonRoadScene, Ego};

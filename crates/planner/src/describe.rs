@@ -1,11 +1,13 @@
-//! The reference of every user-facing settings struct ([`PlannerSettings`], [`SimConfig`]),
-//! field by field: name, unit, default, admissible range and meaning.
+//! The reference of every user-facing settings struct ([`PlannerSettings`]; the simulator's
+//! `SimConfig` describes itself through the same [`Described`] trait), field by field: name,
+//! unit, default, admissible range and meaning.
 //!
 //! One source for each column: the meaning is the field's doc comment (read through its
 //! derived JSON schema), the default is the serde serialisation of [`Default`], the unit and
 //! range are the [`FieldRange`] table that `validate` checks. [`settings_markdown`] renders
-//! `docs/reference/settings.md` from them (`nudge settings --format markdown`), and the Python
-//! classes' `describe()` return the same rows.
+//! the planner's part of `docs/reference/settings.md` from them (the simulator crate appends
+//! its own section: `nudge settings --format markdown`), and the Python classes' `describe()`
+//! return the same rows.
 
 use schemars::JsonSchema;
 use serde::Serialize;
@@ -15,7 +17,6 @@ use crate::settings::{
     AdmmSettings, BoundSettings, BudgetSettings, CostSettings, FieldRange, FieldSpec,
     LaneEndSettings, ModelSettings, PlannerSettings, RepairSettings, SafetySettings,
 };
-use crate::sim::SimConfig;
 
 /// One field of a settings struct.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -66,7 +67,6 @@ described! {
     RepairSettings => "RepairSettings",
     BudgetSettings => "BudgetSettings",
     LaneEndSettings => "LaneEndSettings",
-    SimConfig => "SimConfig",
 }
 
 impl Described for PlannerSettings {
@@ -181,8 +181,9 @@ fn cell(text: &str) -> String {
     text.replace('|', "\\|").replace("\n\n", "<br>")
 }
 
-/// The table of `rows` (field, unit, default, valid values, meaning).
-fn table(out: &mut String, rows: &[FieldDoc]) {
+/// The Markdown table of `rows` (field, unit, default, valid values, meaning), appended to
+/// `out`.
+pub fn table(out: &mut String, rows: &[FieldDoc]) {
     out.push_str("| field | unit | default | valid values | meaning |\n|---|---|---|---|---|\n");
     for f in rows {
         out.push_str(&format!(
@@ -216,9 +217,10 @@ fn rank_keys(out: &mut String) {
     out.push('\n');
 }
 
-/// `docs/reference/settings.md`: every field of [`PlannerSettings`] (group by group, in the
-/// order of the MPC call's phases) and of [`SimConfig`] with unit, default, valid values and
-/// meaning (Markdown).
+/// The planner's part of `docs/reference/settings.md`: its title and introduction, then every
+/// field of [`PlannerSettings`] (group by group, in the order of the MPC call's phases) with
+/// unit, default, valid values and meaning (Markdown). The simulator appends its `SimConfig`
+/// section to it.
 #[must_use]
 pub fn settings_markdown() -> String {
     let mut out = String::from(
@@ -247,22 +249,15 @@ pub fn settings_markdown() -> String {
     rank_keys(&mut out);
     group::<BudgetSettings>(&mut out, "budget");
     group::<LaneEndSettings>(&mut out, "lane_ends");
-    out.push_str(&format!(
-        "## `SimConfig`\n\n{}\n\nIn JSON (`--config FILE`) every field is optional and \
-         unknown fields are refused; from Python, `nudge.SimConfig(field=value, ...)` and \
-         `nudge.SimConfig.describe()`.\n\n",
-        struct_doc::<SimConfig>()
-    ));
-    table(&mut out, &describe::<SimConfig>());
     out
 }
 
-/// Both structs' fields as JSON (`{"PlannerSettings": [...], "SimConfig": [...]}`), for tools.
+/// The planner's fields as JSON (`{"PlannerSettings": [...]}`), for tools; the simulator adds
+/// its `SimConfig` key.
 #[must_use]
 pub fn settings_json() -> Value {
     serde_json::json!({
         PlannerSettings::NAME: PlannerSettings::rows(),
-        SimConfig::NAME: SimConfig::rows(),
     })
 }
 
@@ -340,33 +335,15 @@ mod tests {
     }
 
     #[test]
-    fn every_closed_loop_setting_is_described_with_its_serialised_default() {
-        check::<SimConfig>();
-        let rows = describe::<SimConfig>();
-        let world = rows.iter().find(|r| r.field == "world").expect("world");
-        assert_eq!(world.range, "`teacher`, `log_replay`, `idm`");
-        assert_eq!(world.default, Value::String("teacher".into()));
-        let settle = rows
-            .iter()
-            .find(|r| r.field == "settle_y")
-            .expect("settle_y");
-        assert_eq!((settle.unit, settle.range.as_str()), ("m", "(0, inf)"));
-    }
-
-    #[test]
-    fn the_page_has_a_row_per_field_and_escapes_pipes() {
+    fn the_page_has_a_row_of_five_cells_per_field() {
         let page = settings_markdown();
-        for r in PlannerSettings::rows()
-            .iter()
-            .chain(&describe::<SimConfig>())
-        {
+        for r in &PlannerSettings::rows() {
             assert!(
                 page.contains(&format!("\n| `{}` |", r.field)),
                 "{}",
                 r.field
             );
         }
-        assert!(page.contains(r"\|y − y_target\| ≤ this"));
         // Each table row has its five cells (no stray pipe inside one).
         for line in page.lines().filter(|l| l.starts_with("| `")) {
             assert_eq!(line.replace(r"\|", "").matches('|').count(), 6, "{line}");

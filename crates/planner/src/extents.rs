@@ -53,10 +53,10 @@
 //!   centre, or to the goal. So a merging ego that finds no admissible plan into the target
 //!   lane slows down and waits before the end instead of forcing its way in or driving past
 //!   the end, and merges when a gap appears, from a standstill too (the closed loop ends
-//!   [`crate::sim::RunOutcome::Waiting`] when the step limit comes first).
+//!   the simulator's `RunOutcome::Waiting` when the step limit comes first).
 //!
-//! * **The target the simulator draws** ([`crate::target_lane`]): an adjacent lane that is open
-//!   at the ego's x and does not really end within the run's reach ([`crate::target_reach`]:
+//! * **The target the simulator draws** (the simulator's `target_lane`): an adjacent lane that is open
+//!   at the ego's x and does not really end within the run's reach (`target_reach`:
 //!   `max_steps` · `dt` · v_0 + `deadline_distance` ahead), so a run never asks the ego to
 //!   change into a lane that ends before it could finish the change and travel on (on US-101
 //!   the auxiliary lane was drawn for egos beside it 44 m before its end: 30 of 1778 test and
@@ -65,8 +65,8 @@
 //! Why these. The admissibility rule is what makes a lane's end binding: without it nothing
 //! stops a plan from driving on past the end. The deadline term is the urgency; the stopping
 //! rule makes the end binding early enough to brake for it (the horizon, 1.8 s, is shorter
-//! than the braking from 20 m/s). Measured (`cargo run --release -p nudge-planner --example
-//! merge_deadline`): an ego at 20 m/s in an acceleration lane ending at x = 120 m beside a
+//! than the braking from 20 m/s). Measured (the simulator crate's
+//! `merge_deadline` example): an ego at 20 m/s in an acceleration lane ending at x = 120 m beside a
 //! 25 m/s platoon with one 30 m gap (its front 20, 60 or 100 m behind the ego), 40 closed-loop
 //! steps, constant-velocity planning predictor. Without the stopping rule, in the `idm` world
 //! (the platoon reacts) the default `w_deadline` = 60 merged in 3 of 3 runs (crossing at x =
@@ -100,7 +100,7 @@
 //! The other vehicles are not subject to these rules: in the `idm` world every other vehicle
 //! keeps its lane and lateral position, except that one whose lane really ends changes into
 //! the adjacent lane when a gap is acceptable by the world's safety criterion and otherwise
-//! stops before the end ([`crate::sim::LaneEndMerge`], [`crate::sim::idm`]); in the
+//! stops before the end (the simulator's `LaneEndMerge`, its `idm` world); in the
 //! `log_replay` world vehicles follow the log, and in the `teacher` world the teacher's
 //! prediction.
 

@@ -1,6 +1,6 @@
 //! Whether valid planner settings fit what they are used with: the predictor's horizon, and
 //! the 0.3 s step ([`nudge_predictor::DT`]) the networks were trained on and every scene is
-//! sampled at. Both front ends (through [`crate::sim::BatchRequest`]), [`crate::simulate`] and
+//! sampled at. Both front ends (through the simulator's `BatchRequest`), its `simulate` and
 //! the Python `Planner` call these, so the refusal reads the same everywhere.
 
 use nudge_predictor::DT;

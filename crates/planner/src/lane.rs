@@ -59,15 +59,31 @@
 //!   to 57.0 % and cut the runs with planned slow steps from 99 to 21
 //!   (`docs/results/crawl_reference.md`).
 //!
-//! The simulator ([`crate::sim`]) applies it in every closed loop; a user embedding the planner
+//! The closed-loop simulator applies it in every closed loop; a user embedding the planner
 //! calls [`LaneChange::goal`] before and [`LaneChange::after_plan`] after each planning step.
 
 use crate::admm::StepStatus;
 
 /// Other vehicles within this distance along the road (m, centre to centre) make a lane's
-/// flow ([`LaneChange::flow`]): the range of the surrounding traffic of the closed-loop
+/// flow ([`LaneChange::flow`]): also the range of the surrounding traffic of the closed-loop
 /// metrics.
-pub const FLOW_RANGE_M: f64 = crate::sim::metrics::TRAFFIC_RANGE_M;
+pub const FLOW_RANGE_M: f64 = 50.0;
+
+/// The median (mean of the two middle values for an even count); `None` when empty.
+#[must_use]
+pub fn median(values: &[f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
 
 /// The state of one lane change. Lateral positions are road-frame y (m, positive left).
 #[derive(Debug, Clone, PartialEq)]
@@ -219,7 +235,7 @@ impl LaneChange {
             .filter(|o| (o.y - goal).abs() < half_spacing && (o.x - ego_x).abs() <= FLOW_RANGE_M)
             .map(|o| o.v)
             .collect();
-        crate::sim::metrics::median(&speeds)
+        median(&speeds)
     }
 
     /// The reference speed of the next planning step (m/s) for an ego at `ego` = (x, y, ψ, v)

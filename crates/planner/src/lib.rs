@@ -5,12 +5,10 @@
 //! state update is projected gradient descent with every trial point checked for safety by
 //! running a [`nudge_predictor::Predictor`] on the candidate ego trajectory ([`Planner`]; the
 //! phases are described in its module). Plus the scenario reader ("nudge.scenario/1" and "/2"
-//! safetensors files, [`Scenario`]) and the closed-loop simulator ([`simulate`],
-//! [`simulate_many`]) in three worlds (the teacher's predictions, IDM traffic fitted to real
-//! car-following, the log; [`World`]; lanes that begin and end, [`extents`]: a merge out of a
-//! lane that ends, a run that fails as [`RunOutcome::LaneEnded`]), with the metrics every run is judged by
-//! ([`sim::metrics`]: collisions at fault or not, off-road, straddling, slow steps, time to
-//! collision, comfort, the score) and the records and columns both front ends report.
+//! safetensors files, [`Scenario`]), lanes that begin and end ([`extents`]), the lane-change
+//! logic a closed loop applies around the planner ([`lane`]) and the settings reference
+//! ([`describe`]). The closed-loop simulator that drives the planner (worlds, metrics,
+//! records, batches) is a crate of its own, built on this one.
 //!
 //! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
 //! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.
@@ -27,7 +25,6 @@ mod qp;
 mod safety;
 pub mod scenario;
 pub mod settings;
-pub mod sim;
 
 pub use ablation::keep_lane_path;
 pub use admm::{
@@ -35,9 +32,7 @@ pub use admm::{
     PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, RANK_ORDER, RankKey,
     SafetyConstraint, StepStatus,
 };
-pub use error::{
-    PlannerError, ScenarioError, SettingsError, SimConfigError, SimError, WorldFileError,
-};
+pub use error::{PlannerError, ScenarioError, SettingsError};
 pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};
 pub use qp::{QpName, QpStatus};
@@ -47,8 +42,3 @@ pub use safety::{
 };
 pub use scenario::{LaneExtent, SCHEMA, SCHEMA_EXTENTS, Scenario};
 pub use settings::PlannerSettings;
-pub use sim::{
-    Batch, BatchRequest, Cancel, IdmPopulation, Keep, Predictors, RunControl, RunOutcome,
-    RunOutput, RunRecord, RunSpec, SimConfig, StepRecord, StepTrace, Summary, World, WorldModel,
-    WorldSpec, run_specs, simulate, simulate_many, simulate_with, target_lane, target_reach,
-};

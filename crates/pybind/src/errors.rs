@@ -13,9 +13,9 @@
 
 use nudge_planner::{
     PlannerError, ScenarioError as RsScenarioError, SettingsError as RsSettingsError,
-    SimConfigError, SimError,
 };
 use nudge_predictor::PredictorError as RsPredictorError;
+use nudge_sim::{SimConfigError, SimError};
 use pyo3::PyErr;
 use pyo3::Python;
 use pyo3::create_exception;

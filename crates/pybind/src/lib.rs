@@ -88,7 +88,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("T_OBS", nudge_predictor::T_OBS)?;
     m.add("MAX_AGENTS", nudge_predictor::MAX_AGENTS)?;
     m.add("DT", nudge_predictor::DT)?;
-    m.add("SLOW_FRACTION", nudge_planner::sim::metrics::SLOW_FRACTION)?;
+    m.add("SLOW_FRACTION", nudge_sim::metrics::SLOW_FRACTION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

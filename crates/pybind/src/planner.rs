@@ -4,10 +4,10 @@ use std::sync::Mutex;
 
 use nudge_planner::scenario::{LaneExtent, MAX_LANES};
 use nudge_planner::{
-    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerSettings,
-    PlanningProblem, SimConfig,
+    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem,
 };
 use nudge_predictor::{History, MAX_AGENTS, T_OBS};
+use nudge_sim::SimConfig;
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -306,7 +306,7 @@ impl PyPlanner {
                 None => {
                     let settings = self.settings().inner;
                     let config = config.map_or_else(SimConfig::default, |c| c.get().inner);
-                    nudge_planner::target_lane(sc, seed, &settings, &config).map_err(sim_err)?
+                    nudge_sim::target_lane(sc, seed, &settings, &config).map_err(sim_err)?
                 }
             };
             let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;

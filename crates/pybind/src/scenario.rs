@@ -5,8 +5,9 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use nudge_planner::{PlannerSettings, Scenario, SimConfig};
+use nudge_planner::{PlannerSettings, Scenario};
 use nudge_predictor::T_OBS;
+use nudge_sim::SimConfig;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 
@@ -192,7 +193,7 @@ impl PyScenario {
     /// The target lane the simulator draws for `seed` in a run under `settings` and `config`
     /// (defaults: `PlannerSettings.default()`, `SimConfig.default()`): an adjacent lane of the
     /// ego's that is open and does not really end within the run's reach
-    /// (`nudge_planner::target_lane`, the one rule of every front end).
+    /// (`nudge_sim::target_lane`, the one rule of every front end).
     #[pyo3(
         signature = (seed, settings = None, config = None),
         text_signature = "($self, seed, settings=None, config=None)"
@@ -208,7 +209,7 @@ impl PyScenario {
             let settings =
                 settings.map_or_else(PlannerSettings::default, |s| s.get().inner.clone());
             let config = config.map_or_else(SimConfig::default, |c| c.get().inner);
-            nudge_planner::target_lane(&self.inner, seed, &settings, &config)
+            nudge_sim::target_lane(&self.inner, seed, &settings, &config)
                 .map_err(crate::errors::sim_err)
         })
     }

@@ -7,8 +7,9 @@
 //! the planner settings is a dict of its fields, `PlannerSettings(cost={"w_y": 20})`), and the
 //! result is validated by the Rust `validate()`.
 
+use nudge_planner::PlannerSettings;
 use nudge_planner::describe::{Described, FieldDoc};
-use nudge_planner::{PlannerSettings, SimConfig};
+use nudge_sim::SimConfig;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString};
 use serde::Serialize;

@@ -1,5 +1,5 @@
 //! `nudge._native.simulate`: closed-loop lane changes over scenario files, in parallel on a
-//! rayon pool, returning the run and step columns of `nudge_planner::sim::columns` as numpy
+//! rayon pool, returning the run and step columns of `nudge_sim::columns` as numpy
 //! arrays (and, with `record=True`, every candidate the planning predictor evaluated).
 
 // SimError carries the planner's and predictor's errors by value; they are rare, cold paths.
@@ -9,11 +9,12 @@ use std::path::PathBuf;
 use std::sync::mpsc;
 use std::time::Duration;
 
-use nudge_planner::sim::PlanningFactory;
-use nudge_planner::sim::defaults;
-use nudge_planner::sim::{Column, Table, collision_table, run_table, step_table};
-use nudge_planner::{Batch, BatchRequest, Cancel, Keep, PlannerSettings, RunOutput, SimConfig};
+use nudge_planner::PlannerSettings;
 use nudge_predictor::{Predictor, Records, T_OBS, default_assets_dir};
+use nudge_sim::PlanningFactory;
+use nudge_sim::defaults;
+use nudge_sim::{Batch, BatchRequest, Cancel, Keep, RunOutput, SimConfig};
+use nudge_sim::{Column, Table, collision_table, run_table, step_table};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -34,7 +35,7 @@ fn i64s(v: impl IntoIterator<Item = usize>) -> Vec<i64> {
         .collect()
 }
 
-/// The front ends' defaults, from Rust (`nudge_planner::sim::defaults`): the Python wrapper's
+/// The front ends' defaults, from Rust (`nudge_sim::defaults`): the Python wrapper's
 /// signature reads them.
 pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
@@ -102,7 +103,7 @@ fn run_interruptibly(
 
 /// Closed-loop simulation of every scenario in `scene_paths` (in the given order), `runs`
 /// runs each; run r of scene i draws its target lane from seed `scene_seeds[i] + r` when
-/// `scene_seeds` is given, else `seed + i * runs + r` (`nudge_planner::run_specs`). Runs go
+/// `scene_seeds` is given, else `seed + i * runs + r` (`nudge_sim::run_specs`). Runs go
 /// in parallel on `threads` rayon threads (default: all cores; each planner call stays
 /// single-threaded).
 ///
@@ -117,7 +118,7 @@ fn run_interruptibly(
 /// e.g. `world="log_replay"`, `max_steps=4`) sets the closed loop. `on_error`: `"raise"` (the
 /// first failing run raises) or `"skip"` (its `error` column holds the message).
 ///
-/// Every argument is checked by `nudge_planner::BatchRequest::prepare` (the CLI's validation
+/// Every argument is checked by `nudge_sim::BatchRequest::prepare` (the CLI's validation
 /// too) before any run starts. Ctrl-C raises `KeyboardInterrupt` within about a second.
 ///
 /// `trace`: keep every step's plan and the planning predictor's predicted reaction to it;
@@ -168,9 +169,9 @@ pub fn simulate<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     guard(|| {
         let seed = seed.u64("seed", u64::MAX)?;
-        let runs = runs.usize("runs", nudge_planner::sim::MAX_RUNS)?;
+        let runs = runs.usize("runs", nudge_sim::MAX_RUNS)?;
         let threads = threads
-            .map(|t| t.usize("threads", nudge_planner::sim::MAX_THREADS))
+            .map(|t| t.usize("threads", nudge_sim::MAX_THREADS))
             .transpose()?;
         let scene_seeds: Option<Vec<u64>> = scene_seeds
             .map(|v| {

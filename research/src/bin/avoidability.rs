@@ -22,12 +22,13 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use nudge_planner::sim::metrics::RunObserver;
-use nudge_planner::{PlannerSettings, Scenario, SimConfig, World, WorldModel, simulate};
+use nudge_planner::{PlannerSettings, Scenario};
 use nudge_predictor::{PredictorSpec, T_OBS, default_assets_dir};
 use nudge_research::oracle::{
     Avoidance, LoggedTraffic, OracleLimits, OracleStart, OracleWorld, avoid, replay,
 };
+use nudge_sim::metrics::RunObserver;
+use nudge_sim::{SimConfig, World, WorldModel, simulate};
 
 #[derive(Parser, Debug)]
 #[command(about = "Were log-replay collisions avoidable, and from when?")]

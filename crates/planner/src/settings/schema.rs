@@ -2,7 +2,7 @@
 //! [`Default`], its field table ([`FieldSpec`]: name, unit, admissible range) and the lookup of
 //! a field's value, so that the validation, the reference docs and the Python classes all read
 //! the same declaration. Used by every group of [`super::PlannerSettings`] and by
-//! [`crate::SimConfig`].
+//! the simulator's `SimConfig`.
 
 use std::fmt;
 

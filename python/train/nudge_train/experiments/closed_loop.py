@@ -6,7 +6,7 @@ Every chosen scene runs ``--seeds`` times (run r of scene i draws its target lan
 every arm; an arm is one (planner, world, settings). The slow teacher planner runs on a seeded
 subset of ``--teacher-n`` scenes. ``--compare A B`` runs every planner x world with two planner
 settings files and compares B with A. The metrics are computed in Rust
-(``nudge_planner::sim::metrics``); this module only aggregates them:
+(``nudge_sim::metrics``); this module only aggregates them:
 
 * per arm: success with a 95 % interval (bootstrap over scenes), collisions at fault / not
   (each one listed and explained), off-road steps, straddle time, slow steps (executed and
@@ -396,7 +396,7 @@ def _f(v: float, digits: int = 2) -> str:
 RULES = """\
 ## How runs are judged
 
-The metrics are computed in Rust from the run's states (`nudge_planner::sim::metrics`, where every
+The metrics are computed in Rust from the run's states (`nudge_sim::metrics`, where every
 rule is documented) and reach Python and the CLI as the same columns.
 
 - **Success**: the ego settles in the target lane (|y − y_target| ≤ 0.3 m and |ψ| ≤ 0.03 rad for 2
@@ -459,7 +459,7 @@ population fitted to real NGSIM car-following, `assets/worlds/idm.json`; the ego
 the lane of its centre at the start and enters another lane by the fitted intrusion rule: a follower
 counts it once its nearest edge is 0.7 m inside the follower's lane with probability 0.7, otherwise
 only once it is wholly inside, and keeps counting it while any part of it is in the lane; see
-`nudge_planner::sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged future; the others
+`nudge_sim::idm` and `docs/results/idm_fit.md`), `log_replay` (the logged future; the others
 never react; once a vehicle's log ends it keeps its last displacement along the road and repeats
 {decay:g} of its last sideways one per step, `replay_lateral_decay`, fitted to real tracks in
 `docs/results/replay_extrapolation.md`; most logs are shorter than a run).

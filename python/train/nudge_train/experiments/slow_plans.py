@@ -2,7 +2,7 @@
 
 The closed-loop metrics count plans whose last speed is below ``nudge.SLOW_FRACTION`` (0.3) of the
 surrounding traffic's while no vehicle is in the ego's path within two seconds
-(``nudge_planner::sim::metrics``, step column ``slow_planned_free``). That test sweeps the boxes
+(``nudge_sim::metrics``, step column ``slow_planned_free``). That test sweeps the boxes
 as they are along the road, so it cannot see a vehicle moving across into the ego's lane. This
 command reads the runs of a ``closed-loop`` cache, re-simulates every run with such a plan with
 ``trace=True`` (checking that it reproduces the cached run), and describes each flagged step by

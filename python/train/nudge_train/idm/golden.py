@@ -3,10 +3,10 @@
 A platoon of three vehicles on one lane, simulated with :func:`nudge_train.idm.model.simulate_follower`
 (the model the drivers were fitted with): a leader on a free road whose desired speed is below its
 speed (it slows down), and two followers each behind the simulated vehicle ahead. The Rust world
-(``crates/planner/src/sim/idm.rs``) integrates the same vehicles together and must reproduce
+(``crates/sim/src/idm.rs``) integrates the same vehicles together and must reproduce
 every position and speed to 1e-9.
 
-Writes ``crates/planner/tests/golden/idm_platoon.json``; rerunning gives identical bytes
+Writes ``crates/sim/tests/golden/idm_platoon.json``; rerunning gives identical bytes
 (``python -m nudge_train.idm.golden [--check]``, also checked by the test suite).
 """
 
@@ -22,7 +22,7 @@ import numpy as np
 from nudge_train import paths
 from nudge_train.idm.model import GAP_FLOOR, MAX_DECEL, simulate_follower
 
-GOLDEN = Path("crates/planner/tests/golden/idm_platoon.json")
+GOLDEN = Path("crates/sim/tests/golden/idm_platoon.json")
 """Repository-relative path of the shared case."""
 
 DT_SUB = 0.1

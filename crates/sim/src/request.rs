@@ -7,9 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::SimError;
-use crate::fit;
-use crate::scenario::Scenario;
-use crate::settings::PlannerSettings;
+use nudge_planner::fit;
+use nudge_planner::scenario::Scenario;
+use nudge_planner::settings::PlannerSettings;
 
 use super::batch::{
     Cancel, Keep, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
@@ -194,8 +194,8 @@ impl Batch {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
-    use crate::error::SettingsError;
-    use crate::sim::World;
+    use crate::World;
+    use nudge_planner::SettingsError;
 
     fn repo() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -475,17 +475,17 @@ mod tests {
             inner: nudge_predictor::ConstantVelocity::new(6).unwrap(),
             cancel: cancel.clone(),
         };
-        let control = crate::sim::RunControl {
+        let control = crate::RunControl {
             cancel: &cancel,
             trace: false,
         };
-        let r = crate::sim::simulate_with(
+        let r = crate::simulate_with(
             &sc,
             &PlannerSettings::default(),
             &config,
             0,
             &mut p,
-            crate::sim::WorldModel::LogReplay,
+            crate::WorldModel::LogReplay,
             control,
         );
         assert!(
@@ -535,9 +535,8 @@ mod tests {
                 (g.predictor.as_str(), w.predictor.as_str()),
                 ("foreign", "constant_velocity")
             );
-            let states = |r: &crate::sim::RunRecord| -> Vec<[f64; 4]> {
-                r.steps.iter().map(|s| s.ego).collect()
-            };
+            let states =
+                |r: &crate::RunRecord| -> Vec<[f64; 4]> { r.steps.iter().map(|s| s.ego).collect() };
             assert_eq!(states(g), states(w));
             assert!(!g.steps.is_empty());
         }

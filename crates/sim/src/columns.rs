@@ -5,14 +5,14 @@
 
 use std::fmt::{self, Write as _};
 
-use crate::scenario::Scenario;
+use nudge_planner::scenario::Scenario;
 
 use super::batch::RunOutput;
 use super::metrics::{Collision, RunMetrics};
 use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus};
 
 /// Run columns, in order (one row per run, failed runs included). The metric columns are
-/// those of [`crate::sim::metrics::RunMetrics`] (comfort flattened).
+/// those of [`crate::metrics::RunMetrics`] (comfort flattened).
 pub const RUN_COLUMNS: [&str; 42] = [
     "scenario",
     "scene_index",
@@ -59,10 +59,10 @@ pub const RUN_COLUMNS: [&str; 42] = [
 ];
 
 /// Step columns, in order (one row per planning step of every run that ran). The metric
-/// columns are those of [`crate::sim::metrics::StepMetrics`]; `lane_violation` is the plan
+/// columns are those of [`crate::metrics::StepMetrics`]; `lane_violation` is the plan
 /// step (1..T) of the applied plan's first state in a lane that has not begun or has ended
-/// ([`crate::Plan::lane_violation`]), −1 when none; `decided_by` is
-/// [`crate::DecidedBy::label`]: `admm` exactly when the ADMM iterate was applied unchanged.
+/// ([`nudge_planner::Plan::lane_violation`]), −1 when none; `decided_by` is
+/// [`nudge_planner::DecidedBy::label`]: `admm` exactly when the ADMM iterate was applied unchanged.
 pub const STEP_COLUMNS: [&str; 38] = [
     "run",
     "step",
@@ -105,7 +105,7 @@ pub const STEP_COLUMNS: [&str; 38] = [
 ];
 
 /// Collision columns, in order (one row per collision event of every run that ran; the
-/// fields of [`crate::sim::metrics::Collision`] and the other vehicle's source id).
+/// fields of [`crate::metrics::Collision`] and the other vehicle's source id).
 pub const COLLISION_COLUMNS: [&str; 18] = [
     "run",
     "step",
@@ -464,7 +464,7 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
 
 /// The collision columns ([`COLLISION_COLUMNS`]) of a batch run on `scenes`; `run` is the
 /// row of the run in [`run_table`], `other_id` the other vehicle's source id, `free_gap`
-/// the run's ([`crate::sim::metrics::free_gap`]).
+/// the run's ([`crate::metrics::free_gap`]).
 #[must_use]
 pub fn collision_table(scenes: &[Scenario], outputs: &[RunOutput]) -> Table {
     let events: Vec<(usize, &RunRecord, &Collision)> = outputs
@@ -570,7 +570,7 @@ pub struct Summary {
     /// Steps straddling a lane line.
     pub straddle_steps: usize,
     /// Steps slow in a live lane: executed, planned, planned on a free road
-    /// ([`crate::sim::metrics::StepMetrics::slow_planned_free`]).
+    /// ([`crate::metrics::StepMetrics::slow_planned_free`]).
     pub slow_steps: (usize, usize, usize),
     /// Smallest time to collision over every run (s; +∞ when nobody closed in).
     pub min_ttc: f64,

@@ -7,7 +7,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SimConfigError;
-use crate::settings::schema::{FieldRange, any, closed, positive};
+use nudge_planner::settings::schema::{FieldRange, any, closed, positive};
 
 /// How the other vehicles move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
@@ -24,7 +24,7 @@ pub enum World {
     /// Driver Model longitudinally, with a driver drawn per vehicle from the population fitted
     /// to real NGSIM car-following (`assets/worlds/idm.json`), reacting to an intruding ego by
     /// the fitted intrusion rule (reactive traffic with a known model; see
-    /// [`crate::sim::idm`]).
+    /// [`crate::idm`]).
     Idm,
 }
 
@@ -76,7 +76,7 @@ pub(crate) fn in_range(out: Option<(FieldRange, f64)>) -> Result<(), SimConfigEr
     }
 }
 
-impl crate::settings::schema::FieldValue for World {
+impl nudge_planner::settings::schema::FieldValue for World {
     fn number(&self) -> Option<f64> {
         None
     }
@@ -85,7 +85,7 @@ impl crate::settings::schema::FieldValue for World {
 /// Most steps of one run (1000 steps = 5 minutes of driving).
 const MAX_STEPS: f64 = 1000.0;
 
-crate::settings_struct! {
+nudge_planner::settings_struct! {
     /// Closed-loop settings. Units: metres, radians, 0.3 s steps.
     ///
     /// Deserialises from JSON with every field optional (missing fields take the [`Default`])
@@ -174,7 +174,7 @@ impl SimConfig {
     }
 
     /// Reads a closed-loop settings JSON file (a regular file of at most
-    /// [`crate::settings::MAX_SETTINGS_BYTES`], refused before reading otherwise) and parses it
+    /// [`nudge_planner::settings::MAX_SETTINGS_BYTES`], refused before reading otherwise) and parses it
     /// as [`Self::from_json`].
     ///
     /// # Errors
@@ -182,8 +182,9 @@ impl SimConfig {
     /// [`Self::from_json`].
     pub fn from_file(path: impl AsRef<std::path::Path>) -> Result<Self, SimConfigError> {
         let path = path.as_ref();
-        let bytes = nudge_predictor::file::read_bounded(path, crate::settings::MAX_SETTINGS_BYTES)
-            .map_err(|e| SimConfigError::File(e.to_string()))?;
+        let bytes =
+            nudge_predictor::file::read_bounded(path, nudge_planner::settings::MAX_SETTINGS_BYTES)
+                .map_err(|e| SimConfigError::File(e.to_string()))?;
         let text = String::from_utf8(bytes).map_err(|e| {
             SimConfigError::File(format!("{}: not UTF-8 text: {e}", path.display()))
         })?;

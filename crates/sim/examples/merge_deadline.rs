@@ -6,16 +6,15 @@
 //! deadline weight off and at its default. Prints the outcome, where the ego's centre
 //! crossed into the main lane, and where the ego was at the end with its speed.
 //!
-//! `cargo run --release -p nudge-planner --example merge_deadline`
+//! `cargo run --release -p nudge-sim --example merge_deadline`
 #![allow(clippy::unwrap_used, clippy::print_stdout)]
 
 use std::collections::HashMap;
 
 use nudge_planner::scenario::LaneExtent;
-use nudge_planner::{
-    IdmPopulation, PlannerSettings, Scenario, SimConfig, World, WorldModel, simulate,
-};
+use nudge_planner::{PlannerSettings, Scenario};
 use nudge_predictor::{ConstantVelocity, T_OBS};
+use nudge_sim::{IdmPopulation, SimConfig, World, WorldModel, simulate};
 
 const DT: f64 = 0.3;
 
@@ -70,7 +69,7 @@ fn scene(gap_back: f64) -> Scenario {
 
 fn main() {
     let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
-    let pop = IdmPopulation::from_file(nudge_planner::sim::idm_path(&assets)).unwrap();
+    let pop = IdmPopulation::from_file(nudge_sim::idm_path(&assets)).unwrap();
     for world in [World::Idm, World::LogReplay] {
         for w in [0.0, PlannerSettings::default().lane_ends.w_deadline] {
             for gap_back in [20.0, 60.0, 100.0] {

@@ -8,13 +8,16 @@ use std::time::Instant;
 
 use nudge_predictor::{Checked, History, Predictor, T_OBS};
 
-use crate::admm::{EgoState, Plan, Planner, PlanningProblem, SafetyConstraint};
-use crate::error::{PlannerError, SimError};
-use crate::extents::LaneViolationKind;
-use crate::lane::{LaneChange, Neighbour};
-use crate::model::State;
-use crate::scenario::Scenario;
-use crate::settings::PlannerSettings;
+use crate::error::SimError;
+use crate::policy::Policy;
+use nudge_planner::State;
+use nudge_planner::extents::LaneViolationKind;
+use nudge_planner::lane::{LaneChange, Neighbour};
+use nudge_planner::scenario::Scenario;
+use nudge_planner::settings::PlannerSettings;
+use nudge_planner::{
+    Bicycle, EgoState, Plan, Planner, PlannerError, PlanningProblem, SafetyConstraint,
+};
 
 use super::batch::Cancel;
 use super::config::SimConfig;
@@ -105,7 +108,10 @@ fn waiting(sc: &Scenario, ego: &State, within: f64) -> bool {
 struct ClosedLoop<'a> {
     sc: &'a Scenario,
     settings: &'a PlannerSettings,
-    planner: Planner,
+    /// What plans the ego's motion.
+    policy: &'a mut dyn Policy,
+    /// The ego's dynamics (the planner settings' bicycle model).
+    model: Bicycle,
     /// Observed positions per agent, `[n][T_OBS]` (m).
     observed: Vec<Vec<[f64; 2]>>,
     ego: State,
@@ -190,7 +196,7 @@ impl ClosedLoop<'_> {
                     psi: ego[2],
                     v: ego[3],
                 };
-                crate::keep_lane_path(&e, t, self.settings.model.dt)
+                nudge_planner::keep_lane_path(&e, t, self.settings.model.dt)
             } else {
                 plan.states.iter().flat_map(|z| [z[0], z[1]]).collect()
             };
@@ -247,7 +253,7 @@ impl ClosedLoop<'_> {
         };
         let t0 = Instant::now();
         let plan: Plan =
-            self.planner
+            self.policy
                 .plan(&problem, planner_pred)
                 .map_err(|source: PlannerError| SimError::Planner {
                     scene: self.sc.name.clone(),
@@ -259,10 +265,7 @@ impl ClosedLoop<'_> {
         let y_goal = problem.y_target;
         let constraint = SafetyConstraint::new(&problem, self.settings);
         self.lane.after_plan(status, self.ego[1]);
-        let next = self
-            .planner
-            .model()
-            .advance(&self.ego, plan.delta[0], plan.accel[0]);
+        let next = self.model.advance(&self.ego, plan.delta[0], plan.accel[0]);
         let moved = mover.advance(
             sc,
             &history,
@@ -325,13 +328,13 @@ impl ClosedLoop<'_> {
 /// `planner_pred` predicts inside the MPC; `world` moves the other vehicles and must match
 /// `cfg.world`: the teacher of a [`crate::World::Teacher`] world, the driver population of a
 /// [`crate::World::Idm`] world, nothing for [`crate::World::LogReplay`]. Every step is judged
-/// by [`crate::sim::metrics`] (per step in [`StepRecord::metrics`], per run in
+/// by [`crate::metrics`] (per step in [`StepRecord::metrics`], per run in
 /// [`RunRecord::metrics`] and [`RunRecord::collisions`]); a run with a collision is never a
 /// success.
 ///
 /// # Errors
 /// [`SimError::Settings`] / [`SimError::Config`] for invalid settings or settings that do not
-/// fit the predictors and scenes ([`crate::fit::check_closed_loop`]),
+/// fit the predictors and scenes ([`nudge_planner::fit::check_closed_loop`]),
 /// [`SimError::WorldModel`] when `world` does not match `cfg.world`,
 /// [`SimError::NoAdjacentLane`], [`SimError::Predictor`] (the scene does not fit a predictor),
 /// [`SimError::Planner`] when planning fails (a bad problem or a predictor error; a QP failure
@@ -343,7 +346,8 @@ impl ClosedLoop<'_> {
 /// following their logged trajectories:
 ///
 /// ```
-/// use nudge_planner::{PlannerSettings, Scenario, SimConfig, World, WorldModel, simulate};
+/// use nudge_planner::{PlannerSettings, Scenario};
+/// use nudge_sim::{SimConfig, World, WorldModel, simulate};
 /// use nudge_predictor::ConstantVelocity;
 ///
 /// let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -388,9 +392,8 @@ pub fn simulate_with(
     world: WorldModel<'_>,
     control: RunControl<'_>,
 ) -> Result<RunRecord, SimError> {
-    let cancel = control.cancel;
     cfg.validate()?;
-    let planner = Planner::new(settings.clone()).map_err(|e| match e {
+    let mut planner = Planner::new(settings.clone()).map_err(|e| match e {
         PlannerError::Settings(s) => SimError::Settings(s),
         other => SimError::Planner {
             scene: sc.name.clone(),
@@ -398,11 +401,45 @@ pub fn simulate_with(
             source: other,
         },
     })?;
+    simulate_policy(
+        sc,
+        settings,
+        cfg,
+        seed,
+        &mut planner,
+        planner_pred,
+        world,
+        control,
+    )
+}
+
+/// [`simulate_with`] with the ego driven by `policy` instead of a [`Planner`] built from
+/// `settings` (which still give the ego's model, the safety check the records judge the plans
+/// by, the lane-end rules and the planning horizon the world predicts over). The policy is
+/// [`Policy::reset`] before the first step.
+///
+/// # Errors
+/// As [`simulate_with`].
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_policy(
+    sc: &Scenario,
+    settings: &PlannerSettings,
+    cfg: &SimConfig,
+    seed: u64,
+    policy: &mut dyn Policy,
+    planner_pred: &mut dyn Predictor,
+    world: WorldModel<'_>,
+    control: RunControl<'_>,
+) -> Result<RunRecord, SimError> {
+    let cancel = control.cancel;
+    cfg.validate()?;
+    settings.validate()?;
+    policy.reset();
     let mut fit = vec![(planner_pred.name(), planner_pred.horizon())];
     if let WorldModel::Teacher(w) = &world {
         fit.push((w.name(), w.horizon()));
     }
-    crate::fit::check_closed_loop(settings, &fit)?;
+    nudge_planner::fit::check_closed_loop(settings, &fit)?;
     let lane = target_lane(sc, seed, settings, cfg)?;
     let mut mover = Mover::new(cfg, world, sc, seed, settings.model.horizon)?;
     let y_target = sc.lane_centres[lane];
@@ -410,7 +447,12 @@ pub fn simulate_with(
     let mut run = ClosedLoop {
         sc,
         settings,
-        planner,
+        policy,
+        model: Bicycle {
+            l_f: settings.model.l_f,
+            l_r: settings.model.l_r,
+            dt: settings.model.dt,
+        },
         observed: (0..sc.n_agents)
             .map(|i| (0..T_OBS).map(|t| sc.position(i, t)).collect())
             .collect(),

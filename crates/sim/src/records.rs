@@ -1,10 +1,10 @@
 //! What a closed-loop run records: [`StepRecord`] per planning step, [`RunRecord`] per run,
-//! and the typed [`StepStatus`] (the name of the step's [`crate::PlanStatus`]).
+//! and the typed [`StepStatus`] (the name of the step's [`nudge_planner::PlanStatus`]).
 
 use serde::{Deserialize, Serialize};
 
-use crate::admm::BindingVehicle;
-pub use crate::admm::StepStatus;
+use nudge_planner::BindingVehicle;
+pub use nudge_planner::StepStatus;
 
 use super::config::World;
 use super::metrics::{Collision, RunMetrics, StepMetrics};
@@ -28,14 +28,14 @@ pub struct StepRecord {
     pub primal_residual: f64,
     /// Minimum b_i over the vehicles checked at planning time, at the executed step (the ego's
     /// and the others' actual new positions), as the planner's constraint evaluates step 1
-    /// ([`crate::SafetyConstraint::executed_min_b`]); `None` when none is checked.
+    /// ([`nudge_planner::SafetyConstraint::executed_min_b`]); `None` when none is checked.
     pub min_b: Option<f64>,
     /// The ego's box overlaps another vehicle's after this step.
     pub collision: bool,
     /// How the applied plan came about.
     pub status: StepStatus,
-    /// What decided the applied plan's inputs ([`crate::DecidedBy`]).
-    pub decided_by: crate::DecidedBy,
+    /// What decided the applied plan's inputs ([`nudge_planner::DecidedBy`]).
+    pub decided_by: nudge_planner::DecidedBy,
     /// Applied steering (rad).
     pub delta: f64,
     /// Applied acceleration (m/s²).
@@ -50,14 +50,14 @@ pub struct StepRecord {
     /// Speed at the end of the applied plan (its last planned state) (m/s).
     pub v_planned: f64,
     /// The applied plan's first planned state whose centre lies in a lane that has not begun
-    /// or has ended ([`crate::Plan::lane_violation`]; such a plan is `Unsafe`); `None` when
+    /// or has ended ([`nudge_planner::Plan::lane_violation`]; such a plan is `Unsafe`); `None` when
     /// there is none or the scene has no lane extents.
     #[serde(default)]
-    pub lane_violation: Option<crate::extents::LaneViolation>,
-    /// What the step is judged by ([`crate::sim::metrics`]).
+    pub lane_violation: Option<nudge_planner::extents::LaneViolation>,
+    /// What the step is judged by ([`crate::metrics`]).
     pub metrics: StepMetrics,
     /// The step's plan and the planning predictor's predicted reaction to it, kept only when
-    /// a run is asked to trace ([`crate::sim::RunControl::trace`]); `None` (and absent from
+    /// a run is asked to trace ([`crate::RunControl::trace`]); `None` (and absent from
     /// JSON) otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub trace: Option<StepTrace>,
@@ -74,7 +74,7 @@ pub struct StepTrace {
     /// z_1..z_T: positions (m, road frame) `[n − 1][T]`, agents 1..n at plan steps 1..T.
     pub predicted: Vec<Vec<[f64; 2]>>,
     /// The vehicle the plan's safety binds on under that prediction, with its safety
-    /// ellipses ([`crate::SafetyConstraint::binding`]); `None` when no vehicle is checked.
+    /// ellipses ([`nudge_planner::SafetyConstraint::binding`]); `None` when no vehicle is checked.
     pub binding: Option<BindingVehicle>,
     /// Every agent's position after the step (m, road frame), `[n]`, agent 0 = the ego.
     pub agents: Vec<[f64; 2]>,
@@ -95,7 +95,7 @@ pub enum RunOutcome {
     LaneNotBegun,
     /// The step limit came with the ego's centre still in a lane that really ends ahead of
     /// it, at most `deadline_distance` ahead, without a collision: the merge was not made and the end not passed (a blocked
-    /// merge waiting for a gap, held by the stopping rule of [`crate::extents`]; the last
+    /// merge waiting for a gap, held by the stopping rule of [`nudge_planner::extents`]; the last
     /// step's speed says whether it stood).
     Waiting,
     /// None of the above by `max_steps` (or the ego turned across the road).
@@ -160,7 +160,7 @@ pub struct RunRecord {
     /// Every collision event (first step of a contact with one vehicle), classified at fault
     /// or not.
     pub collisions: Vec<Collision>,
-    /// What the run is judged by ([`crate::sim::metrics`]).
+    /// What the run is judged by ([`crate::metrics`]).
     pub metrics: RunMetrics,
     /// Lane-change aborts ([`crate::SimConfig::abort_after`]).
     pub aborts: usize,

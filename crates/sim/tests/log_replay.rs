@@ -5,8 +5,9 @@
 //! same runs (`research/tests/oracle.rs`).
 #![allow(clippy::unwrap_used)]
 
-use nudge_planner::{PlannerSettings, SimConfig, World, WorldModel, simulate};
+use nudge_planner::PlannerSettings;
 use nudge_predictor::{ConstantVelocity, DT};
+use nudge_sim::{SimConfig, World, WorldModel, simulate};
 
 mod logged;
 

@@ -13,9 +13,10 @@ use std::collections::HashMap;
 use nudge_planner::scenario::LaneExtent;
 use nudge_planner::{
     EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerError, PlannerSettings,
-    PlanningProblem, RunOutcome, Scenario, SimConfig, World, WorldModel, simulate,
+    PlanningProblem, Scenario,
 };
 use nudge_predictor::{ConstantVelocity, History, T_OBS};
+use nudge_sim::{RunOutcome, SimConfig, World, WorldModel, simulate};
 use proptest::prelude::*;
 
 mod logged;
@@ -144,14 +145,13 @@ fn a_blocked_main_lane_makes_the_ego_wait_before_the_end() {
         last.ego
     );
     // The columns carry the outcome.
-    let spec = nudge_planner::RunSpec { scene: 0, seed: 0 };
-    let out = nudge_planner::RunOutput {
+    let spec = nudge_sim::RunSpec { scene: 0, seed: 0 };
+    let out = nudge_sim::RunOutput {
         spec,
         result: Ok(run),
         examples: None,
     };
-    let table =
-        nudge_planner::sim::run_table(std::slice::from_ref(&sc), std::slice::from_ref(&out));
+    let table = nudge_sim::run_table(std::slice::from_ref(&sc), std::slice::from_ref(&out));
     let mut csv = Vec::new();
     table.write_csv(&mut csv).unwrap();
     let csv = String::from_utf8(csv).unwrap();
@@ -167,20 +167,20 @@ fn a_blocked_main_lane_makes_the_ego_wait_before_the_end() {
         kind: LaneViolationKind::Ended,
         x: END + 1.0,
     });
-    let marked = nudge_planner::RunOutput {
+    let marked = nudge_sim::RunOutput {
         spec,
         result: Ok(r),
         examples: None,
     };
-    let steps = nudge_planner::sim::step_table(std::slice::from_ref(&marked));
+    let steps = nudge_sim::step_table(std::slice::from_ref(&marked));
     let mut want = vec![-1_i64; 40];
     want[3] = 5;
     assert_eq!(
         steps.column("lane_violation"),
-        Some(&nudge_planner::sim::Column::Int(want))
+        Some(&nudge_sim::Column::Int(want))
     );
     // And the summary both front ends print counts it.
-    let summary = nudge_planner::Summary::of(std::slice::from_ref(&out));
+    let summary = nudge_sim::Summary::of(std::slice::from_ref(&out));
     assert_eq!((summary.lane_out, summary.waiting), ((0, 0), 1));
     assert!(summary.to_string().contains("(Waiting): 1"), "{summary}");
     assert!(
@@ -440,7 +440,7 @@ fn shipped_scenes_plan_bit_for_bit_the_same_with_lanes_that_span_the_scene() {
             lane_extents: Some(vec![extent(-1e5, 1e5, true, true); sc.lane_centres.len()]),
             ..sc.clone()
         };
-        let strip = |mut r: nudge_planner::RunRecord| {
+        let strip = |mut r: nudge_sim::RunRecord| {
             for st in &mut r.steps {
                 st.mpc_s = 0.0;
                 st.z_updates_s.clear();
@@ -453,7 +453,7 @@ fn shipped_scenes_plan_bit_for_bit_the_same_with_lanes_that_span_the_scene() {
         assert_eq!(strip(a), strip(b), "{}", sc.name);
         // And one planning call, plan for plan (timings aside).
         let h = History::new(sc.history.clone(), sc.n_agents).unwrap();
-        let y = sc.lane_centres[nudge_planner::target_lane(sc, 3, &s, &cfg).unwrap()];
+        let y = sc.lane_centres[nudge_sim::target_lane(sc, 3, &s, &cfg).unwrap()];
         let p = PlanningProblem::at_scenario_start(sc, &h, y);
         let q = PlanningProblem::at_scenario_start(&full, &h, y);
         assert!(p.lanes.is_none() && q.lanes.is_some());
@@ -518,24 +518,22 @@ fn an_idm_vehicle_in_the_ending_lane_merges_before_the_end() {
         Some(merge_extents()),
     );
     let assets = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets");
-    let pop =
-        nudge_planner::IdmPopulation::from_file(nudge_planner::sim::idm_path(&assets)).unwrap();
+    let pop = nudge_sim::IdmPopulation::from_file(nudge_sim::idm_path(&assets)).unwrap();
     let cfg = SimConfig {
         world: World::Idm,
         max_steps: 30,
         settle_steps: 10,
         ..SimConfig::default()
     };
-    let never = nudge_planner::Cancel::new();
-    let control = nudge_planner::RunControl {
+    let never = nudge_sim::Cancel::new();
+    let control = nudge_sim::RunControl {
         cancel: &never,
         trace: true,
     };
     let mut cv = ConstantVelocity::default();
     let s = PlannerSettings::default();
-    let run =
-        nudge_planner::simulate_with(&sc, &s, &cfg, 0, &mut cv, WorldModel::Idm(&pop), control)
-            .unwrap();
+    let run = nudge_sim::simulate_with(&sc, &s, &cfg, 0, &mut cv, WorldModel::Idm(&pop), control)
+        .unwrap();
     assert!(!run.collision, "{:?}", run.outcome);
     let other: Vec<[f64; 2]> = run
         .steps
@@ -597,11 +595,7 @@ fn beside_an_auxiliary_lane(aux_end: f64) -> Scenario {
 /// The draws of seeds 0..`n` as a string of lane indices.
 fn draws(sc: &Scenario, n: u64, s: &PlannerSettings, cfg: &SimConfig) -> String {
     (0..n)
-        .map(|k| {
-            nudge_planner::target_lane(sc, k, s, cfg)
-                .unwrap()
-                .to_string()
-        })
+        .map(|k| nudge_sim::target_lane(sc, k, s, cfg).unwrap().to_string())
         .collect()
 }
 
@@ -615,7 +609,7 @@ fn the_target_draw_never_offers_a_lane_that_ends_within_reach() {
     let s = PlannerSettings::default();
     let cfg = SimConfig::default();
     let sc = beside_an_auxiliary_lane(44.0);
-    let reach = nudge_planner::target_reach(&sc, &s, &cfg);
+    let reach = nudge_sim::target_reach(&sc, &s, &cfg);
     assert!(
         (reach - (30.0 * 0.3 * 16.3 + 100.0)).abs() < 1e-9,
         "{reach}"
@@ -656,8 +650,8 @@ fn the_target_draw_never_offers_a_lane_that_ends_within_reach() {
         lane_extents: sc.lane_extents.as_ref().map(|e| e[..2].to_vec()),
         ..sc.clone()
     };
-    match nudge_planner::target_lane(&two, 0, &s, &cfg) {
-        Err(e @ nudge_planner::SimError::NoAdjacentLane { ego_lane: 1, .. }) => {
+    match nudge_sim::target_lane(&two, 0, &s, &cfg) {
+        Err(e @ nudge_sim::SimError::NoAdjacentLane { ego_lane: 1, .. }) => {
             assert!(e.to_string().contains("synthetic-auxiliary"), "{e}");
         }
         other => panic!("{other:?}"),

@@ -1,13 +1,17 @@
-//! Closed-loop simulation of lane changes on real scenes, and the one contract both front ends
-//! (the `nudge` CLI and `nudge.simulate`) share.
+//! # nudge-sim
 //!
+//! Closed-loop simulation of lane changes on real scenes, and the one contract both front ends
+//! (the `nudge` CLI and `nudge.simulate`) share. It drives the ego through a [`Policy`]
+//! (observation in, plan out), which nudge's [`nudge_planner::Planner`] implements.
+//!
+//! * [`policy`]: the [`Policy`] trait that plans the ego's motion at every step;
 //! * [`config`]: [`SimConfig`] and the [`World`] that moves the other vehicles;
 //! * [`world`]: the model of a run's world ([`WorldModel`]: the teacher, the IDM driver
 //!   population, or nothing for log replay);
 //! * [`idm`]: the `idm` world ([`IdmPopulation`], fitted to real car-following, and the
 //!   per-run [`IdmTraffic`] with its intrusion rule);
 //! * [`run`]: one run ([`simulate`]): plan, apply the first input to the vehicle
-//!   ([`crate::Bicycle::advance`]), move the others, shift the histories, judge the step,
+//!   ([`nudge_planner::Bicycle::advance`]), move the others, shift the histories, judge the step,
 //!   repeat;
 //! * [`metrics`]: what a run is judged by (collisions at fault or not, off-road, straddling,
 //!   slow steps in a live lane, time to collision, progress, comfort, the score, the density
@@ -19,7 +23,13 @@
 //! * [`columns`]: records → named columns ([`run_table`], [`step_table`],
 //!   [`collision_table`]), the [`Summary`] and the per-step listing;
 //! * [`request`]: the one validation of a batch both front ends call ([`BatchRequest`]),
-//!   before any run starts; a [`Cancel`] flag stops a running batch.
+//!   before any run starts; a [`Cancel`] flag stops a running batch;
+//! * [`describe`]: the reference of [`SimConfig`] and the whole settings reference page;
+//! * [`error`]: the simulator's typed errors ([`SimError`], [`SimConfigError`],
+//!   [`WorldFileError`]).
+//!
+//! Conventions: road frame, x along travel (m), y lateral positive left (m), heading ψ (rad,
+//! 0 = +x), speed v (m/s); agent 0 is the ego; one step = 0.3 s.
 
 // SimError carries the planner's and predictor's errors by value; they are rare, cold paths.
 #![allow(clippy::result_large_err)]
@@ -27,8 +37,11 @@
 pub mod batch;
 pub mod columns;
 pub mod config;
+pub mod describe;
+pub mod error;
 pub mod idm;
 pub mod metrics;
+pub mod policy;
 pub mod records;
 pub mod request;
 pub mod run;
@@ -43,9 +56,11 @@ pub use columns::{
     run_table, step_listing, step_table,
 };
 pub use config::{SimConfig, World};
+pub use error::{SimConfigError, SimError, WorldFileError};
 pub use idm::{IdmPopulation, IdmTraffic, LaneEndMerge, idm_path};
 pub use metrics::{Collision, RunMetrics, StepMetrics};
+pub use policy::Policy;
 pub use records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
-pub use run::{RunControl, simulate, simulate_with, target_lane, target_reach};
+pub use run::{RunControl, simulate, simulate_policy, simulate_with, target_lane, target_reach};
 pub use world::WorldModel;

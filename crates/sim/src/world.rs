@@ -4,8 +4,8 @@
 use nudge_predictor::{History, Predictor, T_OBS};
 
 use crate::error::SimError;
-use crate::model::State;
-use crate::scenario::Scenario;
+use nudge_planner::State;
+use nudge_planner::scenario::Scenario;
 
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, IdmTraffic};

@@ -10,8 +10,8 @@ use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Record
 use rayon::prelude::*;
 
 use crate::error::SimError;
-use crate::scenario::Scenario;
-use crate::settings::PlannerSettings;
+use nudge_planner::scenario::Scenario;
+use nudge_planner::settings::PlannerSettings;
 
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
@@ -82,14 +82,14 @@ pub struct RunSpec {
 /// # Examples
 ///
 /// ```
-/// use nudge_planner::{RunSpec, run_specs};
+/// use nudge_sim::{RunSpec, run_specs};
 ///
 /// let specs = run_specs(2, 2, 10, None)?;
 /// let seeds: Vec<(usize, u64)> = specs.iter().map(|r| (r.scene, r.seed)).collect();
 /// assert_eq!(seeds, [(0, 10), (0, 11), (1, 12), (1, 13)]);
 /// let per_scene = run_specs(2, 2, 10, Some(&[7, 3]))?;
 /// assert_eq!(per_scene[2], RunSpec { scene: 1, seed: 3 });
-/// # Ok::<(), nudge_planner::SimError>(())
+/// # Ok::<(), nudge_sim::SimError>(())
 /// ```
 pub fn run_specs(
     n_scenes: usize,

@@ -63,9 +63,9 @@ use nudge_predictor::{DT, T_OBS};
 use serde_json::Value;
 
 use crate::error::{SimConfigError, WorldFileError};
-use crate::model::State;
-use crate::scenario::{LaneExtent, Scenario};
-use crate::settings::schema::{closed, open_min};
+use nudge_planner::State;
+use nudge_planner::scenario::{LaneExtent, Scenario};
+use nudge_planner::settings::schema::{closed, open_min};
 
 /// The schema string of the world file.
 pub const IDM_SCHEMA: &str = "nudge.idm/1";
@@ -217,7 +217,7 @@ impl IntrusionRule {
     }
 }
 
-crate::settings_struct! {
+nudge_planner::settings_struct! {
     /// How an IDM vehicle whose lane really ends merges (the world file's optional `lane_end`
     /// section; absent, the defaults). Units: m, m/s, m/s².
     #[derive(Copy)]

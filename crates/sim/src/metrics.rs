@@ -57,8 +57,8 @@
 use nudge_predictor::{DT, T_OBS};
 use serde::{Deserialize, Serialize};
 
-use crate::safety::{OrientedBox, clip_segment_to_box, motion_heading};
-use crate::scenario::Scenario;
+use nudge_planner::scenario::Scenario;
+use nudge_planner::{OrientedBox, clip_segment_to_box, motion_heading};
 
 /// Tolerance (m) added to the ego's own overhang at the start before a step counts as
 /// off-road.
@@ -66,8 +66,8 @@ pub const OFF_ROAD_MARGIN_M: f64 = 0.1;
 /// A step is slow when the ego's speed is below this fraction of the surrounding traffic's.
 pub const SLOW_FRACTION: f64 = 0.3;
 /// Other vehicles within this distance along the road (m, centre to centre) make the ego's
-/// surrounding traffic.
-pub const TRAFFIC_RANGE_M: f64 = 50.0;
+/// surrounding traffic: the planner's lane-flow range ([`nudge_planner::lane::FLOW_RANGE_M`]).
+pub const TRAFFIC_RANGE_M: f64 = nudge_planner::lane::FLOW_RANGE_M;
 /// The surrounding traffic is live when its median speed exceeds this (m/s).
 pub const LIVE_TRAFFIC_MPS: f64 = 3.0;
 /// The road ahead of the ego is free when the nearest vehicle in its path ([`lead_gap`]) is
@@ -516,21 +516,7 @@ pub fn road_free(lead_gap: Option<f64>, v: f64, traffic: Option<f64>) -> bool {
     lead_gap.is_none_or(|g| g >= FREE_ROAD_HEADWAY_S * v.max(traffic))
 }
 
-/// The median (mean of the two middle values for an even count); `None` when empty.
-#[must_use]
-pub fn median(values: &[f64]) -> Option<f64> {
-    if values.is_empty() {
-        return None;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
-}
+pub use nudge_planner::lane::median;
 
 /// The speed of the ego's surrounding traffic (m/s): the median speed along the road of the
 /// other vehicles within [`TRAFFIC_RANGE_M`] of the ego's x whose centres are in the ego's
