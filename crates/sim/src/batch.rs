@@ -3,8 +3,6 @@
 //! ([`Predictors`]), and [`simulate_many`] on a rayon pool.
 
 use std::path::Path;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Records};
 use rayon::prelude::*;
@@ -16,7 +14,7 @@ use nudge_planner::settings::PlannerSettings;
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
-use super::run::{RunControl, simulate_with};
+use super::run::{Cancel, RunControl, simulate_with};
 use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
@@ -229,32 +227,6 @@ impl Predictors {
             }
         };
         Ok(Self { planning, world })
-    }
-}
-
-/// A cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
-/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops before its next
-/// closed-loop step and the runs not started yet do not start, each with
-/// [`SimError::Cancelled`]. Clones share the flag.
-#[derive(Debug, Clone, Default)]
-pub struct Cancel(Arc<AtomicBool>);
-
-impl Cancel {
-    /// A flag not set.
-    #[must_use]
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Sets the flag (from any thread).
-    pub fn cancel(&self) {
-        self.0.store(true, Ordering::Relaxed);
-    }
-
-    /// Whether the flag is set.
-    #[must_use]
-    pub fn is_cancelled(&self) -> bool {
-        self.0.load(Ordering::Relaxed)
     }
 }
 

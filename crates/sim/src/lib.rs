@@ -48,8 +48,8 @@ pub mod run;
 pub mod world;
 
 pub use batch::{
-    Cancel, Keep, MAX_RUNS, MAX_THREADS, PlanningFactory, Predictors, RunOutput, RunSpec, Runs,
-    WorldSpec, defaults, run_specs, simulate_many, thread_pool,
+    Keep, MAX_RUNS, MAX_THREADS, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec,
+    defaults, run_specs, simulate_many, thread_pool,
 };
 pub use columns::{
     COLLISION_COLUMNS, Column, RUN_COLUMNS, STEP_COLUMNS, Summary, Table, collision_table,
@@ -62,5 +62,7 @@ pub use metrics::{Collision, RunMetrics, StepMetrics};
 pub use policy::Policy;
 pub use records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 pub use request::{Batch, BatchRequest};
-pub use run::{RunControl, simulate, simulate_policy, simulate_with, target_lane, target_reach};
+pub use run::{
+    Cancel, RunControl, simulate, simulate_policy, simulate_with, target_lane, target_reach,
+};
 pub use world::WorldModel;

@@ -12,10 +12,11 @@ use nudge_planner::scenario::Scenario;
 use nudge_planner::settings::PlannerSettings;
 
 use super::batch::{
-    Cancel, Keep, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
+    Keep, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
     simulate_many, thread_pool,
 };
 use super::config::SimConfig;
+use super::run::Cancel;
 
 /// What a front end asks of one batch, unchecked.
 #[derive(Debug, Clone, Copy)]

@@ -4,6 +4,8 @@
 //! [`SafetyConstraint::executed_min_b`]) and judge it ([`super::metrics`]); stop when the ego
 //! has settled in the target lane.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use nudge_predictor::{Checked, History, Predictor, T_OBS};
@@ -19,11 +21,36 @@ use nudge_planner::{
     Bicycle, EgoState, Plan, Planner, PlannerError, PlanningProblem, SafetyConstraint,
 };
 
-use super::batch::Cancel;
 use super::config::SimConfig;
 use super::metrics::{RunObserver, others_from_history};
 use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 use super::world::{Mover, WorldModel};
+
+/// A cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
+/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops before its next
+/// closed-loop step and the runs not started yet do not start, each with
+/// [`SimError::Cancelled`]. Clones share the flag.
+#[derive(Debug, Clone, Default)]
+pub struct Cancel(Arc<AtomicBool>);
+
+impl Cancel {
+    /// A flag not set.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sets the flag (from any thread).
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether the flag is set.
+    #[must_use]
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+}
 
 /// SplitMix64: a tiny deterministic generator for the target-lane draw.
 fn splitmix(seed: u64) -> u64 {
