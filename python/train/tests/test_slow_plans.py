@@ -80,6 +80,17 @@ def test_a_real_cache_is_reproduced_and_described(cache: Path, tmp_path: Path) -
     steps = sum(data["runs"]["slow_planned_free_steps"]) - 1
     assert len(rows) == steps
     assert all(r["category"] in slow_plans.CATEGORIES and r["settings"] == "default" for r in rows)
+    # What decided each step's plan is read from the cache, step by step, for the flagged run.
+    (run0,) = slow_plans.flagged_runs(forged)
+    want = tuple(d for j, d in zip(data["steps"]["run"], data["steps"]["decided_by"], strict=True) if j == 0)
+    assert run0.decided_by == want and len(want) == data["runs"]["n_steps"][0]
+    assert all(d.split(":")[0] in {"admm", "admm_governed", "refined", "backtracked", "nominal", "fallback"}
+               for d in data["steps"]["decided_by"])
+    # A cache part written without it is refused naming the file.
+    del data["steps"]["decided_by"]
+    (forged / "chunk" / "part-0000.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="part-0000.json: the cache part has no decided_by"):
+        slow_plans.flagged_runs(forged)
     assert "| world | planner | settings |" in (tmp_path / "r.md").read_text()
 
 

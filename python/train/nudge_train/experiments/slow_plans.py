@@ -6,6 +6,7 @@ surrounding traffic's while no vehicle is in the ego's path within two seconds
 as they are along the road, so it cannot see a vehicle moving across into the ego's lane. This
 command reads the runs of a ``closed-loop`` cache, re-simulates every run with such a plan with
 ``trace=True`` (checking that it reproduces the cached run), and describes each flagged step by
+what decided the plan (``decided_by``, recorded with every step) and by
 the vehicle the plan's safety binds on (its smallest ``b``) and what that vehicle really did in
 the world over the plan's horizon:
 
@@ -55,6 +56,8 @@ class FlaggedRun:
     """Closed-loop settings JSON of its arm."""
     slow_planned_free_steps: int
     success: bool
+    decided_by: tuple[str, ...]
+    """What decided each step's plan, as the cache recorded it (``decided_by``, step by step)."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,9 @@ class SlowStep:
     seed: int
     step: int
     status: str
+    decided_by: str
+    """What decided the applied plan (``steps.csv``'s ``decided_by``: ``admm``, ``refined``,
+    ``backtracked``, ``fallback:<family>:<rank key>``, ...)."""
     ego_speed: float
     """m/s, at the step."""
     plan_end_speed: float
@@ -137,14 +143,18 @@ def flagged_runs(cache: Path) -> list[FlaggedRun]:
         inputs = data.get("inputs", {})
         if inputs.get("schema") != CACHE_SCHEMA:
             raise ValueError(f"{file}: not a closed-loop cache part (schema {inputs.get('schema')!r})")
-        runs = data["runs"]
+        runs, steps = data["runs"], data.get("steps", {})
+        if "decided_by" not in steps:
+            raise ValueError(f"{file}: the cache part has no decided_by column (written by an older nudge-train; "
+                             "rerun closed-loop on it)")
         settings = nudge.PlannerSettings.from_json(json.dumps(inputs["settings"])).to_json()
         for i, n in enumerate(runs["slow_planned_free_steps"]):
             if n > 0:
+                decided = tuple(str(d) for j, d in zip(steps["run"], steps["decided_by"], strict=True) if int(j) == i)
                 out.append(FlaggedRun(planner=inputs["planner"], world=inputs["world"], scene=runs["scenario"][i],
                                       seed=int(runs["seed"][i]), settings=settings,
                                       config=json.dumps(inputs["config"]), slow_planned_free_steps=int(n),
-                                      success=bool(runs["success"][i])))
+                                      success=bool(runs["success"][i]), decided_by=decided))
     return sorted(out, key=lambda r: (r.world, r.planner, r.scene, r.seed, r.settings))
 
 
@@ -191,16 +201,19 @@ def _steps_of(r: FlaggedRun, scenes: Path) -> list[SlowStep]:
                          settings=nudge.PlannerSettings.from_json(r.settings),
                          config=nudge.SimConfig.from_json(r.config), trace=True)
     runs, steps, t = res["runs"], res["steps"], res["traces"][0]
-    got = (int(runs["slow_planned_free_steps"][0]), bool(runs["success"][0]))
-    if got != (r.slow_planned_free_steps, r.success):
+    got = (int(runs["slow_planned_free_steps"][0]), bool(runs["success"][0]),
+           tuple(str(d) for d in steps["decided_by"]))
+    if got != (r.slow_planned_free_steps, r.success, r.decided_by):
         raise ValueError(f"{r.scene} seed {r.seed} ({r.planner} planner, {r.world} world): the re-simulation gives "
-                         f"{got} (flagged steps, success), the cache {(r.slow_planned_free_steps, r.success)}")
+                         f"{got[:2]} (flagged steps, success), the cache {(r.slow_planned_free_steps, r.success)}"
+                         + ("" if got[2] == r.decided_by else "; what decided its plans differs"))
     out = []
     for k in range(len(steps["step"])):
         if steps["slow_planned_free"][k]:
             where = f"{r.scene} seed {r.seed} step {k}"
             out.append(SlowStep(world=r.world, planner=r.planner, settings=settings_label(r.settings), scene=r.scene,
                                 seed=r.seed, step=k, status=str(t["status"][k]),
+                                decided_by=r.decided_by[k],
                                 slow_below=float(steps["traffic_v"][k]) * nudge.SLOW_FRACTION,
                                 **describe_step(t, k, where)))
     return out
@@ -221,11 +234,14 @@ def report(steps: list[SlowStep], source: str, command: str) -> str:
                      + " |")
     if not steps:
         lines.append("| – | – | – | 0 (0) |" + " 0 |" * len(CATEGORIES))
-    lines += ["", "| world | planner | settings | scene | seed | step | status | ego m/s | plan ends m/s | "
+    lines += ["", "What decided the flagged plans (`decided_by`): "
+              + (", ".join(f"{k} {v}" for k, v in sorted(Counter(s.decided_by for s in steps).items())) or "–") + "."]
+    lines += ["", "| world | planner | settings | scene | seed | step | status | decided by | ego m/s | plan ends m/s | "
               "slow below m/s | binding b | dx m | dy m | its m/s | towards m/s | in ego lane now / max m | category |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in steps:
         lines.append(f"| {s.world} | {s.planner} | {s.settings} | {s.scene} | {s.seed} | {s.step} | {s.status} | "
+                     f"{s.decided_by} | "
                      f"{s.ego_speed:.1f} | {s.plan_end_speed:.1f} | {s.slow_below:.1f} | {s.binding_b:.3f} | "
                      f"{s.dx:.1f} | {s.dy:.2f} | "
                      f"{s.speed:.1f} | {s.toward:.2f} | {s.entry_now:.2f} / {s.entry_max:.2f} | {s.category} |")
