@@ -792,7 +792,40 @@ def build_parser() -> argparse.ArgumentParser:
     _add_idm(sub)
     _add_commonroad(sub)
     _add_replay_extrapolation(sub)
+    _add_human_lane_changes(sub)
     return parser
+
+
+# ---- human lane changes -------------------------------------------------------------------------
+def _add_human_lane_changes(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "human-lane-changes", "every lane change in the real US-101 tracks (smoothed, by a documented "
+                 "rule): duration, peak lateral acceleration, jerk and yaw rate per speed band and split, the human "
+                 "reference of the planner's comfort limits (report, JSON summary, events CSV, figure)",
+                 _run_human_lane_changes)
+    p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
+    p.add_argument("--out", type=Path, default=paths.runs() / "human_lane_changes",
+                   help="folder of the report, summary, events and figure (ignored with --publish)")
+    p.add_argument("--publish", action="store_true",
+                   help="write the tracked files instead: docs/results/human_lane_changes.{md,json,csv} and "
+                        "docs/figures/human_lane_changes.png")
+    p.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _run_human_lane_changes(a: argparse.Namespace) -> int:
+    from nudge_train.experiments.human_lane_changes import GROUPS, in_group, run
+
+    stem = "human_lane_changes"
+    if a.publish:
+        doc, png = paths.results() / f"{stem}.md", paths.figures() / f"{stem}.png"
+    else:
+        doc, png = a.out / f"{stem}.md", a.out / f"{stem}.png"
+    command = "nudge-train human-lane-changes" + (" --publish" if a.publish else "")
+    st = run(a.data_root, doc, doc.with_suffix(".json"), doc.with_suffix(".csv"), png, command, seed=a.seed,
+             progress=not a.no_progress)
+    counts = ", ".join(f"{g} {sum(in_group(e, g) for e in st.events)}" for g in GROUPS)
+    print(f"wrote {doc} (+ .json, .csv) and {png}: lane changes {counts}")
+    return 0
 
 
 # ---- log replay past a log's end ----------------------------------------------------------------

@@ -39,6 +39,7 @@ COMMANDS: list[tuple[list[str], str]] = [
     (["goldens"], "_run_goldens"),
     (["figures", "runs", "out/demo"], "_run_figures_runs"),
     (["figures", "curves", "teacher=runs/teacher", "--png", "c.png"], "_run_figures_curves"),
+    (["human-lane-changes"], "_run_human_lane_changes"),
 ]
 
 
