@@ -3,6 +3,8 @@
 //! ([`Predictors`]), and [`simulate_many`] on a rayon pool.
 
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Records};
 use rayon::prelude::*;
@@ -242,6 +244,30 @@ pub struct RunOutput {
     pub examples: Option<Records>,
 }
 
+/// A count of the finished runs of a batch, shared by the runs and whoever shows progress
+/// (a progress bar polling [`Progress::done`] from another thread). Clones share the count.
+#[derive(Debug, Clone, Default)]
+pub struct Progress(Arc<AtomicUsize>);
+
+impl Progress {
+    /// A count at zero.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Runs finished so far (ran, failed or cancelled).
+    #[must_use]
+    pub fn done(&self) -> usize {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    /// Counts one more finished run.
+    fn finish_one(&self) {
+        self.0.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 /// Builds the planning predictor of one run (called once per run, on the run's thread).
 pub type PlanningFactory<'a> = dyn Fn() -> Box<dyn Predictor> + Sync + 'a;
 
@@ -277,6 +303,7 @@ pub fn simulate_many(
         planning: &planning,
         keep,
         cancel,
+        progress: None,
     };
     runs.simulate(specs)
 }
@@ -298,6 +325,8 @@ pub struct Runs<'a> {
     pub keep: Keep,
     /// Checked before every closed-loop step.
     pub cancel: &'a Cancel,
+    /// Counts every finished run (`None`: not counted).
+    pub progress: Option<&'a Progress>,
 }
 
 impl Runs<'_> {
@@ -305,7 +334,16 @@ impl Runs<'_> {
     /// outputs in the order of `specs`.
     #[must_use]
     pub fn simulate(&self, specs: &[RunSpec]) -> Vec<RunOutput> {
-        specs.par_iter().map(|&spec| self.run(spec)).collect()
+        specs
+            .par_iter()
+            .map(|&spec| {
+                let out = self.run(spec);
+                if let Some(p) = self.progress {
+                    p.finish_one();
+                }
+                out
+            })
+            .collect()
     }
 
     /// One run.
