@@ -2,7 +2,7 @@
 that every public name of the module appears here with the module's parameters and defaults
 (``...`` where the default is a Rust constant: see ``DEFAULTS`` and ``SimConfig.default()``)."""
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import Any, Literal, Protocol, TypedDict
@@ -11,6 +11,8 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+# The git commit this extension was built from ("unknown" outside a git checkout).
+GIT_SHA: str
 T_OBS: int
 MAX_AGENTS: int
 DT: float
@@ -388,6 +390,7 @@ def simulate(
     trace: bool = False,
     on_error: Literal["raise", "skip"] = "raise",
     assets: _Path | None = None,
+    progress: Callable[[int, int], object] | None = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
@@ -434,6 +437,10 @@ def simulate(
     (one more predictor call per step; off by default, the other outputs are the same either
     way): the result then holds ``"traces"``, a list with one trace dict per run (``_Trace``) (``None``
     for a run that could not run), which :func:`animate` draws.
+
+    ``progress``: a callable called as ``progress(done, total)`` (runs finished, runs in all)
+    about every 50 ms while the count grows and once at the end, from the calling thread; an
+    exception it raises stops the batch and is raised. Not callable: InputError.
 
     Returns ``{"runs": ..., "steps": ..., "collisions": ...}`` (+ ``"examples"`` when
     ``record``, ``"traces"`` when ``trace``), the columns of ``nudge_sim::columns`` (the CLI's CSV has the same names
