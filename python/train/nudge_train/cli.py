@@ -390,7 +390,8 @@ def _run_distill(a: argparse.Namespace) -> int:
 
 def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p = _command(sub, "closed-loop",
-                 "planners x worlds x seeds on a split's scenes, paired by (scene, seed): docs/results/closed_loop.md",
+                 "planners x worlds x seeds on a split's scenes, paired by (scene, seed): the report (printed; "
+                 "--out writes it, e.g. docs/results/closed_loop.md)",
                  _run_closed_loop)
     p.add_argument("--split", choices=SPLITS, default="val", help="the split whose scenes run")
     p.add_argument("--scenes", type=Path, default=None,
@@ -401,7 +402,8 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
                    help="planning predictors (teacher, student, constant_velocity or weights files)")
     p.add_argument("--worlds", nargs="+", choices=("teacher", "idm", "log_replay"),
                    default=["teacher", "idm", "log_replay"], help="worlds that move the other vehicles")
-    p.add_argument("--teacher-n", type=int, default=60, help="scenes of the teacher planner's seeded subset")
+    p.add_argument("--teacher-n", type=int, default=60,
+                   help="scenes of the teacher planner's seeded subset (>= 1 when the teacher plans; any >= 0 otherwise)")
     p.add_argument("--settings", type=Path, default=None, help="planner settings JSON (missing fields default)")
     p.add_argument("--config", type=Path, default=None,
                    help="closed-loop settings JSON (SimConfig; the world is set per arm)")
@@ -417,7 +419,8 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", type=int, default=30, help="scenes per cached part of a chunk")
     p.add_argument("--cache", type=Path, default=paths.runs() / "closed_loop", help="cache of the runs")
     p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples of every interval")
-    p.add_argument("--out", type=Path, default=paths.results() / "closed_loop.md", help="the report")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also write the report here (default: only print it; tracked docs are written only when named)")
     p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
                    help="also write the summaries here")
     p.add_argument("--before", nargs=2, default=None, metavar=("JSON", "LABEL"),
@@ -816,7 +819,8 @@ def _run_replay_extrapolation(a: argparse.Namespace) -> int:
 def _add_commonroad(sub: argparse._SubParsersAction) -> None:
     p = _command(sub, "commonroad", "plan the shipped scenes in their CommonRoad files with the nudge command and "
                  "check the solutions with commonroad-drivability-checker (the commonroad extra)", _commonroad)
-    p.add_argument("--nudge", type=Path, default=Path("target/release/nudge"), help="the nudge command")
+    p.add_argument("--nudge", type=Path, default=None,
+                   help="the nudge command (default: the checkout's target/release/nudge, else `nudge` on PATH)")
     p.add_argument("--out", type=Path, default=Path("runs/commonroad"), help="runs and solutions")
     p.add_argument("--markdown", type=Path, default=None, help="write the table here")
 
