@@ -58,32 +58,36 @@ $(DEMO_STAMP): python/train/pyproject.toml
 # The light environment with the extension nudge._native built into it (rebuilt when the Rust
 # sources change).
 $(DEMO_EXT): $(DEMO_STAMP) Cargo.lock $(shell find crates src -name '*.rs' -o -name Cargo.toml)
+	$(DEMO_VENV)/bin/pip uninstall -y -q nudge 2>/dev/null || true
 	VIRTUAL_ENV=$(abspath $(DEMO_VENV)) $(DEMO_VENV)/bin/maturin develop --release -q
 	touch $(DEMO_EXT)
 
 venv-demo: $(DEMO_EXT)
 
 # Builds the Rust extension nudge._native into the venv (editable install of python/nudge).
+# The distribution was called `nudge` before `nudge-planner`: an old install of that name is
+# removed first (it would shadow the same `nudge` package and command).
 develop: $(STAMP)
+	$(PIP) uninstall -y -q nudge 2>/dev/null || true
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release -q
 
 build:
 	$(CARGO) build --release --workspace
 
-# The wheel users install (`pip install target/wheels/nudge-*.whl`, or `pip install .`): the
+# The wheel users install (`pip install target/wheels/nudge_planner-*.whl`, or `pip install .`): the
 # extension, the shipped models and scenes as package data, and the `nudge` command.
 WHEEL_DIR ?= target/wheels
 wheel: $(STAMP)
-	rm -f $(WHEEL_DIR)/nudge-*.whl
+	rm -f $(WHEEL_DIR)/nudge-*.whl $(WHEEL_DIR)/nudge_planner-*.whl
 	$(VENV)/bin/maturin build --release -q -i $(PY) -o $(WHEEL_DIR)
-	@ls -l $(WHEEL_DIR)/nudge-*.whl
+	@ls -l $(WHEEL_DIR)/nudge_planner-*.whl
 
 # Installs the wheel into a fresh venv outside the checkout (numpy its only dependency, no
 # torch) and runs tests/wheel/smoke.py there, from outside the checkout: predict, plan,
 # simulate and the `nudge` command on the package's own assets.
 wheel-smoke: wheel
 	@set -e; tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
-	whl=$$(ls $(abspath $(WHEEL_DIR))/nudge-*.whl); \
+	whl=$$(ls $(abspath $(WHEEL_DIR))/nudge_planner-*.whl); \
 	scenes=$$(ls assets/scenes/*.safetensors | wc -l); \
 	cp tests/wheel/smoke.py "$$tmp/"; \
 	$(PYTHON) -m venv "$$tmp/venv"; \
