@@ -59,6 +59,7 @@ $(DEMO_STAMP): python/train/pyproject.toml
 # sources change).
 $(DEMO_EXT): $(DEMO_STAMP) Cargo.lock $(shell find crates src -name '*.rs' -o -name Cargo.toml)
 	$(DEMO_VENV)/bin/pip uninstall -y -q nudge 2>/dev/null || true
+	rm -f python/nudge/_native.cpython-*.so
 	VIRTUAL_ENV=$(abspath $(DEMO_VENV)) $(DEMO_VENV)/bin/maturin develop --release -q
 	touch $(DEMO_EXT)
 
@@ -67,8 +68,11 @@ venv-demo: $(DEMO_EXT)
 # Builds the Rust extension nudge._native into the venv (editable install of python/nudge).
 # The distribution was called `nudge` before `nudge-planner`: an old install of that name is
 # removed first (it would shadow the same `nudge` package and command).
+# An extension built for one CPython before the abi3 build (`_native.cpython-3XX-*.so`) would
+# shadow the abi3 one (`_native.abi3.so`) on import: it is removed.
 develop: $(STAMP)
 	$(PIP) uninstall -y -q nudge 2>/dev/null || true
+	rm -f python/nudge/_native.cpython-*.so
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release -q
 
 build:

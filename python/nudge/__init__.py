@@ -145,6 +145,7 @@ def simulate(
     trace: bool = False,
     on_error: str = "raise",
     progress: bool | Callable[[int, int], object] = False,
+    planner: Any = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop lane changes: :func:`nudge._native.simulate` with the named models
@@ -156,6 +157,13 @@ def simulate(
     ``docs/python_predictor.md``). ``trace=True`` adds ``"traces"`` (each step's plan and the
     predicted reaction to it, per run) for :func:`animate`. ``scene_paths`` is a sequence of
     paths; a single path raises ``TypeError`` (pass ``[path]``).
+
+    ``planner``: your own planner in nudge's worlds and metrics, any object with
+    ``plan(observation) -> {"delta": [T], "accel": [T]}`` (and optionally ``reset()``), driving
+    the ego instead of nudge's planner (the same records; ``docs/python_planner.md``); its runs
+    go one after another on one thread. ``predictor`` is then the predictor nudge's safety check
+    judges its plans with (each step's ``status``: ``Converged`` when the roll-out passes,
+    ``Unsafe`` when not).
 
     ``progress``: ``True`` shows the runs done and the time left while the batch runs (a tqdm
     bar when tqdm is installed, else a line on stderr redrawn in place); a callable is called as
@@ -193,6 +201,7 @@ def simulate(
             on_error=on_error,
             assets=os.fspath(_assets_path()),
             progress=callback,
+            planner=planner,
             **config_overrides,
         )
     finally:

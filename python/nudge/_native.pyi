@@ -98,6 +98,18 @@ class _PythonPredictor(Protocol):
         float64/float32 (or anything ``numpy.asarray`` converts, e.g. a CPU torch tensor):
         agents 1..n-1 under each candidate."""
 
+class _PythonPlanner(Protocol):
+    """Your own planner (docs/python_planner.md), driving the ego of ``simulate(...,
+    planner=obj)``. Optional: ``reset()``, called before each run's first step."""
+
+    def plan(self, observation: dict[str, Any]) -> Any:
+        """observation: ``scenario``, ``seed``, ``step``, ``dt``, ``horizon`` (T), ``ego`` [4]
+        (x, y, psi, v), ``last_inputs`` [2] (delta, accel), ``history`` [n, 8, 2], ``sizes``
+        [n, 2], ``lane_centres`` [L], ``lane_bounds`` [L + 1], ``road`` [2], ``y_target``,
+        ``y_retreat`` (float or None), ``v_ref``, ``bounds`` (``delta_max``, ``a_min``,
+        ``a_max``); arrays read-only float64, metres / radians / m/s in the road frame ->
+        ``{"delta": [T], "accel": [T]}`` (rad, m/s²; finite, within ``bounds``)."""
+
 class PlannerSettings:
     """Planner settings in groups that follow the MPC call's phases (``model``, ``cost``,
     ``bounds``, ``safety``, ``admm``, ``repair``, ``budget``, ``lane_ends``): a group reads as a
@@ -391,6 +403,7 @@ def simulate(
     on_error: Literal["raise", "skip"] = "raise",
     assets: _Path | None = None,
     progress: Callable[[int, int], object] | None = None,
+    planner: _PythonPlanner | None = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
@@ -437,6 +450,14 @@ def simulate(
     (one more predictor call per step; off by default, the other outputs are the same either
     way): the result then holds ``"traces"``, a list with one trace dict per run (``_Trace``) (``None``
     for a run that could not run), which :func:`animate` draws.
+
+    ``planner``: your own planner (``_PythonPlanner``: ``plan(observation) -> {"delta": [T],
+    "accel": [T]}``, optionally ``reset()``) drives the ego instead of nudge's planner; its runs
+    go one after another on one thread (``threads`` > 1 raises InputError); each step's
+    ``status`` is ``Converged`` when nudge's safety check under ``predictor`` passes on the
+    plan's roll-out, else ``Unsafe`` (docs/python_planner.md). An exception it raises stops the
+    run with ``NudgeError`` (the exception as its cause); an unusable plan with ``InputError``,
+    both naming the scene, seed and step.
 
     ``progress``: a callable called as ``progress(done, total)`` (runs finished, runs in all)
     about every 50 ms while the count grows and once at the end, from the calling thread; an

@@ -245,7 +245,7 @@ fn run_with_progress(batch: &Batch, keep: Keep, show: bool) -> Vec<RunOutput> {
     let cancel = Cancel::new();
     let progress = Progress::new();
     if !show {
-        return batch.run_counted(keep, &cancel, None, &progress);
+        return batch.run_counted(keep, &cancel, None, None, &progress);
     }
     let total = batch.specs.len() as u64;
     let bar = indicatif::ProgressBar::with_draw_target(
@@ -273,7 +273,7 @@ fn run_with_progress(batch: &Batch, keep: Keep, show: bool) -> Vec<RunOutput> {
             }
         });
         let _finish = Finish(&finished);
-        batch.run_counted(keep, &cancel, None, &progress)
+        batch.run_counted(keep, &cancel, None, None, &progress)
     });
     bar.finish_and_clear();
     outputs

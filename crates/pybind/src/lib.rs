@@ -11,6 +11,7 @@ mod commonroad;
 mod errors;
 mod planner;
 mod predict;
+mod py_policy;
 mod py_predictor;
 mod scenario;
 mod settings;

@@ -11,16 +11,17 @@ use std::time::Duration;
 
 use nudge_planner::PlannerSettings;
 use nudge_predictor::{Predictor, Records, T_OBS, default_assets_dir};
-use nudge_sim::PlanningFactory;
 use nudge_sim::defaults;
 use nudge_sim::{Batch, BatchRequest, Cancel, Keep, Progress, RunOutput, SimConfig};
 use nudge_sim::{Column, Table, collision_table, run_table, step_table};
+use nudge_sim::{PlanningFactory, PolicyFactory};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::args::{Int, guard, panic_error};
 use crate::errors::{InputError, NudgeError, sim_err};
+use crate::py_policy::PythonPlanner;
 use crate::py_predictor::{LABEL, NAME as PYTHON, PredictorArg};
 use crate::settings::{PySettings, PySimConfig, with_overrides};
 
@@ -62,6 +63,7 @@ fn run_interruptibly(
     batch: &Batch,
     keep: Keep,
     planning: Option<&PlanningFactory<'_>>,
+    policy: Option<&PolicyFactory<'_>>,
     progress: Option<&Py<PyAny>>,
 ) -> PyResult<Vec<RunOutput>> {
     let cancel = Cancel::new();
@@ -85,7 +87,7 @@ fn run_interruptibly(
             let counted = &count;
             let worker = scope.spawn(move || {
                 // The receiver outlives the worker: sending cannot fail.
-                let _ = tx.send(batch.run_counted(keep, stop, planning, counted));
+                let _ = tx.send(batch.run_counted(keep, stop, planning, policy, counted));
             });
             loop {
                 match rx.recv_timeout(SIGNAL_POLL) {
@@ -149,6 +151,10 @@ fn run_interruptibly(
 /// and its ellipses, the agents `[steps + 1, n, 3]`, ... (`nudge._native.animate` draws it).
 /// Off by default: the other outputs are the same either way.
 ///
+/// `planner`: your own planner, any object with `plan(observation) -> {"delta": [T],
+/// "accel": [T]}` (and optionally `reset()`), driving the ego instead of nudge's planner
+/// (`crate::py_policy`, docs/python_planner.md); its runs go one after another on one thread.
+///
 /// `progress`: a callable called as `progress(done, total)` (runs finished, runs in all) about
 /// every 50 ms while the count grows and once at the end, from the calling thread; an
 /// exception it raises stops the batch and is raised.
@@ -173,6 +179,7 @@ fn run_interruptibly(
     on_error = "raise",
     assets = None,
     progress = None,
+    planner = None,
     **config_overrides
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -193,6 +200,7 @@ pub fn simulate<'py>(
     on_error: &str,
     assets: Option<PathBuf>,
     progress: Option<Bound<'_, PyAny>>,
+    planner: Option<Bound<'_, PyAny>>,
     config_overrides: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guard(|| {
@@ -241,6 +249,18 @@ pub fn simulate<'py>(
                  share the object), got {threads:?}"
             )));
         }
+        let own_planner = planner
+            .as_ref()
+            .filter(|p| !p.is_none())
+            .map(PythonPlanner::new)
+            .transpose()?;
+        if own_planner.is_some() && threads.is_some_and(|t| t != 1) {
+            return Err(InputError::new_err(format!(
+                "invalid argument `threads`: a Python planner plans on one thread (its runs \
+                 share the object), got {threads:?}"
+            )));
+        }
+        let one_thread = python.is_some() || own_planner.is_some();
         let request = BatchRequest {
             scene_paths: &scene_paths,
             predictor: match &predictor {
@@ -253,7 +273,7 @@ pub fn simulate<'py>(
             seed,
             runs_per_scene: runs,
             scene_seeds: scene_seeds.as_deref(),
-            threads: if python.is_some() { Some(1) } else { threads },
+            threads: if one_thread { Some(1) } else { threads },
             settings: &settings,
             config: &cfg,
         };
@@ -271,7 +291,14 @@ pub fn simulate<'py>(
             examples: record,
             traces: trace,
         };
-        let mut outputs = run_interruptibly(py, &batch, keep, planning, progress.as_ref())?;
+        let make_policy = own_planner.as_ref().map(|p| {
+            let settings = &settings;
+            move |sc: &nudge_planner::Scenario, seed: u64| {
+                Box::new(p.policy(sc, seed, settings)) as Box<dyn nudge_sim::Policy>
+            }
+        });
+        let policy = make_policy.as_ref().map(|f| f as &PolicyFactory<'_>);
+        let mut outputs = run_interruptibly(py, &batch, keep, planning, policy, progress.as_ref())?;
         if !skip
             && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
             && let Err(e) = outputs.swap_remove(pos).result

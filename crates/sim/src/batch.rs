@@ -10,13 +10,14 @@ use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Record
 use rayon::prelude::*;
 
 use crate::error::SimError;
+use crate::policy::Policy;
 use nudge_planner::scenario::Scenario;
 use nudge_planner::settings::PlannerSettings;
 
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
-use super::run::{Cancel, RunControl, simulate_with};
+use super::run::{Cancel, RunControl, simulate_policy, simulate_with};
 use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
@@ -271,6 +272,11 @@ impl Progress {
 /// Builds the planning predictor of one run (called once per run, on the run's thread).
 pub type PlanningFactory<'a> = dyn Fn() -> Box<dyn Predictor> + Sync + 'a;
 
+/// Builds the policy that drives the ego in one run of a batch, given the run's scene and seed
+/// (called once per run, on the run's thread): a planner implemented outside nudge, e.g. a
+/// Python object. Without one, every run plans with nudge's [`nudge_planner::Planner`].
+pub type PolicyFactory<'a> = dyn Fn(&Scenario, u64) -> Box<dyn Policy> + Sync + 'a;
+
 /// What the runs of a batch keep besides their records' columns (both off by default).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Keep {
@@ -304,6 +310,7 @@ pub fn simulate_many(
         keep,
         cancel,
         progress: None,
+        policy: None,
     };
     runs.simulate(specs)
 }
@@ -327,6 +334,8 @@ pub struct Runs<'a> {
     pub cancel: &'a Cancel,
     /// Counts every finished run (`None`: not counted).
     pub progress: Option<&'a Progress>,
+    /// Builds each run's policy (`None`: nudge's planner from `settings`).
+    pub policy: Option<&'a PolicyFactory<'a>>,
 }
 
 impl Runs<'_> {
@@ -364,8 +373,21 @@ impl Runs<'_> {
             cancel: self.cancel,
             trace: self.keep.traces,
         };
-        let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
-            simulate_with(sc, self.settings, self.cfg, spec.seed, p, w, control)
+        let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| match self.policy {
+            Some(make) => {
+                let mut policy = make(sc, spec.seed);
+                simulate_policy(
+                    sc,
+                    self.settings,
+                    self.cfg,
+                    spec.seed,
+                    policy.as_mut(),
+                    p,
+                    w,
+                    control,
+                )
+            }
+            None => simulate_with(sc, self.settings, self.cfg, spec.seed, p, w, control),
         };
         let mut teacher = match self.world {
             WorldSpec::Teacher(t) => Some(t.build()),

@@ -12,8 +12,8 @@ use nudge_planner::scenario::Scenario;
 use nudge_planner::settings::PlannerSettings;
 
 use super::batch::{
-    Keep, PlanningFactory, Predictors, Progress, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
-    thread_pool,
+    Keep, PlanningFactory, PolicyFactory, Predictors, Progress, RunOutput, RunSpec, Runs,
+    WorldSpec, run_specs, thread_pool,
 };
 use super::config::SimConfig;
 use super::run::Cancel;
@@ -156,7 +156,7 @@ impl Batch {
     /// the steps' traces). Outputs in the order of [`Batch::specs`].
     #[must_use]
     pub fn run(&self, keep: Keep, cancel: &Cancel) -> Vec<RunOutput> {
-        self.run_counted(keep, cancel, None, &Progress::new())
+        self.run_counted(keep, cancel, None, None, &Progress::new())
     }
 
     /// [`Batch::run`] with each run's planning predictor built by `planning` (see
@@ -168,18 +168,22 @@ impl Batch {
         cancel: &Cancel,
         planning: &PlanningFactory<'_>,
     ) -> Vec<RunOutput> {
-        self.run_counted(keep, cancel, Some(planning), &Progress::new())
+        self.run_counted(keep, cancel, Some(planning), None, &Progress::new())
     }
 
     /// [`Batch::run`] (or [`Batch::run_with`] when `planning` is given) counting every
-    /// finished run in `progress`, for a progress display polling it from another thread.
-    /// The outputs are those of the uncounted call.
+    /// finished run in `progress`, for a progress display polling it from another thread; the
+    /// ego driven by the policy `policy` builds for each run when given (a planner implemented
+    /// outside nudge; the settings still give the ego's model, the safety check the records
+    /// judge by and the planning horizon), else by nudge's planner. The outputs are those of
+    /// the uncounted call.
     #[must_use]
     pub fn run_counted(
         &self,
         keep: Keep,
         cancel: &Cancel,
         planning: Option<&PlanningFactory<'_>>,
+        policy: Option<&PolicyFactory<'_>>,
         progress: &Progress,
     ) -> Vec<RunOutput> {
         let build = || self.predictors.planning.build();
@@ -192,6 +196,7 @@ impl Batch {
             keep,
             cancel,
             progress: Some(progress),
+            policy,
         };
         self.pool.install(|| runs.simulate(&self.specs))
     }
