@@ -159,6 +159,34 @@ class Scenario:
 
     @staticmethod
     def load(path: _Path) -> Scenario: ...
+    @staticmethod
+    def from_arrays(
+        history: npt.ArrayLike,
+        size: npt.ArrayLike,
+        lane_bounds: npt.ArrayLike,
+        ego_lane: int,
+        *,
+        heading: npt.ArrayLike | None = None,
+        speed: npt.ArrayLike | None = None,
+        future: npt.ArrayLike | None = None,
+        future_valid: npt.ArrayLike | None = None,
+        lane_centres: npt.ArrayLike | None = None,
+        agent_ids: npt.ArrayLike | None = None,
+        lane_extents: npt.ArrayLike | None = None,
+        lane_extent_real: npt.ArrayLike | None = None,
+        name: str = "scene",
+        metadata: dict[str, str] | None = None,
+    ) -> Scenario:
+        """A scene from your own data, validated exactly as a scenario file (written to a file
+        image in memory and read back by the file reader). history [n, 8, 2], size [n, 2],
+        lane_bounds [L + 1] (ascending; first and last the road edges), ego_lane; optional
+        heading, speed [n] (default from the last two observed positions), future [n, F, 2] with
+        future_valid [n, F] bool (default: 6 constant-velocity steps, none valid), lane_centres
+        [L] (default midway), agent_ids [n] int (default 0..n), lane_extents [L, 2] with
+        lane_extent_real [L, 2] bool ("nudge.scenario/2"). InputError for a wrong type or shape,
+        ScenarioError for what the reader refuses."""
+    def save(self, path: _Path) -> None:
+        """Writes the scene as a scenario file (``Scenario.load`` reads it back equal)."""
     @property
     def name(self) -> str: ...
     @property
