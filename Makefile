@@ -191,8 +191,8 @@ bench-python-predictor: develop
 # The tail of the planning step over closed-loop runs on 120 test scenes, one thread
 # (docs/results/latency.md); needs the extension (make develop) and the processed scenes.
 bench-latency: venv
-	$(TRAIN) bench latency --split test --n 120
-	$(TRAIN) bench latency --split test --n 120 --predictors student teacher --budget-ms 20
+	$(TRAIN) bench latency --split test --n 120 --out docs/results/latency.md
+	$(TRAIN) bench latency --split test --n 120 --predictors student teacher --budget-ms 20 --out docs/results/latency.md
 
 # ---- data, models, demo ---------------------------------------------------------------------
 goldens: venv
@@ -206,7 +206,7 @@ data: venv
 # teacher to assets/models/teacher.safetensors (which invalidates the distillation set).
 teacher: venv
 	test -f data/processed/manifest.json || $(MAKE) data
-	$(TRAIN) teacher $(if $(EXPORT),,--no-export)
+	$(TRAIN) teacher --report docs/results/teacher.md $(if $(EXPORT),,--no-export)
 
 # Distillation set (the planner run with the shipped teacher; resumable) and the student.
 DISTILL_SIZE ?= train=48,val=8,test=8
@@ -215,7 +215,7 @@ distill: develop
 	$(TRAIN) distill --size $(DISTILL_SIZE)
 
 student: distill
-	$(TRAIN) student
+	$(TRAIN) student --report docs/results/student.md
 
 # Reaction (docs/results/reaction.md): a distillation set with more scenes in $(REACT_DISTILL), a
 # student distilled with a loss on its reaction to the ego in two runs (~30 + 15 min on 1 thread;
@@ -232,7 +232,7 @@ student-react: distill-react
 	$(TRAIN) student-react --config python/train/configs/student_react_cont.toml
 
 reaction: distill-react
-	$(TRAIN) reaction --distill $(REACT_DISTILL) $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)
+	$(TRAIN) reaction --distill $(REACT_DISTILL) --report docs/results/reaction.md $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)
 
 # The paper's evidence in one command (docs/paper/README.md): Table I from docs/results/teacher.md,
 # Figures 7-10 by vehicle count (7 x 100 closed-loop runs per predictor, one thread) and Table II
@@ -252,7 +252,7 @@ paper-quick: develop
 # resumable, runs cached under runs/interaction). The reaction-distilled student joins as a
 # candidate when make student-react has made it.
 interaction: develop
-	nice -n 5 $(TRAIN) interaction --threads 2 $(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
+	nice -n 5 $(TRAIN) interaction --threads 2 --out docs/results/interaction.md $(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
 
 # The same experiment on every real merge (ego lane ends) of the train and test splits; the
 # validation split has none. Intervals over ego vehicles.
