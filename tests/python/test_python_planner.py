@@ -118,5 +118,16 @@ def test_an_unusable_plan_is_refused_by_name(scenes: list[Path], plan: object, w
 def test_a_planner_needs_plan_and_one_thread(scenes: list[Path]) -> None:
     with pytest.raises(nudge.InputError, match="no method `plan`"):
         nudge.simulate(scenes[:1], planner=object())
-    with pytest.raises(nudge.InputError, match="one thread"):
+    with pytest.raises(nudge.InputError, match=r"a Python planner plans on one thread \(its runs share the object\), got 2$"):
         nudge.simulate(scenes[:1], planner=Constant(), threads=2)
+
+
+class _Predicts:
+    def predict(self, history: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        return np.zeros((len(candidates), len(history) - 1, candidates.shape[1], 2))
+
+
+def test_the_thread_count_is_named_without_debug_text(scenes: list[Path]) -> None:
+    # It read "got Some(2)" (Rust debug text of an Option) before.
+    with pytest.raises(nudge.InputError, match=r"a Python predictor plans on one thread .*, got 2$"):
+        nudge.simulate(scenes[:1], _Predicts(), threads=2)

@@ -246,7 +246,8 @@ pub fn simulate<'py>(
         if python.is_some() && threads.is_some_and(|t| t != 1) {
             return Err(InputError::new_err(format!(
                 "invalid argument `threads`: a Python predictor plans on one thread (its runs \
-                 share the object), got {threads:?}"
+                 share the object), got {}",
+                threads.unwrap_or(1)
             )));
         }
         let own_planner = planner
@@ -257,7 +258,8 @@ pub fn simulate<'py>(
         if own_planner.is_some() && threads.is_some_and(|t| t != 1) {
             return Err(InputError::new_err(format!(
                 "invalid argument `threads`: a Python planner plans on one thread (its runs \
-                 share the object), got {threads:?}"
+                 share the object), got {}",
+                threads.unwrap_or(1)
             )));
         }
         let one_thread = python.is_some() || own_planner.is_some();

@@ -60,7 +60,13 @@ pub fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, SimError
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads.unwrap_or(0))
         .build()
-        .map_err(|e| bad(format!("cannot start {threads:?} threads: {e}")))
+        .map_err(|e| {
+            let n = threads.map_or_else(
+                || "one thread per core".to_string(),
+                |t| format!("{t} threads"),
+            );
+            bad(format!("cannot start {n}: {e}"))
+        })
 }
 
 /// One run of a batch: which scene (index into the batch's scenes) and which seed.
