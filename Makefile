@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke wheel-smoke-versions test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -100,6 +100,16 @@ wheel-smoke: wheel
 	TIMEFORMAT="pip install into a fresh venv: %R s"; \
 	time $(RETRY) "$$tmp/venv/bin/pip" install $(PIP_BASE) "$$whl"; \
 	cd "$$tmp" && env -u NUDGE_ASSETS -u NUDGE_REPO NUDGE_SMOKE_T0=$$t0 "$$tmp/venv/bin/python" smoke.py --scenes $$scenes
+
+# The same smoke test in fresh venvs of other CPythons (the wheel is abi3: one for CPython
+# >= 3.10), e.g. `make wheel-smoke-versions PYTHONS="python3.10 python3.12"`; an interpreter
+# that is not found fails the target.
+PYTHONS ?= python3.10 python3.12
+wheel-smoke-versions:
+	@set -e; for py in $(PYTHONS); do \
+	  exe=$$(command -v $$py) || { echo "wheel-smoke-versions: $$py not found" >&2; exit 1; }; \
+	  echo "== $$exe"; $(MAKE) --no-print-directory wheel-smoke PYTHON=$$exe; \
+	done
 
 # ---- tests ----------------------------------------------------------------------------------
 test: venv test-rust test-examples test-python test-commonroad wheel-smoke
