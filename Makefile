@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke wheel-smoke-versions test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -58,32 +58,40 @@ $(DEMO_STAMP): python/train/pyproject.toml
 # The light environment with the extension nudge._native built into it (rebuilt when the Rust
 # sources change).
 $(DEMO_EXT): $(DEMO_STAMP) Cargo.lock $(shell find crates src -name '*.rs' -o -name Cargo.toml)
+	$(DEMO_VENV)/bin/pip uninstall -y -q nudge 2>/dev/null || true
+	rm -f python/nudge/_native.cpython-*.so
 	VIRTUAL_ENV=$(abspath $(DEMO_VENV)) $(DEMO_VENV)/bin/maturin develop --release -q
 	touch $(DEMO_EXT)
 
 venv-demo: $(DEMO_EXT)
 
 # Builds the Rust extension nudge._native into the venv (editable install of python/nudge).
+# The distribution was called `nudge` before `nudge-planner`: an old install of that name is
+# removed first (it would shadow the same `nudge` package and command).
+# An extension built for one CPython before the abi3 build (`_native.cpython-3XX-*.so`) would
+# shadow the abi3 one (`_native.abi3.so`) on import: it is removed.
 develop: $(STAMP)
+	$(PIP) uninstall -y -q nudge 2>/dev/null || true
+	rm -f python/nudge/_native.cpython-*.so
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release -q
 
 build:
 	$(CARGO) build --release --workspace
 
-# The wheel users install (`pip install target/wheels/nudge-*.whl`, or `pip install .`): the
+# The wheel users install (`pip install target/wheels/nudge_planner-*.whl`, or `pip install .`): the
 # extension, the shipped models and scenes as package data, and the `nudge` command.
 WHEEL_DIR ?= target/wheels
 wheel: $(STAMP)
-	rm -f $(WHEEL_DIR)/nudge-*.whl
+	rm -f $(WHEEL_DIR)/nudge-*.whl $(WHEEL_DIR)/nudge_planner-*.whl
 	$(VENV)/bin/maturin build --release -q -i $(PY) -o $(WHEEL_DIR)
-	@ls -l $(WHEEL_DIR)/nudge-*.whl
+	@ls -l $(WHEEL_DIR)/nudge_planner-*.whl
 
 # Installs the wheel into a fresh venv outside the checkout (numpy its only dependency, no
 # torch) and runs tests/wheel/smoke.py there, from outside the checkout: predict, plan,
 # simulate and the `nudge` command on the package's own assets.
 wheel-smoke: wheel
 	@set -e; tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
-	whl=$$(ls $(abspath $(WHEEL_DIR))/nudge-*.whl); \
+	whl=$$(ls $(abspath $(WHEEL_DIR))/nudge_planner-*.whl); \
 	scenes=$$(ls assets/scenes/*.safetensors | wc -l); \
 	cp tests/wheel/smoke.py "$$tmp/"; \
 	$(PYTHON) -m venv "$$tmp/venv"; \
@@ -92,6 +100,16 @@ wheel-smoke: wheel
 	TIMEFORMAT="pip install into a fresh venv: %R s"; \
 	time $(RETRY) "$$tmp/venv/bin/pip" install $(PIP_BASE) "$$whl"; \
 	cd "$$tmp" && env -u NUDGE_ASSETS -u NUDGE_REPO NUDGE_SMOKE_T0=$$t0 "$$tmp/venv/bin/python" smoke.py --scenes $$scenes
+
+# The same smoke test in fresh venvs of other CPythons (the wheel is abi3: one for CPython
+# >= 3.10), e.g. `make wheel-smoke-versions PYTHONS="python3.10 python3.12"`; an interpreter
+# that is not found fails the target.
+PYTHONS ?= python3.10 python3.12
+wheel-smoke-versions:
+	@set -e; for py in $(PYTHONS); do \
+	  exe=$$(command -v $$py) || { echo "wheel-smoke-versions: $$py not found" >&2; exit 1; }; \
+	  echo "== $$exe"; $(MAKE) --no-print-directory wheel-smoke PYTHON=$$exe; \
+	done
 
 # ---- tests ----------------------------------------------------------------------------------
 test: venv test-rust test-examples test-python test-commonroad wheel-smoke
@@ -183,8 +201,8 @@ bench-python-predictor: develop
 # The tail of the planning step over closed-loop runs on 120 test scenes, one thread
 # (docs/results/latency.md); needs the extension (make develop) and the processed scenes.
 bench-latency: venv
-	$(TRAIN) bench latency --split test --n 120
-	$(TRAIN) bench latency --split test --n 120 --predictors student teacher --budget-ms 20
+	$(TRAIN) bench latency --split test --n 120 --out docs/results/latency.md
+	$(TRAIN) bench latency --split test --n 120 --predictors student teacher --budget-ms 20 --out docs/results/latency.md
 
 # ---- data, models, demo ---------------------------------------------------------------------
 goldens: venv
@@ -198,7 +216,7 @@ data: venv
 # teacher to assets/models/teacher.safetensors (which invalidates the distillation set).
 teacher: venv
 	test -f data/processed/manifest.json || $(MAKE) data
-	$(TRAIN) teacher $(if $(EXPORT),,--no-export)
+	$(TRAIN) teacher --report docs/results/teacher.md $(if $(EXPORT),,--no-export)
 
 # Distillation set (the planner run with the shipped teacher; resumable) and the student.
 DISTILL_SIZE ?= train=48,val=8,test=8
@@ -207,7 +225,7 @@ distill: develop
 	$(TRAIN) distill --size $(DISTILL_SIZE)
 
 student: distill
-	$(TRAIN) student
+	$(TRAIN) student --report docs/results/student.md
 
 # Reaction (docs/results/reaction.md): a distillation set with more scenes in $(REACT_DISTILL), a
 # student distilled with a loss on its reaction to the ego in two runs (~30 + 15 min on 1 thread;
@@ -224,7 +242,7 @@ student-react: distill-react
 	$(TRAIN) student-react --config python/train/configs/student_react_cont.toml
 
 reaction: distill-react
-	$(TRAIN) reaction --distill $(REACT_DISTILL) $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)
+	$(TRAIN) reaction --distill $(REACT_DISTILL) --report docs/results/reaction.md $(if $(wildcard $(REACT_STUDENT)),--candidate student_react=$(REACT_STUDENT),)
 
 # The paper's evidence in one command (docs/paper/README.md): Table I from docs/results/teacher.md,
 # Figures 7-10 by vehicle count (7 x 100 closed-loop runs per predictor, one thread) and Table II
@@ -244,7 +262,7 @@ paper-quick: develop
 # resumable, runs cached under runs/interaction). The reaction-distilled student joins as a
 # candidate when make student-react has made it.
 interaction: develop
-	nice -n 5 $(TRAIN) interaction --threads 2 $(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
+	nice -n 5 $(TRAIN) interaction --threads 2 --out docs/results/interaction.md $(if $(wildcard $(REACT_STUDENT)),--candidate $(REACT_STUDENT),)
 
 # The same experiment on every real merge (ego lane ends) of the train and test splits; the
 # validation split has none. Intervals over ego vehicles.

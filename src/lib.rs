@@ -8,6 +8,9 @@
 pub mod animate;
 pub mod cli;
 pub mod commonroad;
+pub mod provenance;
+
+pub use provenance::GIT_SHA;
 
 pub use nudge_planner as planner;
 pub use nudge_predictor as predictor;

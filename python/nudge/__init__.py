@@ -13,18 +13,22 @@ installed package is the Rust command line (:mod:`nudge.__main__`)::
     rec = nudge.simulate(nudge.scene_paths(), "student", world="idm", max_steps=20)
     runs = nudge.simulate(nudge.scene_paths()[:1], trace=True)
     nudge.animate(runs, "out/animations")              # one GIF (and MP4 with ffmpeg) per run
+    frames = nudge.to_frames(rec)                      # pandas DataFrames: runs, steps, collisions
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from nudge._native import (
     DEFAULTS,
     DT,
+    GIT_SHA,
     MAX_AGENTS,
     SLOW_FRACTION,
     T_OBS,
@@ -56,6 +60,7 @@ from nudge._native import simulate as _simulate
 __all__ = [
     "DEFAULTS",
     "DT",
+    "GIT_SHA",
     "MAX_AGENTS",
     "SHIPPED_ASSETS",
     "SLOW_FRACTION",
@@ -83,6 +88,7 @@ __all__ = [
     "model_path",
     "scene_paths",
     "simulate",
+    "to_frames",
 ]
 
 MODEL_NAMES = ("teacher", "student")
@@ -138,6 +144,8 @@ def simulate(
     record: bool = False,
     trace: bool = False,
     on_error: str = "raise",
+    progress: bool | Callable[[int, int], object] = False,
+    planner: Any = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop lane changes: :func:`nudge._native.simulate` with the named models
@@ -148,29 +156,114 @@ def simulate(
     object with ``predict(history, candidates)`` (see ``nudge.Planner`` and
     ``docs/python_predictor.md``). ``trace=True`` adds ``"traces"`` (each step's plan and the
     predicted reaction to it, per run) for :func:`animate`. ``scene_paths`` is a sequence of
-    paths; a single path raises ``TypeError`` (pass ``[path]``)."""
+    paths; a single path raises ``TypeError`` (pass ``[path]``).
+
+    ``planner``: your own planner in nudge's worlds and metrics, any object with
+    ``plan(observation) -> {"delta": [T], "accel": [T]}`` (and optionally ``reset()``), driving
+    the ego instead of nudge's planner (the same records; ``docs/python_planner.md``); its runs
+    go one after another on one thread. ``predictor`` is then the predictor nudge's safety check
+    judges its plans with (each step's ``status``: ``Converged`` when the roll-out passes,
+    ``Unsafe`` when not).
+
+    ``progress``: ``True`` shows the runs done and the time left while the batch runs (a tqdm
+    bar when tqdm is installed, else a line on stderr redrawn in place); a callable is called as
+    ``progress(done, total)`` instead (about every 50 ms while the count grows, and once at the
+    end; an exception it raises stops the batch and is raised). Off by default. The results are
+    the same either way. :func:`to_frames` turns the result into pandas DataFrames."""
     if isinstance(scene_paths, (str, bytes, os.PathLike)):
         raise TypeError(
             f"scene_paths: expected a sequence of scenario paths, got the single path {scene_paths!r} "
             "(pass [path])"
         )
-    return _simulate(
-        [os.fspath(p) for p in scene_paths],
-        os.fspath(predictor) if isinstance(predictor, (str, os.PathLike)) else predictor,
-        world_predictor=None if world_predictor is None else os.fspath(world_predictor),
-        idm=None if idm is None else os.fspath(idm),
-        seed=seed,
-        scene_seeds=None if scene_seeds is None else [int(s) for s in scene_seeds],
-        runs=runs,
-        threads=threads,
-        settings=settings,
-        config=config,
-        record=record,
-        trace=trace,
-        on_error=on_error,
-        assets=os.fspath(_assets_path()),
-        **config_overrides,
-    )
+    if progress is True:
+        n_runs = len(scene_paths) * runs if isinstance(runs, int) and not isinstance(runs, bool) else 0
+        callback, close = _progress_display(n_runs)
+    elif progress is False or progress is None:
+        callback, close = None, None
+    elif callable(progress):
+        callback, close = progress, None
+    else:
+        raise InputError(f"progress: expected True, False or a callable progress(done, total), got {progress!r}")
+    try:
+        return _simulate(
+            [os.fspath(p) for p in scene_paths],
+            os.fspath(predictor) if isinstance(predictor, (str, os.PathLike)) else predictor,
+            world_predictor=None if world_predictor is None else os.fspath(world_predictor),
+            idm=None if idm is None else os.fspath(idm),
+            seed=seed,
+            scene_seeds=None if scene_seeds is None else [int(s) for s in scene_seeds],
+            runs=runs,
+            threads=threads,
+            settings=settings,
+            config=config,
+            record=record,
+            trace=trace,
+            on_error=on_error,
+            assets=os.fspath(_assets_path()),
+            progress=callback,
+            planner=planner,
+            **config_overrides,
+        )
+    finally:
+        if close is not None:
+            close()
+
+
+def _progress_display(total: int) -> tuple[Callable[[int, int], None], Callable[[], None]]:
+    """A progress callback and its closer: a tqdm bar on stderr when tqdm is installed, else a
+    line ``done/total runs, elapsed, ~left`` redrawn in place on stderr."""
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        tqdm = None
+    if tqdm is not None:
+        bar = tqdm(total=total or None, unit="run", desc="nudge.simulate")
+
+        def update(done: int, n: int) -> None:
+            if bar.total != n:
+                bar.total = n
+            bar.update(done - bar.n)
+
+        return update, bar.close
+    t0 = time.perf_counter()
+    drawn = [False]
+
+    def line(done: int, n: int) -> None:
+        elapsed = time.perf_counter() - t0
+        left = f", ~{elapsed / done * (n - done):.0f} s left" if done else ""
+        sys.stderr.write(f"\rnudge.simulate: {done}/{n} runs, {elapsed:.0f} s{left}   ")
+        sys.stderr.flush()
+        drawn[0] = True
+
+    def close() -> None:
+        if drawn[0]:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+    return line, close
+
+
+def to_frames(result: Mapping[str, Any]) -> dict[str, Any]:
+    """The tables of a :func:`simulate` result as pandas DataFrames: ``{"runs": ..., "steps": ...,
+    "collisions": ...}``, one column per documented column (``docs/records.md``), in order.
+    ``steps``' ``ego`` (``[steps, 4]``, the columns ``x``, ``y``, ``psi``, ``v`` side by side)
+    is left out: its values are in those four columns. Needs pandas (``pip install pandas``);
+    raises ``ImportError`` naming it otherwise, ``InputError`` for something that is not a
+    :func:`simulate` result."""
+    try:
+        import pandas as pd
+    except ImportError as e:
+        raise ImportError("nudge.to_frames needs pandas (pip install pandas)") from e
+    if not isinstance(result, Mapping) or not all(isinstance(result.get(k), Mapping) for k in _TABLES):
+        raise InputError(f"to_frames: expected what nudge.simulate returned (a dict with {list(_TABLES)})")
+    frames = {}
+    for name in _TABLES:
+        cols = {k: v for k, v in result[name].items() if not (name == "steps" and k == "ego")}
+        frames[name] = pd.DataFrame(cols)
+    return frames
+
+
+_TABLES = ("runs", "steps", "collisions")
 
 
 def animate(

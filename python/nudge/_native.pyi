@@ -2,7 +2,7 @@
 that every public name of the module appears here with the module's parameters and defaults
 (``...`` where the default is a Rust constant: see ``DEFAULTS`` and ``SimConfig.default()``)."""
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import Any, Literal, Protocol, TypedDict
@@ -11,6 +11,8 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+# The git commit this extension was built from ("unknown" outside a git checkout).
+GIT_SHA: str
 T_OBS: int
 MAX_AGENTS: int
 DT: float
@@ -96,6 +98,18 @@ class _PythonPredictor(Protocol):
         float64/float32 (or anything ``numpy.asarray`` converts, e.g. a CPU torch tensor):
         agents 1..n-1 under each candidate."""
 
+class _PythonPlanner(Protocol):
+    """Your own planner (docs/python_planner.md), driving the ego of ``simulate(...,
+    planner=obj)``. Optional: ``reset()``, called before each run's first step."""
+
+    def plan(self, observation: dict[str, Any]) -> Any:
+        """observation: ``scenario``, ``seed``, ``step``, ``dt``, ``horizon`` (T), ``ego`` [4]
+        (x, y, psi, v), ``last_inputs`` [2] (delta, accel), ``history`` [n, 8, 2], ``sizes``
+        [n, 2], ``lane_centres`` [L], ``lane_bounds`` [L + 1], ``road`` [2], ``y_target``,
+        ``y_retreat`` (float or None), ``v_ref``, ``bounds`` (``delta_max``, ``a_min``,
+        ``a_max``); arrays read-only float64, metres / radians / m/s in the road frame ->
+        ``{"delta": [T], "accel": [T]}`` (rad, m/s²; finite, within ``bounds``)."""
+
 class PlannerSettings:
     """Planner settings in groups that follow the MPC call's phases (``model``, ``cost``,
     ``bounds``, ``safety``, ``admm``, ``repair``, ``budget``, ``lane_ends``): a group reads as a
@@ -145,6 +159,34 @@ class Scenario:
 
     @staticmethod
     def load(path: _Path) -> Scenario: ...
+    @staticmethod
+    def from_arrays(
+        history: npt.ArrayLike,
+        size: npt.ArrayLike,
+        lane_bounds: npt.ArrayLike,
+        ego_lane: int,
+        *,
+        heading: npt.ArrayLike | None = None,
+        speed: npt.ArrayLike | None = None,
+        future: npt.ArrayLike | None = None,
+        future_valid: npt.ArrayLike | None = None,
+        lane_centres: npt.ArrayLike | None = None,
+        agent_ids: npt.ArrayLike | None = None,
+        lane_extents: npt.ArrayLike | None = None,
+        lane_extent_real: npt.ArrayLike | None = None,
+        name: str = "scene",
+        metadata: dict[str, str] | None = None,
+    ) -> Scenario:
+        """A scene from your own data, validated exactly as a scenario file (written to a file
+        image in memory and read back by the file reader). history [n, 8, 2], size [n, 2],
+        lane_bounds [L + 1] (ascending; first and last the road edges), ego_lane; optional
+        heading, speed [n] (default from the last two observed positions), future [n, F, 2] with
+        future_valid [n, F] bool (default: 6 constant-velocity steps, none valid), lane_centres
+        [L] (default midway), agent_ids [n] int (default 0..n), lane_extents [L, 2] with
+        lane_extent_real [L, 2] bool ("nudge.scenario/2"). InputError for a wrong type or shape,
+        ScenarioError for what the reader refuses."""
+    def save(self, path: _Path) -> None:
+        """Writes the scene as a scenario file (``Scenario.load`` reads it back equal)."""
     @property
     def name(self) -> str: ...
     @property
@@ -388,6 +430,8 @@ def simulate(
     trace: bool = False,
     on_error: Literal["raise", "skip"] = "raise",
     assets: _Path | None = None,
+    progress: Callable[[int, int], object] | None = None,
+    planner: _PythonPlanner | None = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
@@ -434,6 +478,18 @@ def simulate(
     (one more predictor call per step; off by default, the other outputs are the same either
     way): the result then holds ``"traces"``, a list with one trace dict per run (``_Trace``) (``None``
     for a run that could not run), which :func:`animate` draws.
+
+    ``planner``: your own planner (``_PythonPlanner``: ``plan(observation) -> {"delta": [T],
+    "accel": [T]}``, optionally ``reset()``) drives the ego instead of nudge's planner; its runs
+    go one after another on one thread (``threads`` > 1 raises InputError); each step's
+    ``status`` is ``Converged`` when nudge's safety check under ``predictor`` passes on the
+    plan's roll-out, else ``Unsafe`` (docs/python_planner.md). An exception it raises stops the
+    run with ``NudgeError`` (the exception as its cause); an unusable plan with ``InputError``,
+    both naming the scene, seed and step.
+
+    ``progress``: a callable called as ``progress(done, total)`` (runs finished, runs in all)
+    about every 50 ms while the count grows and once at the end, from the calling thread; an
+    exception it raises stops the batch and is raised. Not callable: InputError.
 
     Returns ``{"runs": ..., "steps": ..., "collisions": ...}`` (+ ``"examples"`` when
     ``record``, ``"traces"`` when ``trace``), the columns of ``nudge_sim::columns`` (the CLI's CSV has the same names

@@ -2,17 +2,22 @@
 //! table of one run, the summary, and the records as CSV and JSON. Everything but the
 //! argument parsing and the file writing is `nudge_sim`, shared with Python.
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use clap::Args;
 use nudge_planner::{PlannerSettings, Scenario};
 use nudge_predictor::{assets_dir, scenes_dir};
 use nudge_sim::defaults;
-use nudge_sim::{BatchRequest, Cancel, Keep, RunRecord, SimConfig, World};
+use nudge_sim::{
+    Batch, BatchRequest, Cancel, Keep, Progress, RunOutput, RunRecord, SimConfig, World,
+};
 use nudge_sim::{Summary, collision_table, run_table, step_listing, step_table};
 
 use crate::animate::{AnimationSettings, Reel, animate, find_ffmpeg};
+use crate::provenance::{Inputs, Provenance};
 
 /// The closed-loop defaults the flags' help shows.
 const DEFAULT: SimConfig = SimConfig::DEFAULT;
@@ -127,9 +132,14 @@ pub struct SimulateArgs {
         DEFAULT.replay_lateral_decay,
     ))]
     pub replay_lateral_decay: Option<f64>,
-    /// Output directory for steps.csv, runs.csv, collisions.csv and records.json.
+    /// Output directory for steps.csv, runs.csv, collisions.csv, records.json and
+    /// provenance.json (what made them: version, git commit, command, settings, file hashes,
+    /// seeds, machine; docs/records.md).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// No progress bar (it is drawn on stderr only when stderr is a terminal).
+    #[arg(long)]
+    pub no_progress: bool,
     /// Print the per-step table of the first run even when running many.
     #[arg(long)]
     pub verbose_run: bool,
@@ -225,6 +235,50 @@ fn write_outputs(
     std::fs::write(&p, json).map_err(|e| io(&p, &e))
 }
 
+/// How often the progress bar is redrawn.
+const PROGRESS_TICK: Duration = Duration::from_millis(100);
+
+/// Runs `batch`, drawing a progress bar with the runs done and the time left on stderr while
+/// it runs when `show` (the caller checks that stderr is a terminal); the outputs are those of
+/// [`Batch::run`] either way.
+fn run_with_progress(batch: &Batch, keep: Keep, show: bool) -> Vec<RunOutput> {
+    let cancel = Cancel::new();
+    let progress = Progress::new();
+    if !show {
+        return batch.run_counted(keep, &cancel, None, None, &progress);
+    }
+    let total = batch.specs.len() as u64;
+    let bar = indicatif::ProgressBar::with_draw_target(
+        Some(total),
+        indicatif::ProgressDrawTarget::stderr(),
+    );
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{elapsed_precise} [{wide_bar}] {pos}/{len} runs, {eta} left",
+    ) {
+        bar.set_style(style);
+    }
+    /// Sets its flag when dropped: the ticker stops even when the batch panics.
+    struct Finish<'f>(&'f AtomicBool);
+    impl Drop for Finish<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::Relaxed);
+        }
+    }
+    let finished = AtomicBool::new(false);
+    let outputs = std::thread::scope(|scope| {
+        scope.spawn(|| {
+            while !finished.load(Ordering::Relaxed) {
+                bar.set_position(progress.done() as u64);
+                std::thread::sleep(PROGRESS_TICK);
+            }
+        });
+        let _finish = Finish(&finished);
+        batch.run_counted(keep, &cancel, None, None, &progress)
+    });
+    bar.finish_and_clear();
+    outputs
+}
+
 /// Writes an animation of each of the first `n` runs of `outputs` that ran into the directory
 /// `dir` (`<scene>-seed<seed>.gif`, and `.mp4` when ffmpeg is on `PATH`), printing each file
 /// with its frame count, size and rendering time.
@@ -316,7 +370,8 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
         examples: false,
         traces: a.animate,
     };
-    let outputs = batch.run(keep, &Cancel::new());
+    let show = !a.no_progress && std::io::stderr().is_terminal();
+    let outputs = run_with_progress(&batch, keep, show);
     let scenes = &batch.scenes;
     let failed: Vec<String> = outputs
         .iter()
@@ -336,6 +391,22 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     println!("{}", Summary::of(&outputs));
     if let Some(dir) = &a.out {
         write_outputs(dir, scenes, &outputs)?;
+        let inputs = Inputs {
+            settings: (&settings, a.settings.as_deref()),
+            config: (&config, a.config.as_deref()),
+            assets: &assets,
+            predictor: &a.predictor,
+            world_predictor: a.world_predictor.as_deref(),
+            idm: a.idm.as_deref(),
+            scene_paths: &scene_paths,
+            specs: &batch.specs,
+            seed: (a.seed, a.runs),
+            threads: batch.threads(),
+        };
+        let command = std::env::args_os()
+            .map(|s| s.to_string_lossy().into_owned())
+            .collect();
+        Provenance::new(&inputs, command)?.write(dir)?;
         println!("records written to {}", dir.display());
         if let Some(c) = &commonroad {
             for line in c.write_solutions(&outputs, &settings, dir)? {

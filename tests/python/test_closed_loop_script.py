@@ -3,10 +3,12 @@ resumable; the report's numbers agree with the raw run columns."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import nudge
 from nudge_train.cli import main
@@ -135,6 +137,51 @@ def test_command_writes_the_report(repo: Path, tmp_path: Path) -> None:
     assert data["idm/constant_velocity/default"]["runs"] == 4
     assert main(["closed-loop", "--scenes", str(tmp_path), "--n", "2", "--out", str(out)]) == 2
     assert main(["closed-loop", "--seeds", "0"]) == 2
+
+
+def test_teacher_n_zero_is_accepted_without_the_teacher_only(repo: Path, tmp_path: Path) -> None:
+    EvalConfig(scenes=tmp_path, planners=("student",), teacher_n=0).validate()
+    with pytest.raises(ValueError, match="--teacher-n must be >= 1 when the teacher plans"):
+        EvalConfig(scenes=tmp_path, planners=("student", "teacher"), teacher_n=0).validate()
+    with pytest.raises(ValueError, match="--teacher-n must be >= 0"):
+        EvalConfig(scenes=tmp_path, planners=("student",), teacher_n=-1).validate()
+    out = tmp_path / "cl.md"
+    rc = main(["closed-loop", "--scenes", str(repo / "assets" / "scenes"), "--n", "1", "--seeds", "1",
+               "--planners", "constant_velocity", "--worlds", "log_replay", "--teacher-n", "0", "--threads", "1",
+               "--cache", str(tmp_path / "cache"), "--bootstrap", "50", "--out", str(out), "--no-progress"])
+    assert rc == 0 and out.is_file()
+
+
+def test_the_report_is_only_printed_unless_out_is_named(repo: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture) -> None:
+    """No tracked doc is overwritten by default: without --out nothing is written under docs/."""
+    monkeypatch.setenv("NUDGE_REPO", str(tmp_path))
+    rc = main(["closed-loop", "--scenes", str(repo / "assets" / "scenes"), "--n", "1", "--seeds", "1",
+               "--planners", "constant_velocity", "--worlds", "log_replay", "--threads", "1",
+               "--cache", str(tmp_path / "cache"), "--bootstrap", "50", "--no-progress"])
+    assert rc == 0
+    assert "## Results per world and planner" in capsys.readouterr().out
+    assert not (tmp_path / "docs").exists()
+
+
+def test_every_arm_folder_carries_its_provenance(repo: Path, tmp_path: Path) -> None:
+    cfg = _cfg(repo, tmp_path, worlds=("idm",))
+    chunks, meta = collect(cfg, log=lambda s: None, command="nudge-train closed-loop --n 3")
+    folders = [p for p in (tmp_path / "cache").iterdir() if p.is_dir()]
+    assert len(folders) == 1
+    prov = json.loads((folders[0] / "provenance.json").read_text())
+    assert prov["schema"] == "nudge.provenance/1" and prov["git_sha"] == nudge.GIT_SHA
+    assert prov["nudge_version"] == nudge.__version__ and prov["command"] == "nudge-train closed-loop --n 3"
+    assert (prov["predictor"], prov["world"], prov["threads"]) == ("constant_velocity", "idm", 2)
+    assert prov["sim_config"]["world"] == "idm"
+    idm = nudge.assets_dir() / "worlds" / "idm.json"
+    assert list(prov["models"].values()) == [hashlib.sha256(idm.read_bytes()).hexdigest()]
+    files = [(p.name, hashlib.sha256(p.read_bytes()).hexdigest()) for p in meta["scenes"]]
+    assert [(Path(f["path"]).name, f["sha256"]) for f in prov["scenes"]["files"]] == files
+    lines = "".join(f"{n} {h}\n" for n, h in files)
+    assert prov["scenes"]["list_sha256"] == hashlib.sha256(lines.encode()).hexdigest()
+    assert prov["seeds"]["scene_seeds"] == meta["scene_seeds"] and prov["seeds"]["runs_per_scene"] == 2
+    assert prov["machine"]["cores"] >= 1 and prov["machine"]["hostname"]
 
 
 def test_compare_runs_two_settings_on_the_same_pairs(repo: Path, tmp_path: Path) -> None:

@@ -215,6 +215,22 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: nudge.Scenario.load(c["assets"]),
     ],
     "Scenario.nearest": [lambda c: c["sc"].nearest(0), lambda c: c["sc"].nearest(0).nearest(0)],
+    # Scenes from arrays: no agent, no observed step, no lane, an absurd lane index, a
+    # broadcast view of 10^9 agents (refused by shape before copying), an empty scene.
+    "Scenario.from_arrays": [
+        lambda c: nudge.Scenario.from_arrays(Z((0, 8, 2)), Z((0, 2)), [0.0, 3.7], 0),
+        lambda c: nudge.Scenario.from_arrays(Z((1, 0, 2)), np.ones((1, 2)), [0.0, 3.7], 0),
+        lambda c: nudge.Scenario.from_arrays(Z((1, 8, 2)), np.ones((1, 2)), [], 0),
+        lambda c: nudge.Scenario.from_arrays(Z((1, 8, 2)), np.ones((1, 2)), [0.0, 3.7], 2**64 - 1),
+        lambda c: nudge.Scenario.from_arrays(np.broadcast_to(Z((1, 8, 2)), (10**9, 8, 2)), Z((0, 2)), [0.0], 0),
+        lambda c: nudge.Scenario.from_arrays([], [], [], 0),
+    ],
+    # Writing a scene: to no path, to a directory, the ego alone.
+    "Scenario.save": [
+        lambda c: c["sc"].save(""),
+        lambda c: c["sc"].save(c["assets"]),
+        lambda c: c["sc"].nearest(0).save(os.devnull),
+    ],
     "Scenario.target_lane": [lambda c: c["sc"].target_lane(0), lambda c: c["sc"].nearest(0).target_lane(2**64 - 1)],
     "Planner.__new__": [
         lambda c: nudge.Planner(None, c["cv"]),

@@ -166,6 +166,33 @@ def cli(work: Path, n_scenes: int | None) -> None:
     print("nudge exit statuses: 1 refused (--runs 0), 2 unparsable, 3 a run that could not run")
 
 
+def distribution(work: Path) -> None:
+    """The distribution nudge-planner with its license metadata and files; provenance beside the
+    records; the figures command without matplotlib says which extra to install."""
+    from importlib import metadata
+
+    meta = metadata.metadata("nudge-planner")
+    check(meta["Name"] == "nudge-planner", f"distribution name {meta['Name']}")
+    lic = meta.get("License-Expression") or meta.get("License")
+    check(lic == "MIT OR Apache-2.0", f"license metadata {lic!r}")
+    files = [str(f) for f in metadata.files("nudge-planner") or []]
+    check(any(f.endswith("LICENSE-MIT") for f in files) and any(f.endswith("LICENSE-APACHE") for f in files),
+          f"license files missing from the wheel: {[f for f in files if 'LICENSE' in f]}")
+    prov = json.loads((work / "out" / "provenance.json").read_text())
+    check(prov["nudge_version"] == nudge.__version__ and prov["git_sha"] == nudge.GIT_SHA, "provenance.json")
+    print(f"distribution nudge-planner {meta['Version']}, license {lic}, git {nudge.GIT_SHA[:12]}; "
+          f"provenance.json: {prov['scenes']['count']} scenes, threads {prov['threads']}")
+    exe = shutil.which("nudge-figures", path=str(Path(sys.executable).parent))
+    check(exe is not None, "no nudge-figures command in the environment")
+    r = subprocess.run([str(exe), "runs", str(work / "out")], capture_output=True, text=True, timeout=120, cwd=work)
+    if importlib.util.find_spec("matplotlib") is None:
+        check(r.returncode == 2 and "nudge-planner[figures]" in r.stderr, f"nudge-figures: {r.returncode} {r.stderr}")
+        print("nudge-figures without matplotlib: exit 2, names the figures extra")
+    else:
+        check(r.returncode == 0 and (work / "out" / "runs.png").is_file(), f"nudge-figures: {r.stderr}")
+        print("nudge-figures runs: wrote runs.png")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--scenes", type=int, default=None, help="the number of scenes the wheel must carry")
@@ -181,6 +208,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as work:
         simulate(scenes[0], Path(work))
         cli(Path(work), n_scenes)
+        distribution(Path(work))
     print("wheel smoke test passed")
 
 

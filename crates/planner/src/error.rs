@@ -282,6 +282,15 @@ pub enum PlannerError {
         /// Clarabel's status.
         status: QpStatus,
     },
+    /// A planner implemented outside nudge (a closed-loop policy such as a Python object)
+    /// failed or returned a plan that cannot be used; `source` says what happened.
+    #[error("{policy} failed: {source}")]
+    Foreign {
+        /// Which planner (e.g. `"Python planner MyPlanner"`).
+        policy: String,
+        /// What went wrong.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 impl From<QpFailure> for PlannerError {

@@ -418,6 +418,105 @@ fn bad_value(path: &Path, tensor: &'static str, reason: String) -> ScenarioError
 }
 
 impl Scenario {
+    /// The scenario file image of this scene: "nudge.scenario/2" when it has lane extents,
+    /// else "nudge.scenario/1", with its metadata (`schema` and `dt` = 0.3 set) and every
+    /// tensor [`Scenario::from_bytes`] reads. Nothing is validated here: reading the image back
+    /// ([`Scenario::from_bytes`]) applies the file reader's checks, so a scene built in memory
+    /// (Python's `Scenario.from_arrays`) passes exactly the checks of a file.
+    ///
+    /// # Errors
+    /// [`ScenarioError::BadValue`] naming the tensor whose length does not match its shape
+    /// (`history` not `n_agents` × 8 × 2 values, ...).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, ScenarioError> {
+        use safetensors::tensor::TensorView;
+        let here = Path::new(&self.name);
+        let n = self.n_agents;
+        let nl = self.lane_centres.len();
+        let f64s = |v: &[f64]| -> Vec<u8> { v.iter().flat_map(|x| x.to_le_bytes()).collect() };
+        let size: Vec<f64> = self.size.iter().flatten().copied().collect();
+        let mut tensors: Vec<(&'static str, Dtype, Vec<usize>, Vec<u8>)> = vec![
+            (
+                "history",
+                Dtype::F64,
+                vec![n, T_OBS, 2],
+                f64s(&self.history),
+            ),
+            ("heading", Dtype::F64, vec![n], f64s(&self.heading)),
+            ("speed", Dtype::F64, vec![n], f64s(&self.speed)),
+            ("size", Dtype::F64, vec![n, 2], f64s(&size)),
+            (
+                "future",
+                Dtype::F64,
+                vec![n, self.n_future, 2],
+                f64s(&self.future),
+            ),
+            (
+                "future_valid",
+                Dtype::U8,
+                vec![n, self.n_future],
+                self.future_valid.iter().map(|&b| u8::from(b)).collect(),
+            ),
+            (
+                "lane_centres",
+                Dtype::F64,
+                vec![nl],
+                f64s(&self.lane_centres),
+            ),
+            (
+                "lane_bounds",
+                Dtype::F64,
+                vec![self.lane_bounds.len()],
+                f64s(&self.lane_bounds),
+            ),
+            (
+                "ego_lane",
+                Dtype::I64,
+                vec![1],
+                i64::try_from(self.ego_lane)
+                    .unwrap_or(i64::MAX)
+                    .to_le_bytes()
+                    .to_vec(),
+            ),
+            (
+                "agent_ids",
+                Dtype::I64,
+                vec![self.agent_ids.len()],
+                self.agent_ids
+                    .iter()
+                    .flat_map(|x| x.to_le_bytes())
+                    .collect(),
+            ),
+        ];
+        let mut metadata = self.metadata.clone();
+        metadata.insert("dt".into(), "0.3".into());
+        match &self.lane_extents {
+            Some(ext) => {
+                let flat: Vec<f64> = ext.iter().flat_map(|e| [e.begin, e.end]).collect();
+                let real: Vec<u8> = ext
+                    .iter()
+                    .flat_map(|e| [u8::from(e.begins), u8::from(e.ends)])
+                    .collect();
+                tensors.push(("lane_extent", Dtype::F64, vec![ext.len(), 2], f64s(&flat)));
+                tensors.push(("lane_extent_real", Dtype::U8, vec![ext.len(), 2], real));
+                metadata.insert("schema".into(), SCHEMA_EXTENTS.into());
+            }
+            None => {
+                metadata.insert("schema".into(), SCHEMA.into());
+            }
+        }
+        let mut views = Vec::with_capacity(tensors.len());
+        for (name, dtype, shape, data) in &tensors {
+            let view = TensorView::new(*dtype, shape.clone(), data).map_err(|e| {
+                bad_value(here, name, format!("does not fit its shape {shape:?}: {e}"))
+            })?;
+            views.push((*name, view));
+        }
+        safetensors::serialize(views, Some(metadata)).map_err(|e| ScenarioError::NotSafetensors {
+            path: here.to_path_buf(),
+            reason: e.to_string(),
+        })
+    }
+
     /// Reads and validates a scenario file.
     ///
     /// # Errors

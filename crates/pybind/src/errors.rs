@@ -136,6 +136,7 @@ pub fn planner_err(err: PlannerError) -> PyErr {
         PlannerError::BadProblem { .. }
         | PlannerError::BadLane { .. }
         | PlannerError::HorizonMismatch { .. } => InputError::new_err(msg),
+        PlannerError::Foreign { source, .. } => crate::py_policy::failure_err(msg, source),
         _ => SolverError::new_err(msg),
     }
 }

@@ -11,6 +11,7 @@ mod commonroad;
 mod errors;
 mod planner;
 mod predict;
+mod py_policy;
 mod py_predictor;
 mod scenario;
 mod settings;
@@ -90,5 +91,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DT", nudge_predictor::DT)?;
     m.add("SLOW_FRACTION", nudge_sim::metrics::SLOW_FRACTION)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("GIT_SHA", nudge::GIT_SHA)?;
     Ok(())
 }

@@ -12,7 +12,8 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 
 use crate::args::{Int, guard};
-use crate::errors::{NudgeError, scenario_err};
+use crate::arrays::{Dim, check_shape, to_f64};
+use crate::errors::{InputError, NudgeError, scenario_err};
 use crate::settings::{PySettings, PySimConfig};
 
 /// One real scene (agent 0 = ego), road frame, metres, 0.3 s steps.
@@ -225,6 +226,181 @@ impl PyScenario {
         })
     }
 
+    /// A scene from your own data, validated exactly as a scenario file is (the arrays are
+    /// written to a scenario file image in memory and read back by the file reader: every
+    /// check of `Scenario.load`, naming the array, agent and field). Road frame: x along
+    /// travel, y lateral positive left (m); 0.3 s steps; agent 0 is the ego.
+    ///
+    /// `history` `[n, 8, 2]` observed positions, oldest first; `size` `[n, 2]` (length,
+    /// width); `lane_bounds` `[L + 1]` lane lines, ascending (the first and last are the road
+    /// edges); `ego_lane` the ego's lane index. Optional: `heading`, `speed` `[n]` at the last
+    /// observed step (default: from the last two observed positions); `future` `[n, F, 2]`
+    /// (F ≥ 6) with `future_valid` `[n, F]` bool, the logged futures where known (default: 6
+    /// steps at constant velocity, none valid: no log); `lane_centres` `[L]` (default: midway
+    /// between the lines); `agent_ids` `[n]` int (default 0..n); `lane_extents` `[L, 2]`
+    /// (begin, end x) with `lane_extent_real` `[L, 2]` bool (a "nudge.scenario/2" scene);
+    /// `name`; `metadata` (str → str). Raises `InputError` for an array of the wrong type or
+    /// shape, `ScenarioError` for what the file reader refuses.
+    #[staticmethod]
+    #[pyo3(signature = (
+        history, size, lane_bounds, ego_lane, *, heading = None, speed = None, future = None,
+        future_valid = None, lane_centres = None, agent_ids = None, lane_extents = None,
+        lane_extent_real = None, name = "scene", metadata = None
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn from_arrays(
+        history: &Bound<'_, PyAny>,
+        size: &Bound<'_, PyAny>,
+        lane_bounds: &Bound<'_, PyAny>,
+        ego_lane: Int,
+        heading: Option<Bound<'_, PyAny>>,
+        speed: Option<Bound<'_, PyAny>>,
+        future: Option<Bound<'_, PyAny>>,
+        future_valid: Option<Bound<'_, PyAny>>,
+        lane_centres: Option<Bound<'_, PyAny>>,
+        agent_ids: Option<Bound<'_, PyAny>>,
+        lane_extents: Option<Bound<'_, PyAny>>,
+        lane_extent_real: Option<Bound<'_, PyAny>>,
+        name: &str,
+        metadata: Option<HashMap<String, String>>,
+    ) -> PyResult<Self> {
+        guard(|| {
+            const ANY: Dim = Dim::AtMost(1 << 20);
+            let (history, shape) =
+                to_f64("history", history, &[ANY, Dim::Exact(T_OBS), Dim::Exact(2)])?;
+            let n = shape[0];
+            let (size, _) = to_f64("size", size, &[Dim::Exact(n), Dim::Exact(2)])?;
+            let (lane_bounds, lshape) = to_f64("lane_bounds", lane_bounds, &[ANY])?;
+            let nl = lshape[0].saturating_sub(1);
+            let ego_lane = ego_lane.usize("ego_lane", usize::MAX)?;
+            let last = |a: usize, back: usize| {
+                let i = (a * T_OBS + T_OBS - 1 - back) * 2;
+                [history[i], history[i + 1]]
+            };
+            let motion = |a: usize| {
+                let (p, q) = (last(a, 0), last(a, 1));
+                [p[0] - q[0], p[1] - q[1]]
+            };
+            let per_agent =
+                |what: &str, v: Option<Bound<'_, PyAny>>, default: &dyn Fn(usize) -> f64| {
+                    v.map_or_else(
+                        || Ok((0..n).map(default).collect()),
+                        |v| to_f64(what, &v, &[Dim::Exact(n)]).map(|(v, _)| v),
+                    )
+                };
+            let heading = per_agent("heading", heading, &|a| {
+                let d = motion(a);
+                if d[0] == 0.0 && d[1] == 0.0 {
+                    0.0
+                } else {
+                    d[1].atan2(d[0])
+                }
+            })?;
+            let speed = per_agent("speed", speed, &|a| {
+                let d = motion(a);
+                d[0].hypot(d[1]) / nudge_predictor::DT
+            })?;
+            let (n_future, future, future_valid) = match (future, future_valid) {
+                (Some(f), Some(v)) => {
+                    let (f, fshape) = to_f64("future", &f, &[Dim::Exact(n), ANY, Dim::Exact(2)])?;
+                    let valid = bools("future_valid", &v, &[n, fshape[1]])?;
+                    (fshape[1], f, valid)
+                }
+                (None, None) => {
+                    const STEPS: usize = 6;
+                    let f = (0..n)
+                        .flat_map(|a| {
+                            let (p, d) = (last(a, 0), motion(a));
+                            (1..=STEPS)
+                                .flat_map(move |k| [p[0] + d[0] * k as f64, p[1] + d[1] * k as f64])
+                        })
+                        .collect();
+                    (STEPS, f, vec![false; n * STEPS])
+                }
+                _ => {
+                    return Err(InputError::new_err(
+                        "future and future_valid: give both or neither",
+                    ));
+                }
+            };
+            let lane_centres = match lane_centres {
+                Some(c) => to_f64("lane_centres", &c, &[Dim::Exact(nl)])?.0,
+                None => lane_bounds
+                    .windows(2)
+                    .map(|w| 0.5 * (w[0] + w[1]))
+                    .collect(),
+            };
+            let agent_ids = match agent_ids {
+                Some(ids) => ints("agent_ids", &ids, n)?,
+                None => (0..n)
+                    .map(|a| i64::try_from(a).unwrap_or(i64::MAX))
+                    .collect(),
+            };
+            let lane_extents = match (lane_extents, lane_extent_real) {
+                (Some(e), Some(r)) => {
+                    let (e, _) = to_f64("lane_extents", &e, &[Dim::Exact(nl), Dim::Exact(2)])?;
+                    let r = bools("lane_extent_real", &r, &[nl, 2])?;
+                    Some(
+                        (0..nl)
+                            .map(|k| nudge_planner::LaneExtent {
+                                begin: e[2 * k],
+                                end: e[2 * k + 1],
+                                begins: r[2 * k],
+                                ends: r[2 * k + 1],
+                            })
+                            .collect(),
+                    )
+                }
+                (None, None) => None,
+                _ => {
+                    return Err(InputError::new_err(
+                        "lane_extents and lane_extent_real: give both or neither",
+                    ));
+                }
+            };
+            let mut meta = metadata.unwrap_or_default();
+            meta.entry("source".into())
+                .or_insert_with(|| "Scenario.from_arrays".into());
+            let draft = Scenario {
+                name: name.to_string(),
+                n_agents: n,
+                history,
+                heading,
+                speed,
+                size: size.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
+                n_future,
+                future,
+                future_valid,
+                lane_centres,
+                lane_bounds,
+                ego_lane,
+                agent_ids,
+                lane_extents,
+                metadata: meta,
+            };
+            let path = PathBuf::from(format!("{name}.safetensors"));
+            let sc = draft
+                .to_bytes()
+                .and_then(|bytes| Scenario::from_bytes(&bytes, &path))
+                .map_err(scenario_err)?;
+            Ok(Self {
+                inner: Arc::new(sc),
+                path,
+            })
+        })
+    }
+
+    /// Writes this scene as a scenario file at `path` (the image `Scenario.load` reads back
+    /// equal; "nudge.scenario/2" when it has lane extents), e.g. to run it with
+    /// `nudge.simulate([path])` or `nudge simulate --scenes DIR`.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        guard(|| {
+            let bytes = self.inner.to_bytes().map_err(scenario_err)?;
+            py.detach(|| std::fs::write(&path, bytes))
+                .map_err(|e| NudgeError::new_err(format!("{}: {e}", path.display())))
+        })
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "Scenario(name={:?}, n_agents={}, lanes={}, ego_lane={})",
@@ -234,4 +410,41 @@ impl PyScenario {
             self.inner.ego_lane
         )
     }
+}
+
+/// `obj` as a bool array of `shape` (numpy bool dtype or a nested list of bools), row-major;
+/// `InputError` naming `what` otherwise.
+fn bools(what: &str, obj: &Bound<'_, PyAny>, shape: &[usize]) -> PyResult<Vec<bool>> {
+    let py = obj.py();
+    let a = py.import("numpy")?.call_method1("asarray", (obj,))?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    if kind != "b" {
+        return Err(InputError::new_err(format!(
+            "{what}: expected a bool array, got dtype {}",
+            a.getattr("dtype")?.str()?
+        )));
+    }
+    let got: Vec<usize> = a.getattr("shape")?.extract()?;
+    let dims: Vec<Dim> = shape.iter().map(|&n| Dim::Exact(n)).collect();
+    check_shape(what, &got, &dims)?;
+    a.call_method0("ravel")?.call_method0("tolist")?.extract()
+}
+
+/// `obj` as an int64 array `[n]` (numpy integer dtype or a list of ints); `InputError`
+/// naming `what` otherwise.
+fn ints(what: &str, obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<i64>> {
+    let py = obj.py();
+    let a = py.import("numpy")?.call_method1("asarray", (obj,))?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    if kind != "i" && kind != "u" {
+        return Err(InputError::new_err(format!(
+            "{what}: expected an integer array, got dtype {}",
+            a.getattr("dtype")?.str()?
+        )));
+    }
+    let got: Vec<usize> = a.getattr("shape")?.extract()?;
+    check_shape(what, &got, &[Dim::Exact(n)])?;
+    a.call_method0("tolist")?
+        .extract()
+        .map_err(|_| InputError::new_err(format!("{what}: values beyond int64")))
 }

@@ -11,16 +11,17 @@ use std::time::Duration;
 
 use nudge_planner::PlannerSettings;
 use nudge_predictor::{Predictor, Records, T_OBS, default_assets_dir};
-use nudge_sim::PlanningFactory;
 use nudge_sim::defaults;
-use nudge_sim::{Batch, BatchRequest, Cancel, Keep, RunOutput, SimConfig};
+use nudge_sim::{Batch, BatchRequest, Cancel, Keep, Progress, RunOutput, SimConfig};
 use nudge_sim::{Column, Table, collision_table, run_table, step_table};
+use nudge_sim::{PlanningFactory, PolicyFactory};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::args::{Int, guard, panic_error};
 use crate::errors::{InputError, NudgeError, sim_err};
+use crate::py_policy::PythonPlanner;
 use crate::py_predictor::{LABEL, NAME as PYTHON, PredictorArg};
 use crate::settings::{PySettings, PySimConfig, with_overrides};
 
@@ -53,32 +54,55 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 /// polls Python's signal handlers every [`SIGNAL_POLL`]: on Ctrl-C the batch is cancelled
 /// (every run stops before its next closed-loop step) and the `KeyboardInterrupt` is
 /// returned. `planning` builds each run's planning predictor when the batch was prepared for
-/// one from Python ([`BatchRequest::prepare_foreign`]).
+/// one from Python ([`BatchRequest::prepare_foreign`]). `progress`, a Python callable, is
+/// called as `progress(done, total)` (runs finished, runs in all) from this thread whenever
+/// the count of finished runs grows, and once at the end; an exception it raises cancels the
+/// batch and is returned.
 fn run_interruptibly(
     py: Python<'_>,
     batch: &Batch,
     keep: Keep,
     planning: Option<&PlanningFactory<'_>>,
+    policy: Option<&PolicyFactory<'_>>,
+    progress: Option<&Py<PyAny>>,
 ) -> PyResult<Vec<RunOutput>> {
     let cancel = Cancel::new();
+    let count = Progress::new();
+    let total = batch.specs.len();
+    let mut shown: Option<usize> = None;
+    let mut report = |done: usize| -> PyResult<()> {
+        match progress {
+            Some(cb) if shown != Some(done) => {
+                shown = Some(done);
+                Python::attach(|py| cb.call1(py, (done, total)).map(drop))
+            }
+            _ => Ok(()),
+        }
+    };
     let mut interrupt: Option<PyErr> = None;
     let finished = py.detach(|| {
         std::thread::scope(|scope| {
             let (tx, rx) = mpsc::channel();
             let stop = &cancel;
+            let counted = &count;
             let worker = scope.spawn(move || {
                 // The receiver outlives the worker: sending cannot fail.
-                let _ = tx.send(match planning {
-                    Some(p) => batch.run_with(keep, stop, p),
-                    None => batch.run(keep, stop),
-                });
+                let _ = tx.send(batch.run_counted(keep, stop, planning, policy, counted));
             });
             loop {
                 match rx.recv_timeout(SIGNAL_POLL) {
-                    Ok(outputs) => return Ok(outputs),
+                    Ok(outputs) => {
+                        if interrupt.is_none()
+                            && let Err(e) = report(count.done())
+                        {
+                            interrupt = Some(e);
+                        }
+                        return Ok(outputs);
+                    }
                     Err(mpsc::RecvTimeoutError::Timeout) => {
                         if interrupt.is_none()
                             && let Err(e) = Python::attach(|py| py.check_signals())
+                                .and_then(|()| report(count.done()))
                         {
                             cancel.cancel();
                             interrupt = Some(e);
@@ -127,6 +151,14 @@ fn run_interruptibly(
 /// and its ellipses, the agents `[steps + 1, n, 3]`, ... (`nudge._native.animate` draws it).
 /// Off by default: the other outputs are the same either way.
 ///
+/// `planner`: your own planner, any object with `plan(observation) -> {"delta": [T],
+/// "accel": [T]}` (and optionally `reset()`), driving the ego instead of nudge's planner
+/// (`crate::py_policy`, docs/python_planner.md); its runs go one after another on one thread.
+///
+/// `progress`: a callable called as `progress(done, total)` (runs finished, runs in all) about
+/// every 50 ms while the count grows and once at the end, from the calling thread; an
+/// exception it raises stops the batch and is raised.
+///
 /// Returns `{"runs": {...}, "steps": {...}, "collisions": {...}}` of numpy columns (plus
 /// `"examples"` when `record`, `"traces"` when `trace`): see the `.pyi` stub for every column.
 #[pyfunction]
@@ -146,6 +178,8 @@ fn run_interruptibly(
     trace = false,
     on_error = "raise",
     assets = None,
+    progress = None,
+    planner = None,
     **config_overrides
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -165,9 +199,21 @@ pub fn simulate<'py>(
     trace: bool,
     on_error: &str,
     assets: Option<PathBuf>,
+    progress: Option<Bound<'_, PyAny>>,
+    planner: Option<Bound<'_, PyAny>>,
     config_overrides: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guard(|| {
+        if let Some(p) = &progress
+            && !p.is_callable()
+        {
+            return Err(InputError::new_err(format!(
+                "invalid argument `progress`: expected a callable progress(done, total) or None, \
+                 got {}",
+                p.get_type().name()?
+            )));
+        }
+        let progress = progress.map(Bound::unbind);
         let seed = seed.u64("seed", u64::MAX)?;
         let runs = runs.usize("runs", nudge_sim::MAX_RUNS)?;
         let threads = threads
@@ -200,9 +246,23 @@ pub fn simulate<'py>(
         if python.is_some() && threads.is_some_and(|t| t != 1) {
             return Err(InputError::new_err(format!(
                 "invalid argument `threads`: a Python predictor plans on one thread (its runs \
-                 share the object), got {threads:?}"
+                 share the object), got {}",
+                threads.unwrap_or(1)
             )));
         }
+        let own_planner = planner
+            .as_ref()
+            .filter(|p| !p.is_none())
+            .map(PythonPlanner::new)
+            .transpose()?;
+        if own_planner.is_some() && threads.is_some_and(|t| t != 1) {
+            return Err(InputError::new_err(format!(
+                "invalid argument `threads`: a Python planner plans on one thread (its runs \
+                 share the object), got {}",
+                threads.unwrap_or(1)
+            )));
+        }
+        let one_thread = python.is_some() || own_planner.is_some();
         let request = BatchRequest {
             scene_paths: &scene_paths,
             predictor: match &predictor {
@@ -215,7 +275,7 @@ pub fn simulate<'py>(
             seed,
             runs_per_scene: runs,
             scene_seeds: scene_seeds.as_deref(),
-            threads: if python.is_some() { Some(1) } else { threads },
+            threads: if one_thread { Some(1) } else { threads },
             settings: &settings,
             config: &cfg,
         };
@@ -233,7 +293,14 @@ pub fn simulate<'py>(
             examples: record,
             traces: trace,
         };
-        let mut outputs = run_interruptibly(py, &batch, keep, planning)?;
+        let make_policy = own_planner.as_ref().map(|p| {
+            let settings = &settings;
+            move |sc: &nudge_planner::Scenario, seed: u64| {
+                Box::new(p.policy(sc, seed, settings)) as Box<dyn nudge_sim::Policy>
+            }
+        });
+        let policy = make_policy.as_ref().map(|f| f as &PolicyFactory<'_>);
+        let mut outputs = run_interruptibly(py, &batch, keep, planning, policy, progress.as_ref())?;
         if !skip
             && let Some(pos) = outputs.iter().position(|o| o.result.is_err())
             && let Err(e) = outputs.swap_remove(pos).result

@@ -3,18 +3,21 @@
 //! ([`Predictors`]), and [`simulate_many`] on a rayon pool.
 
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use nudge_predictor::{Predictor, PredictorKind, PredictorSpec, Recording, Records};
 use rayon::prelude::*;
 
 use crate::error::SimError;
+use crate::policy::Policy;
 use nudge_planner::scenario::Scenario;
 use nudge_planner::settings::PlannerSettings;
 
 use super::config::{SimConfig, World};
 use super::idm::{IdmPopulation, idm_path};
 use super::records::RunRecord;
-use super::run::{Cancel, RunControl, simulate_with};
+use super::run::{Cancel, RunControl, simulate_policy, simulate_with};
 use super::world::WorldModel;
 
 /// The front ends' defaults besides [`SimConfig::default`] and [`PlannerSettings::default`]
@@ -57,7 +60,13 @@ pub fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool, SimError
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads.unwrap_or(0))
         .build()
-        .map_err(|e| bad(format!("cannot start {threads:?} threads: {e}")))
+        .map_err(|e| {
+            let n = threads.map_or_else(
+                || "one thread per core".to_string(),
+                |t| format!("{t} threads"),
+            );
+            bad(format!("cannot start {n}: {e}"))
+        })
 }
 
 /// One run of a batch: which scene (index into the batch's scenes) and which seed.
@@ -242,8 +251,37 @@ pub struct RunOutput {
     pub examples: Option<Records>,
 }
 
+/// A count of the finished runs of a batch, shared by the runs and whoever shows progress
+/// (a progress bar polling [`Progress::done`] from another thread). Clones share the count.
+#[derive(Debug, Clone, Default)]
+pub struct Progress(Arc<AtomicUsize>);
+
+impl Progress {
+    /// A count at zero.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Runs finished so far (ran, failed or cancelled).
+    #[must_use]
+    pub fn done(&self) -> usize {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    /// Counts one more finished run.
+    fn finish_one(&self) {
+        self.0.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 /// Builds the planning predictor of one run (called once per run, on the run's thread).
 pub type PlanningFactory<'a> = dyn Fn() -> Box<dyn Predictor> + Sync + 'a;
+
+/// Builds the policy that drives the ego in one run of a batch, given the run's scene and seed
+/// (called once per run, on the run's thread): a planner implemented outside nudge, e.g. a
+/// Python object. Without one, every run plans with nudge's [`nudge_planner::Planner`].
+pub type PolicyFactory<'a> = dyn Fn(&Scenario, u64) -> Box<dyn Policy> + Sync + 'a;
 
 /// What the runs of a batch keep besides their records' columns (both off by default).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -277,6 +315,8 @@ pub fn simulate_many(
         planning: &planning,
         keep,
         cancel,
+        progress: None,
+        policy: None,
     };
     runs.simulate(specs)
 }
@@ -298,6 +338,10 @@ pub struct Runs<'a> {
     pub keep: Keep,
     /// Checked before every closed-loop step.
     pub cancel: &'a Cancel,
+    /// Counts every finished run (`None`: not counted).
+    pub progress: Option<&'a Progress>,
+    /// Builds each run's policy (`None`: nudge's planner from `settings`).
+    pub policy: Option<&'a PolicyFactory<'a>>,
 }
 
 impl Runs<'_> {
@@ -305,7 +349,16 @@ impl Runs<'_> {
     /// outputs in the order of `specs`.
     #[must_use]
     pub fn simulate(&self, specs: &[RunSpec]) -> Vec<RunOutput> {
-        specs.par_iter().map(|&spec| self.run(spec)).collect()
+        specs
+            .par_iter()
+            .map(|&spec| {
+                let out = self.run(spec);
+                if let Some(p) = self.progress {
+                    p.finish_one();
+                }
+                out
+            })
+            .collect()
     }
 
     /// One run.
@@ -326,8 +379,21 @@ impl Runs<'_> {
             cancel: self.cancel,
             trace: self.keep.traces,
         };
-        let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| {
-            simulate_with(sc, self.settings, self.cfg, spec.seed, p, w, control)
+        let simulate = |p: &mut dyn Predictor, w: WorldModel<'_>| match self.policy {
+            Some(make) => {
+                let mut policy = make(sc, spec.seed);
+                simulate_policy(
+                    sc,
+                    self.settings,
+                    self.cfg,
+                    spec.seed,
+                    policy.as_mut(),
+                    p,
+                    w,
+                    control,
+                )
+            }
+            None => simulate_with(sc, self.settings, self.cfg, spec.seed, p, w, control),
         };
         let mut teacher = match self.world {
             WorldSpec::Teacher(t) => Some(t.build()),

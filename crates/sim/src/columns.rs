@@ -833,9 +833,12 @@ pub fn step_listing(r: &RunRecord) -> String {
     let m = &r.metrics;
     let _ = writeln!(
         s,
-        "success {} after {:?} steps, collision {} (at fault {}, not at fault {}), lane-change aborts {}",
+        "success {} {}, collision {} (at fault {}, not at fault {}), lane-change aborts {}",
         r.success,
-        r.steps_to_target,
+        r.steps_to_target.map_or_else(
+            || "(not settled in the target lane)".to_string(),
+            |n| format!("after {n} steps")
+        ),
         r.collision,
         m.collisions_at_fault,
         m.collisions_not_at_fault,

@@ -48,8 +48,8 @@ pub mod run;
 pub mod world;
 
 pub use batch::{
-    Keep, MAX_RUNS, MAX_THREADS, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec,
-    defaults, run_specs, simulate_many, thread_pool,
+    Keep, MAX_RUNS, MAX_THREADS, PlanningFactory, PolicyFactory, Predictors, Progress, RunOutput,
+    RunSpec, Runs, WorldSpec, defaults, run_specs, simulate_many, thread_pool,
 };
 pub use columns::{
     COLLISION_COLUMNS, Column, RUN_COLUMNS, STEP_COLUMNS, Summary, Table, collision_table,

@@ -12,8 +12,8 @@ use nudge_planner::scenario::Scenario;
 use nudge_planner::settings::PlannerSettings;
 
 use super::batch::{
-    Keep, PlanningFactory, Predictors, RunOutput, RunSpec, Runs, WorldSpec, run_specs,
-    simulate_many, thread_pool,
+    Keep, PlanningFactory, PolicyFactory, Predictors, Progress, RunOutput, RunSpec, Runs,
+    WorldSpec, run_specs, thread_pool,
 };
 use super::config::SimConfig;
 use super::run::Cancel;
@@ -151,22 +151,12 @@ impl BatchRequest<'_> {
 }
 
 impl Batch {
-    /// Runs every run on the batch's pool ([`simulate_many`]), checking `cancel` before every
+    /// Runs every run on the batch's pool ([`crate::simulate_many`]), checking `cancel` before every
     /// closed-loop step and keeping what `keep` asks for (the planning predictor's examples,
     /// the steps' traces). Outputs in the order of [`Batch::specs`].
     #[must_use]
     pub fn run(&self, keep: Keep, cancel: &Cancel) -> Vec<RunOutput> {
-        self.pool.install(|| {
-            simulate_many(
-                &self.scenes,
-                &self.specs,
-                &self.settings,
-                &self.config,
-                &self.predictors,
-                keep,
-                cancel,
-            )
-        })
+        self.run_counted(keep, cancel, None, None, &Progress::new())
     }
 
     /// [`Batch::run`] with each run's planning predictor built by `planning` (see
@@ -178,16 +168,43 @@ impl Batch {
         cancel: &Cancel,
         planning: &PlanningFactory<'_>,
     ) -> Vec<RunOutput> {
+        self.run_counted(keep, cancel, Some(planning), None, &Progress::new())
+    }
+
+    /// [`Batch::run`] (or [`Batch::run_with`] when `planning` is given) counting every
+    /// finished run in `progress`, for a progress display polling it from another thread; the
+    /// ego driven by the policy `policy` builds for each run when given (a planner implemented
+    /// outside nudge; the settings still give the ego's model, the safety check the records
+    /// judge by and the planning horizon), else by nudge's planner. The outputs are those of
+    /// the uncounted call.
+    #[must_use]
+    pub fn run_counted(
+        &self,
+        keep: Keep,
+        cancel: &Cancel,
+        planning: Option<&PlanningFactory<'_>>,
+        policy: Option<&PolicyFactory<'_>>,
+        progress: &Progress,
+    ) -> Vec<RunOutput> {
+        let build = || self.predictors.planning.build();
         let runs = Runs {
             scenes: &self.scenes,
             settings: &self.settings,
             cfg: &self.config,
             world: &self.predictors.world,
-            planning,
+            planning: planning.unwrap_or(&build),
             keep,
             cancel,
+            progress: Some(progress),
+            policy,
         };
         self.pool.install(|| runs.simulate(&self.specs))
+    }
+
+    /// Worker threads of the batch's pool.
+    #[must_use]
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
     }
 }
 

@@ -76,3 +76,69 @@ fn a_wrapped_planner_drives_the_same_run_as_the_planner() {
     assert_eq!((policy.resets, policy.plans), (1, driven.steps.len()));
     assert_eq!(strip(direct), strip(driven));
 }
+
+/// A batch run with a policy factory (the hook `nudge.simulate(planner=...)` uses) gives the
+/// records of the batch planned by nudge's planner when the policy is that planner, builds one
+/// policy per run with the run's scene and seed, and counts every run.
+#[test]
+fn a_batch_with_a_policy_factory_gives_the_batch_records() {
+    use nudge_sim::{BatchRequest, Keep, PolicyFactory, Progress};
+    use std::sync::Mutex;
+
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let paths = Scenario::paths_in(repo.join("assets/scenes")).expect("scenes")[..3].to_vec();
+    let settings = PlannerSettings::default();
+    let cfg = SimConfig {
+        world: World::Idm,
+        max_steps: 6,
+        ..SimConfig::default()
+    };
+    let assets = repo.join("assets");
+    let batch = BatchRequest {
+        scene_paths: &paths,
+        predictor: Path::new("constant_velocity"),
+        world_predictor: None,
+        idm: None,
+        assets: &assets,
+        seed: 4,
+        runs_per_scene: 2,
+        scene_seeds: None,
+        threads: Some(2),
+        settings: &settings,
+        config: &cfg,
+    }
+    .prepare()
+    .expect("batch");
+    let built = Mutex::new(Vec::new());
+    let make = |sc: &Scenario, seed: u64| -> Box<dyn Policy> {
+        built.lock().expect("lock").push((sc.name.clone(), seed));
+        Box::new(Counting {
+            inner: Planner::new(settings.clone()).expect("planner"),
+            resets: 0,
+            plans: 0,
+        })
+    };
+    let progress = Progress::new();
+    let cancel = Cancel::new();
+    let with_policy = batch.run_counted(
+        Keep::default(),
+        &cancel,
+        None,
+        Some(&make as &PolicyFactory<'_>),
+        &progress,
+    );
+    let plain = batch.run(Keep::default(), &cancel);
+    assert_eq!(progress.done(), 6);
+    let mut built = built.into_inner().expect("lock");
+    built.sort();
+    let mut expected: Vec<(String, u64)> = batch
+        .specs
+        .iter()
+        .map(|s| (batch.scenes[s.scene].name.clone(), s.seed))
+        .collect();
+    expected.sort();
+    assert_eq!(built, expected);
+    for (a, b) in with_policy.into_iter().zip(plain) {
+        assert_eq!(strip(a.result.expect("run")), strip(b.result.expect("run")));
+    }
+}

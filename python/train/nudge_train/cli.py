@@ -44,6 +44,48 @@ def _subcommands(parser: argparse.ArgumentParser, dest: str) -> argparse._SubPar
     return parser.add_subparsers(dest=dest, required=True, title="commands", metavar="COMMAND")
 
 
+class _DocPath(type(Path())):
+    """The default of an output argument under the tracked ``docs/`` (so an argument the user did
+    not give can be told from one they did): :func:`main` redirects it (:func:`untracked`)."""
+
+
+class _DocStr(str):
+    """:class:`_DocPath` for an argument read as a string."""
+
+    __slots__ = ()
+
+
+def _doc(path: Path) -> Path:
+    return _DocPath(path)
+
+
+def _doc_str(path: Path) -> str:
+    return _DocStr(path)
+
+
+def untracked(path: Path) -> Path:
+    """Where an output under the tracked ``docs/`` goes when its argument is not given:
+    ``<repo>/runs/reports/<its path under docs/>`` (not tracked)."""
+    try:
+        rel = Path(path).relative_to(paths.docs())
+    except ValueError:
+        rel = Path(Path(path).name)
+    return paths.runs() / "reports" / rel
+
+
+def _redirect_tracked_defaults(args: argparse.Namespace) -> None:
+    """No command overwrites a tracked document unless asked: every output argument left at its
+    default under ``docs/`` is moved to :func:`untracked`, with a note on stderr naming the flag
+    that writes the tracked file."""
+    for key, value in vars(args).items():
+        if isinstance(value, (_DocPath, _DocStr)):
+            moved = untracked(Path(value))
+            setattr(args, key, str(moved) if isinstance(value, str) else moved)
+            flag = "--" + key.replace("_", "-")
+            print(f"note: writing {moved} (the tracked {paths.repo_relative(Path(value))} is written only when named: "
+                  f"{flag} {paths.repo_relative(Path(value))})", file=sys.stderr)
+
+
 def _command(sub: argparse._SubParsersAction, name: str, help_text: str, run: Handler) -> argparse.ArgumentParser:
     p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=_Formatter)
     p.set_defaults(run=run)
@@ -72,8 +114,8 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
 
     r = _command(dsub, "report", "write docs/data.md and docs/figures/data_*.png from a build", _run_data_report)
     r.add_argument("--processed", type=Path, default=paths.processed(), help="a processed build")
-    r.add_argument("--doc", type=Path, default=paths.docs() / "data.md", help="the report")
-    r.add_argument("--figures", type=Path, default=paths.figures(), help="folder of the report's figures")
+    r.add_argument("--doc", type=Path, default=_doc(paths.docs() / "data.md"), help="the report")
+    r.add_argument("--figures", type=Path, default=_doc(paths.figures()), help="folder of the report's figures")
     r.add_argument("--scenes-root", type=Path, default=None,
                    help="planner scenes per split, for their counts (default PROCESSED/scenes)")
 
@@ -94,7 +136,7 @@ def _add_data(sub: argparse._SubParsersAction) -> None:
     f = _command(dsub, "frames", "compare the straightened and curvilinear road frames per US-101 scene",
                  _run_data_frames)
     f.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
-    f.add_argument("--doc", type=Path, default=paths.results() / "road_frame.md", help="the table")
+    f.add_argument("--doc", type=Path, default=_doc(paths.results() / "road_frame.md"), help="the table")
     f.add_argument("--seed", type=int, default=0, help="seed of the split assignment")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -191,7 +233,7 @@ def _add_teacher(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--runs", default=str(paths.runs()), help="one training run per config below it")
     p.add_argument("--epochs", type=int, default=None, help="override every config's epoch count")
     p.add_argument("--only", nargs="*", default=None, help="config names (e.g. teacher_k1_adv0)")
-    p.add_argument("--report", default=str(paths.results() / "teacher.md"), help="the report (markdown)")
+    p.add_argument("--report", default=_doc_str(paths.results() / "teacher.md"), help="the report (markdown)")
     p.add_argument("--export", default=str(paths.model_weights("teacher")), help="where the chosen teacher is exported")
     p.add_argument("--no-export", action="store_true", help="do not export")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
@@ -214,7 +256,7 @@ def _add_student(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epochs", type=int, default=None, help="override the config's epoch count")
     p.add_argument("--teacher", default=str(paths.model_weights("teacher")),
                    help="the teacher the distillation set was generated with")
-    p.add_argument("--report", default=str(paths.results() / "student.md"), help="the report (markdown)")
+    p.add_argument("--report", default=_doc_str(paths.results() / "student.md"), help="the report (markdown)")
     p.add_argument("--export", default=str(paths.model_weights("student")), help="where the student is exported")
     p.add_argument("--no-export", action="store_true", help="do not export")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
@@ -237,7 +279,7 @@ def _add_student_report(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--distill", type=Path, default=paths.distill(),
                    help="the distillation set the student was trained on (its test split is scored)")
     p.add_argument("--data", type=Path, default=paths.processed(), help="real NGSIM windows (test split)")
-    p.add_argument("--report", type=Path, default=paths.results() / "student.md", help="the report (markdown)")
+    p.add_argument("--report", type=Path, default=_doc(paths.results() / "student.md"), help="the report (markdown)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
 
 
@@ -278,7 +320,7 @@ def _add_reaction(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--student", type=Path, default=paths.model_weights("student"), help="the shipped student")
     p.add_argument("--candidate", action="append", default=[], metavar="NAME=PATH",
                    help="another student to measure, as name=weights (repeatable)")
-    p.add_argument("--report", type=Path, default=paths.results() / "reaction.md", help="the report (markdown)")
+    p.add_argument("--report", type=Path, default=_doc(paths.results() / "reaction.md"), help="the report (markdown)")
     p.add_argument("--json", type=Path, default=paths.runs() / "reaction" / "reaction.json",
                    help="every number of the report (JSON)")
     p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples")
@@ -305,7 +347,7 @@ def _add_horizon(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material (the cut-ins' tracks)")
     p.add_argument("--latency", type=Path, default=None,
                    help="a report (docs/results/latency.md) holding a `nudge-train bench latency --horizons ...` section")
-    p.add_argument("--report", type=Path, default=paths.results() / "horizon.md", help="the report (markdown)")
+    p.add_argument("--report", type=Path, default=_doc(paths.results() / "horizon.md"), help="the report (markdown)")
     p.add_argument("--json", type=Path, default=paths.runs() / "horizon" / "horizon.json",
                    help="every number of the report (JSON)")
     p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples")
@@ -390,7 +432,8 @@ def _run_distill(a: argparse.Namespace) -> int:
 
 def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p = _command(sub, "closed-loop",
-                 "planners x worlds x seeds on a split's scenes, paired by (scene, seed): docs/results/closed_loop.md",
+                 "planners x worlds x seeds on a split's scenes, paired by (scene, seed): the report (printed; "
+                 "--out writes it, e.g. docs/results/closed_loop.md)",
                  _run_closed_loop)
     p.add_argument("--split", choices=SPLITS, default="val", help="the split whose scenes run")
     p.add_argument("--scenes", type=Path, default=None,
@@ -401,7 +444,8 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
                    help="planning predictors (teacher, student, constant_velocity or weights files)")
     p.add_argument("--worlds", nargs="+", choices=("teacher", "idm", "log_replay"),
                    default=["teacher", "idm", "log_replay"], help="worlds that move the other vehicles")
-    p.add_argument("--teacher-n", type=int, default=60, help="scenes of the teacher planner's seeded subset")
+    p.add_argument("--teacher-n", type=int, default=60,
+                   help="scenes of the teacher planner's seeded subset (>= 1 when the teacher plans; any >= 0 otherwise)")
     p.add_argument("--settings", type=Path, default=None, help="planner settings JSON (missing fields default)")
     p.add_argument("--config", type=Path, default=None,
                    help="closed-loop settings JSON (SimConfig; the world is set per arm)")
@@ -417,7 +461,8 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", type=int, default=30, help="scenes per cached part of a chunk")
     p.add_argument("--cache", type=Path, default=paths.runs() / "closed_loop", help="cache of the runs")
     p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples of every interval")
-    p.add_argument("--out", type=Path, default=paths.results() / "closed_loop.md", help="the report")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also write the report here (default: only print it; tracked docs are written only when named)")
     p.add_argument("--json", type=Path, default=None, dest="json_path", metavar="JSON",
                    help="also write the summaries here")
     p.add_argument("--before", nargs=2, default=None, metavar=("JSON", "LABEL"),
@@ -548,7 +593,7 @@ def _add_interaction(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", type=int, default=10, help="scenes per cached part")
     p.add_argument("--cache", type=Path, default=paths.runs() / "interaction", help="cache of the runs")
     p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples of every interval")
-    p.add_argument("--out", type=Path, default=paths.results() / "interaction.md", help="the report")
+    p.add_argument("--out", type=Path, default=_doc(paths.results() / "interaction.md"), help="the report")
     p.add_argument("--json", type=Path, default=paths.runs() / "interaction" / "interaction.json", dest="json_path",
                    metavar="JSON", help="the numbers of the report")
     p.add_argument("--horizon", type=int, default=None,
@@ -636,7 +681,7 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--chunk", type=int, default=d.chunk, help="scenes per chunk (every arm runs a chunk in turn)")
     t.add_argument("--horizons", type=int, nargs="+", default=[],
                    help="run every predictor at each of these planning horizons (steps), side by side")
-    t.add_argument("--out", type=Path, default=paths.results() / "latency.md",
+    t.add_argument("--out", type=Path, default=_doc(paths.results() / "latency.md"),
                    help="the report (its section of this budget is replaced, the rest kept)")
     t.add_argument("--no-progress", action="store_true", help="no progress lines")
 
@@ -750,8 +795,8 @@ def _add_idm(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-root", type=Path, default=paths.ngsim(), help="raw NGSIM material")
     p.add_argument("--runs", type=Path, default=paths.runs() / "idm", help="intermediate results (resumable fits)")
     p.add_argument("--assets", type=Path, default=paths.assets() / "worlds", help="where idm.json and cutins.json go")
-    p.add_argument("--doc", type=Path, default=paths.results() / "idm_fit.md", help="the report")
-    p.add_argument("--figures", type=Path, default=paths.figures(), help="figure folder")
+    p.add_argument("--doc", type=Path, default=_doc(paths.results() / "idm_fit.md"), help="the report")
+    p.add_argument("--figures", type=Path, default=_doc(paths.figures()), help="figure folder")
     p.add_argument("--seed", type=int, default=0, help="seed of the fits and of the rule search")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
@@ -835,7 +880,7 @@ def _add_replay_extrapolation(sub: argparse._SubParsersAction) -> None:
                  "the shipped default is not the fitted value", _run_replay_extrapolation)
     p.add_argument("--scenes-root", type=Path, default=paths.scenes("train").parent,
                    help="folder holding the train, val and test scene folders")
-    p.add_argument("--out", type=Path, default=paths.results() / "replay_extrapolation.md", help="the report")
+    p.add_argument("--out", type=Path, default=_doc(paths.results() / "replay_extrapolation.md"), help="the report")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -849,7 +894,8 @@ def _run_replay_extrapolation(a: argparse.Namespace) -> int:
 def _add_commonroad(sub: argparse._SubParsersAction) -> None:
     p = _command(sub, "commonroad", "plan the shipped scenes in their CommonRoad files with the nudge command and "
                  "check the solutions with commonroad-drivability-checker (the commonroad extra)", _commonroad)
-    p.add_argument("--nudge", type=Path, default=Path("target/release/nudge"), help="the nudge command")
+    p.add_argument("--nudge", type=Path, default=None,
+                   help="the nudge command (default: the checkout's target/release/nudge, else `nudge` on PATH)")
     p.add_argument("--out", type=Path, default=Path("runs/commonroad"), help="runs and solutions")
     p.add_argument("--markdown", type=Path, default=None, help="write the table here")
 
@@ -866,6 +912,7 @@ def main(argv: list[str] | None = None) -> int:
     (2 for a typed error of :mod:`nudge_train.errors` — bad data, a damaged artefact, a malformed
     config, a training failure — printed as ``error: ...`` without a traceback)."""
     args = build_parser().parse_args(argv)
+    _redirect_tracked_defaults(args)
     from nudge_train.errors import NudgeTrainError
 
     try:

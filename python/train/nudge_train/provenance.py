@@ -8,7 +8,7 @@ from pathlib import Path
 
 from nudge_train import paths
 
-__all__ = ["git_commit", "sha256_file"]
+__all__ = ["git_commit", "machine", "scene_list_sha256", "sha256_file", "write_provenance"]
 
 
 def sha256_file(path: Path) -> str:
@@ -28,3 +28,49 @@ def git_commit() -> str:
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+
+
+PROVENANCE_SCHEMA = "nudge.provenance/1"
+"""The schema tag of a ``provenance.json`` (the fields of ``docs/records.md``)."""
+
+
+def machine() -> dict[str, object]:
+    """The machine: host name, operating system, architecture, CPU model, logical cores."""
+    import os
+    import platform
+
+    cpu = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        cpu = platform.processor() or "unknown"
+    return {"hostname": platform.node() or "unknown", "os": platform.system().lower(), "arch": platform.machine(),
+            "cpu": cpu, "cores": os.cpu_count() or 1}
+
+
+def scene_list_sha256(files: list[tuple[str, str]]) -> str:
+    """sha256 of the lines ``<file name> <sha256>\\n`` of ``files`` (name, sha256), in order: the
+    scene-list hash of ``provenance.json`` (``nudge::provenance::scene_list_sha256``)."""
+    text = "".join(f"{name} {sha}\n" for name, sha in files)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def write_provenance(folder: Path, record: dict) -> Path:
+    """Writes ``folder/provenance.json``: ``record`` after the schema tag, nudge's version and git
+    commit (the extension's build), the time and the machine. Returns the file."""
+    import json
+    import time
+
+    import nudge
+
+    out = {"schema": PROVENANCE_SCHEMA, "nudge_version": nudge.__version__, "git_sha": nudge.GIT_SHA,
+           "created_unix_s": int(time.time()), **record, "machine": machine()}
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "provenance.json"
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(out, indent=1) + "\n")
+    tmp.replace(path)
+    return path

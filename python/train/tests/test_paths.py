@@ -47,7 +47,7 @@ def test_nudge_repo_moves_every_repository_path(monkeypatch: pytest.MonkeyPatch,
     assert paths.ngsim() == tmp_path.parent / "shared" / "data" / "ngsim"
     # Defaults are resolved when used, so the command line and the configs follow the variable.
     cl = build_parser().parse_args(["closed-loop"])
-    assert (cl.cache, cl.out) == (tmp_path / "runs" / "closed_loop", tmp_path / "docs" / "results" / "closed_loop.md")
+    assert (cl.cache, cl.out) == (tmp_path / "runs" / "closed_loop", None)
     assert build_parser().parse_args(["teacher"]).export == str(tmp_path / "assets" / "models" / "teacher.safetensors")
     cfg = DistillConfig()
     assert cfg.out == tmp_path / "data" / "distill"

@@ -11,7 +11,7 @@ import pytest
 
 nudge = pytest.importorskip("nudge")
 
-from nudge_train.experiments.plots import _draw_lane_extents, _pyplot  # noqa: E402
+from nudge.figures import _draw_lane_extents, _pyplot  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parents[3] / "assets" / "scenes"
 

@@ -37,6 +37,7 @@ import numpy as np
 import nudge
 
 from nudge_train import paths
+from nudge_train.provenance import scene_list_sha256, write_provenance
 from nudge_train.experiments.stats import (BOOTSTRAP, cluster_bootstrap, mcnemar_exact, paired_bootstrap, stratum,
                                            terciles)
 
@@ -97,8 +98,10 @@ class EvalConfig:
             raise ValueError(f"--n must be >= 1, got {self.n}")
         if self.seeds < 1:
             raise ValueError(f"--seeds must be >= 1, got {self.seeds}")
-        if self.teacher_n < 1:
-            raise ValueError(f"--teacher-n must be >= 1, got {self.teacher_n}")
+        if self.teacher_n < 0:
+            raise ValueError(f"--teacher-n must be >= 0, got {self.teacher_n}")
+        if self.teacher_n == 0 and "teacher" in self.planners:
+            raise ValueError("--teacher-n must be >= 1 when the teacher plans (--planners includes teacher)")
         if self.batch < 1 or self.threads < 1:
             raise ValueError("--batch and --threads must be >= 1")
         for w in self.worlds:
@@ -201,8 +204,10 @@ def model_files(planner: str, world: str) -> list[Path]:
     return files
 
 
-def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: ANN001 (a print-like callable)
-    """Runs (or loads from the cache) every arm; returns the chunks and what was run."""
+def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[list[Chunk], dict]:  # noqa: ANN001 (a print-like callable)
+    """Runs (or loads from the cache) every arm; returns the chunks and what was run. Every arm's
+    cache folder carries a ``provenance.json`` (``docs/records.md``) of the runs it holds,
+    rewritten when a part of it is computed (``command``: the command line it names)."""
     cfg.validate()
     scenes, scene_seeds, subset = choose(cfg)
     if not scenes:
@@ -274,6 +279,17 @@ def collect(cfg: EvalConfig, log=print) -> tuple[list[Chunk], dict]:  # noqa: AN
                 elapsed = time.perf_counter() - t_start
                 log(f"[{ci + 1}/{len(todo)}] {planner} in {world} ({label}): part {pi + 1}/{len(parts)}, "
                     f"{offset} runs, {wall:.0f} s of simulation ({elapsed:.0f} s elapsed)")
+        if computed > 0 or not (folder / "provenance.json").is_file():
+            files = [(scenes[i], scene_sha[i]) for i in idx]
+            write_provenance(folder, {
+                "command": command, "settings": inputs["settings"],
+                "sim_config": inputs["config"], "predictor": planner, "world": world,
+                "models": inputs["models"], "native_sha256": base["native"],
+                "scenes": {"count": len(files), "list_sha256": scene_list_sha256([(p.name, h) for p, h in files]),
+                           "files": [{"path": paths.repo_relative(p), "sha256": h} for p, h in files]},
+                "seeds": {"scene_seeds": [scene_seeds[i] for i in idx], "runs_per_scene": cfg.seeds,
+                          "rule": "run r of a scene draws scene_seed + r"},
+                "threads": cfg.threads})
         chunks.append(Chunk(arm, merged["runs"], merged["collisions"], merged["steps"], wall, computed))
     meta = {"scenes": scenes, "scene_seeds": scene_seeds, "subset": subset, "config": sim_cfg,
             "settings_labels": [a[0] for a in arms], "wall_s": time.perf_counter() - t_start}
@@ -672,7 +688,7 @@ def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str,
     the exit status (2 when the scene folder holds no scenario or an argument is invalid)."""
     try:
         before_data = json.loads(before[0].read_text()) if before is not None else None
-        chunks, meta = collect(cfg, log=lambda s: print(s, flush=True))
+        chunks, meta = collect(cfg, log=lambda s: print(s, flush=True), command=command)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import shutil
 import struct
 import subprocess
 import tempfile
@@ -32,6 +33,43 @@ from pathlib import Path
 import numpy as np
 
 from nudge_train import paths
+from nudge_train.errors import NudgeTrainError
+
+
+class CommandError(NudgeTrainError, RuntimeError):
+    """The ``nudge`` command failed or cannot be found: ``command`` (the argument list) and
+    the reason (its exit status and the last lines of its stderr)."""
+
+    def __init__(self, command: list[str], reason: str) -> None:
+        self.command = command
+        super().__init__(f"{' '.join(command[:2])} ...: {reason}")
+
+
+def find_nudge(given: Path | None = None) -> Path:
+    """The ``nudge`` command: ``given``, else ``<repo>/target/release/nudge`` when built, else
+    ``nudge`` on ``PATH`` (the command of the installed wheel). Raises :class:`CommandError`
+    naming what was tried."""
+    if given is not None:
+        if not Path(given).is_file():
+            raise CommandError([str(given)], "not found (build it: make build)")
+        return Path(given).absolute()
+    built = paths.repo() / "target" / "release" / "nudge"
+    if built.is_file():
+        return built
+    found = shutil.which("nudge")
+    if found is None:
+        raise CommandError(["nudge"], f"not found: neither {built} (make build) nor `nudge` on PATH (pip install "
+                                      "the nudge-planner wheel)")
+    return Path(found)
+
+
+def _assets_args() -> list[str]:
+    """``--assets DIR`` with the checkout's assets as an absolute path when they are there (so
+    the command resolves its models wherever it runs), else nothing (the command's own)."""
+    assets = paths.assets()
+    if (assets / "models").is_dir():
+        return ["--assets", str(assets.absolute())]
+    return []
 
 @dataclass(frozen=True)
 class SceneRun:
@@ -99,12 +137,21 @@ with the recording)."""
 
 def _simulate_args(source: Path, ego_args: list[str], out: Path) -> list[str]:
     return ["simulate", "--commonroad", str(source), *ego_args, "--world", CHECK_WORLD, "--out", str(out),
-            "--threads", "1"]
+            "--threads", "1", "--no-progress"]
 
 
 def _simulate(nudge: Path, ego_args: list[str], source: Path, out: Path) -> Path:
-    """Runs ``nudge simulate --commonroad source`` with ``ego_args`` into ``out``; its solution."""
-    subprocess.run([str(nudge), *_simulate_args(source, ego_args, out)], check=True, capture_output=True, text=True)
+    """Runs ``nudge simulate --commonroad source`` with ``ego_args`` into ``out`` (the models
+    under the checkout's assets, whatever the working directory); its solution. Raises
+    :class:`CommandError` with the command's stderr when it fails."""
+    command = [str(nudge), *_simulate_args(source, ego_args, out), *_assets_args()]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, check=False)
+    except OSError as exc:
+        raise CommandError(command, f"cannot run: {exc}") from None
+    if done.returncode != 0:
+        tail = " | ".join(done.stderr.strip().splitlines()[-3:]) or "no message"
+        raise CommandError(command, f"exit status {done.returncode}: {tail}")
     sols = sorted(out.glob("solution_*.xml"))
     if len(sols) != 1:
         raise RuntimeError(f"{out}: expected one solution file, found {len(sols)}")
@@ -278,8 +325,10 @@ def end_to_end(nudge: Path, out: Path) -> str:
     return "\n".join(lines)
 
 
-def run(nudge: Path, out: Path, md: Path | None) -> str:
-    """Plans and checks every shipped scene; writes ``md`` (when given) and returns the page."""
+def run(nudge: Path | None, out: Path, md: Path | None) -> str:
+    """Plans and checks every shipped scene with the ``nudge`` command (``find_nudge(nudge)``);
+    writes ``md`` (when given) and returns the page."""
+    nudge = find_nudge(nudge)
     rows: list[tuple[SceneRun, Check | str, dict]] = []
     for r in shipped_runs(paths.shipped_scenes(), paths.ngsim()):
         d = out / r.name
