@@ -416,3 +416,41 @@ def test_fixture_rows_are_valid_output() -> None:
     check_tables(read_raw_ngsim(RAW18))
     check_tables([read_coifman(COIF)])
     check_tables([read_commonroad(CR)])
+
+
+_CR_HEAD = '<commonRoad commonRoadVersion="2020a" timeStepSize="0.1" benchmarkID="X">'
+
+
+def test_commonroad_reader_budgets_depth_elements_and_size(tmp_path: Path) -> None:
+    """Issue 49: the Python CommonRoad reader holds the same budgets as the Rust one (depth,
+    element count, bytes after decompression), each refusal a DataError naming the file and
+    the budget, before the tree (or the inflated text) grows without bound."""
+    from nudge_train.data.commonroad import MAX_XML_BYTES, MAX_XML_DEPTH, MAX_XML_ELEMENTS
+
+    n = 200_000
+    deep = tmp_path / "deep.xml.gz"
+    deep.write_bytes(gzip.compress((_CR_HEAD + "<a>" * n + "</a>" * n + "</commonRoad>").encode()))
+    with pytest.raises(DataError, match=rf"deep\.xml\.gz.*nesting-depth budget of {MAX_XML_DEPTH}"):
+        read_commonroad(deep)
+    many = tmp_path / "many.xml.gz"
+    many.write_bytes(gzip.compress((_CR_HEAD + "<a/>" * (MAX_XML_ELEMENTS + 10) + "</commonRoad>").encode()))
+    with pytest.raises(DataError, match=rf"many\.xml\.gz.*element-count budget of {MAX_XML_ELEMENTS}"):
+        read_commonroad(many)
+    big = tmp_path / "big.xml.gz"
+    big.write_bytes(gzip.compress(b" " * (MAX_XML_BYTES + 1)))
+    with pytest.raises(DataError, match=rf"big\.xml\.gz.*size budget of {MAX_XML_BYTES}"):
+        read_commonroad(big)
+    plain = tmp_path / "big.xml"
+    with open(plain, "wb") as fh:
+        fh.truncate(MAX_XML_BYTES + 1)
+    with pytest.raises(DataError, match=rf"big\.xml.*size budget of {MAX_XML_BYTES}"):
+        read_commonroad(plain)
+
+
+def test_commonroad_reader_refuses_dtd_entities(tmp_path: Path) -> None:
+    """An entity declared in a DTD is refused naming the file (the Rust reader refuses it too),
+    so both readers read the same value or neither does; character references are decoded."""
+    p = tmp_path / "dtd.xml"
+    p.write_text('<?xml version="1.0"?>\n<!DOCTYPE commonRoad [<!ENTITY z "0">]>\n' + _CR_HEAD + "<x>2&z;</x></commonRoad>")
+    with pytest.raises(DataError, match=r"dtd\.xml.*DTD"):
+        read_commonroad(p)
