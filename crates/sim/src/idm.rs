@@ -69,6 +69,8 @@ use nudge_planner::settings::schema::{closed, open_min};
 
 /// The schema string of the world file.
 pub const IDM_SCHEMA: &str = "nudge.idm/1";
+/// Largest world file read (bytes): 8 MiB, 250 times the shipped `idm.json` (32 kB).
+pub const MAX_WORLD_BYTES: u64 = 8 << 20;
 /// Ballistic sub-steps per closed-loop step of [`DT`] = 0.3 s.
 pub const SUBSTEPS: usize = 3;
 /// The sub-step (s): the fit's 0.1 s ([`SUBSTEPS`] · `SUB_DT` = [`DT`]).
@@ -554,16 +556,35 @@ impl Fields<'_> {
 }
 
 impl IdmPopulation {
-    /// Reads and checks a "nudge.idm/1" file.
+    /// Reads and checks a "nudge.idm/1" file, opened by the checked-open routine
+    /// ([`nudge_predictor::file::read_bounded`]): a regular file of at most
+    /// [`MAX_WORLD_BYTES`], its type and size checked before reading.
     ///
     /// # Errors
-    /// [`WorldFileError::Io`] when the file cannot be read, otherwise as
-    /// [`IdmPopulation::from_json`].
+    /// [`WorldFileError::NotRegularFile`] (a FIFO or device, refused before opening),
+    /// [`WorldFileError::TooLarge`], [`WorldFileError::Io`] when the file cannot be read,
+    /// otherwise as [`IdmPopulation::from_json`].
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, WorldFileError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| WorldFileError::Io {
+        let bytes =
+            nudge_predictor::file::read_bounded(path, MAX_WORLD_BYTES).map_err(|e| match e {
+                nudge_predictor::PredictorError::NotRegularFile { path, kind } => {
+                    WorldFileError::NotRegularFile { path, kind }
+                }
+                nudge_predictor::PredictorError::FileTooLarge { path, size, max } => {
+                    WorldFileError::TooLarge { path, size, max }
+                }
+                nudge_predictor::PredictorError::Io { path, source } => {
+                    WorldFileError::Io { path, source }
+                }
+                other => WorldFileError::Io {
+                    path: path.to_path_buf(),
+                    source: std::io::Error::other(other.to_string()),
+                },
+            })?;
+        let text = String::from_utf8(bytes).map_err(|e| WorldFileError::NotJson {
             path: path.to_path_buf(),
-            source,
+            reason: format!("not UTF-8 text: {e}"),
         })?;
         Self::from_json(&text, path)
     }
@@ -1321,6 +1342,62 @@ mod tests {
             IdmPopulation::from_file("/nonexistent/idm.json"),
             Err(WorldFileError::Io { .. })
         ));
+    }
+
+    /// Issue 49 class 2: the world file is opened by the one checked-open routine: a FIFO is
+    /// refused without blocking (before: read forever), `/dev/zero` without reading (before:
+    /// read until memory ran out), a file above [`MAX_WORLD_BYTES`] by its size; each a typed
+    /// error naming the file.
+    #[cfg(unix)]
+    #[test]
+    fn fifo_device_and_huge_world_files_are_refused_by_name() {
+        let dir = std::env::temp_dir().join(format!("nudge-world-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let fifo = dir.join("idm.fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo");
+        assert!(made.success());
+        let (tx, rx) = std::sync::mpsc::channel();
+        let f = fifo.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(IdmPopulation::from_file(&f));
+        });
+        let got = rx
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("reading a FIFO world file blocked");
+        match got {
+            Err(WorldFileError::NotRegularFile { path, kind }) => {
+                assert_eq!((path.as_path(), kind), (fifo.as_path(), "a FIFO"));
+            }
+            other => panic!("expected NotRegularFile, got {other:?}"),
+        }
+        let e = IdmPopulation::from_file("/dev/zero").expect_err("device");
+        assert!(
+            matches!(
+                &e,
+                WorldFileError::NotRegularFile {
+                    kind: "a character device",
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("/dev/zero"), "{e}");
+        let big = dir.join("big.json");
+        let file = std::fs::File::create(&big).expect("create");
+        file.set_len(MAX_WORLD_BYTES + 1).expect("set_len");
+        match IdmPopulation::from_file(&big) {
+            Err(WorldFileError::TooLarge { path, size, max }) => {
+                assert_eq!(
+                    (path, size, max),
+                    (big.clone(), MAX_WORLD_BYTES + 1, MAX_WORLD_BYTES)
+                );
+            }
+            other => panic!("expected TooLarge, got {other:?}"),
+        }
+        std::fs::remove_dir_all(&dir).expect("clean");
     }
 
     /// Lane 0 (y in [-1.75, 1.75]) really ends at x = 300; lane 1 runs on.

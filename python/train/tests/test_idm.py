@@ -343,3 +343,69 @@ def test_world_golden_is_current() -> None:
     from nudge_train.idm import golden
 
     assert (paths.repo() / golden.GOLDEN).read_text() == golden.text(), "rerun python -m nudge_train.idm.golden"
+
+
+# ------------------------------------------------------------------- hostile cut-in files (issue 49)
+
+
+def _cutins_doc() -> dict:
+    import json
+
+    return json.loads((Path(__file__).resolve().parents[3] / "assets" / "worlds" / "cutins.json").read_text())
+
+
+def test_cutins_file_opened_by_the_checked_open(tmp_path: Path) -> None:
+    """A FIFO is refused without blocking (before: blocked forever), a device without reading
+    it (before: /dev/zero read until memory ran out), each a ConfigError naming the file."""
+    import os
+    import signal
+
+    from nudge_train.errors import ConfigError
+
+    fifo = tmp_path / "cutins.json"
+    os.mkfifo(fifo)
+
+    def _alarm(*_: object) -> None:
+        raise TimeoutError("reading a FIFO blocked")
+
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(10)
+    try:
+        with pytest.raises(ConfigError, match=r"cutins\.json.*not a regular file"):
+            ci.read_events(fifo)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    with pytest.raises(ConfigError, match=r"/dev/zero.*not a regular file"):
+        ci.read_events(Path("/dev/zero"))
+
+
+@pytest.mark.parametrize(("mutate", "match"), [
+    (lambda d: d["events"][3].update(gap=float("nan")), r"events\[3\]\.gap.*not a finite number"),
+    (lambda d: d["events"][5].pop("follower"), r"events\[5\].*missing.*follower"),
+    (lambda d: d["events"][0].update(colour="red"), r"events\[0\].*unknown.*colour"),
+    (lambda d: d["events"][2].update(intruder=1.5), r"events\[2\]\.intruder.*integer"),
+    (lambda d: d["events"][2].update(t_edge="x"), r"events\[2\]\.t_edge.*number"),
+    (lambda d: d["events"].__setitem__(1, [1, 2]), r"events\[1\].*object"),
+    (lambda d: d.update(events={}), r"events.*list"),
+    (lambda d: d["config"].update(zzz=1), r"config.*unknown.*zzz"),
+])
+def test_cutins_file_is_validated_naming_the_item(tmp_path: Path, mutate, match: str) -> None:
+    """Issue 49 class 11: cutins.json was not validated (NaN accepted, bare TypeError/KeyError):
+    every event and the config are checked, the error a ConfigError naming the item."""
+    import json
+
+    from nudge_train.errors import ConfigError
+
+    doc = _cutins_doc()
+    mutate(doc)
+    p = tmp_path / "cutins.json"
+    p.write_text(json.dumps(doc))
+    with pytest.raises(ConfigError, match=match):
+        ci.read_events(p)
+        ci.read_config(p)
+
+
+def test_shipped_cutins_file_reads() -> None:
+    events = ci.read_events(Path(__file__).resolve().parents[3] / "assets" / "worlds" / "cutins.json")
+    assert len(events) == 97 and events[0].follower == 491
