@@ -149,3 +149,37 @@ fn budgets_leave_room_for_real_files() {
     assert_eq!(raw.obstacles.len(), 54);
     assert!(!raw.lanelets.is_empty());
 }
+
+/// Issue 49 class 4: an ego driving past the end of the lane map (the road frame's
+/// arc-length table) made the solution writer panic (`frame.rs:49`, index out of bounds: the
+/// Newton inverse left the table, its Jacobian was 0, the NaN reached `interp`). It is a typed
+/// error naming the file, the time step and the frame's range; a run that stays inside gives
+/// a finite solution.
+#[test]
+fn solution_past_the_end_of_the_lane_map_is_a_typed_error() {
+    use nudge::commonroad::{CommonRoadScene, Ego, Solution};
+    let fixture = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("python/train/tests/fixtures/commonroad/USA_US101-1_1_T-1.xml.gz");
+    let scene = CommonRoadScene::read(&fixture).unwrap();
+    let ego = Ego::PlanningProblem(scene.raw.planning_problems[0].id);
+    let t0 = scene.default_t0(ego).unwrap();
+    let sc = scene.scenario(ego, t0).unwrap();
+    // 3 m/s² for 60 s: more than 2 km, far past the map's end.
+    let far = vec![[0.0, 3.0]; 200];
+    let e = Solution::of_inputs(&scene, (ego, t0), &sc, (&far, None), (1.4, 1.4)).unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        matches!(e, CommonRoadError::Solution { .. })
+            && msg.contains("USA_US101-1_1_T-1")
+            && msg.contains("time step")
+            && msg.contains("road frame"),
+        "{msg}"
+    );
+    let near = vec![[0.0, 0.0]; 3];
+    let ok = Solution::of_inputs(&scene, (ego, t0), &sc, (&near, None), (1.4, 1.4)).unwrap();
+    assert!(
+        ok.states
+            .iter()
+            .all(|s| s.pos.iter().all(|v| v.is_finite()))
+    );
+}
