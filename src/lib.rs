@@ -8,6 +8,7 @@
 pub mod animate;
 pub mod cli;
 pub mod commonroad;
+pub mod files;
 
 pub use nudge_planner as planner;
 pub use nudge_predictor as predictor;

@@ -263,14 +263,18 @@ impl Solution {
         s
     }
 
-    /// Writes [`Solution::to_xml`] to `path`.
+    /// Writes [`Solution::to_xml`] to `path` atomically ([`crate::files::write_file`]: a
+    /// temporary file renamed into place; a symbolic link at `path` is replaced, not followed).
     ///
     /// # Errors
     /// [`CommonRoadError::Io`] naming `path`.
     pub fn write(&self, path: &Path) -> Result<(), CommonRoadError> {
-        std::fs::write(path, self.to_xml()).map_err(|source| CommonRoadError::Io {
+        crate::files::write_file(path, self.to_xml().as_bytes()).map_err(|e| CommonRoadError::Io {
             path: path.to_path_buf(),
-            source,
+            source: match e {
+                crate::files::FilesError::Io { source, .. } => source,
+                other => std::io::Error::other(other.to_string()),
+            },
         })
     }
 }
