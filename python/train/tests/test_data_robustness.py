@@ -454,3 +454,36 @@ def test_commonroad_reader_refuses_dtd_entities(tmp_path: Path) -> None:
     p.write_text('<?xml version="1.0"?>\n<!DOCTYPE commonRoad [<!ENTITY z "0">]>\n' + _CR_HEAD + "<x>2&z;</x></commonRoad>")
     with pytest.raises(DataError, match=r"dtd\.xml.*DTD"):
         read_commonroad(p)
+
+
+@st.composite
+def _hostile_xml(draw: st.DrawFn) -> str:
+    """The fixture with entity references, CDATA, DTDs and deep nesting (issue 49): the reader
+    decodes references per the spec, refuses DTD entities and holds its budgets."""
+    text = _cr_text()
+    spans = [m.span(2) for m in CR_FIELDS.finditer(text)]
+    for e in sorted({draw(st.integers(0, len(spans) - 1)) for _ in range(draw(st.integers(1, 4)))}, reverse=True):
+        a, b = spans[e]
+        value = draw(st.sampled_from(["2&#48;.0", "&#x32;5", "1&foo;", "&#0;", "<![CDATA[7.5]]>", "1&amp;2", "&lt;",
+                                      "&#xD800;", "&#1114112;", "3&#46;5"]))
+        text = text[:a] + value + text[b:]
+    kind = draw(st.sampled_from(["none", "dtd", "nest", "flood"]))
+    at = text.find("<lanelet")
+    if kind == "dtd":
+        text = text.replace("<commonRoad", '<!DOCTYPE commonRoad [<!ENTITY z "0">]><commonRoad', 1)
+    elif kind == "nest":
+        k = draw(st.sampled_from([10, 70, 5000]))
+        text = text[:at] + "<a>" * k + "</a>" * k + text[at:]
+    elif kind == "flood":
+        text = text[:at] + "<a/>" * draw(st.integers(0, 20_000)) + text[at:]
+    return text
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(_hostile_xml(), st.booleans())
+def test_commonroad_reader_hostile_xml_property(text: str, gz: bool) -> None:
+    raw = text.encode("utf-8", "surrogatepass")
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / ("USA_US101-1_1_T-1.xml.gz" if gz else "USA_US101-1_1_T-1.xml")
+        p.write_bytes(gzip.compress(raw, mtime=0) if gz else raw)
+        _oracle(read_commonroad, p)

@@ -409,3 +409,55 @@ def test_cutins_file_is_validated_naming_the_item(tmp_path: Path, mutate, match:
 def test_shipped_cutins_file_reads() -> None:
     events = ci.read_events(Path(__file__).resolve().parents[3] / "assets" / "worlds" / "cutins.json")
     assert len(events) == 97 and events[0].follower == 491
+
+
+# ------------------------------------------------------------- property: hostile cut-in files
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(2**70), 2**70), st.booleans(),
+                    st.none(), st.text(max_size=4), st.lists(st.integers(), max_size=2), st.just({}))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_cutins_reader_property(data: st.DataObject) -> None:
+    """Any edit of the shipped cut-in file is read as valid events (every field of its type,
+    numbers finite) or refused with a ConfigError naming the file; never another exception."""
+    import json
+    import math
+    import tempfile
+
+    from nudge_train.errors import ConfigError
+
+    doc = _cutins_doc()
+    for _ in range(data.draw(st.integers(0, 3))):
+        i = data.draw(st.integers(0, len(doc["events"]) - 1))
+        kind = data.draw(st.sampled_from(["value", "drop", "add", "replace_event", "config"]))
+        ev = doc["events"][i]
+        if kind == "value" and isinstance(ev, dict) and ev:
+            ev[data.draw(st.sampled_from(sorted(ev)))] = data.draw(_VALUES)
+        elif kind == "drop" and isinstance(ev, dict) and ev:
+            del ev[data.draw(st.sampled_from(sorted(ev)))]
+        elif kind == "add" and isinstance(ev, dict):
+            ev[data.draw(st.text(max_size=5))] = 1
+        elif kind == "replace_event":
+            doc["events"][i] = data.draw(_VALUES)
+        elif kind == "config":
+            doc["config"][data.draw(st.sampled_from(sorted(doc["config"]) + ["x"]))] = data.draw(_VALUES)
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "cutins.json"
+        p.write_text(json.dumps(doc))
+        try:
+            events = ci.read_events(p)
+            cfg = ci.read_config(p)
+        except ConfigError as err:
+            assert "cutins.json" in str(err)
+            return
+    for e in events:
+        for f in ci.CutIn.__dataclass_fields__:
+            v = getattr(e, f)
+            assert v is None or isinstance(v, str) or (not isinstance(v, bool) and math.isfinite(v)), (f, v)
+    assert all(math.isfinite(getattr(cfg, f)) for f in ci.CutInConfig.__dataclass_fields__)

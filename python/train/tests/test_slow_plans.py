@@ -226,3 +226,40 @@ def test_a_scene_outside_the_scenes_folder_is_never_loaded(tmp_path: Path) -> No
     scenes.mkdir()
     with pytest.raises(ConfigError, match=r"\.\./outside.*not a scene name"):
         slow_plans._steps_of(r, scenes)
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_JUNK = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(2**70), 2**70), st.booleans(),
+                  st.none(), st.text(max_size=12), st.lists(st.integers(0, 3), max_size=3), st.just({}),
+                  st.sampled_from(["../x", "/etc/passwd", "..", ".hidden", "a/b", "ok-scene"]))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_cache_reader_property(data: st.DataObject) -> None:
+    """Any edit of a cache part is read as flagged runs whose scene names are plain file stems,
+    or refused with a ConfigError naming the part; never another exception."""
+    import tempfile
+
+    from nudge_train.errors import ConfigError
+
+    part = _part()
+    for _ in range(data.draw(st.integers(1, 3))):
+        section = data.draw(st.sampled_from(["inputs", "runs", "steps"]))
+        key = data.draw(st.sampled_from(sorted(part[section]) + ["extra"]))
+        if data.draw(st.booleans()) and key in part[section]:
+            col = part[section][key]
+            if isinstance(col, list) and col:
+                col[data.draw(st.integers(0, len(col) - 1))] = data.draw(_JUNK)
+                continue
+        part[section][key] = data.draw(_JUNK)
+    with tempfile.TemporaryDirectory() as d:
+        try:
+            runs = slow_plans.flagged_runs(_write(Path(d), part))
+        except ConfigError as err:
+            assert "part-0000.json" in str(err)
+            return
+    for r in runs:
+        assert "/" not in r.scene and not r.scene.startswith(".") and isinstance(r.seed, int)
