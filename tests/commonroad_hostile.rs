@@ -7,7 +7,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use nudge::commonroad::xml::{MAX_XML_BYTES, MAX_XML_DEPTH, MAX_XML_ELEMENTS};
+use nudge::commonroad::xml::{MAX_XML_ATTRIBUTES, MAX_XML_BYTES, MAX_XML_DEPTH, MAX_XML_ELEMENTS};
 use nudge::commonroad::{CommonRoadError, RawScenario, XmlBudget};
 
 fn dir(tag: &str) -> PathBuf {
@@ -182,4 +182,25 @@ fn solution_past_the_end_of_the_lane_map_is_a_typed_error() {
             .iter()
             .all(|s| s.pos.iter().all(|v| v.is_finite()))
     );
+}
+
+/// Attributes are budgeted per element: one element with a million distinct attributes
+/// (7 bytes each, inside the byte budget) used to take quadratic time in the XML library's
+/// duplicate check (no answer within 10 minutes); it is refused after the budget's worth.
+#[test]
+fn attributes_per_element_are_budgeted() {
+    let d = dir("attrs");
+    let attrs: String = (0..1_000_000).map(|i| format!(" a{i}=\"\"")).collect();
+    let text = format!("{HEAD}<x{attrs}/></commonRoad>");
+    let p = d.join("attrs.xml.gz");
+    std::fs::write(&p, gz(text.as_bytes())).unwrap();
+    let t0 = std::time::Instant::now();
+    let e = RawScenario::read(&p).unwrap_err();
+    assert!(
+        matches!(e, CommonRoadError::Budget { budget: XmlBudget::Attributes, limit, .. } if limit == MAX_XML_ATTRIBUTES as u64),
+        "{e}"
+    );
+    assert!(e.to_string().contains("attrs.xml.gz"), "{e}");
+    assert!(t0.elapsed().as_secs_f64() < 10.0, "{:?}", t0.elapsed());
+    std::fs::remove_dir_all(&d).unwrap();
 }

@@ -3,7 +3,8 @@
 //!
 //! * `commonroad`: a shipped CommonRoad fixture (`python/train/tests/fixtures/commonroad`),
 //!   mutated as text (numbers replaced by hostile tokens, character and undefined entity
-//!   references, CDATA, DTDs, deep nesting, element floods, duplicated and deleted elements,
+//!   references, CDATA, DTDs, deep nesting, element and attribute floods, duplicated and
+//!   deleted elements,
 //!   bit flips, truncation), written plain or gzipped (sometimes as a gzip bomb). Oracle: a
 //!   typed error naming the file, or a scenario whose every value passes an independent
 //!   re-check of the reader's ranges; from an accepted file, the scene, an ego's scenario and
@@ -146,12 +147,18 @@ fn mutate_xml(rng: &mut Rng, text: &mut String) -> &'static str {
             "deep nesting"
         }
         5 => {
+            let at = text.find("<lanelet").unwrap_or(text.len() / 2);
+            if rng.chance(0.3) {
+                let k = rng.pick(&[3usize, 64, 65, 100_000]);
+                let attrs: String = (0..k).map(|i| format!(" a{i}=\"\"")).collect();
+                text.insert_str(at, &format!("<a{attrs}/>"));
+                return "attribute flood";
+            }
             let k = if rng.chance(0.1) {
                 1_000_100
             } else {
                 rng.below(50_000)
             };
-            let at = text.find("<lanelet").unwrap_or(text.len() / 2);
             text.insert_str(at, &"<a/>".repeat(k));
             "element flood"
         }

@@ -39,7 +39,8 @@ pub enum CommonRoadError {
         reason: String,
     },
     /// The file exceeds one of the reader's budgets (decompressed size, nesting depth,
-    /// element count): refused before the work or memory it would take.
+    /// element count, attributes per element): refused before the work or memory it would
+    /// take.
     #[error("{path}: exceeds the {budget} budget of {limit}")]
     Budget {
         /// The file.
@@ -95,6 +96,8 @@ pub enum XmlBudget {
     Depth,
     /// Elements in the document ([`super::xml::MAX_XML_ELEMENTS`]).
     Elements,
+    /// Attributes of one element ([`super::xml::MAX_XML_ATTRIBUTES`]).
+    Attributes,
 }
 
 impl std::fmt::Display for XmlBudget {
@@ -103,6 +106,7 @@ impl std::fmt::Display for XmlBudget {
             Self::DecompressedBytes => "decompressed-size (bytes)",
             Self::Depth => "nesting-depth (levels)",
             Self::Elements => "element-count (elements)",
+            Self::Attributes => "attributes-per-element",
         })
     }
 }

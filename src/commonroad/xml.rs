@@ -22,6 +22,11 @@ pub const MAX_XML_DEPTH: usize = 64;
 /// Most elements accepted in one document: 1,000,000, 13 times the largest US-101 scene
 /// (76,753). Each element costs about 200 bytes in the tree, so this bounds it near 200 MB.
 pub const MAX_XML_ELEMENTS: usize = 1_000_000;
+/// Most attributes of one element: CommonRoad elements carry at most a handful (`commonRoad`
+/// has 7). The XML library checks each attribute's name against the element's earlier ones,
+/// so the work grows with the square of their number: a million-attribute element would take
+/// hours.
+pub const MAX_XML_ATTRIBUTES: usize = 64;
 /// Largest |coordinate| accepted (m), as the pipeline's `COORD` rule.
 pub const MAX_COORD: f64 = 1e5;
 /// Largest |orientation| accepted (rad): 4π.
@@ -232,7 +237,14 @@ fn open(e: &BytesStart<'_>, line: usize, path: &Path) -> Result<Node, CommonRoad
         line,
         ..Node::default()
     };
-    for a in e.attributes() {
+    for (k, a) in e.attributes().enumerate() {
+        if k >= MAX_XML_ATTRIBUTES {
+            return Err(CommonRoadError::Budget {
+                path: path.to_path_buf(),
+                budget: XmlBudget::Attributes,
+                limit: MAX_XML_ATTRIBUTES as u64,
+            });
+        }
         let a = a.map_err(|err| format_error(path, line, format!("bad attribute: {err}")))?;
         let value = a
             .unescape_value()

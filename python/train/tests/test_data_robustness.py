@@ -440,6 +440,12 @@ def test_commonroad_reader_budgets_depth_elements_and_size(tmp_path: Path) -> No
     big.write_bytes(gzip.compress(b" " * (MAX_XML_BYTES + 1)))
     with pytest.raises(DataError, match=rf"big\.xml\.gz.*size budget of {MAX_XML_BYTES}"):
         read_commonroad(big)
+    from nudge_train.data.commonroad import MAX_XML_ATTRIBUTES
+
+    attrs = tmp_path / "attrs.xml"
+    attrs.write_text(_CR_HEAD + "<x" + "".join(f' a{i}=""' for i in range(MAX_XML_ATTRIBUTES + 1)) + "/></commonRoad>")
+    with pytest.raises(DataError, match=rf"attrs\.xml.*attributes-per-element budget of {MAX_XML_ATTRIBUTES}"):
+        read_commonroad(attrs)
     plain = tmp_path / "big.xml"
     with open(plain, "wb") as fh:
         fh.truncate(MAX_XML_BYTES + 1)

@@ -53,6 +53,8 @@ MAX_XML_DEPTH = 64
 """Deepest element nesting read (levels, the root is 1); CommonRoad nests 7 deep."""
 MAX_XML_ELEMENTS = 1_000_000
 """Most elements read in one document: 13 times the largest US-101 scene (76,753)."""
+MAX_XML_ATTRIBUTES = 64
+"""Most attributes of one element (CommonRoad's carry at most 7)."""
 
 
 def _parse_xml(path: Path) -> ET.Element:
@@ -78,6 +80,9 @@ def _parse_xml(path: Path) -> ET.Element:
                             row=parser.CurrentLineNumber)
         if depth[1] > MAX_XML_ELEMENTS:
             raise DataError(path, f"exceeds the element-count budget of {MAX_XML_ELEMENTS} elements",
+                            row=parser.CurrentLineNumber)
+        if len(attrs) > MAX_XML_ATTRIBUTES:
+            raise DataError(path, f"exceeds the attributes-per-element budget of {MAX_XML_ATTRIBUTES}",
                             row=parser.CurrentLineNumber)
         attrs[_LINE] = parser.CurrentLineNumber
         builder.start(tag, attrs)  # type: ignore[arg-type]
