@@ -8,6 +8,7 @@
 pub mod animate;
 pub mod cli;
 pub mod commonroad;
+pub mod files;
 pub mod provenance;
 
 pub use provenance::GIT_SHA;

@@ -335,15 +335,15 @@ impl Provenance {
         })
     }
 
-    /// Writes `provenance.json` ([`FILE_NAME`]) into `dir`.
+    /// The text of `provenance.json` ([`FILE_NAME`]), written with the records as one set
+    /// ([`crate::files::write_set`]).
     ///
     /// # Errors
-    /// The path and the error when it cannot be written.
-    pub fn write(&self, dir: &Path) -> Result<PathBuf, String> {
-        let p = dir.join(FILE_NAME);
-        let json = serde_json::to_string_pretty(self).map_err(|e| e.to_string())?;
-        std::fs::write(&p, json + "\n").map_err(|e| format!("{}: {e}", p.display()))?;
-        Ok(p)
+    /// The serialiser's message.
+    pub fn to_json(&self) -> Result<String, String> {
+        serde_json::to_string_pretty(self)
+            .map(|json| json + "\n")
+            .map_err(|e| e.to_string())
     }
 }
 

@@ -480,3 +480,54 @@ fn cli_ablate_reaction_is_the_setting() {
     assert_eq!(ablated, without_timing(&csv(&step_table(&outputs))));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 49 class 8: the records are written to temporary files and renamed into place, so a
+/// symbolic link planted at an output name is replaced, its target untouched (before: the
+/// target was overwritten); the set carries a `outputs.sha256` manifest of every file.
+#[cfg(unix)]
+#[test]
+fn cli_replaces_planted_symlinks_and_writes_a_verified_set() {
+    let dir = two_scenes("symlink");
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let victim = dir.join("victim.txt");
+    std::fs::write(&victim, "precious").unwrap();
+    for name in ["records.json", "steps.csv", "runs.csv", "collisions.csv"] {
+        std::os::unix::fs::symlink(&victim, out.join(name)).unwrap();
+    }
+    let (code, stdout, stderr) = simulate_in(&dir, &["--out", out.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious");
+    for name in ["records.json", "steps.csv", "runs.csv", "collisions.csv"] {
+        let meta = std::fs::symlink_metadata(out.join(name)).unwrap();
+        assert!(meta.file_type().is_file(), "{name} is still a link");
+    }
+    let manifest = std::fs::read_to_string(out.join("outputs.sha256")).unwrap();
+    assert_eq!(manifest.lines().count(), 4, "{manifest}");
+    let leftovers: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| {
+            let n = e.unwrap().file_name().to_string_lossy().into_owned();
+            n.contains(".tmp").then_some(n)
+        })
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Issue 49 class 12: a failure after the runs (here the animations folder cannot be made)
+/// exits 4, "the runs ran but an output could not be written", not 1, which the help
+/// reserves for "refused before any run"; the records are written.
+#[test]
+fn cli_output_failure_after_the_runs_is_not_a_refusal() {
+    let dir = two_scenes("animfail");
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("animations"), "in the way").unwrap();
+    let args = ["--out", out.to_str().unwrap(), "--animate"];
+    let (code, stdout, stderr) = simulate_in(&dir, &args);
+    assert_eq!(code, Some(4), "{stdout}{stderr}");
+    assert!(stderr.contains("animations"), "{stderr}");
+    assert!(out.join("records.json").is_file());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,7 +1,8 @@
 //! # nudge-fuzz
 //!
-//! Structure-aware mutation fuzzing of nudge's input files (weights, scenarios, settings) and
-//! planning problems. Not published: a development tool of the workspace, run by `make fuzz`
+//! Structure-aware mutation fuzzing of nudge's input files (weights, scenarios, settings,
+//! CommonRoad scenarios and the solutions written from them, IDM world files) and planning
+//! problems. Not published: a development tool of the workspace, run by `make fuzz`
 //! (the `nudge-fuzz` binary, `src/main.rs`) and, in its short mode, by `make test`
 //! (`tests/short_mode.rs`).
 //!
@@ -19,7 +20,10 @@
 //!   histories, planned with constant velocity, the shipped student or teacher, or a foreign
 //!   predictor that corrupts some of its predictions) that lies in the documented ranges of
 //!   `PlanningProblem::check`, whose plan is finite and never reported safe on a safety value
-//!   that is not a finite number above the threshold;
+//!   that is not a finite number above the threshold; a CommonRoad file whose values pass an
+//!   independent re-check of the reader's ranges, and whose scene, scenario and solution (of
+//!   random inputs) are typed errors or finite; an IDM world whose drivers lie in the physical
+//!   ranges in code and whose short closed loop is finite (`src/surfaces.rs`);
 //!
 //! anything else is a defect: a panic (caught and counted), an accepted-but-invalid result, a
 //! try running past the per-try limit (a watchdog stops the process naming the try), or a peak
@@ -52,6 +56,8 @@ use nudge_predictor::{
 };
 use nudge_sim::{SimConfig, World, WorldModel, simulate};
 
+mod surfaces;
+
 // ---------------------------------------------------------------------------------------------
 // Configuration and report.
 // ---------------------------------------------------------------------------------------------
@@ -75,11 +81,22 @@ pub enum Target {
     Settings,
     /// Planning problems (PlanningProblem → `Planner::plan` with every predictor).
     Plan,
+    /// CommonRoad scenario files (`RawScenario::read` → scene → scenario → solution writer).
+    CommonRoad,
+    /// IDM world files (`IdmPopulation::from_json` → a short IDM closed loop).
+    World,
 }
 
 impl Target {
     /// Every target.
-    pub const ALL: [Self; 4] = [Self::Weights, Self::Scenarios, Self::Settings, Self::Plan];
+    pub const ALL: [Self; 6] = [
+        Self::Weights,
+        Self::Scenarios,
+        Self::Settings,
+        Self::Plan,
+        Self::CommonRoad,
+        Self::World,
+    ];
 
     /// Name on the command line and in the report.
     #[must_use]
@@ -89,6 +106,8 @@ impl Target {
             Self::Scenarios => "scenarios",
             Self::Settings => "settings",
             Self::Plan => "plan",
+            Self::CommonRoad => "commonroad",
+            Self::World => "world",
         }
     }
 
@@ -124,8 +143,8 @@ pub struct Config {
 }
 
 impl Config {
-    /// Tries per target of the short mode (about 6 s for all four targets on one core of the
-    /// 2-core development machine).
+    /// Tries per target of the short mode (about 6 s for the first four targets on one core of
+    /// the 2-core development machine, plus the CommonRoad and world targets).
     pub const SHORT_TRIES: u64 = 400;
 
     /// The few-second mode CI runs inside `make test`: a fixed [`Self::SHORT_TRIES`] tries per
@@ -1653,6 +1672,8 @@ fn one_try(target: Target, rng: &mut Rng, ctx: &Context) -> Outcome {
         Target::Scenarios => scenario_try(rng, &ctx.scenes, ctx.student.as_ref()),
         Target::Settings => settings_try(rng, &ctx.settings_scene),
         Target::Plan => plan_try(rng, &ctx.plan),
+        Target::CommonRoad => surfaces::commonroad_try(rng, &ctx.surfaces),
+        Target::World => surfaces::world_try(rng, &ctx.surfaces),
     }
 }
 
@@ -1663,6 +1684,7 @@ struct Context {
     student: Option<Student>,
     settings_scene: SettingsScene,
     plan: PlanSeeds,
+    surfaces: surfaces::SurfaceSeeds,
 }
 
 fn context(repo: &Path) -> Context {
@@ -1680,6 +1702,7 @@ fn context(repo: &Path) -> Context {
         student: Student::from_file(repo.join("assets/models/student.safetensors")).ok(),
         scenes,
         settings_scene: SettingsScene { sc, history },
+        surfaces: surfaces::seeds(repo),
     }
 }
 

@@ -4,7 +4,8 @@
 //!
 //! ```text
 //! cargo run --release -p nudge-fuzz -- [--seconds S] [--tries N] [--seed K]
-//!     [--target weights|scenarios|settings|plan]... [--replay TARGET:TRY] [--lenient-rollout]
+//!     [--target weights|scenarios|settings|plan|commonroad|world]... [--replay TARGET:TRY]
+//!     [--lenient-rollout]
 //! ```
 //!
 //! A plan whose states are not the nonlinear roll-out of its inputs (speed clamped at 0) is a
@@ -40,7 +41,7 @@ fn main() {
             .find(|t| t.name() == s)
             .unwrap_or_else(|| {
                 fail(format!(
-                    "unknown target {s:?} (weights, scenarios, settings, plan)"
+                    "unknown target {s:?} (weights, scenarios, settings, plan, commonroad, world)"
                 ))
             })
     };

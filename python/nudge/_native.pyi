@@ -56,6 +56,10 @@ class SolverError(NudgeError):
 class WorldFileError(NudgeError):
     """A world file (the idm world's driver population, "nudge.idm/1") is missing or malformed."""
 
+class ReentrancyError(NudgeError):
+    """A planner was called again from inside its own planning call (its predictor called back
+    into it): refused instead of waiting for itself."""
+
 class PredictorError(NudgeError):
     """A predictor given from Python failed (its exception is the cause), lacks a method, or
     returned a prediction of the wrong type or shape, non-finite or implausible."""

@@ -77,8 +77,7 @@ impl CommonRoadArgs {
             .map_err(|e| e.to_string())?;
         std::fs::create_dir_all(out).map_err(|e| format!("--out {}: {e}", out.display()))?;
         let scenario_path = out.join(format!("{}.safetensors", scenario.name));
-        std::fs::write(&scenario_path, bytes)
-            .map_err(|e| format!("{}: {e}", scenario_path.display()))?;
+        crate::files::write_file(&scenario_path, &bytes).map_err(|e| e.to_string())?;
         Ok(Some(Prepared {
             scene,
             ego,
@@ -89,19 +88,23 @@ impl CommonRoadArgs {
     }
 }
 
+/// One output file: its name in the output directory and its bytes.
+pub type NamedBytes = (String, Vec<u8>);
+
 impl Prepared {
-    /// Writes `solution_<scenario>_seed<seed>.xml` into `out` for every run that ran (and
-    /// beside it a `.json` with the ego's size (m), l_r (m) and the deviation (m)), and
-    /// returns one line per file (path, states, largest deviation from the closed loop).
+    /// The files `solution_<scenario>_seed<seed>.xml` of every run that ran (and beside each a
+    /// `.json` with the ego's size (m), l_r (m) and the deviation (m)), as (name, bytes) for
+    /// the output set ([`crate::files::write_set`]), and one line per solution (name, states,
+    /// largest deviation from the closed loop).
     ///
     /// # Errors
-    /// A message naming the file that could not be written or the run that has no trajectory.
-    pub fn write_solutions(
+    /// A message naming the run that has no trajectory in the file's coordinates.
+    pub fn solution_files(
         &self,
         outputs: &[RunOutput],
         settings: &PlannerSettings,
-        out: &Path,
-    ) -> Result<Vec<String>, String> {
+    ) -> Result<(Vec<NamedBytes>, Vec<String>), String> {
+        let mut files = Vec::new();
         let mut lines = Vec::new();
         for o in outputs {
             let Ok(record) = &o.result else { continue };
@@ -112,12 +115,8 @@ impl Prepared {
                 record,
                 (settings.model.l_f, settings.model.l_r),
             )
-            .map_err(|e| e.to_string())?;
-            let path = out.join(format!(
-                "solution_{}_seed{}.xml",
-                self.scenario.name, o.spec.seed
-            ));
-            sol.write(&path).map_err(|e| e.to_string())?;
+            .map_err(|e| format!("run seed {}: {e}", o.spec.seed))?;
+            let stem = format!("solution_{}_seed{}", self.scenario.name, o.spec.seed);
             let side = serde_json::json!({
                 "benchmark_id": sol.benchmark_id,
                 "planning_problem": sol.planning_problem,
@@ -127,17 +126,15 @@ impl Prepared {
                 "max_dev_m": sol.max_dev_m,
                 "n_states": sol.states.len(),
             });
-            let json_path = path.with_extension("json");
-            std::fs::write(&json_path, side.to_string())
-                .map_err(|e| format!("{}: {e}", json_path.display()))?;
             lines.push(format!(
-                "CommonRoad solution {} ({}, {} states, {:.3} m from the closed loop's states)",
-                path.display(),
+                "CommonRoad solution {stem}.xml ({}, {} states, {:.3} m from the closed loop's states)",
                 sol.benchmark_id,
                 sol.states.len(),
                 sol.max_dev_m
             ));
+            files.push((format!("{stem}.xml"), sol.to_xml().into_bytes()));
+            files.push((format!("{stem}.json"), side.to_string().into_bytes()));
         }
-        Ok(lines)
+        Ok((files, lines))
     }
 }

@@ -35,7 +35,8 @@ enum Command {
         after_help = "Exit status: 0 every run ran; 1 refused before any run (the \
                             message names the argument, setting or file); 2 the command line \
                             does not parse; 3 some runs could not run (each reported, the others' \
-                            records written)."
+                            records written); 4 the runs ran but an output (records, solution, \
+                            animation) could not be written (the message names it)."
     )]
     Simulate(simulate::SimulateArgs),
     /// Every planner and closed-loop setting with its unit, default, valid values and meaning
@@ -56,10 +57,13 @@ pub enum ExitStatus {
     Usage = 2,
     /// 3: some runs could not run (each reported on stderr, the others' records written).
     RunsFailed = 3,
+    /// 4: the runs ran but an output (records, solution, animation) could not be written or
+    /// made; the message on stderr names the file.
+    OutputFailed = 4,
 }
 
 impl ExitStatus {
-    /// The exit code (0, 1, 2 or 3).
+    /// The exit code (0 to 4).
     #[must_use]
     pub const fn code(self) -> u8 {
         self as u8
@@ -107,15 +111,15 @@ where
     status
 }
 
-/// The exit status of a subcommand's result (the number of runs that could not run, or the
-/// refusal), the refusal printed on stderr.
-fn finish(result: Result<usize, String>) -> ExitStatus {
+/// The exit status of a subcommand's result (the number of runs that could not run, or why it
+/// stopped), the message printed on stderr.
+fn finish(result: Result<usize, simulate::Stop>) -> ExitStatus {
     match result {
         Ok(0) => ExitStatus::Success,
         Ok(_) => ExitStatus::RunsFailed,
         Err(e) => {
-            eprintln!("error: {e}");
-            ExitStatus::Refused
+            eprintln!("error: {}", e.message());
+            e.status()
         }
     }
 }

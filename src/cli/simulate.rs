@@ -209,30 +209,40 @@ fn output_dir(dir: &Path) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("--out {}: {e}", dir.display()))
 }
 
-/// Writes steps.csv, runs.csv, collisions.csv (the shared columns) and records.json (the runs that ran) into
-/// the directory `dir` (made by [`output_dir`]).
+/// Writes steps.csv, runs.csv, collisions.csv (the shared columns), records.json (the runs
+/// that ran) and the `extra` files (CommonRoad solutions) into the directory `dir` (made by
+/// [`output_dir`]) as one set with its manifest ([`crate::files::write_set`]: temporary files
+/// renamed into place, never through a symbolic link).
 fn write_outputs(
     dir: &Path,
     scenes: &[Scenario],
     outputs: &[nudge_sim::RunOutput],
+    extra: &[(String, Vec<u8>)],
 ) -> Result<(), String> {
-    let io = |p: &Path, e: &dyn std::fmt::Display| format!("{}: {e}", p.display());
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     for (name, table) in [
         ("steps.csv", step_table(outputs)),
         ("runs.csv", run_table(scenes, outputs)),
         ("collisions.csv", collision_table(scenes, outputs)),
     ] {
-        let p = dir.join(name);
-        let file = std::fs::File::create(&p).map_err(|e| io(&p, &e))?;
-        table.write_csv(file).map_err(|e| io(&p, &e))?;
+        let mut bytes = Vec::new();
+        table
+            .write_csv(&mut bytes)
+            .map_err(|e| format!("{}: {e}", dir.join(name).display()))?;
+        files.push((name.to_string(), bytes));
     }
     let records: Vec<&RunRecord> = outputs
         .iter()
         .filter_map(|o| o.result.as_ref().ok())
         .collect();
     let json = serde_json::to_string_pretty(&records).map_err(|e| e.to_string())?;
-    let p = dir.join("records.json");
-    std::fs::write(&p, json).map_err(|e| io(&p, &e))
+    files.push(("records.json".to_string(), json.into_bytes()));
+    files.extend(extra.iter().cloned());
+    let set: Vec<(&str, &[u8])> = files
+        .iter()
+        .map(|(n, b)| (n.as_str(), b.as_slice()))
+        .collect();
+    crate::files::write_set(dir, &set).map_err(|e| e.to_string())
 }
 
 /// How often the progress bar is redrawn.
@@ -321,6 +331,45 @@ fn animate_runs(
     Ok(())
 }
 
+/// Why `nudge simulate` stopped short of [`ExitStatus::Success`]/[`ExitStatus::RunsFailed`]
+/// (its exit status: [`Stop::status`]).
+///
+/// [`ExitStatus::Success`]: super::ExitStatus::Success
+/// [`ExitStatus::RunsFailed`]: super::ExitStatus::RunsFailed
+#[derive(Debug)]
+pub enum Stop {
+    /// Refused before any run (exit 1): the message names the argument, setting or file.
+    Refused(String),
+    /// The runs ran but an output (records, solution, animation) could not be written or
+    /// made (exit 4): the message names the file.
+    Output(String),
+}
+
+impl From<String> for Stop {
+    fn from(message: String) -> Self {
+        Self::Refused(message)
+    }
+}
+
+impl Stop {
+    /// The exit status: [`super::ExitStatus::Refused`] or [`super::ExitStatus::OutputFailed`].
+    #[must_use]
+    pub fn status(&self) -> super::ExitStatus {
+        match self {
+            Self::Refused(_) => super::ExitStatus::Refused,
+            Self::Output(_) => super::ExitStatus::OutputFailed,
+        }
+    }
+
+    /// The message.
+    #[must_use]
+    pub fn message(&self) -> &str {
+        match self {
+            Self::Refused(m) | Self::Output(m) => m,
+        }
+    }
+}
+
 /// Runs `nudge simulate` (the named models and the default scenes under `--assets`, else
 /// under [`assets_dir`] of `shipped_assets`): every argument is checked by the library's
 /// [`BatchRequest::prepare`] (the one validation `nudge.simulate` uses too) before any run
@@ -330,9 +379,11 @@ fn animate_runs(
 /// A message naming the problem, before any run: unreadable scenes or settings, invalid or
 /// incompatible settings, missing weights, a bad count, an output path that cannot be a
 /// directory, `--animate` without `--out`; after the runs, an output that cannot be written.
-pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
+pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, Stop> {
     if a.animate && a.out.is_none() {
-        return Err("--animate needs --out (the animations go to <out>/animations)".into());
+        return Err(Stop::Refused(
+            "--animate needs --out (the animations go to <out>/animations)".into(),
+        ));
     }
     let settings = a.planner_settings()?;
     let config = a.sim_config()?;
@@ -390,7 +441,12 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
     }
     println!("{}", Summary::of(&outputs));
     if let Some(dir) = &a.out {
-        write_outputs(dir, scenes, &outputs)?;
+        let (mut extra, lines) = match &commonroad {
+            Some(c) => c
+                .solution_files(&outputs, &settings)
+                .map_err(Stop::Output)?,
+            None => (Vec::new(), Vec::new()),
+        };
         let inputs = Inputs {
             settings: (&settings, a.settings.as_deref()),
             config: (&config, a.config.as_deref()),
@@ -406,16 +462,23 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, String> {
         let command = std::env::args_os()
             .map(|s| s.to_string_lossy().into_owned())
             .collect();
-        Provenance::new(&inputs, command)?.write(dir)?;
-        println!("records written to {}", dir.display());
-        if let Some(c) = &commonroad {
-            for line in c.write_solutions(&outputs, &settings, dir)? {
-                println!("{line}");
-            }
+        let provenance = Provenance::new(&inputs, command).map_err(Stop::Output)?;
+        extra.push((
+            crate::provenance::FILE_NAME.to_string(),
+            provenance.to_json().map_err(Stop::Output)?.into_bytes(),
+        ));
+        write_outputs(dir, scenes, &outputs, &extra).map_err(Stop::Output)?;
+        println!(
+            "records written to {} (manifest {})",
+            dir.display(),
+            crate::files::MANIFEST
+        );
+        for line in lines {
+            println!("{line}");
         }
         if a.animate {
             let n = a.animate_runs.unwrap_or(usize::MAX);
-            animate_runs(&dir.join("animations"), scenes, &outputs, n)?;
+            animate_runs(&dir.join("animations"), scenes, &outputs, n).map_err(Stop::Output)?;
         }
     }
     if let Some(why) = failed.first() {

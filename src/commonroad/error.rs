@@ -38,6 +38,18 @@ pub enum CommonRoadError {
         /// What is wrong.
         reason: String,
     },
+    /// The file exceeds one of the reader's budgets (decompressed size, nesting depth,
+    /// element count, attributes per element): refused before the work or memory it would
+    /// take.
+    #[error("{path}: exceeds the {budget} budget of {limit}")]
+    Budget {
+        /// The file.
+        path: PathBuf,
+        /// Which budget.
+        budget: XmlBudget,
+        /// The budget's limit (bytes, levels or elements, as `budget` says).
+        limit: u64,
+    },
     /// A CommonRoad feature nudge does not handle (road shape, version, obstacle shape).
     #[error("{path}: not supported: {reason}")]
     Unsupported {
@@ -73,4 +85,28 @@ pub enum CommonRoadError {
         /// What is wrong.
         reason: String,
     },
+}
+
+/// The reader's budgets on one file ([`CommonRoadError::Budget`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum XmlBudget {
+    /// Bytes of XML after decompression ([`super::xml::MAX_XML_BYTES`]).
+    DecompressedBytes,
+    /// Element nesting depth, the root being level 1 ([`super::xml::MAX_XML_DEPTH`]).
+    Depth,
+    /// Elements in the document ([`super::xml::MAX_XML_ELEMENTS`]).
+    Elements,
+    /// Attributes of one element ([`super::xml::MAX_XML_ATTRIBUTES`]).
+    Attributes,
+}
+
+impl std::fmt::Display for XmlBudget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::DecompressedBytes => "decompressed-size (bytes)",
+            Self::Depth => "nesting-depth (levels)",
+            Self::Elements => "element-count (elements)",
+            Self::Attributes => "attributes-per-element",
+        })
+    }
 }

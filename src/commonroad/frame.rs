@@ -13,6 +13,13 @@
 //!
 //! The inverse ([`RoadFrame::to_file`]) solves the forward map by Newton's method, so the
 //! round trip is exact to ≪ 1 µm.
+//!
+//! **Range.** The frame is defined where its arc-length table is ([`RoadFrame::road_range`]:
+//! the lane map's x range plus [`FIT_MARGIN`] + [`ARC_MARGIN`] on either side). Beyond it the
+//! forward map is constant in x (numpy's `interp` clamps), so it has no inverse there:
+//! [`RoadFrame::try_to_file`] answers `None` for such a road point rather than extrapolating a
+//! road the file does not describe, and the solution writer refuses a trajectory that leaves
+//! the range with a typed error naming the time step.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -36,8 +43,11 @@ pub const ARC_MARGIN: f64 = 200.0;
 pub const ARC_GRID: usize = 4001;
 
 /// Linear interpolation with numpy's `interp` semantics: `xp` ascending, constant beyond the
-/// ends.
+/// ends; NaN for a NaN `x` (as numpy).
 pub(crate) fn interp(x: f64, xp: &[f64], fp: &[f64]) -> f64 {
+    if x.is_nan() {
+        return f64::NAN;
+    }
     let n = xp.len();
     if x <= xp[0] {
         return fp[0];
@@ -284,11 +294,34 @@ impl RoadFrame {
     }
 
     /// The inverse of [`RoadFrame::to_road`]: road point (m) → file point (m), by Newton's
-    /// method on the forward map (converged to 1e-10 m or 30 iterations).
+    /// method on the forward map (converged to 1e-10 m or 30 iterations). Outside
+    /// [`RoadFrame::road_range`] the result is meaningless (possibly non-finite); use
+    /// [`RoadFrame::try_to_file`] where the point may lie outside.
     #[must_use]
     pub fn to_file(&self, r: [f64; 2]) -> [f64; 2] {
         let q = self.road_to_rotated(r);
         rotate(q, -self.theta)
+    }
+
+    /// The road x range (m) the frame is defined over: the arc length at the ends of its table.
+    #[must_use]
+    pub fn road_range(&self) -> (f64, f64) {
+        (self.grid_arc[0], self.grid_arc[ARC_GRID - 1])
+    }
+
+    /// [`RoadFrame::to_file`] where it is defined: `None` for a non-finite road point, one
+    /// whose x lies outside [`RoadFrame::road_range`], or one the Newton iteration does not
+    /// bring back to within 1 µm under the forward map.
+    #[must_use]
+    pub fn try_to_file(&self, r: [f64; 2]) -> Option<[f64; 2]> {
+        let (lo, hi) = self.road_range();
+        if !(r[0].is_finite() && r[1].is_finite() && (lo..=hi).contains(&r[0])) {
+            return None;
+        }
+        let q = self.road_to_rotated(r);
+        let back = self.rotated_to_road(q);
+        let err = (back[0] - r[0]).abs().max((back[1] - r[1]).abs());
+        (err < 1e-6).then(|| rotate(q, -self.theta))
     }
 
     fn road_to_rotated(&self, r: [f64; 2]) -> [f64; 2] {

@@ -27,7 +27,7 @@ pub mod scene;
 pub mod solution;
 pub mod xml;
 
-pub use error::CommonRoadError;
+pub use error::{CommonRoadError, XmlBudget};
 pub use frame::RoadFrame;
 pub use lanes::LaneMap;
 pub use scene::{CommonRoadScene, Ego};

@@ -157,7 +157,9 @@ impl Solution {
     ///
     /// # Errors
     /// [`CommonRoadError::Solution`] when there are no inputs, `executed` has another length,
-    /// or a state is non-finite.
+    /// a state leaves the road frame's range ([`super::RoadFrame::road_range`]: the ego drove
+    /// past the end of the lane map, where the file's coordinates are not defined; refused
+    /// rather than extrapolated), or a state is non-finite.
     pub fn of_inputs(
         scene: &CommonRoadScene,
         (ego, t0_s): (Ego, f64),
@@ -199,6 +201,18 @@ impl Solution {
             }
         }
         road.push((z, inputs[inputs.len() - 1][0]));
+        let (lo, hi) = scene.frame.road_range();
+        for (&(z, _), step) in road.iter().zip(step0..) {
+            let r = reference(bike, z);
+            if scene.frame.try_to_file(r).is_none() {
+                return Err(err(format!(
+                    "the ego at time step {step} is at road x = {:.1} m, y = {:.1} m, outside the \
+                     road frame's range [{lo:.1}, {hi:.1}] m (the lane map ends there; the file's \
+                     coordinates are not defined beyond it, so no solution is written)",
+                    r[0], r[1]
+                )));
+            }
+        }
         let states: Vec<KsState> = road
             .iter()
             .zip(step0..)
@@ -249,23 +263,33 @@ impl Solution {
         s
     }
 
-    /// Writes [`Solution::to_xml`] to `path`.
+    /// Writes [`Solution::to_xml`] to `path` atomically ([`crate::files::write_file`]: a
+    /// temporary file renamed into place; a symbolic link at `path` is replaced, not followed).
     ///
     /// # Errors
     /// [`CommonRoadError::Io`] naming `path`.
     pub fn write(&self, path: &Path) -> Result<(), CommonRoadError> {
-        std::fs::write(path, self.to_xml()).map_err(|source| CommonRoadError::Io {
+        crate::files::write_file(path, self.to_xml().as_bytes()).map_err(|e| CommonRoadError::Io {
             path: path.to_path_buf(),
-            source,
+            source: match e {
+                crate::files::FilesError::Io { source, .. } => source,
+                other => std::io::Error::other(other.to_string()),
+            },
         })
     }
 }
 
-/// The KS state (file frame) of the bicycle state `z` (road frame) steering `delta`.
-fn ks_state(scene: &CommonRoadScene, bike: Bicycle, z: [f64; 4], delta: f64, step: i64) -> KsState {
+/// The point (road frame, m) CommonRoad calls the vehicle's centre for the bicycle state `z`:
+/// the rear axle moved [`VEHICLE`]`.b` ahead along ψ.
+fn reference(bike: Bicycle, z: [f64; 4]) -> [f64; 2] {
     let (s, c) = z[2].sin_cos();
     let back = bike.l_r - VEHICLE.b;
-    let reference = [z[0] - back * c, z[1] - back * s];
+    [z[0] - back * c, z[1] - back * s]
+}
+
+/// The KS state (file frame) of the bicycle state `z` (road frame) steering `delta`.
+fn ks_state(scene: &CommonRoadScene, bike: Bicycle, z: [f64; 4], delta: f64, step: i64) -> KsState {
+    let reference = reference(bike, z);
     let wheelbase = VEHICLE.a + VEHICLE.b;
     KsState {
         step,

@@ -8,12 +8,25 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use quick_xml::events::{BytesStart, Event};
+use quick_xml::events::{BytesRef, BytesStart, Event};
 
-use super::error::CommonRoadError;
+use super::error::{CommonRoadError, XmlBudget};
 
-/// Largest CommonRoad file read (bytes, after decompression): 256 MiB.
-pub const MAX_XML_BYTES: u64 = 256 << 20;
+/// Largest CommonRoad file read (bytes, after decompression): 32 MiB, 12 times the largest
+/// US-101 scene (2.6 MB). The gzip stream is inflated through a bounded reader, so a small
+/// file that inflates further is refused after this many bytes.
+pub const MAX_XML_BYTES: u64 = 32 << 20;
+/// Deepest element nesting accepted (levels, the root is 1): CommonRoad documents nest 7
+/// deep (`commonRoad/dynamicObstacle/trajectory/state/position/point/x`).
+pub const MAX_XML_DEPTH: usize = 64;
+/// Most elements accepted in one document: 1,000,000, 13 times the largest US-101 scene
+/// (76,753). Each element costs about 200 bytes in the tree, so this bounds it near 200 MB.
+pub const MAX_XML_ELEMENTS: usize = 1_000_000;
+/// Most attributes of one element: CommonRoad elements carry at most a handful (`commonRoad`
+/// has 7). The XML library checks each attribute's name against the element's earlier ones,
+/// so the work grows with the square of their number: a million-attribute element would take
+/// hours.
+pub const MAX_XML_ATTRIBUTES: usize = 64;
 /// Largest |coordinate| accepted (m), as the pipeline's `COORD` rule.
 pub const MAX_COORD: f64 = 1e5;
 /// Largest |orientation| accepted (rad): 4π.
@@ -134,12 +147,19 @@ pub struct RawScenario {
 }
 
 /// The file's text: gunzipped when it starts with the gzip magic bytes. Only regular files
-/// of at most [`MAX_XML_BYTES`] are read (a FIFO or device is refused before reading).
+/// of at most [`MAX_XML_BYTES`] are read (a FIFO or device is refused before reading), and
+/// the gzip stream is inflated through a reader that stops after [`MAX_XML_BYTES`] + 1 bytes.
 fn read_text(path: &Path) -> Result<String, CommonRoadError> {
+    let too_big = || CommonRoadError::Budget {
+        path: path.to_path_buf(),
+        budget: XmlBudget::DecompressedBytes,
+        limit: MAX_XML_BYTES,
+    };
     let raw = nudge_predictor::file::read_bounded(path, MAX_XML_BYTES).map_err(|e| match e {
         nudge_predictor::PredictorError::Io { path, source } => {
             CommonRoadError::Io { path, source }
         }
+        nudge_predictor::PredictorError::FileTooLarge { .. } => too_big(),
         other => format_error(path, 0, other.to_string()),
     })?;
     let bytes = if raw.starts_with(&[0x1f, 0x8b]) {
@@ -153,13 +173,53 @@ fn read_text(path: &Path) -> Result<String, CommonRoadError> {
         raw
     };
     if bytes.len() as u64 > MAX_XML_BYTES {
-        return Err(format_error(
-            path,
-            0,
-            format!("larger than {MAX_XML_BYTES} bytes"),
-        ));
+        return Err(too_big());
     }
     String::from_utf8(bytes).map_err(|e| format_error(path, 0, format!("not UTF-8: {e}")))
+}
+
+/// Whether `c` is an XML 1.0 `Char` (production \[2\]): the characters a character
+/// reference may name (well-formedness constraint "Legal Character").
+fn is_xml_char(c: char) -> bool {
+    matches!(c, '\u{9}' | '\u{A}' | '\u{D}' | '\u{20}'..='\u{D7FF}' | '\u{E000}'..='\u{FFFD}' | '\u{10000}'..)
+}
+
+/// The text a general reference `&name;` in content stands for: a character reference
+/// (`&#48;`, `&#x30;`) naming a legal XML character, or one of the five predefined entities.
+/// Any other entity is refused: the reader does not expand entities declared in a DTD (the
+/// CommonRoad schema declares none), so such a reference cannot be read correctly.
+fn resolve_reference(
+    r: &BytesRef<'_>,
+    path: &Path,
+    line: usize,
+) -> Result<String, CommonRoadError> {
+    let name = r
+        .decode()
+        .map_err(|e| format_error(path, line, format!("bad reference: {e}")))?;
+    if r.is_char_ref() {
+        return match r.resolve_char_ref() {
+            Ok(Some(c)) if is_xml_char(c) => Ok(c.to_string()),
+            Ok(_) => Err(format_error(
+                path,
+                line,
+                format!("character reference &{name}; names no legal XML character"),
+            )),
+            Err(e) => Err(format_error(
+                path,
+                line,
+                format!("bad character reference &{name};: {e}"),
+            )),
+        };
+    }
+    quick_xml::escape::resolve_xml_entity(&name)
+        .map(str::to_string)
+        .ok_or_else(|| {
+            format_error(
+                path,
+                line,
+                format!("undefined entity &{name}; (only character references and the five predefined entities are read)"),
+            )
+        })
 }
 
 fn format_error(path: &Path, line: usize, reason: String) -> CommonRoadError {
@@ -177,7 +237,14 @@ fn open(e: &BytesStart<'_>, line: usize, path: &Path) -> Result<Node, CommonRoad
         line,
         ..Node::default()
     };
-    for a in e.attributes() {
+    for (k, a) in e.attributes().enumerate() {
+        if k >= MAX_XML_ATTRIBUTES {
+            return Err(CommonRoadError::Budget {
+                path: path.to_path_buf(),
+                budget: XmlBudget::Attributes,
+                limit: MAX_XML_ATTRIBUTES as u64,
+            });
+        }
         let a = a.map_err(|err| format_error(path, line, format!("bad attribute: {err}")))?;
         let value = a
             .unescape_value()
@@ -190,11 +257,19 @@ fn open(e: &BytesStart<'_>, line: usize, path: &Path) -> Result<Node, CommonRoad
     Ok(node)
 }
 
-/// Parses `text` into its root element.
+/// Parses `text` into its root element, within the depth and element budgets
+/// ([`MAX_XML_DEPTH`], [`MAX_XML_ELEMENTS`]). Text is the element's character data with its
+/// character and predefined entity references decoded and CDATA sections included; an
+/// undefined entity is refused ([`resolve_reference`]).
 pub(crate) fn parse_tree(text: &str, path: &Path) -> Result<Node, CommonRoadError> {
     let mut reader = quick_xml::Reader::from_str(text);
     let mut stack: Vec<Node> = vec![Node::default()];
-    let (mut seen, mut line) = (0usize, 1usize);
+    let (mut seen, mut line, mut elements) = (0usize, 1usize, 0usize);
+    let budget = |budget: XmlBudget, limit: usize| CommonRoadError::Budget {
+        path: path.to_path_buf(),
+        budget,
+        limit: limit as u64,
+    };
     loop {
         let pos = usize::try_from(reader.buffer_position()).unwrap_or(usize::MAX);
         let upto = pos.min(text.len());
@@ -207,6 +282,17 @@ pub(crate) fn parse_tree(text: &str, path: &Path) -> Result<Node, CommonRoadErro
             .read_event()
             .map_err(|e| format_error(path, line, format!("not valid XML: {e}")))?;
         let top = stack.len() - 1;
+        if matches!(event, Event::Start(_) | Event::Empty(_)) {
+            // `stack` holds the document node and the open ancestors: the new element's
+            // level (the root being 1) is `stack.len()`.
+            if stack.len() > MAX_XML_DEPTH {
+                return Err(budget(XmlBudget::Depth, MAX_XML_DEPTH));
+            }
+            elements += 1;
+            if elements > MAX_XML_ELEMENTS {
+                return Err(budget(XmlBudget::Elements, MAX_XML_ELEMENTS));
+            }
+        }
         match event {
             Event::Start(e) => stack.push(open(&e, line, path)?),
             Event::Empty(e) => {
@@ -220,9 +306,17 @@ pub(crate) fn parse_tree(text: &str, path: &Path) -> Result<Node, CommonRoadErro
                 stack[top - 1].children.push(node);
             }
             Event::Text(t) => stack[top].text.push_str(
-                &t.decode()
+                &t.xml_content()
                     .map_err(|e| format_error(path, line, format!("bad text: {e}")))?,
             ),
+            Event::CData(t) => stack[top].text.push_str(
+                &t.decode()
+                    .map_err(|e| format_error(path, line, format!("bad CDATA: {e}")))?,
+            ),
+            Event::GeneralRef(r) => {
+                let s = resolve_reference(&r, path, line)?;
+                stack[top].text.push_str(&s);
+            }
             Event::Eof => break,
             _ => {}
         }

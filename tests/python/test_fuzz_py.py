@@ -445,3 +445,58 @@ def test_the_short_mode_exercised_every_entry_point() -> None:
     for group, c in groups.items():
         assert c.get("valid", 0) > 0, f"{group}: no valid result: {c}"
         assert sum(v for k, v in c.items() if k != "valid") > 0, f"{group}: no refusal: {c}"
+
+
+class _CallsBack:
+    """Constant velocity that, at its ``at``-th call, calls ``method`` of ``target`` (its own
+    planner or another one) once (issue 49: re-entrancy)."""
+
+    def __init__(self, at: int, method: str) -> None:
+        self.at, self.method, self.calls, self.target, self.scenario = at, method, 0, None, None
+        self.raised: BaseException | None = None
+
+    def predict(self, history: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        if self.calls == self.at:
+            try:
+                if self.method == "plan_scenario":
+                    self.target.plan_scenario(self.scenario)
+                elif self.method == "reset":
+                    self.target.reset()
+                else:
+                    _ = self.target.settings
+            except nudge.NudgeError as e:
+                self.raised = e
+                raise
+        last, prev = history[1:, -1], history[1:, -2]
+        k = np.arange(1, candidates.shape[1] + 1, dtype=np.float64)[None, :, None]
+        one = last[:, None, :] + k * (last - prev)[:, None, :]
+        return np.broadcast_to(one, (candidates.shape[0], *one.shape))
+
+
+@FUZZ
+@seed(SEED)
+@given(at=st.integers(1, 40), method=st.sampled_from(["plan_scenario", "reset", "settings"]), own=st.booleans(),
+       which=st.integers(0, 9))
+def test_reentrant_predictor_property(at: int, method: str, own: bool, which: int) -> None:
+    """A predictor calling back into its own planner gets ReentrancyError (the outer plan a
+    PredictorError with it as the cause) and never deadlocks; calling another planner works;
+    the planner plans again afterwards."""
+    paths = nudge.scene_paths()
+    sc = nudge.Scenario.load(paths[which % len(paths)])
+    p = _CallsBack(at, method)
+    planner = nudge.Planner(None, predictor=p)
+    other = nudge.Planner(None, predictor=nudge.Predictor.constant_velocity())
+    p.target, p.scenario = (planner if own else other), sc
+    try:
+        out = planner.plan_scenario(sc)
+    except nudge.PredictorError as e:
+        assert own and isinstance(e.__cause__, nudge.ReentrancyError), repr(e.__cause__)
+        assert f"Planner.{method}" in str(e.__cause__)
+        _count("reentrant predictor", "ReentrancyError")
+    else:
+        assert not own or p.calls < at, (own, p.calls, at)
+        assert np.isfinite(out["states"]).all()
+        _count("reentrant predictor", "planned" if p.calls >= at else "planned (callback not reached)")
+    p.at = -1
+    assert planner.plan_scenario(sc)["states"].shape == (6, 4)

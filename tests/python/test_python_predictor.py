@@ -364,3 +364,68 @@ def test_any_corrupted_prediction_is_refused_by_name_or_planned(scenario: nudge.
         return
     with pytest.raises(nudge.PredictorError, match=expected):
         planner.plan_scenario(sc)
+
+
+_REENTRANT = r'''
+import sys
+import numpy as np
+import nudge
+
+class CallsBack:
+    """A predictor that calls back into the planner it serves (issue 49 class 3)."""
+
+    def __init__(self, what):
+        self.what, self.planner, self.inner = what, None, None
+
+    def predict(self, history, candidates):
+        if self.inner is None:
+            try:
+                if self.what == "plan_scenario":
+                    self.planner.plan_scenario(self.scenario)
+                elif self.what == "reset":
+                    self.planner.reset()
+                else:
+                    self.planner.settings
+            except nudge.NudgeError as e:
+                self.inner = e
+                raise
+        last, prev = history[1:, -1], history[1:, -2]
+        k = np.arange(1, candidates.shape[1] + 1, dtype=np.float64)[None, :, None]
+        one = last[:, None, :] + k * (last - prev)[:, None, :]
+        return np.broadcast_to(one, (candidates.shape[0], *one.shape))
+
+sc = nudge.Scenario.load(nudge.scene_paths()[0])
+p = CallsBack(sys.argv[1])
+pl = nudge.Planner(None, predictor=p)
+p.planner, p.scenario = pl, sc
+try:
+    pl.plan_scenario(sc)
+    print("NO ERROR")
+except nudge.PredictorError as e:
+    print("OUTER", type(e).__name__, "CAUSE", type(e.__cause__).__name__, str(e.__cause__))
+# The planner stays usable afterwards (the lock is released).
+p.inner = "done"
+print("AFTER", pl.plan_scenario(sc)["states"].shape)
+'''
+
+
+@pytest.mark.parametrize("what", ["plan_scenario", "reset", "settings"])
+def test_a_predictor_calling_back_into_its_planner_gets_a_typed_error(tmp_path: Path, what: str) -> None:
+    """Before: the planner's lock was taken again by the same thread and the interpreter froze
+    (SIGINT never handled). Now the re-entrant call raises ReentrancyError, which the outer
+    plan reports as the PredictorError's cause; run in a child process so a regression cannot
+    hang the suite."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "reentrant.py"
+    script.write_text(_REENTRANT)
+    try:
+        out = subprocess.run([sys.executable, str(script), what], capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"a predictor calling Planner.{what} from predict deadlocked")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("OUTER PredictorError CAUSE ReentrancyError"), out.stdout
+    assert "re-entrant" in lines[0] and f"Planner.{what}" in lines[0], lines[0]
+    assert lines[1] == "AFTER (6, 4)", out.stdout

@@ -255,3 +255,25 @@ def test_idm_world_is_seeded_and_its_metrics_are_consistent(scenes: list[Path]) 
         jerk = steps["jerk"][m][1:]
         assert np.isnan(steps["jerk"][m][0]) and runs["max_abs_jerk"][r] == np.abs(jerk).max(initial=0.0)
         assert runs["success"][r] == (runs["steps_to_target"][r] >= 0 and not runs["collision"][r])
+
+
+def test_idm_world_file_fifo_and_device_are_refused_without_blocking(scenes: list[Path], tmp_path: Path) -> None:
+    """Issue 49 class 2: a FIFO as the idm world file blocked forever (Ctrl-C did not end it),
+    /dev/zero was read until memory ran out; both are refused by name before reading."""
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "idm.fifo"
+    os.mkfifo(fifo)
+    code = ("import sys, nudge\n"
+            "try:\n"
+            f"    nudge.simulate([{str(scenes[0])!r}], 'constant_velocity', world='idm', idm=sys.argv[1])\n"
+            "except nudge.WorldFileError as e:\n"
+            "    print(e)\n")
+    for path, what in ((fifo, "a FIFO"), (Path("/dev/zero"), "a character device")):
+        try:
+            out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=60)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"reading {path} as the idm world file blocked")
+        assert str(path) in out.stdout and what in out.stdout, out.stdout + out.stderr

@@ -68,6 +68,13 @@ create_exception!(
 );
 create_exception!(
     nudge,
+    ReentrancyError,
+    NudgeError,
+    "A planner was called again from inside its own planning call (its predictor called back \
+     into it): refused instead of waiting for itself."
+);
+create_exception!(
+    nudge,
     SolverError,
     NudgeError,
     "An optimisation step failed."

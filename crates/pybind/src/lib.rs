@@ -69,6 +69,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SolverError", py.get_type::<errors::SolverError>())?;
     m.add("PredictorError", py.get_type::<errors::PredictorError>())?;
     m.add("WorldFileError", py.get_type::<errors::WorldFileError>())?;
+    m.add("ReentrancyError", py.get_type::<errors::ReentrancyError>())?;
     m.add_class::<predict::PyPredictor>()?;
     m.add_class::<settings::PySettings>()?;
     m.add_class::<settings::PySimConfig>()?;

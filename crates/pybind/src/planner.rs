@@ -1,6 +1,7 @@
 //! `nudge._native.Planner`: one ADMM MPC call at a time, on a scenario or on raw arrays.
 
-use std::sync::Mutex;
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::thread::ThreadId;
 
 use nudge_planner::scenario::{LaneExtent, MAX_LANES};
 use nudge_planner::{
@@ -14,7 +15,7 @@ use pyo3::types::PyDict;
 
 use crate::args::{Int, guard};
 use crate::arrays::{Dim, to_f64};
-use crate::errors::{InputError, NudgeError, planner_err, predictor_err, sim_err};
+use crate::errors::{InputError, NudgeError, ReentrancyError, planner_err, predictor_err, sim_err};
 use crate::py_predictor::PlanningPredictor;
 use crate::scenario::PyScenario;
 use crate::settings::{PySettings, PySimConfig};
@@ -26,6 +27,19 @@ use crate::settings::{PySettings, PySimConfig};
 pub struct PyPlanner {
     planner: Mutex<Planner>,
     predictor: PlanningPredictor,
+    /// The thread planning now (holding `planner` inside [`PyPlanner::run`]), if any: a call
+    /// from that thread while it plans comes from inside the predictor (re-entrant) and would
+    /// wait for itself forever, so it is refused ([`PyPlanner::lock`]).
+    planning_on: Mutex<Option<ThreadId>>,
+}
+
+/// Clears [`PyPlanner::planning_on`] when the planning call ends (returns or unwinds).
+struct Planning<'a>(&'a Mutex<Option<ThreadId>>);
+
+impl Drop for Planning<'_> {
+    fn drop(&mut self) {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner) = None;
+    }
 }
 
 /// A finite float or `InputError` naming it.
@@ -115,17 +129,48 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
 }
 
 impl PyPlanner {
-    /// Plans `problem` with the GIL released; the plan as a dict.
+    /// `ReentrancyError` when the calling thread is inside this planner's own planning call
+    /// (the call comes from its predictor, directly or through other planners).
+    fn refuse_reentry(&self, method: &str) -> PyResult<()> {
+        let me = std::thread::current().id();
+        if *self
+            .planning_on
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            == Some(me)
+        {
+            return Err(ReentrancyError::new_err(format!(
+                "re-entrant call: Planner.{method} was called while this planner is planning, \
+                 from inside its own predictor (a predictor may not call back into the planner \
+                 it serves; use another Planner)"
+            )));
+        }
+        Ok(())
+    }
+
+    /// The planner, locked; `ReentrancyError` for a re-entrant call ([`Self::refuse_reentry`]).
+    /// Another thread's call waits for the planning call to end.
+    fn lock(&self, method: &str) -> PyResult<MutexGuard<'_, Planner>> {
+        self.refuse_reentry(method)?;
+        Ok(self.planner.lock().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// Plans `problem` with the GIL released; the plan as a dict. `method` names the Python
+    /// method in a re-entrancy error.
     fn run<'py>(
         &self,
         py: Python<'py>,
         problem: &PlanningProblem<'_>,
+        method: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
+        self.refuse_reentry(method)?;
         let result = py.detach(|| {
-            let mut planner = self
-                .planner
+            let mut planner = self.planner.lock().unwrap_or_else(PoisonError::into_inner);
+            *self
+                .planning_on
                 .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
+                .unwrap_or_else(PoisonError::into_inner) = Some(std::thread::current().id());
+            let _planning = Planning(&self.planning_on);
             self.predictor.with(|p| planner.plan(problem, p))
         });
         let plan = result.map_err(planner_err)?;
@@ -153,20 +198,18 @@ impl PyPlanner {
             Ok(Self {
                 planner: Mutex::new(planner),
                 predictor,
+                planning_on: Mutex::new(None),
             })
         })
     }
 
     /// The settings in use.
     #[getter]
-    fn settings(&self) -> PySettings {
-        let p = self
-            .planner
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        PySettings {
+    fn settings(&self) -> PyResult<PySettings> {
+        let p = self.lock("settings")?;
+        Ok(PySettings {
             inner: p.settings().clone(),
-        }
+        })
     }
 
     /// The predictor in use (the object given).
@@ -176,11 +219,9 @@ impl PyPlanner {
     }
 
     /// Forgets the warm start.
-    fn reset(&self) {
-        self.planner
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .reset();
+    fn reset(&self) -> PyResult<()> {
+        self.lock("reset")?.reset();
+        Ok(())
     }
 
     /// One MPC call on raw arrays.
@@ -269,7 +310,7 @@ impl PyPlanner {
                     .as_ref()
                     .map(|(bounds, extents)| Lanes { bounds, extents }),
             };
-            self.run(py, &problem)
+            self.run(py, &problem, "plan")
         })
     }
 
@@ -290,6 +331,7 @@ impl PyPlanner {
         config: Option<Bound<'_, PySimConfig>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
+            self.refuse_reentry("plan_scenario")?;
             let seed = seed.u64("seed", u64::MAX)?;
             let target_lane = target_lane
                 .map(|l| l.usize("target_lane", usize::MAX))
@@ -304,14 +346,14 @@ impl PyPlanner {
                     )));
                 }
                 None => {
-                    let settings = self.settings().inner;
+                    let settings = self.settings()?.inner;
                     let config = config.map_or_else(SimConfig::default, |c| c.get().inner);
                     nudge_sim::target_lane(sc, seed, &settings, &config).map_err(sim_err)?
                 }
             };
             let history = History::new(sc.history.clone(), sc.n_agents).map_err(predictor_err)?;
             let problem = PlanningProblem::at_scenario_start(sc, &history, sc.lane_centres[lane]);
-            let d = self.run(py, &problem)?;
+            let d = self.run(py, &problem, "plan_scenario")?;
             d.set_item("target_lane", lane)?;
             d.set_item("y_target", sc.lane_centres[lane])?;
             Ok(d)

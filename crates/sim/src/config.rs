@@ -7,7 +7,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SimConfigError;
-use nudge_planner::settings::schema::{FieldRange, any, closed, positive};
+use nudge_planner::settings::schema::{FieldRange, any, closed, open_min, positive};
 
 /// How the other vehicles move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
@@ -84,6 +84,11 @@ impl nudge_planner::settings::schema::FieldValue for World {
 
 /// Most steps of one run (1000 steps = 5 minutes of driving).
 const MAX_STEPS: f64 = 1000.0;
+/// Largest `settle_y` (m): half the narrowest lane a scenario may have
+/// ([`nudge_planner::scenario::LANE_WIDTH`]).
+const MAX_SETTLE_Y: f64 = 0.5 * nudge_planner::scenario::LANE_WIDTH[0];
+/// Largest `settle_psi` (rad).
+const MAX_SETTLE_PSI: f64 = 0.2;
 
 nudge_planner::settings_struct! {
     /// Closed-loop settings. Units: metres, radians, 0.3 s steps.
@@ -95,10 +100,13 @@ nudge_planner::settings_struct! {
     pub struct SimConfig("") {
         /// Most planning steps per run (0.3 s each).
         max_steps: usize = 30, closed(1.0, MAX_STEPS, "steps");
-        /// Settled in the target lane when |y − y_target| ≤ this for `settle_steps` steps (m).
-        settle_y: f64 = 0.3, positive("m");
-        /// Heading bound of the settling test, relative to the road (rad).
-        settle_psi: f64 = 0.03, positive("rad");
+        /// Settled in the target lane when |y − y_target| ≤ this for `settle_steps` steps (m);
+        /// at most half the narrowest lane a scene may have (1.25 m), so a settled ego's centre
+        /// is inside the target lane.
+        settle_y: f64 = 0.3, open_min(0.0, MAX_SETTLE_Y, "m");
+        /// Heading bound of the settling test, relative to the road (rad); at most 0.2 rad
+        /// (11°), the planner's default heading bound: a steeper ego is still changing lanes.
+        settle_psi: f64 = 0.03, open_min(0.0, MAX_SETTLE_PSI, "rad");
         /// Consecutive steps the settling test must hold.
         settle_steps: usize = 2, closed(1.0, MAX_STEPS, "steps");
         /// How the other vehicles move: `teacher`, `idm` or `log_replay`.
@@ -223,11 +231,16 @@ mod tests {
 
     #[test]
     fn every_field_is_validated_by_name() {
-        let bad: [(&str, f64); 18] = [
+        let bad: [(&str, f64); 22] = [
             ("max_steps", 0.0),
             ("max_steps", 1001.0),
             ("settle_y", f64::NAN),
             ("settle_y", 0.0),
+            // Issue 49: 1e308 validated and reported success after one step.
+            ("settle_y", 1e308),
+            ("settle_y", 1.3),
+            ("settle_psi", 1e308),
+            ("settle_psi", 0.21),
             ("settle_psi", -0.1),
             ("settle_steps", 0.0),
             ("abort_after", 5000.0),

@@ -77,7 +77,7 @@ mod tests {
             .iter()
             .find(|r| r.field == "settle_y")
             .expect("settle_y");
-        assert_eq!((settle.unit, settle.range.as_str()), ("m", "(0, inf)"));
+        assert_eq!((settle.unit, settle.range.as_str()), ("m", "(0, 1.25]"));
     }
 
     #[test]

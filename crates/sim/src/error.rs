@@ -52,6 +52,24 @@ pub enum WorldFileError {
         /// Underlying I/O error.
         source: std::io::Error,
     },
+    /// Not a regular file (a FIFO, device, socket or directory): refused before opening.
+    #[error("world file {path}: {kind}, not a regular file")]
+    NotRegularFile {
+        /// File that failed.
+        path: PathBuf,
+        /// What it is (`a FIFO`, `a character device`, ...).
+        kind: &'static str,
+    },
+    /// Larger than [`crate::idm::MAX_WORLD_BYTES`]: refused before reading it all.
+    #[error("world file {path}: {size} bytes, more than the {max}-byte budget")]
+    TooLarge {
+        /// File that failed.
+        path: PathBuf,
+        /// Its size (bytes; at least `max + 1`).
+        size: u64,
+        /// The budget (bytes).
+        max: u64,
+    },
     /// The text is not JSON.
     #[error("{path}: not JSON: {reason}")]
     NotJson {

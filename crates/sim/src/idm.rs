@@ -69,6 +69,8 @@ use nudge_planner::settings::schema::{closed, open_min};
 
 /// The schema string of the world file.
 pub const IDM_SCHEMA: &str = "nudge.idm/1";
+/// Largest world file read (bytes): 8 MiB, 250 times the shipped `idm.json` (32 kB).
+pub const MAX_WORLD_BYTES: u64 = 8 << 20;
 /// Ballistic sub-steps per closed-loop step of [`DT`] = 0.3 s.
 pub const SUBSTEPS: usize = 3;
 /// The sub-step (s): the fit's 0.1 s ([`SUBSTEPS`] · `SUB_DT` = [`DT`]).
@@ -77,6 +79,74 @@ pub const SUB_DT: f64 = 0.1;
 pub const V_REF_MIN: f64 = 1.0;
 /// The fitted parameters in the order of every driver row.
 pub const PARAMETER_NAMES: [&str; 5] = ["T", "s0", "a_max", "b", "v0_ratio"];
+/// Physically plausible ranges `[lo, hi]` of the driver parameters, in [`PARAMETER_NAMES`]
+/// order, checked in code (a file's own `bounds` must lie inside them, and so must every
+/// driver). Units: T s, s0 m, a_max m/s², b m/s², v0_ratio 1. Reasons:
+/// - T (time gap): 0.1–5 s. The IDM's published highway values are 1.0–1.6 s (Treiber,
+///   Hennecke & Helbing 2000: 1.6 s; Treiber & Kesting, *Traffic Flow Dynamics*, 2013: 1.0 s);
+///   NGSIM followers keep gaps as short as 0.3 s (the fit's box), and beyond ~5 s a vehicle
+///   is in free flow rather than following.
+/// - s0 (jam distance): 0.1–10 m; published values are 2 m (both sources above); a stopped
+///   queue holds 1–5 m between bumpers.
+/// - a_max (maximum acceleration): 0.1–6 m/s²; published values 0.73–1.0 m/s²; a passenger
+///   car's full-throttle acceleration is 2–6 m/s² (0–100 km/h in 5–14 s).
+/// - b (comfortable deceleration): 0.1–9 m/s²; published values 1.5–1.67 m/s²; 3.4 m/s² is
+///   the comfortable deceleration of road design (AASHTO's stopping-sight-distance rate) and
+///   a car on dry asphalt brakes at most ~9 m/s² (friction ≈ 0.9 g).
+/// - v0_ratio (desired speed / the vehicle's highest logged speed): 0.5–3; a driver that
+///   wants less than half or more than three times the speed it drove is not the driver
+///   that was logged.
+pub const PLAUSIBLE: [(f64, f64); 5] =
+    [(0.1, 5.0), (0.1, 10.0), (0.1, 6.0), (0.1, 9.0), (0.5, 3.0)];
+/// The IDM's free-road exponent δ: (0, 10] (published value 4).
+pub const PLAUSIBLE_DELTA: f64 = 10.0;
+/// The world's braking limit `model.max_decel_mps2`: (0, 12] m/s² (tyre friction ≈ 1.2 g at
+/// most).
+pub const PLAUSIBLE_MAX_DECEL: f64 = 12.0;
+/// The world's gap floor `model.gap_floor_m`: (0, 1] m.
+pub const PLAUSIBLE_GAP_FLOOR: f64 = 1.0;
+/// `intrusion.threshold_m`: [−3.5, 3.5] m, a lane width either side of the line.
+pub const PLAUSIBLE_THRESHOLD: f64 = 3.5;
+/// The keys a "nudge.idm/1" file may hold at the top level; `sampling`, `pooled`, `metrics`
+/// and `provenance` are free-form documentation of the fit, not read.
+const TOP_KEYS: &[&str] = &[
+    "schema",
+    "units",
+    "model",
+    "parameter_names",
+    "bounds",
+    "drivers",
+    "driver_sources",
+    "intrusion",
+    "lane_end",
+    "sampling",
+    "pooled",
+    "metrics",
+    "provenance",
+];
+/// The keys of `units`.
+const UNIT_KEYS: &[&str] = &[
+    "T",
+    "s0",
+    "a_max",
+    "b",
+    "v0_ratio",
+    "gap",
+    "speed",
+    "threshold_m",
+];
+/// The keys of `model` (`acceleration`, `v0`, `gap` are prose).
+const MODEL_KEYS: &[&str] = &[
+    "acceleration",
+    "delta",
+    "v0",
+    "gap",
+    "max_decel_mps2",
+    "gap_floor_m",
+    "integration",
+];
+/// The keys of `intrusion` (`rule` is prose, `fit` free-form documentation).
+const INTRUSION_KEYS: &[&str] = &["rule", "threshold_m", "p_yield", "fit"];
 /// The units the file must state for each parameter and for the intrusion threshold.
 const UNITS: [(&str, &str); 6] = [
     ("T", "s"),
@@ -336,6 +406,40 @@ impl Fields<'_> {
             .ok_or_else(|| self.err(field, format!("expected an array, got {v}")))
     }
 
+    /// Refuses a key of the object `v` (named `parent`, "" for the top level) that is not in
+    /// `known`, naming it (`model.deltaa`).
+    fn only(&self, v: &Value, parent: &str, known: &[&str]) -> Result<(), WorldFileError> {
+        let Some(map) = v.as_object() else {
+            let what = if parent.is_empty() {
+                "the file"
+            } else {
+                parent
+            };
+            return Err(self.err(what, format!("expected an object, got {v}")));
+        };
+        match map.keys().find(|k| !known.contains(&k.as_str())) {
+            None => Ok(()),
+            Some(k) => {
+                let name = if parent.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{parent}.{k}")
+                };
+                Err(self.err(name, format!("unknown key (known: {})", known.join(", "))))
+            }
+        }
+    }
+
+    /// A positive number of at most `hi` (plausibility in code).
+    fn positive_to(&self, v: &Value, field: &str, hi: f64) -> Result<f64, WorldFileError> {
+        let x = self.positive(v, field)?;
+        if x <= hi {
+            Ok(x)
+        } else {
+            Err(self.err(field, format!("{x} is implausible: must be in (0, {hi}]")))
+        }
+    }
+
     fn positive(&self, v: &Value, field: &str) -> Result<f64, WorldFileError> {
         let x = self.number(v, field)?;
         if x > 0.0 {
@@ -352,11 +456,13 @@ impl Fields<'_> {
     /// `schema` is [`IDM_SCHEMA`] and `units` names the unit of every parameter and of
     /// `threshold_m`.
     fn check_schema_and_units(&self, root: &Value) -> Result<(), WorldFileError> {
+        self.only(root, "", TOP_KEYS)?;
         let schema = self.text(self.get(root, "", "schema")?, "schema")?;
         if schema != IDM_SCHEMA {
             return Err(self.err("schema", format!("{schema:?}, expected {IDM_SCHEMA:?}")));
         }
         let units = self.get(root, "", "units")?;
+        self.only(units, "units", UNIT_KEYS)?;
         for (name, unit) in UNITS {
             let field = format!("units.{name}");
             let got = self.text(self.get(units, "units", name)?, &field)?;
@@ -384,6 +490,7 @@ impl Fields<'_> {
     /// 0 < lo < hi (units as in `units`).
     fn bounds(&self, root: &Value) -> Result<[(f64, f64); 5], WorldFileError> {
         let bounds_v = self.get(root, "", "bounds")?;
+        self.only(bounds_v, "bounds", &PARAMETER_NAMES)?;
         let mut bounds = [(0.0, 0.0); 5];
         for (k, name) in PARAMETER_NAMES.iter().enumerate() {
             let field = format!("bounds.{name}");
@@ -396,6 +503,16 @@ impl Fields<'_> {
             if !(0.0 < lo && lo < hi) {
                 return Err(self.err(field, format!("[{lo}, {hi}] is not 0 < lo < hi")));
             }
+            let (plo, phi) = PLAUSIBLE[k];
+            if lo < plo || hi > phi {
+                return Err(self.err(
+                    field,
+                    format!(
+                        "[{lo}, {hi}] reaches outside the physically plausible [{plo}, {phi}] \
+                         (nudge_sim::idm::PLAUSIBLE)"
+                    ),
+                ));
+            }
             bounds[k] = (lo, hi);
         }
         Ok(bounds)
@@ -405,15 +522,22 @@ impl Fields<'_> {
     /// `integration` naming the ballistic 0.1 s update.
     fn model(&self, root: &Value) -> Result<IdmModel, WorldFileError> {
         let model_v = self.get(root, "", "model")?;
+        self.only(model_v, "model", MODEL_KEYS)?;
         let model = IdmModel {
-            delta: self.positive(self.get(model_v, "model", "delta")?, "model.delta")?,
-            max_decel: self.positive(
+            delta: self.positive_to(
+                self.get(model_v, "model", "delta")?,
+                "model.delta",
+                PLAUSIBLE_DELTA,
+            )?,
+            max_decel: self.positive_to(
                 self.get(model_v, "model", "max_decel_mps2")?,
                 "model.max_decel_mps2",
+                PLAUSIBLE_MAX_DECEL,
             )?,
-            gap_floor: self.positive(
+            gap_floor: self.positive_to(
                 self.get(model_v, "model", "gap_floor_m")?,
                 "model.gap_floor_m",
+                PLAUSIBLE_GAP_FLOOR,
             )?,
         };
         let integration = self.text(
@@ -518,10 +642,20 @@ impl Fields<'_> {
     /// `intrusion`: a finite `threshold_m` (m) and a `p_yield` in [0, 1].
     fn intrusion(&self, root: &Value) -> Result<IntrusionRule, WorldFileError> {
         let rule = self.get(root, "", "intrusion")?;
+        self.only(rule, "intrusion", INTRUSION_KEYS)?;
         let threshold_m = self.number(
             self.get(rule, "intrusion", "threshold_m")?,
             "intrusion.threshold_m",
         )?;
+        if threshold_m.abs() > PLAUSIBLE_THRESHOLD {
+            return Err(self.err(
+                "intrusion.threshold_m",
+                format!(
+                    "{threshold_m} is implausible: must be in [-{PLAUSIBLE_THRESHOLD}, \
+                     {PLAUSIBLE_THRESHOLD}] m"
+                ),
+            ));
+        }
         let p_yield = self.number(self.get(rule, "intrusion", "p_yield")?, "intrusion.p_yield")?;
         if !(0.0..=1.0).contains(&p_yield) {
             return Err(self.err(
@@ -554,28 +688,51 @@ impl Fields<'_> {
 }
 
 impl IdmPopulation {
-    /// Reads and checks a "nudge.idm/1" file.
+    /// Reads and checks a "nudge.idm/1" file, opened by the checked-open routine
+    /// ([`nudge_predictor::file::read_bounded`]): a regular file of at most
+    /// [`MAX_WORLD_BYTES`], its type and size checked before reading.
     ///
     /// # Errors
-    /// [`WorldFileError::Io`] when the file cannot be read, otherwise as
-    /// [`IdmPopulation::from_json`].
+    /// [`WorldFileError::NotRegularFile`] (a FIFO or device, refused before opening),
+    /// [`WorldFileError::TooLarge`], [`WorldFileError::Io`] when the file cannot be read,
+    /// otherwise as [`IdmPopulation::from_json`].
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, WorldFileError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| WorldFileError::Io {
+        let bytes =
+            nudge_predictor::file::read_bounded(path, MAX_WORLD_BYTES).map_err(|e| match e {
+                nudge_predictor::PredictorError::NotRegularFile { path, kind } => {
+                    WorldFileError::NotRegularFile { path, kind }
+                }
+                nudge_predictor::PredictorError::FileTooLarge { path, size, max } => {
+                    WorldFileError::TooLarge { path, size, max }
+                }
+                nudge_predictor::PredictorError::Io { path, source } => {
+                    WorldFileError::Io { path, source }
+                }
+                other => WorldFileError::Io {
+                    path: path.to_path_buf(),
+                    source: std::io::Error::other(other.to_string()),
+                },
+            })?;
+        let text = String::from_utf8(bytes).map_err(|e| WorldFileError::NotJson {
             path: path.to_path_buf(),
-            source,
+            reason: format!("not UTF-8 text: {e}"),
         })?;
         Self::from_json(&text, path)
     }
 
     /// Parses and checks the text of a "nudge.idm/1" file; `path` names it in errors.
     ///
-    /// Checked: `schema`; `units` of every parameter and of `threshold_m`;
-    /// `parameter_names` = T, s0, a_max, b, v0_ratio; `bounds` (finite, 0 < lo < hi);
-    /// `model.delta` > 0, `model.max_decel_mps2` > 0, `model.gap_floor_m` > 0 and
+    /// Checked: no repeated key anywhere ([`nudge_predictor::json::parse`]); no unknown key at
+    /// the top level or in `units`, `model`, `bounds`, `intrusion`; `schema`; `units` of every
+    /// parameter and of `threshold_m`; `parameter_names` = T, s0, a_max, b, v0_ratio; `bounds`
+    /// (finite, 0 < lo < hi, inside the physically plausible [`PLAUSIBLE`] ranges in code);
+    /// `model.delta` in (0, [`PLAUSIBLE_DELTA`]], `model.max_decel_mps2` in
+    /// (0, [`PLAUSIBLE_MAX_DECEL`]], `model.gap_floor_m` in (0, [`PLAUSIBLE_GAP_FLOOR`]] and
     /// `model.integration` naming the ballistic 0.1 s update; every `drivers` row (5 finite
     /// values within `bounds`); one `driver_sources` entry (`"i80"` or `"us101"`) per row;
-    /// `intrusion.threshold_m` finite and `intrusion.p_yield` in [0, 1]; the optional
+    /// `intrusion.threshold_m` within ±[`PLAUSIBLE_THRESHOLD`] and `intrusion.p_yield` in
+    /// [0, 1]; the optional
     /// `lane_end` section as [`LaneEndMerge::validate`] requires.
     ///
     /// # Errors
@@ -583,10 +740,11 @@ impl IdmPopulation {
     /// naming the first field that is missing or wrong.
     pub fn from_json(text: &str, path: &Path) -> Result<Self, WorldFileError> {
         let f = Fields { path };
-        let root: Value = serde_json::from_str(text).map_err(|e| WorldFileError::NotJson {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
+        let root: Value =
+            nudge_predictor::json::parse(text).map_err(|e| WorldFileError::NotJson {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            })?;
         f.check_schema_and_units(&root)?;
         f.check_parameter_names(&root)?;
         let bounds = f.bounds(&root)?;
@@ -1321,6 +1479,139 @@ mod tests {
             IdmPopulation::from_file("/nonexistent/idm.json"),
             Err(WorldFileError::Io { .. })
         ));
+    }
+
+    /// Issue 49 class 11: drivers are checked against physical plausibility in code, not only
+    /// against the bounds the same file declares (before: a file declaring wide bounds loaded
+    /// absurd drivers); unknown and repeated keys are refused by name.
+    #[test]
+    fn world_files_are_checked_against_bounds_in_code_and_their_keys() {
+        let text = std::fs::read_to_string(idm_path(Path::new(ASSETS))).expect("read");
+        let good: Value = serde_json::from_str(&text).expect("json");
+        type Edit = Box<dyn Fn(&mut Value)>;
+        let wide = |v: &mut Value| {
+            for name in PARAMETER_NAMES {
+                v["bounds"][name] = serde_json::json!([1e-3, 1e3]);
+            }
+        };
+        let cases: Vec<(&str, Edit)> = vec![
+            // The file's own box wider than plausible: refused at the box.
+            ("bounds.T", Box::new(move |v| wide(v))),
+            // Absurd drivers inside an absurd box: refused at the first.
+            (
+                "bounds.a_max",
+                Box::new(|v| {
+                    v["bounds"]["a_max"] = serde_json::json!([0.3, 60.0]);
+                    v["drivers"][0][2] = 50.0.into();
+                }),
+            ),
+            (
+                "model.max_decel_mps2",
+                Box::new(|v| v["model"]["max_decel_mps2"] = 900.0.into()),
+            ),
+            (
+                "model.delta",
+                Box::new(|v| v["model"]["delta"] = 1e6.into()),
+            ),
+            (
+                "intrusion.threshold_m",
+                Box::new(|v| v["intrusion"]["threshold_m"] = 1e9.into()),
+            ),
+            ("drivers_typo", Box::new(|v| v["drivers_typo"] = 1.into())),
+            (
+                "model.deltaa",
+                Box::new(|v| v["model"]["deltaa"] = 4.into()),
+            ),
+            ("units.foo", Box::new(|v| v["units"]["foo"] = "m".into())),
+            (
+                "bounds.extra",
+                Box::new(|v| v["bounds"]["extra"] = serde_json::json!([1, 2])),
+            ),
+            (
+                "intrusion.p_yeld",
+                Box::new(|v| v["intrusion"]["p_yeld"] = 0.5.into()),
+            ),
+        ];
+        for (field, edit) in cases {
+            let mut v = good.clone();
+            edit(&mut v);
+            match IdmPopulation::from_json(&v.to_string(), Path::new("w.json")) {
+                Err(WorldFileError::Field { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{field}: expected a field error, got {other:?}"),
+            }
+        }
+        // A repeated key: serde_json alone keeps the last one.
+        let dup = text.replacen("\"schema\"", "\"schema\": \"nudge.idm/1\", \"schema\"", 1);
+        assert_ne!(dup, text);
+        match IdmPopulation::from_json(&dup, Path::new("w.json")) {
+            Err(WorldFileError::NotJson { reason, .. }) => {
+                assert!(reason.contains("duplicate key `schema`"), "{reason}");
+            }
+            other => panic!("expected a duplicate-key refusal, got {other:?}"),
+        }
+        // The shipped file's own box lies inside the plausible ranges.
+        for (k, name) in PARAMETER_NAMES.iter().enumerate() {
+            let (lo, hi) = PLAUSIBLE[k];
+            let b = &good["bounds"][name];
+            let (flo, fhi) = (b[0].as_f64().expect("lo"), b[1].as_f64().expect("hi"));
+            assert!(lo <= flo && fhi <= hi, "{name}");
+        }
+    }
+
+    /// Issue 49 class 2: the world file is opened by the one checked-open routine: a FIFO is
+    /// refused without blocking (before: read forever), `/dev/zero` without reading (before:
+    /// read until memory ran out), a file above [`MAX_WORLD_BYTES`] by its size; each a typed
+    /// error naming the file.
+    #[cfg(unix)]
+    #[test]
+    fn fifo_device_and_huge_world_files_are_refused_by_name() {
+        let dir = std::env::temp_dir().join(format!("nudge-world-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let fifo = dir.join("idm.fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo");
+        assert!(made.success());
+        let (tx, rx) = std::sync::mpsc::channel();
+        let f = fifo.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(IdmPopulation::from_file(&f));
+        });
+        let got = rx
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("reading a FIFO world file blocked");
+        match got {
+            Err(WorldFileError::NotRegularFile { path, kind }) => {
+                assert_eq!((path.as_path(), kind), (fifo.as_path(), "a FIFO"));
+            }
+            other => panic!("expected NotRegularFile, got {other:?}"),
+        }
+        let e = IdmPopulation::from_file("/dev/zero").expect_err("device");
+        assert!(
+            matches!(
+                &e,
+                WorldFileError::NotRegularFile {
+                    kind: "a character device",
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("/dev/zero"), "{e}");
+        let big = dir.join("big.json");
+        let file = std::fs::File::create(&big).expect("create");
+        file.set_len(MAX_WORLD_BYTES + 1).expect("set_len");
+        match IdmPopulation::from_file(&big) {
+            Err(WorldFileError::TooLarge { path, size, max }) => {
+                assert_eq!(
+                    (path, size, max),
+                    (big.clone(), MAX_WORLD_BYTES + 1, MAX_WORLD_BYTES)
+                );
+            }
+            other => panic!("expected TooLarge, got {other:?}"),
+        }
+        std::fs::remove_dir_all(&dir).expect("clean");
     }
 
     /// Lane 0 (y in [-1.75, 1.75]) really ends at x = 300; lane 1 runs on.

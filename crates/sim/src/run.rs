@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use nudge_predictor::limits::MAX_AGENT_OFFSET;
 use nudge_predictor::{Checked, History, Predictor, T_OBS};
 
 use crate::error::SimError;
@@ -185,14 +186,19 @@ impl ClosedLoop<'_> {
         v.min(self.settings.bounds.v_max.max(self.v_ref))
     }
 
-    /// The observed history as the predictors take it.
-    fn history(&self) -> Result<History, SimError> {
-        let flat: Vec<f64> = self
-            .observed
+    /// The agents the planner and a teacher world see at this step (scene indices, the ego
+    /// first; see [`view_of`]).
+    fn view(&self) -> Vec<usize> {
+        view_of(&self.observed)
+    }
+
+    /// The observed history of the agents `view` as the predictors take it.
+    fn history(&self, view: &[usize]) -> Result<History, SimError> {
+        let flat: Vec<f64> = view
             .iter()
-            .flat_map(|h| h.iter().flat_map(|p| [p[0], p[1]]))
+            .flat_map(|&i| self.observed[i].iter().flat_map(|p| [p[0], p[1]]))
             .collect();
-        History::new(flat, self.sc.n_agents).map_err(|source| SimError::Predictor {
+        History::new(flat, view.len()).map_err(|source| SimError::Predictor {
             scene: self.sc.name.clone(),
             source,
         })
@@ -202,16 +208,18 @@ impl ClosedLoop<'_> {
     /// the plan from `ego`, the planning predictor's prediction of the others given the plan
     /// (given the keep-lane path when the reaction is ablated; checked finite and plausible), the binding vehicle under that prediction, and the
     /// agents' positions `moved` after the step.
+    #[allow(clippy::too_many_arguments)]
     fn trace(
         &self,
         history: &History,
+        view: &[usize],
         ego: [f64; 4],
         plan: &Plan,
         constraint: &SafetyConstraint,
         planner_pred: &mut dyn Predictor,
         moved: &[[f64; 2]],
     ) -> Result<StepTrace, SimError> {
-        let n_others = self.sc.n_agents - 1;
+        let n_others = view.len() - 1;
         let t = plan.states.len();
         let mut prediction = vec![0.0; n_others * t * 2];
         if n_others > 0 {
@@ -236,16 +244,27 @@ impl ClosedLoop<'_> {
                     source,
                 })?;
         }
-        let predicted = prediction
+        let in_view: Vec<Vec<[f64; 2]>> = prediction
             .chunks_exact(t * 2)
             .map(|a| a.chunks_exact(2).map(|p| [p[0], p[1]]).collect())
             .collect();
+        // Agents outside the view carry their constant-velocity path (not predicted).
+        let mut predicted: Vec<Vec<[f64; 2]>> = (1..self.sc.n_agents)
+            .map(|i| constant_velocity(&self.observed[i], t))
+            .collect();
+        for (j, path) in view.iter().skip(1).zip(in_view) {
+            predicted[j - 1] = path;
+        }
         let mut states = vec![ego];
         states.extend(plan.states.iter().copied());
+        let binding = constraint.binding(&plan.states, &prediction).map(|mut b| {
+            b.agent = view[b.agent];
+            b
+        });
         Ok(StepTrace {
             plan: states,
             predicted,
-            binding: constraint.binding(&plan.states, &prediction),
+            binding,
             agents: moved.to_vec(),
         })
     }
@@ -259,7 +278,9 @@ impl ClosedLoop<'_> {
         mover: &mut Mover<'_>,
     ) -> Result<StepRecord, SimError> {
         let sc = self.sc;
-        let history = self.history()?;
+        let view = self.view();
+        let history = self.history(&view)?;
+        let sizes: Vec<[f64; 2]> = view.iter().map(|&i| sc.size[i]).collect();
         let v_ref = self.v_ref();
         let problem = PlanningProblem {
             ego: EgoState {
@@ -271,7 +292,7 @@ impl ClosedLoop<'_> {
             last_delta: self.last_inputs.0,
             last_accel: self.last_inputs.1,
             history: &history,
-            sizes: &sc.size,
+            sizes: &sizes,
             y_target: self.lane.goal(),
             v_ref,
             road: sc.road(),
@@ -296,6 +317,7 @@ impl ClosedLoop<'_> {
         let moved = mover.advance(
             sc,
             &history,
+            &view,
             &self.observed,
             step,
             &self.ego,
@@ -305,11 +327,20 @@ impl ClosedLoop<'_> {
         let trace = if self.trace {
             let e = &problem.ego;
             let measured = [e.x, e.y, e.psi, e.v];
-            let t = self.trace(&history, measured, &plan, &constraint, planner_pred, &moved)?;
+            let t = self.trace(
+                &history,
+                &view,
+                measured,
+                &plan,
+                &constraint,
+                planner_pred,
+                &moved,
+            )?;
             Some(t)
         } else {
             None
         };
+        let moved_view: Vec<[f64; 2]> = view.iter().map(|&i| moved[i]).collect();
         for (h, p) in self.observed.iter_mut().zip(&moved) {
             h.remove(0);
             h.push(*p);
@@ -333,7 +364,7 @@ impl ClosedLoop<'_> {
             predictor_calls: plan.predictor_calls,
             cost: plan.cost,
             primal_residual: plan.primal_residual,
-            min_b: constraint.executed_min_b([next[0], next[1], next[2], next[3]], &moved),
+            min_b: constraint.executed_min_b([next[0], next[1], next[2], next[3]], &moved_view),
             collision: !touching.is_empty(),
             status,
             decided_by: plan.decided_by,
@@ -348,6 +379,44 @@ impl ClosedLoop<'_> {
             trace,
         })
     }
+}
+
+/// The agents the planner (and a teacher world) see, given every agent's observed positions
+/// `observed` (`[n][T_OBS]`, m): all of them when every two are at most
+/// [`MAX_AGENT_OFFSET`] apart at the last observed step (the predictors' accepted span; every
+/// run whose vehicles stay that close is planned exactly as before), otherwise the ego and
+/// the agents within [`MAX_AGENT_OFFSET`] / 2 of it (so any two of them are within the span).
+/// A vehicle 500 m from the ego cannot matter within a planning horizon of seconds; it is
+/// still simulated, judged by the metrics and drawn. Scene indices, ascending, the ego first.
+#[must_use]
+pub fn view_of(observed: &[Vec<[f64; 2]>]) -> Vec<usize> {
+    let n = observed.len();
+    let last = |i: usize| observed[i][T_OBS - 1];
+    let d2 = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
+    let span2 = MAX_AGENT_OFFSET * MAX_AGENT_OFFSET;
+    if (0..n).all(|i| (i + 1..n).all(|j| d2(last(i), last(j)) <= span2)) {
+        return (0..n).collect();
+    }
+    let half2 = span2 / 4.0;
+    (0..n)
+        .filter(|&i| i == 0 || d2(last(i), last(0)) <= half2)
+        .collect()
+}
+
+/// The path of an agent observed at `observed` (`[T_OBS]`, m) over `t` steps at its last
+/// observed displacement per step (m): k-th point = last + k · (last − previous).
+pub(crate) fn constant_velocity(observed: &[[f64; 2]], t: usize) -> Vec<[f64; 2]> {
+    let last = observed[T_OBS - 1];
+    let prev = observed[T_OBS - 2];
+    (1..=t)
+        .map(|k| {
+            let k = k as f64;
+            [
+                last[0] + k * (last[0] - prev[0]),
+                last[1] + k * (last[1] - prev[1]),
+            ]
+        })
+        .collect()
 }
 
 /// Runs one closed-loop lane change of scenario `sc` towards the lane drawn from `seed`.

@@ -126,6 +126,7 @@ impl<'p> Mover<'p> {
         &mut self,
         sc: &Scenario,
         history: &History,
+        view: &[usize],
         observed: &[Vec<[f64; 2]>],
         step: usize,
         ego_from: &State,
@@ -137,6 +138,17 @@ impl<'p> Mover<'p> {
         moved.push([ego_to[0], ego_to[1]]);
         match self {
             Self::Teacher { .. } if n < 2 => {}
+            // Agents outside the view (farther than the predictors' span, `run::view_of`)
+            // keep their last observed displacement per step.
+            Self::Teacher { .. } if view.len() < n => {
+                let (predicted, _) = self.teacher_view(sc, history, view, ego_to, plan)?;
+                for (i, seen) in observed.iter().enumerate().skip(1) {
+                    moved.push(match view.iter().position(|&v| v == i) {
+                        Some(j) => predicted[j - 1],
+                        None => crate::run::constant_velocity(seen, 1)[0],
+                    });
+                }
+            }
             Self::Teacher {
                 predictor,
                 candidate,
@@ -169,6 +181,53 @@ impl<'p> Mover<'p> {
             Self::Idm(traffic) => moved.extend(traffic.step(ego_from, ego_to)),
         }
         Ok(moved)
+    }
+
+    /// The teacher's next positions (m) of the agents `view[1..]` (a view smaller than the
+    /// scene; `history` holds the view's agents), given the ego's executed position and
+    /// the rest of its `plan`, and the teacher's horizon.
+    fn teacher_view(
+        &mut self,
+        sc: &Scenario,
+        history: &History,
+        view: &[usize],
+        ego_to: &State,
+        plan: &[[f64; 4]],
+    ) -> Result<(Vec<[f64; 2]>, usize), SimError> {
+        let Self::Teacher {
+            predictor,
+            candidate,
+            prediction,
+        } = self
+        else {
+            return Ok((Vec::new(), 0));
+        };
+        let horizon = candidate.len() / 2;
+        let m = view.len() - 1;
+        if m == 0 {
+            return Ok((Vec::new(), horizon));
+        }
+        candidate[0] = ego_to[0];
+        candidate[1] = ego_to[1];
+        for k in 1..horizon {
+            candidate[2 * k] = plan[k][0];
+            candidate[2 * k + 1] = plan[k][1];
+        }
+        let out = &mut prediction[..m * horizon * 2];
+        predictor
+            .set_scene(history)
+            .and_then(|()| predictor.predict(candidate, out))
+            .map_err(|source| SimError::Predictor {
+                scene: sc.name.clone(),
+                source,
+            })?;
+        let next = (0..m)
+            .map(|j| {
+                let b = j * horizon * 2;
+                [out[b], out[b + 1]]
+            })
+            .collect();
+        Ok((next, horizon))
     }
 }
 

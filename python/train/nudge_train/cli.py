@@ -910,7 +910,8 @@ def _commonroad(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Runs ``nudge-train`` with ``argv`` (default: the command line); returns the exit status
     (2 for a typed error of :mod:`nudge_train.errors` — bad data, a damaged artefact, a malformed
-    config, a training failure — printed as ``error: ...`` without a traceback)."""
+    config, a training failure — printed as ``error: ...`` without a traceback; 130 for Ctrl-C,
+    one line on stderr)."""
     args = build_parser().parse_args(argv)
     _redirect_tracked_defaults(args)
     from nudge_train.errors import NudgeTrainError
@@ -920,4 +921,8 @@ def main(argv: list[str] | None = None) -> int:
     except NudgeTrainError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("interrupted (a resumable command such as distill resumes from its last complete shard)",
+              file=sys.stderr)
+        return 130
 

@@ -9,12 +9,18 @@ model configs and provenance in weights metadata, distillation shard metadata) g
 from __future__ import annotations
 
 import json
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
 from nudge_train.errors import ConfigError
 
-__all__ = ["load_json", "loads_json"]
+__all__ = ["MAX_JSON_BYTES", "load_json", "loads_json", "read_checked"]
+
+MAX_JSON_BYTES = 256 << 20
+"""Largest JSON file :func:`load_json` reads (bytes): the largest the package writes (closed-loop
+caches, records) are a few MB."""
 
 
 class _Duplicate(Exception):
@@ -48,17 +54,45 @@ def loads_json(text: str | bytes, source: Path | str) -> Any:
         raise ConfigError(source, f"not valid JSON: {type(err).__name__}") from None
 
 
-def load_json(path: Path | str) -> Any:
-    """Reads and parses the JSON file ``path`` (see :func:`loads_json`).
+def read_checked(path: Path | str, max_bytes: int) -> bytes:
+    """The bytes of ``path``, opened the checked way: a regular file (symbolic links followed) of
+    at most ``max_bytes`` bytes, its type and size checked on the path before opening (a FIFO is
+    never opened, so nothing blocks) and again on the open handle; the read stops after
+    ``max_bytes + 1`` bytes, so a file that grows meanwhile is refused too.
 
     Raises:
-        FileNotFoundError: no such file. ConfigError: unreadable, invalid or duplicate keys.
+        FileNotFoundError: no such file. ConfigError: naming the file, when it is not a regular
+        file (a FIFO, device, socket or directory), larger than ``max_bytes``, or unreadable.
     """
     path = Path(path)
+
+    def check(st: os.stat_result) -> None:
+        if not stat.S_ISREG(st.st_mode):
+            raise ConfigError(path, "not a regular file (a FIFO, device or directory is refused before reading)")
+        if st.st_size > max_bytes:
+            raise ConfigError(path, f"{st.st_size} bytes, more than the {max_bytes}-byte budget")
+
     try:
-        data = path.read_bytes()
+        check(path.stat())
+        with open(path, "rb") as fh:
+            check(os.fstat(fh.fileno()))
+            data = fh.read(max_bytes + 1)
     except FileNotFoundError:
         raise
     except OSError as err:
         raise ConfigError(path, f"cannot read: {err}") from None
-    return loads_json(data, path)
+    if len(data) > max_bytes:
+        raise ConfigError(path, f"more than the {max_bytes}-byte budget")
+    return data
+
+
+def load_json(path: Path | str, max_bytes: int = MAX_JSON_BYTES) -> Any:
+    """Reads (by :func:`read_checked`, at most ``max_bytes``) and parses the JSON file ``path``
+    (see :func:`loads_json`).
+
+    Raises:
+        FileNotFoundError: no such file. ConfigError: not a regular file, too large, unreadable,
+        invalid or duplicate keys.
+    """
+    path = Path(path)
+    return loads_json(read_checked(path, max_bytes), path)

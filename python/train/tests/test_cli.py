@@ -264,3 +264,19 @@ def test_bench_planner_table_from_criterion_estimates(tmp_path: Path, capsys: py
 def test_bench_inference_refuses_agent_counts_without_a_scene(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "inference", "--ns", "3"]) == 2
     assert "not in the bench scenes" in capsys.readouterr().err
+
+
+def test_ctrl_c_ends_any_command_with_status_130_and_no_traceback(monkeypatch: pytest.MonkeyPatch,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 49 class 12: `nudge-train distill` answered Ctrl-C with a traceback. Every command
+    ends on KeyboardInterrupt with one line on stderr and status 130 (128 + SIGINT), saying that
+    a resumable command resumes from where it stopped."""
+    import nudge_train.cli as cli
+
+    def interrupted(_: argparse.Namespace) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_run_distill", interrupted)
+    assert main(["distill", "--out", "x"]) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("interrupted") and "Traceback" not in err and err.count("\n") == 1, err

@@ -416,3 +416,80 @@ def test_fixture_rows_are_valid_output() -> None:
     check_tables(read_raw_ngsim(RAW18))
     check_tables([read_coifman(COIF)])
     check_tables([read_commonroad(CR)])
+
+
+_CR_HEAD = '<commonRoad commonRoadVersion="2020a" timeStepSize="0.1" benchmarkID="X">'
+
+
+def test_commonroad_reader_budgets_depth_elements_and_size(tmp_path: Path) -> None:
+    """Issue 49: the Python CommonRoad reader holds the same budgets as the Rust one (depth,
+    element count, bytes after decompression), each refusal a DataError naming the file and
+    the budget, before the tree (or the inflated text) grows without bound."""
+    from nudge_train.data.commonroad import MAX_XML_BYTES, MAX_XML_DEPTH, MAX_XML_ELEMENTS
+
+    n = 200_000
+    deep = tmp_path / "deep.xml.gz"
+    deep.write_bytes(gzip.compress((_CR_HEAD + "<a>" * n + "</a>" * n + "</commonRoad>").encode()))
+    with pytest.raises(DataError, match=rf"deep\.xml\.gz.*nesting-depth budget of {MAX_XML_DEPTH}"):
+        read_commonroad(deep)
+    many = tmp_path / "many.xml.gz"
+    many.write_bytes(gzip.compress((_CR_HEAD + "<a/>" * (MAX_XML_ELEMENTS + 10) + "</commonRoad>").encode()))
+    with pytest.raises(DataError, match=rf"many\.xml\.gz.*element-count budget of {MAX_XML_ELEMENTS}"):
+        read_commonroad(many)
+    big = tmp_path / "big.xml.gz"
+    big.write_bytes(gzip.compress(b" " * (MAX_XML_BYTES + 1)))
+    with pytest.raises(DataError, match=rf"big\.xml\.gz.*size budget of {MAX_XML_BYTES}"):
+        read_commonroad(big)
+    from nudge_train.data.commonroad import MAX_XML_ATTRIBUTES
+
+    attrs = tmp_path / "attrs.xml"
+    attrs.write_text(_CR_HEAD + "<x" + "".join(f' a{i}=""' for i in range(MAX_XML_ATTRIBUTES + 1)) + "/></commonRoad>")
+    with pytest.raises(DataError, match=rf"attrs\.xml.*attributes-per-element budget of {MAX_XML_ATTRIBUTES}"):
+        read_commonroad(attrs)
+    plain = tmp_path / "big.xml"
+    with open(plain, "wb") as fh:
+        fh.truncate(MAX_XML_BYTES + 1)
+    with pytest.raises(DataError, match=rf"big\.xml.*size budget of {MAX_XML_BYTES}"):
+        read_commonroad(plain)
+
+
+def test_commonroad_reader_refuses_dtd_entities(tmp_path: Path) -> None:
+    """An entity declared in a DTD is refused naming the file (the Rust reader refuses it too),
+    so both readers read the same value or neither does; character references are decoded."""
+    p = tmp_path / "dtd.xml"
+    p.write_text('<?xml version="1.0"?>\n<!DOCTYPE commonRoad [<!ENTITY z "0">]>\n' + _CR_HEAD + "<x>2&z;</x></commonRoad>")
+    with pytest.raises(DataError, match=r"dtd\.xml.*DTD"):
+        read_commonroad(p)
+
+
+@st.composite
+def _hostile_xml(draw: st.DrawFn) -> str:
+    """The fixture with entity references, CDATA, DTDs and deep nesting (issue 49): the reader
+    decodes references per the spec, refuses DTD entities and holds its budgets."""
+    text = _cr_text()
+    spans = [m.span(2) for m in CR_FIELDS.finditer(text)]
+    for e in sorted({draw(st.integers(0, len(spans) - 1)) for _ in range(draw(st.integers(1, 4)))}, reverse=True):
+        a, b = spans[e]
+        value = draw(st.sampled_from(["2&#48;.0", "&#x32;5", "1&foo;", "&#0;", "<![CDATA[7.5]]>", "1&amp;2", "&lt;",
+                                      "&#xD800;", "&#1114112;", "3&#46;5"]))
+        text = text[:a] + value + text[b:]
+    kind = draw(st.sampled_from(["none", "dtd", "nest", "flood"]))
+    at = text.find("<lanelet")
+    if kind == "dtd":
+        text = text.replace("<commonRoad", '<!DOCTYPE commonRoad [<!ENTITY z "0">]><commonRoad', 1)
+    elif kind == "nest":
+        k = draw(st.sampled_from([10, 70, 5000]))
+        text = text[:at] + "<a>" * k + "</a>" * k + text[at:]
+    elif kind == "flood":
+        text = text[:at] + "<a/>" * draw(st.integers(0, 20_000)) + text[at:]
+    return text
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(_hostile_xml(), st.booleans())
+def test_commonroad_reader_hostile_xml_property(text: str, gz: bool) -> None:
+    raw = text.encode("utf-8", "surrogatepass")
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / ("USA_US101-1_1_T-1.xml.gz" if gz else "USA_US101-1_1_T-1.xml")
+        p.write_bytes(gzip.compress(raw, mtime=0) if gz else raw)
+        _oracle(read_commonroad, p)

@@ -343,3 +343,121 @@ def test_world_golden_is_current() -> None:
     from nudge_train.idm import golden
 
     assert (paths.repo() / golden.GOLDEN).read_text() == golden.text(), "rerun python -m nudge_train.idm.golden"
+
+
+# ------------------------------------------------------------------- hostile cut-in files (issue 49)
+
+
+def _cutins_doc() -> dict:
+    import json
+
+    return json.loads((Path(__file__).resolve().parents[3] / "assets" / "worlds" / "cutins.json").read_text())
+
+
+def test_cutins_file_opened_by_the_checked_open(tmp_path: Path) -> None:
+    """A FIFO is refused without blocking (before: blocked forever), a device without reading
+    it (before: /dev/zero read until memory ran out), each a ConfigError naming the file."""
+    import os
+    import signal
+
+    from nudge_train.errors import ConfigError
+
+    fifo = tmp_path / "cutins.json"
+    os.mkfifo(fifo)
+
+    def _alarm(*_: object) -> None:
+        raise TimeoutError("reading a FIFO blocked")
+
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(10)
+    try:
+        with pytest.raises(ConfigError, match=r"cutins\.json.*not a regular file"):
+            ci.read_events(fifo)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    with pytest.raises(ConfigError, match=r"/dev/zero.*not a regular file"):
+        ci.read_events(Path("/dev/zero"))
+
+
+@pytest.mark.parametrize(("mutate", "match"), [
+    (lambda d: d["events"][3].update(gap=float("nan")), r"events\[3\]\.gap.*not a finite number"),
+    (lambda d: d["events"][5].pop("follower"), r"events\[5\].*missing.*follower"),
+    (lambda d: d["events"][0].update(colour="red"), r"events\[0\].*unknown.*colour"),
+    (lambda d: d["events"][2].update(intruder=1.5), r"events\[2\]\.intruder.*integer"),
+    (lambda d: d["events"][2].update(t_edge="x"), r"events\[2\]\.t_edge.*number"),
+    (lambda d: d["events"].__setitem__(1, [1, 2]), r"events\[1\].*object"),
+    (lambda d: d.update(events={}), r"events.*list"),
+    (lambda d: d["config"].update(zzz=1), r"config.*unknown.*zzz"),
+])
+def test_cutins_file_is_validated_naming_the_item(tmp_path: Path, mutate, match: str) -> None:
+    """Issue 49 class 11: cutins.json was not validated (NaN accepted, bare TypeError/KeyError):
+    every event and the config are checked, the error a ConfigError naming the item."""
+    import json
+
+    from nudge_train.errors import ConfigError
+
+    doc = _cutins_doc()
+    mutate(doc)
+    p = tmp_path / "cutins.json"
+    p.write_text(json.dumps(doc))
+    with pytest.raises(ConfigError, match=match):
+        ci.read_events(p)
+        ci.read_config(p)
+
+
+def test_shipped_cutins_file_reads() -> None:
+    events = ci.read_events(Path(__file__).resolve().parents[3] / "assets" / "worlds" / "cutins.json")
+    assert len(events) == 97 and events[0].follower == 491
+
+
+# ------------------------------------------------------------- property: hostile cut-in files
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(2**70), 2**70), st.booleans(),
+                    st.none(), st.text(max_size=4), st.lists(st.integers(), max_size=2), st.just({}))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_cutins_reader_property(data: st.DataObject) -> None:
+    """Any edit of the shipped cut-in file is read as valid events (every field of its type,
+    numbers finite) or refused with a ConfigError naming the file; never another exception."""
+    import json
+    import math
+    import tempfile
+
+    from nudge_train.errors import ConfigError
+
+    doc = _cutins_doc()
+    for _ in range(data.draw(st.integers(0, 3))):
+        i = data.draw(st.integers(0, len(doc["events"]) - 1))
+        kind = data.draw(st.sampled_from(["value", "drop", "add", "replace_event", "config"]))
+        ev = doc["events"][i]
+        if kind == "value" and isinstance(ev, dict) and ev:
+            ev[data.draw(st.sampled_from(sorted(ev)))] = data.draw(_VALUES)
+        elif kind == "drop" and isinstance(ev, dict) and ev:
+            del ev[data.draw(st.sampled_from(sorted(ev)))]
+        elif kind == "add" and isinstance(ev, dict):
+            ev[data.draw(st.text(max_size=5))] = 1
+        elif kind == "replace_event":
+            doc["events"][i] = data.draw(_VALUES)
+        elif kind == "config":
+            doc["config"][data.draw(st.sampled_from(sorted(doc["config"]) + ["x"]))] = data.draw(_VALUES)
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "cutins.json"
+        p.write_text(json.dumps(doc))
+        try:
+            events = ci.read_events(p)
+            cfg = ci.read_config(p)
+        except ConfigError as err:
+            assert "cutins.json" in str(err)
+            return
+    for e in events:
+        for f in ci.CutIn.__dataclass_fields__:
+            v = getattr(e, f)
+            assert v is None or isinstance(v, str) or (not isinstance(v, bool) and math.isfinite(v)), (f, v)
+    assert all(math.isfinite(getattr(cfg, f)) for f in ci.CutInConfig.__dataclass_fields__)

@@ -140,3 +140,126 @@ def test_describe_step_by_hand() -> None:
     off["agents"][1, 0, 1] = -0.5
     with pytest.raises(ValueError, match="here: the ego's centre"):
         slow_plans.describe_step(off, 1, "here")
+
+
+# ------------------------------------------------- the cache read as untrusted input (issue 49)
+
+
+def _part(**edits: object) -> dict:
+    """A minimal, well-formed closed-loop cache part with one flagged run."""
+    part = {"inputs": {"schema": closed_loop.CACHE_SCHEMA, "planner": "student", "world": "idm", "settings": {},
+                       "config": {}},
+            "runs": {"scenario": ["us101-11_1-t02.1-ego144"], "seed": [3], "success": [False],
+                     "slow_planned_free_steps": [1]},
+            "steps": {"run": [0, 0], "decided_by": ["admm", "refined"]}}
+    for path, value in edits.items():
+        *head, last = path.split("__")
+        node = part
+        for k in head:
+            node = node[k]
+        if value is _DELETE:
+            del node[last]
+        else:
+            node[last] = value
+    return part
+
+
+_DELETE = object()
+
+
+def _write(tmp_path: Path, part: dict | str) -> Path:
+    (tmp_path / "chunk").mkdir(exist_ok=True)
+    text = part if isinstance(part, str) else json.dumps(part)
+    (tmp_path / "chunk" / "part-0000.json").write_text(text)
+    return tmp_path
+
+
+def test_a_well_formed_part_is_read(tmp_path: Path) -> None:
+    (r,) = slow_plans.flagged_runs(_write(tmp_path, _part()))
+    assert (r.scene, r.seed, r.decided_by) == ("us101-11_1-t02.1-ego144", 3, ("admm", "refined"))
+
+
+@pytest.mark.parametrize(("edits", "match"), [
+    ({"runs__scenario": ["../../etc/passwd"]}, r"part-0000\.json.*runs\.scenario\[0\].*not a scene name"),
+    ({"runs__scenario": ["/abs/scene"]}, r"runs\.scenario\[0\].*not a scene name"),
+    ({"runs__scenario": [".hidden"]}, r"runs\.scenario\[0\].*not a scene name"),
+    ({"runs__scenario": [7]}, r"runs\.scenario\[0\]"),
+    ({"runs__seed": [1.5]}, r"runs\.seed\[0\].*integer"),
+    ({"runs__seed": [3, 4]}, r"runs.*same length"),
+    ({"runs__success": _DELETE}, r"runs\.success.*missing"),
+    ({"runs__slow_planned_free_steps": ["x"]}, r"runs\.slow_planned_free_steps\[0\].*integer"),
+    ({"runs": []}, r"runs.*object"),
+    ({"steps__decided_by": ["admm"]}, r"steps.*same length"),
+    ({"steps__run": [0, "a"]}, r"steps\.run\[1\].*integer"),
+    ({"inputs__planner": 5}, r"inputs\.planner"),
+    ({"inputs__settings": _DELETE}, r"inputs\.settings.*missing"),
+    ({"inputs__settings": {"cost": {"w_y": "heavy"}}}, r"inputs\.settings"),
+    ({"inputs__config": [1]}, r"inputs\.config"),
+])
+def test_malformed_cache_parts_are_typed_errors_naming_the_part(tmp_path: Path, edits: dict, match: str) -> None:
+    """Before: a `..` scene name loaded a file outside --scenes, malformed parts ended in bare
+    KeyError/TypeError tracebacks. Now each is a ConfigError naming the file and the part."""
+    from nudge_train.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=match):
+        slow_plans.flagged_runs(_write(tmp_path, _part(**edits)))
+
+
+def test_repeated_keys_and_non_json_parts_are_refused(tmp_path: Path) -> None:
+    from nudge_train.errors import ConfigError
+
+    text = json.dumps(_part()).replace('"runs": {', '"runs": {"seed": [9], ', 1)
+    with pytest.raises(ConfigError, match=r"part-0000\.json.*duplicate key 'seed'"):
+        slow_plans.flagged_runs(_write(tmp_path, text))
+    with pytest.raises(ConfigError, match=r"part-0000\.json.*not valid JSON"):
+        slow_plans.flagged_runs(_write(tmp_path, "{"))
+
+
+def test_a_scene_outside_the_scenes_folder_is_never_loaded(tmp_path: Path) -> None:
+    """Even a FlaggedRun built by hand cannot make the re-simulation read outside --scenes."""
+    from nudge_train.errors import ConfigError
+
+    r = slow_plans.FlaggedRun(planner="student", world="idm", scene="../outside", seed=0,
+                              settings=nudge.PlannerSettings().to_json(), config=nudge.SimConfig().to_json(),
+                              slow_planned_free_steps=1, success=False, decided_by=("admm",))
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    with pytest.raises(ConfigError, match=r"\.\./outside.*not a scene name"):
+        slow_plans._steps_of(r, scenes)
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_JUNK = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-(2**70), 2**70), st.booleans(),
+                  st.none(), st.text(max_size=12), st.lists(st.integers(0, 3), max_size=3), st.just({}),
+                  st.sampled_from(["../x", "/etc/passwd", "..", ".hidden", "a/b", "ok-scene"]))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_cache_reader_property(data: st.DataObject) -> None:
+    """Any edit of a cache part is read as flagged runs whose scene names are plain file stems,
+    or refused with a ConfigError naming the part; never another exception."""
+    import tempfile
+
+    from nudge_train.errors import ConfigError
+
+    part = _part()
+    for _ in range(data.draw(st.integers(1, 3))):
+        section = data.draw(st.sampled_from(["inputs", "runs", "steps"]))
+        key = data.draw(st.sampled_from(sorted(part[section]) + ["extra"]))
+        if data.draw(st.booleans()) and key in part[section]:
+            col = part[section][key]
+            if isinstance(col, list) and col:
+                col[data.draw(st.integers(0, len(col) - 1))] = data.draw(_JUNK)
+                continue
+        part[section][key] = data.draw(_JUNK)
+    with tempfile.TemporaryDirectory() as d:
+        try:
+            runs = slow_plans.flagged_runs(_write(Path(d), part))
+        except ConfigError as err:
+            assert "part-0000.json" in str(err)
+            return
+    for r in runs:
+        assert "/" not in r.scene and not r.scene.startswith(".") and isinstance(r.seed, int)

@@ -46,21 +46,59 @@ OBSTACLE_ID = FieldRule(0.0, 1e9, integer=True)
 STEP_SIZE = FieldRule(0.0, 60.0, "s", lo_open=True)
 
 
+MAX_XML_BYTES = 32 << 20
+"""Largest CommonRoad document read (bytes, after decompression): 12 times the largest US-101
+scene (2.6 MB); the Rust reader's ``nudge::commonroad::xml::MAX_XML_BYTES``."""
+MAX_XML_DEPTH = 64
+"""Deepest element nesting read (levels, the root is 1); CommonRoad nests 7 deep."""
+MAX_XML_ELEMENTS = 1_000_000
+"""Most elements read in one document: 13 times the largest US-101 scene (76,753)."""
+MAX_XML_ATTRIBUTES = 64
+"""Most attributes of one element (CommonRoad's carry at most 7)."""
+
+
 def _parse_xml(path: Path) -> ET.Element:
-    """The element tree of the file, each element carrying its line number (expat's position)."""
-    data = read_source(path)
+    """The element tree of the file, each element carrying its line number (expat's position).
+
+    Budgets (each refusal a DataError naming the file and the budget): :data:`MAX_XML_BYTES`
+    after decompression, :data:`MAX_XML_DEPTH` levels, :data:`MAX_XML_ELEMENTS` elements.
+    Entities declared in a DTD are refused (the Rust reader does not expand them either);
+    character references and the predefined entities are decoded by expat.
+    """
+    data = read_source(path, max_bytes=MAX_XML_BYTES)
     if not data.strip():
         raise DataError(path, "empty file")
     parser = expat.ParserCreate()
     builder = ET.TreeBuilder()
+    depth = [0, 0]  # open elements, elements seen
 
     def start(tag: str, attrs: dict[str, object]) -> None:
+        depth[0] += 1
+        depth[1] += 1
+        if depth[0] > MAX_XML_DEPTH:
+            raise DataError(path, f"exceeds the nesting-depth budget of {MAX_XML_DEPTH} levels",
+                            row=parser.CurrentLineNumber)
+        if depth[1] > MAX_XML_ELEMENTS:
+            raise DataError(path, f"exceeds the element-count budget of {MAX_XML_ELEMENTS} elements",
+                            row=parser.CurrentLineNumber)
+        if len(attrs) > MAX_XML_ATTRIBUTES:
+            raise DataError(path, f"exceeds the attributes-per-element budget of {MAX_XML_ATTRIBUTES}",
+                            row=parser.CurrentLineNumber)
         attrs[_LINE] = parser.CurrentLineNumber
         builder.start(tag, attrs)  # type: ignore[arg-type]
 
+    def end(tag: str) -> None:
+        depth[0] -= 1
+        builder.end(tag)
+
+    def entity_decl(name: str, *_: object) -> None:
+        raise DataError(path, f"entity {name!r} declared in a DTD: not read (only character references "
+                        "and the predefined entities are)", row=parser.CurrentLineNumber)
+
     parser.StartElementHandler = start
-    parser.EndElementHandler = builder.end
+    parser.EndElementHandler = end
     parser.CharacterDataHandler = builder.data
+    parser.EntityDeclHandler = entity_decl
     parser.buffer_text = True
     try:
         parser.Parse(data, True)

@@ -25,27 +25,43 @@ class DataError(NudgeTrainError):
         super().__init__(f"{where}: {message}")
 
 
-def read_source(path: Path) -> bytes:
+def read_source(path: Path, max_bytes: int | None = None) -> bytes:
     """The bytes of a source file, gunzipped when the name ends in ``.gz``.
+
+    ``max_bytes`` (None: no budget) bounds the bytes returned, after decompression: a plain file
+    larger than it is refused before reading and a gzip stream is inflated by at most
+    ``max_bytes + 1`` bytes, so a small file that inflates to gigabytes is refused early.
 
     Raises:
         DataError: naming the file when it is missing, not a regular file (a FIFO or device would
-        block or never end), unreadable, or a truncated or corrupted gzip stream.
+        block or never end), unreadable, a truncated or corrupted gzip stream, or (naming the
+        budget) larger than ``max_bytes``.
     """
+    def too_big() -> DataError:
+        return DataError(path, f"exceeds the size budget of {max_bytes} bytes (after decompression)")
+
     try:
         st = path.stat()
     except OSError as exc:
         raise DataError(path, f"cannot read file: {exc.strerror or exc}") from None
     if not stat.S_ISREG(st.st_mode):
         raise DataError(path, "not a regular file")
+    limit = -1 if max_bytes is None else max_bytes + 1
     try:
         if path.suffix == ".gz":
             with gzip.open(path, "rb") as fh:
-                return fh.read()
-        return path.read_bytes()
+                data = fh.read(limit)
+        else:
+            if max_bytes is not None and st.st_size > max_bytes:
+                raise too_big()
+            with open(path, "rb") as fh:
+                data = fh.read(limit)
     except EOFError:
         raise DataError(path, "truncated gzip stream (the file ends before the end-of-stream marker)") from None
     except (gzip.BadGzipFile, zlib.error) as exc:
         raise DataError(path, f"corrupt gzip stream: {exc}") from None
     except OSError as exc:
         raise DataError(path, f"cannot read file: {exc}") from None
+    if max_bytes is not None and len(data) > max_bytes:
+        raise too_big()
+    return data

@@ -34,7 +34,7 @@ import torch
 from nudge_train import paths
 from nudge_train.constants import DT
 from nudge_train.data.loader import load_split
-from nudge_train.idm.cutins import TAUS, Tracks, control_fall_backs, read_events
+from nudge_train.idm.cutins import TAUS, Tracks, control_fall_backs, read_config, read_events
 from nudge_train.idm.pipeline import median_ci
 from nudge_train.idm.sources import load_sources
 from nudge_train.provenance import git_commit, sha256_file
@@ -110,15 +110,12 @@ def _ci(v: tuple[float, float, float, int]) -> str:
 
 def cutin_section(cutins: Path, data_root: Path, teacher: Path, n_boot: int, seed: int, res: dict) -> list[str]:
     """The real follower's and the teacher's fall-back and reaction at 1.8 s and 3.0 s on the real cut-ins."""
-    from nudge_train.idm.cutins import CutInConfig
-    from nudge_train.jsonio import load_json
-
     rng = np.random.default_rng(seed)
     events = read_events(cutins)
     src = load_sources(data_root)
     tracks = {s.name: Tracks(s.table) for s in src.us101 if any(e.scene == s.name for e in events)}
     tracks["i80-coifman"] = Tracks(src.coifman)
-    cfg = CutInConfig(**load_json(cutins)["config"])
+    cfg = read_config(cutins)
     control: dict[str, list[np.ndarray]] = {"us101": [], "i80": []}
     for name, tr in tracks.items():
         control["i80" if name == "i80-coifman" else "us101"].append(

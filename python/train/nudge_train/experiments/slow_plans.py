@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -34,7 +35,9 @@ import numpy as np
 import nudge
 
 from nudge_train import paths
+from nudge_train.errors import ConfigError
 from nudge_train.experiments.closed_loop import CACHE_SCHEMA
+from nudge_train.jsonio import load_json
 
 __all__ = ["FlaggedRun", "SlowStep", "classify", "flagged_runs", "lane_entry", "run"]
 
@@ -132,29 +135,109 @@ def settings_label(settings: str) -> str:
     return "settings " + hashlib.sha256(settings.encode()).hexdigest()[:8]
 
 
+MAX_PART_BYTES = 64 << 20
+"""Largest cache part read (bytes); a part of 100 runs is about 1 MB."""
+
+_SCENE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,199}")
+"""A scene name: a plain file stem (no separator, not ``.``/``..``, no leading dot)."""
+
+
+def scene_file(scenes: Path, name: object, where: str) -> Path:
+    """The scene file of ``name`` in the folder ``scenes``: ``name`` must be a plain scene name
+    (letters, digits, ``._-``, no leading dot; so no ``..``, ``/`` or absolute path) and the
+    resolved file must lie inside ``scenes``. Raises ConfigError naming ``where`` otherwise."""
+    if not isinstance(name, str) or not _SCENE_NAME.fullmatch(name):
+        raise ConfigError(where, f"{name!r} is not a scene name (a file stem in the scenes folder)")
+    path = scenes / f"{name}.safetensors"
+    root = scenes.resolve()
+    if root not in path.resolve().parents:
+        raise ConfigError(where, f"{name!r} is not a scene name: it resolves outside {scenes}")
+    return path
+
+
+def _column(file: Path, table: dict, section: str, name: str, kind: type, n: int | None) -> list:
+    """Column ``name`` of ``section`` (``runs``/``steps``): a list of ``n`` (None: any number of)
+    values of ``kind`` (``int``: an integer, not a bool; ``bool``; ``str``)."""
+    if name not in table:
+        raise ConfigError(file, f"{section}.{name}: missing", key=f"{section}.{name}")
+    col = table[name]
+    if not isinstance(col, list):
+        raise ConfigError(file, f"{section}.{name}: a list expected", key=f"{section}.{name}")
+    if n is not None and len(col) != n:
+        raise ConfigError(file, f"{section}: columns of different lengths ({section}.{name} has {len(col)}, "
+                          f"expected {n}; every column must have the same length)", key=f"{section}.{name}")
+    for i, v in enumerate(col):
+        ok = (isinstance(v, int) and not isinstance(v, bool)) if kind is int else isinstance(v, kind)
+        if not ok:
+            what = "an integer" if kind is int else kind.__name__
+            raise ConfigError(file, f"{section}.{name}[{i}]: {v!r} is not {what}", key=f"{section}.{name}[{i}]")
+    return col
+
+
+def _read_part(file: Path) -> list[FlaggedRun]:
+    """The flagged runs of one cache part, every part of it checked (untrusted input)."""
+    data = load_json(file, max_bytes=MAX_PART_BYTES)
+    if not isinstance(data, dict):
+        raise ConfigError(file, "not a closed-loop cache part (not a JSON object)")
+    inputs = data.get("inputs", {})
+    if not isinstance(inputs, dict) or inputs.get("schema") != CACHE_SCHEMA:
+        schema = inputs.get("schema") if isinstance(inputs, dict) else None
+        raise ConfigError(file, f"not a closed-loop cache part (schema {schema!r})", key="inputs.schema")
+    for key, kind in (("planner", str), ("world", str), ("settings", dict), ("config", dict)):
+        if key not in inputs:
+            raise ConfigError(file, f"inputs.{key}: missing", key=f"inputs.{key}")
+        if not isinstance(inputs[key], kind):
+            raise ConfigError(file, f"inputs.{key}: {type(inputs[key]).__name__}, expected {kind.__name__}",
+                              key=f"inputs.{key}")
+    try:
+        settings = nudge.PlannerSettings.from_json(json.dumps(inputs["settings"])).to_json()
+        nudge.SimConfig.from_json(json.dumps(inputs["config"]))
+    except (nudge.NudgeError, ValueError) as err:
+        raise ConfigError(file, f"inputs.settings/inputs.config: {err}", key="inputs.settings") from None
+    runs, steps = data.get("runs"), data.get("steps", {})
+    if not isinstance(runs, dict):
+        raise ConfigError(file, "runs: a JSON object of columns expected", key="runs")
+    if not isinstance(steps, dict):
+        raise ConfigError(file, "steps: a JSON object of columns expected", key="steps")
+    if "decided_by" not in steps:
+        raise ConfigError(file, "the cache part has no decided_by column (written by an older nudge-train; "
+                          "rerun closed-loop on it)", key="steps.decided_by")
+    flagged = _column(file, runs, "runs", "slow_planned_free_steps", int, None)
+    n = len(flagged)
+    scenario = _column(file, runs, "runs", "scenario", object, n)
+    seed = _column(file, runs, "runs", "seed", int, n)
+    success = _column(file, runs, "runs", "success", bool, n)
+    step_run = _column(file, steps, "steps", "run", int, None)
+    decided_by = _column(file, steps, "steps", "decided_by", str, len(step_run))
+    out = []
+    for i, count in enumerate(flagged):
+        scene_file(Path("."), scenario[i], f"{file}: runs.scenario[{i}]")
+        if count > 0:
+            decided = tuple(d for j, d in zip(step_run, decided_by, strict=True) if j == i)
+            out.append(FlaggedRun(planner=inputs["planner"], world=inputs["world"], scene=scenario[i], seed=seed[i],
+                                  settings=settings, config=json.dumps(inputs["config"]),
+                                  slow_planned_free_steps=count,
+                                  success=success[i], decided_by=decided))
+    return out
+
+
 def flagged_runs(cache: Path) -> list[FlaggedRun]:
     """Every run of the ``closed-loop`` cache ``cache`` (its chunk folders of ``part-*.json``)
-    with at least one plan ending slow on a free road, in a fixed order. Raises ``ValueError``
-    naming the file when a part is not a closed-loop cache part. (Each run is checked when it is
-    re-simulated, so a cache from another build is refused there only if it behaves differently.)"""
+    with at least one plan ending slow on a free road, in a fixed order.
+
+    The cache is untrusted input: each part is opened by the checked open (a regular file of at
+    most :data:`MAX_PART_BYTES`), a repeated JSON key is refused, and every part it reads is
+    checked (the inputs' schema, planner, world, settings and config; the run and step columns:
+    lists of one length, integers, booleans, text; scene names plain file stems).
+
+    Raises:
+        ConfigError (a ``ValueError``): naming the file and the part (``runs.seed[3]``). (Each
+        run is checked again when it is re-simulated, so a cache from another build is refused
+        there only if it behaves differently.)
+    """
     out = []
     for file in sorted(Path(cache).glob("*/part-*.json")):
-        data = json.loads(file.read_text())
-        inputs = data.get("inputs", {})
-        if inputs.get("schema") != CACHE_SCHEMA:
-            raise ValueError(f"{file}: not a closed-loop cache part (schema {inputs.get('schema')!r})")
-        runs, steps = data["runs"], data.get("steps", {})
-        if "decided_by" not in steps:
-            raise ValueError(f"{file}: the cache part has no decided_by column (written by an older nudge-train; "
-                             "rerun closed-loop on it)")
-        settings = nudge.PlannerSettings.from_json(json.dumps(inputs["settings"])).to_json()
-        for i, n in enumerate(runs["slow_planned_free_steps"]):
-            if n > 0:
-                decided = tuple(str(d) for j, d in zip(steps["run"], steps["decided_by"], strict=True) if int(j) == i)
-                out.append(FlaggedRun(planner=inputs["planner"], world=inputs["world"], scene=runs["scenario"][i],
-                                      seed=int(runs["seed"][i]), settings=settings,
-                                      config=json.dumps(inputs["config"]), slow_planned_free_steps=int(n),
-                                      success=bool(runs["success"][i]), decided_by=decided))
+        out.extend(_read_part(file))
     return sorted(out, key=lambda r: (r.world, r.planner, r.scene, r.seed, r.settings))
 
 
@@ -197,7 +280,8 @@ def describe_step(trace: dict, k: int, where: str) -> dict:
 def _steps_of(r: FlaggedRun, scenes: Path) -> list[SlowStep]:
     """Re-simulates ``r`` with its trace and describes its flagged steps; raises ``ValueError``
     when the re-simulation does not reproduce the cached run."""
-    res = nudge.simulate([scenes / f"{r.scene}.safetensors"], r.planner, scene_seeds=[r.seed], runs=1, threads=1,
+    scene = scene_file(scenes, r.scene, f"{r.scene!r} ({r.planner} planner, {r.world} world, seed {r.seed})")
+    res = nudge.simulate([scene], r.planner, scene_seeds=[r.seed], runs=1, threads=1,
                          settings=nudge.PlannerSettings.from_json(r.settings),
                          config=nudge.SimConfig.from_json(r.config), trace=True)
     runs, steps, t = res["runs"], res["steps"], res["traces"][0]

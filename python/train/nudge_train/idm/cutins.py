@@ -16,13 +16,15 @@ an IDM prediction that follows only the pre-cut-in leader.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+import math
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from nudge_train.data.tracks import TrackTable
+from nudge_train.errors import ConfigError
 from nudge_train.jsonio import load_json
 
 from .model import simulate_follower
@@ -409,9 +411,77 @@ def write_events(path: Path, cs: CutInSet, cfg: CutInConfig, provenance: dict) -
     path.write_text(json.dumps(doc, indent=None, separators=(",", ":")).replace("},{", "},\n{") + "\n")
 
 
-def read_events(path: Path) -> list[CutIn]:
-    """Events of a ``nudge.cutins/1`` file (ValueError naming the file on a wrong schema)."""
-    doc = load_json(path)
+MAX_CUTINS_BYTES = 16 << 20
+"""Largest cut-in file read (bytes): 500 times the shipped ``assets/worlds/cutins.json``."""
+
+
+def _typed(path: Path, where: str, cls: type, doc: object) -> dict:
+    """The keyword arguments of dataclass ``cls`` read from the JSON object ``doc`` (named
+    ``where`` in errors): every field present, no other key, each value of the field's type
+    (``str``; ``int`` exactly, not a bool; ``float`` a finite number; ``float | None``).
+
+    Raises:
+        ConfigError: naming the file and the item (``events[3].gap``).
+    """
+    if not isinstance(doc, dict):
+        raise ConfigError(path, f"{where}: a JSON object expected, got {type(doc).__name__}", key=where)
+    names = [f.name for f in fields(cls)]
+    missing = [n for n in names if n not in doc]
+    if missing:
+        raise ConfigError(path, f"{where}: missing key(s) {', '.join(missing)}", key=where)
+    unknown = sorted(set(doc) - set(names))
+    if unknown:
+        raise ConfigError(path, f"{where}: unknown key(s) {', '.join(unknown)}", key=where)
+    for f in fields(cls):
+        v, item, kind = doc[f.name], f"{where}.{f.name}", str(f.type)
+        if kind == "str":
+            ok = isinstance(v, str)
+        elif kind == "int":
+            ok = isinstance(v, int) and not isinstance(v, bool)
+            if not ok:
+                raise ConfigError(path, f"{item}: {v!r} is not an integer", key=item)
+        else:
+            if v is None and "None" in kind:
+                continue
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool)
+            if not ok:
+                raise ConfigError(path, f"{item}: {v!r} is not a number", key=item)
+            ok = math.isfinite(v)
+            if not ok:
+                raise ConfigError(path, f"{item}: {v!r} is not a finite number", key=item)
+        if not ok:
+            raise ConfigError(path, f"{item}: {v!r} is not a {kind}", key=item)
+    return dict(doc)
+
+
+def _cutins_doc(path: Path) -> dict:
+    """The checked top level of a ``nudge.cutins/1`` file (checked open, schema)."""
+    path = Path(path)
+    doc = load_json(path, max_bytes=MAX_CUTINS_BYTES)
+    if not isinstance(doc, dict):
+        raise ConfigError(path, "a JSON object expected at the top level")
     if doc.get("schema") != CUTINS_SCHEMA:
-        raise ValueError(f"{path}: schema {doc.get('schema')!r}, expected {CUTINS_SCHEMA!r}")
-    return [CutIn(**e) for e in doc["events"]]
+        raise ConfigError(path, f"schema {doc.get('schema')!r}, expected {CUTINS_SCHEMA!r}", key="schema")
+    return doc
+
+
+def read_events(path: Path) -> list[CutIn]:
+    """Events of a ``nudge.cutins/1`` file: opened by the checked open (a regular file of at most
+    :data:`MAX_CUTINS_BYTES`), every event an object with exactly the :class:`CutIn` fields,
+    integers where integers are due and finite numbers elsewhere.
+
+    Raises:
+        ConfigError: naming the file and the item (``events[3].gap``); a wrong schema included.
+    """
+    doc = _cutins_doc(path)
+    events = doc.get("events")
+    if not isinstance(events, list):
+        raise ConfigError(path, f"events: a list expected, got {type(events).__name__}", key="events")
+    return [CutIn(**_typed(Path(path), f"events[{i}]", CutIn, e)) for i, e in enumerate(events)]
+
+
+def read_config(path: Path) -> CutInConfig:
+    """The detection settings a ``nudge.cutins/1`` file was made with (its ``config``), checked
+    as :func:`read_events` checks the events."""
+    doc = _cutins_doc(path)
+    return CutInConfig(**_typed(Path(path), "config", CutInConfig, doc.get("config")))
