@@ -492,18 +492,30 @@ fn cli_replaces_planted_symlinks_and_writes_a_verified_set() {
     std::fs::create_dir_all(&out).unwrap();
     let victim = dir.join("victim.txt");
     std::fs::write(&victim, "precious").unwrap();
-    for name in ["records.json", "steps.csv", "runs.csv", "collisions.csv"] {
+    for name in [
+        "records.json",
+        "steps.csv",
+        "runs.csv",
+        "collisions.csv",
+        "provenance.json",
+    ] {
         std::os::unix::fs::symlink(&victim, out.join(name)).unwrap();
     }
     let (code, stdout, stderr) = simulate_in(&dir, &["--out", out.to_str().unwrap()]);
     assert_eq!(code, Some(0), "{stdout}{stderr}");
     assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious");
-    for name in ["records.json", "steps.csv", "runs.csv", "collisions.csv"] {
+    for name in [
+        "records.json",
+        "steps.csv",
+        "runs.csv",
+        "collisions.csv",
+        "provenance.json",
+    ] {
         let meta = std::fs::symlink_metadata(out.join(name)).unwrap();
         assert!(meta.file_type().is_file(), "{name} is still a link");
     }
     let manifest = std::fs::read_to_string(out.join("outputs.sha256")).unwrap();
-    assert_eq!(manifest.lines().count(), 4, "{manifest}");
+    assert_eq!(manifest.lines().count(), 5, "{manifest}");
     let leftovers: Vec<_> = std::fs::read_dir(&out)
         .unwrap()
         .filter_map(|e| {
