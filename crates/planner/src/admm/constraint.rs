@@ -559,7 +559,7 @@ struct KeepLane {
 }
 
 /// The work budget of one MPC call: a wall-clock deadline and/or a number of predictor calls
-/// (`PlannerSettings::budget_s`, `budget_calls`). While it lasts every evaluation calls the
+/// (`budget.seconds`, `budget.calls`, never more than `PlannerSettings::MAX_CALLS` calls). While it lasts every evaluation calls the
 /// predictor; once it is spent an evaluation returns "not evaluated" — unsafe, never safe —
 /// without calling it, so trial points are rejected and the ADMM loop stops. `reserve`
 /// predictor calls (and their estimated time) are kept back during the ADMM loop for the
@@ -586,7 +586,11 @@ impl Budget {
         Self {
             deadline: (settings.budget.seconds > 0.0)
                 .then(|| start + Duration::from_secs_f64(settings.budget.seconds)),
-            max_calls: (settings.budget.calls > 0).then_some(settings.budget.calls),
+            max_calls: Some(if settings.budget.calls > 0 {
+                settings.budget.calls
+            } else {
+                PlannerSettings::MAX_CALLS
+            }),
             reserve: RESERVED_CALLS,
             predictor_time: Duration::ZERO,
             exhausted: false,

@@ -1026,6 +1026,39 @@ fn align_with_road_turns_parallel_to_the_road() {
     assert!(z[2].abs() < 0.01, "still turned: {z:?}");
 }
 
+/// Settings at the ends of their ranges that would call the predictor without end (10,000
+/// ADMM iterations of 100 descent steps and 30 halvings each, tolerances that are never met,
+/// 20 refinement steps) still make at most `PlannerSettings::MAX_CALLS` calls with no
+/// `budget.calls` set, and return a checked plan; `budget.calls` beyond the cap is refused.
+#[test]
+fn every_valid_setting_keeps_the_work_cap() {
+    let (h, sizes) = scene(12.0, 0.0, &[(-12.0, 3.7, 12.0), (25.0, 0.0, 11.0)]);
+    let p = problem(&h, &sizes, 12.0);
+    let mut s = PlannerSettings::default();
+    s.admm.max_iter = PlannerSettings::MAX_ITER;
+    s.admm.pgd_steps = 100;
+    s.admm.pgd_halvings = 30;
+    s.admm.eps_primal = 1e-9;
+    s.admm.eps_change = 1e-9;
+    s.repair.refine_iters = 20;
+    let plan = Planner::new(s.clone())
+        .unwrap()
+        .plan(&p, &mut ConstantVelocity::default())
+        .unwrap();
+    assert!(
+        plan.predictor_calls <= PlannerSettings::MAX_CALLS,
+        "{}",
+        plan.predictor_calls
+    );
+    assert!(
+        plan.predictor_calls > PlannerSettings::MAX_CALLS / 2,
+        "the cap binds here"
+    );
+    assert_eq!(plan.states, rollout_world(&s, &p, &plan.delta, &plan.accel));
+    s.budget.calls = PlannerSettings::MAX_CALLS + 1;
+    assert!(s.validate().is_err());
+}
+
 /// A predictor-call budget bounds the work of one call deterministically: at most
 /// `budget_calls` calls, status `BudgetExhausted` with an admissible plan (or `Unsafe`), the
 /// same plan on every run.

@@ -169,8 +169,9 @@ settings_struct! {
     pub struct BudgetSettings("budget.") {
         /// Wall-clock budget of one MPC call (s; 0: none).
         seconds: f64 = 0.0, closed(0.0, 3600.0, "s");
-        /// Predictor-call budget of one MPC call (0: none; deterministic).
-        calls: usize = 0, closed(0.0, 1e9, "predictor calls");
+        /// Predictor-call budget of one MPC call (deterministic; 0: the cap
+        /// `PlannerSettings::MAX_CALLS`, which every call keeps whatever the other settings).
+        calls: usize = 0, closed(0.0, PlannerSettings::MAX_CALLS as f64, "predictor calls");
     }
 }
 
@@ -437,6 +438,10 @@ impl PlannerSettings {
     pub const MAX_ITER: usize = 10_000;
     /// Shortest non-zero `safety.ego_segment_length` (m).
     pub const MIN_EGO_SEGMENT_LENGTH: f64 = 0.5;
+    /// Most predictor calls of one MPC call, whatever the settings (`budget.calls` may only
+    /// lower it): 4× the most any validation step of the shipped defaults made (1,248), so it
+    /// bounds the work of settings that would otherwise call the predictor without end.
+    pub const MAX_CALLS: usize = 5_000;
     /// Most slices an ego may be cut into by `safety.ego_segment_length`.
     pub const MAX_EGO_SEGMENTS: usize = 64;
 
