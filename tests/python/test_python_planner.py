@@ -42,6 +42,11 @@ def test_the_inputs_are_applied_and_the_observation_is_the_closed_loop_state(sce
     assert set(steps["status"]) <= {"Converged", "Unsafe"}
     np.testing.assert_array_equal(steps["iterations"], 0)
     assert np.isnan(steps["cost"]).all()
+    # Every step was planned outside nudge, and says so (nudge's own planner never does).
+    assert len(steps["decided_by"]) == int(runs["n_steps"].sum()) > 0
+    assert set(steps["decided_by"]) == {"external"}
+    own = nudge.simulate(scenes[:1], "constant_velocity", world="log_replay", max_steps=2, seed=3)
+    assert "external" not in set(own["steps"]["decided_by"])
     obs = p.observations
     assert [o["step"] for o in obs] == list(range(int(runs["n_steps"][0]))) + list(range(int(runs["n_steps"][1])))
     for i, path in enumerate(scenes[:2]):

@@ -96,6 +96,12 @@ impl PythonPlanner {
         })
     }
 
+    /// The planner's Python class (qualified name), as errors and provenance name it.
+    #[must_use]
+    pub fn class(&self) -> &str {
+        &self.class
+    }
+
     /// The policy of one run on `scene` with target-lane seed `seed`.
     #[must_use]
     pub fn policy(&self, scene: &Scenario, seed: u64, settings: &PlannerSettings) -> PyPolicy {
@@ -367,7 +373,7 @@ impl Policy for PyPolicy {
             } else {
                 PlanStatus::Unsafe
             },
-            decided_by: DecidedBy::Admm,
+            decided_by: DecidedBy::External,
         })
     }
 }

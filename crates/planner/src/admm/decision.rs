@@ -118,7 +118,8 @@ impl fmt::Display for RankKey {
 /// What decided the applied plan's inputs: the stage of the MPC call that produced them and,
 /// for a fallback, its candidate family and the rank key that chose it. `Admm` exactly when
 /// the ADMM iterate's inputs were applied unchanged (whatever the [`crate::PlanStatus`] says of their
-/// safety).
+/// safety); `External` for a plan that no nudge planner made (a policy from outside nudge,
+/// e.g. a Python planner in nudge's closed loop).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DecidedBy {
@@ -140,11 +141,14 @@ pub enum DecidedBy {
         /// nothing beat it.
         key: Option<RankKey>,
     },
+    /// A planner outside nudge made the plan (a foreign policy in the closed loop, e.g.
+    /// `nudge.simulate(..., planner=obj)`); nudge only checked it.
+    External,
 }
 
 impl DecidedBy {
     /// The label in records (`steps.csv`'s `decided_by`): `admm`, `admm_governed`, `refined`,
-    /// `backtracked`, `nominal`, or `fallback:<family>[:<rank key>]`.
+    /// `backtracked`, `nominal`, `fallback:<family>[:<rank key>]`, or `external`.
     #[must_use]
     pub fn label(&self) -> String {
         match self {
@@ -158,6 +162,7 @@ impl DecidedBy {
                 family,
                 key: Some(key),
             } => format!("fallback:{family}:{key}"),
+            Self::External => "external".to_owned(),
         }
     }
 
@@ -171,5 +176,25 @@ impl DecidedBy {
 impl std::fmt::Display for DecidedBy {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(&self.label())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn a_foreign_plan_is_labelled_external_in_tables_and_json() {
+        assert_eq!(DecidedBy::External.label(), "external");
+        assert_eq!(DecidedBy::External.to_string(), "external");
+        assert!(!DecidedBy::External.is_admm());
+        let json = serde_json::to_string(&DecidedBy::External).unwrap();
+        assert_eq!(json, "\"external\"");
+        let back: DecidedBy = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, DecidedBy::External);
+        // The labels of nudge's own stages are unchanged.
+        assert_eq!(DecidedBy::Admm.label(), "admm");
+        assert_eq!(serde_json::to_string(&DecidedBy::Admm).unwrap(), "\"admm\"");
     }
 }
