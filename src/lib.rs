@@ -10,6 +10,7 @@ pub mod cli;
 pub mod commonroad;
 pub mod files;
 pub mod provenance;
+pub mod records;
 
 pub use provenance::GIT_SHA;
 

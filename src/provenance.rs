@@ -241,6 +241,9 @@ pub struct Provenance {
     pub assets: PathBuf,
     /// The planning predictor.
     pub predictor: ModelRef,
+    /// The planner that drove the ego when it was not nudge's own: a planner from outside nudge
+    /// (Python's `nudge.simulate(..., planner=obj)`: `python:<class>`); `None`: nudge's planner.
+    pub planner: Option<String>,
     /// The world and its file.
     pub world: WorldRef,
     /// The scenes.
@@ -327,6 +330,7 @@ impl Provenance {
             config_file: config_file.map(FileRef::of).transpose()?,
             assets: inputs.assets.to_path_buf(),
             predictor: ModelRef::resolve(inputs.predictor, inputs.assets)?,
+            planner: None,
             world,
             scenes: ScenesRef::of(inputs.scene_paths)?,
             seeds: Seeds::of(inputs.seed.0, inputs.seed.1, inputs.specs),
@@ -344,6 +348,15 @@ impl Provenance {
         serde_json::to_string_pretty(self)
             .map(|json| json + "\n")
             .map_err(|e| e.to_string())
+    }
+
+    /// `provenance.json` as a file of an output set: ([`FILE_NAME`], its text), for
+    /// [`crate::records::write_records`].
+    ///
+    /// # Errors
+    /// The serialiser's message.
+    pub fn file(&self) -> Result<(String, Vec<u8>), String> {
+        Ok((FILE_NAME.to_string(), self.to_json()?.into_bytes()))
     }
 }
 

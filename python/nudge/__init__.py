@@ -148,6 +148,9 @@ def simulate(
     on_error: str = "raise",
     progress: bool | Callable[[int, int], object] = False,
     planner: Any = None,
+    out: str | os.PathLike[str] | None = None,
+    ray: bool | str | None = None,
+    ray_chunk: int | None = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop lane changes: :func:`nudge._native.simulate` with the named models
@@ -171,12 +174,39 @@ def simulate(
     bar when tqdm is installed, else a line on stderr redrawn in place); a callable is called as
     ``progress(done, total)`` instead (about every 50 ms while the count grows, and once at the
     end; an exception it raises stops the batch and is raised). Off by default. The results are
-    the same either way. :func:`to_frames` turns the result into pandas DataFrames."""
+    the same either way. :func:`to_frames` turns the result into pandas DataFrames.
+
+    ``out``: also write the record set into this folder, exactly as ``nudge simulate --out``
+    does (the same writer: ``steps.csv``, ``runs.csv``, ``collisions.csv``, ``records.json`` and
+    ``provenance.json`` as one atomic set with its manifest ``outputs.sha256``; docs/records.md).
+    Provenance's ``command`` is this process's command line (``sys.executable`` and
+    ``sys.argv``); its ``settings_file`` and ``config_file`` are null (settings come as
+    objects).
+
+    ``ray``: fan the runs out as Ray tasks (:mod:`nudge.distributed`, ``docs/ray.md``; needs
+    ``pip install "nudge-planner[ray]"``): ``True`` uses the Ray this process has initialised, or
+    starts a local one on every core; an address (``"auto"``, ``"ray://head:10001"``) connects
+    to that cluster. Each task runs ``ray_chunk`` consecutive (scene, seed) runs (default
+    :data:`nudge.distributed.DEFAULT_CHUNK`) on ``threads`` threads (default 1); the result is
+    the same, run by run and in the same order, as without Ray (only the wall-time columns
+    differ); ``progress`` then counts finished tasks. A failed task raises
+    :class:`nudge.distributed.RayRunError` naming its scenes and seeds. The scene, model and
+    world files must be readable at the same paths on every node. Not with ``record``,
+    ``out``, or your own Python ``predictor`` / ``planner`` object."""
     if isinstance(scene_paths, (str, bytes, os.PathLike)):
         raise TypeError(
             f"scene_paths: expected a sequence of scenario paths, got the single path {scene_paths!r} "
             "(pass [path])"
         )
+    if ray is not None and ray is not False:
+        return _simulate_on_ray(
+            scene_paths, predictor, ray=ray, chunk=ray_chunk, world_predictor=world_predictor, idm=idm,
+            seed=seed, scene_seeds=scene_seeds, runs=runs, threads=threads, settings=settings, config=config,
+            record=record, trace=trace, on_error=on_error, progress=progress, planner=planner, out=out,
+            config_overrides=config_overrides,
+        )
+    if ray_chunk is not None:
+        raise InputError("ray_chunk: only with ray (runs per Ray task)")
     if progress is True:
         n_runs = len(scene_paths) * runs if isinstance(runs, int) and not isinstance(runs, bool) else 0
         callback, close = _progress_display(n_runs)
@@ -204,11 +234,74 @@ def simulate(
             assets=os.fspath(_assets_path()),
             progress=callback,
             planner=planner,
+            out=None if out is None else os.fspath(out),
+            command=[sys.executable, *sys.argv] if out is not None else None,
             **config_overrides,
         )
     finally:
         if close is not None:
             close()
+
+
+def _simulate_on_ray(
+    scene_paths: Sequence[str | os.PathLike[str]],
+    predictor: Any,
+    *,
+    ray: bool | str,
+    chunk: int | None,
+    world_predictor: str | os.PathLike[str] | None,
+    idm: str | os.PathLike[str] | None,
+    seed: int,
+    scene_seeds: Sequence[int] | None,
+    runs: int,
+    threads: int | None,
+    settings: PlannerSettings | None,
+    config: SimConfig | None,
+    record: bool,
+    trace: bool,
+    on_error: str,
+    progress: bool | Callable[[int, int], object],
+    planner: Any,
+    out: Any,
+    config_overrides: dict[str, Any],
+) -> dict[str, Any]:
+    """:func:`simulate` with ``ray``: one sweep fanned out (:func:`nudge.distributed.run_sweeps`)."""
+    from nudge import distributed
+
+    for name, value in (("record", record), ("out", out), ("planner", planner)):
+        if value:
+            raise InputError(f"{name}: not with ray (run without ray for it)")
+    if not isinstance(predictor, (str, os.PathLike)):
+        raise InputError("predictor: a Python predictor object cannot go to Ray tasks (pass a name or weights path)")
+    if not (ray is True or isinstance(ray, str)):
+        raise InputError(f"ray: expected True (local or this process's Ray) or a cluster address, got {ray!r}")
+    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+        raise InputError(f"runs: expected an int >= 1, got {runs!r}")
+    n = len(scene_paths)
+    if n == 0:
+        raise InputError("scene_paths: expected at least one scenario file")
+    seeds = [int(s) for s in scene_seeds] if scene_seeds is not None else [seed + i * runs for i in range(n)]
+    if len(seeds) != n:
+        raise InputError(f"scene_seeds: expected one seed per scene ({n}), got {len(seeds)}")
+    cfg = config if config is not None else SimConfig.default()
+    if config_overrides:
+        cfg = cfg.replace(**config_overrides)
+    kwargs = {
+        "predictor": os.fspath(predictor),
+        "world_predictor": None if world_predictor is None else os.fspath(world_predictor),
+        "idm": None if idm is None else os.fspath(idm),
+        "settings": (settings if settings is not None else PlannerSettings.default()).to_json(),
+        "config": cfg.to_json(),
+        "trace": trace,
+        "on_error": on_error,
+    }
+    sweep = distributed.Sweep(tuple(os.fspath(p) for p in scene_paths), tuple(seeds), runs, kwargs)
+    distributed.connect(ray if isinstance(ray, str) else None)
+    merged, _ = distributed.run_sweeps(
+        [sweep], chunk=distributed.DEFAULT_CHUNK if chunk is None else chunk,
+        task_threads=1 if threads is None else threads, progress=progress,
+    )
+    return merged[0]
 
 
 def _progress_display(total: int) -> tuple[Callable[[int, int], None], Callable[[], None]]:

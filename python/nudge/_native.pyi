@@ -436,6 +436,8 @@ def simulate(
     assets: _Path | None = None,
     progress: Callable[[int, int], object] | None = None,
     planner: _PythonPlanner | None = None,
+    out: _Path | None = None,
+    command: list[str] | None = None,
     **config_overrides: int | float | str,
 ) -> dict[str, Any]:
     """Closed-loop runs over scenario files (in the given order) on ``threads`` rayon threads;
@@ -494,6 +496,12 @@ def simulate(
     ``progress``: a callable called as ``progress(done, total)`` (runs finished, runs in all)
     about every 50 ms while the count grows and once at the end, from the calling thread; an
     exception it raises stops the batch and is raised. Not callable: InputError.
+
+    ``out``: also write the record set into this folder as ``nudge simulate --out`` does
+    (``steps.csv``, ``runs.csv``, ``collisions.csv``, ``records.json``, ``provenance.json``, one
+    atomic set with its manifest ``outputs.sha256``; docs/records.md), by the CLI's writer; the
+    folder is made before any run (NudgeError when it cannot be). ``command``: provenance's
+    ``command`` (default empty).
 
     Returns ``{"runs": ..., "steps": ..., "collisions": ...}`` (+ ``"examples"`` when
     ``record``, ``"traces"`` when ``trace``), the columns of ``nudge_sim::columns`` (the CLI's CSV has the same names

@@ -11,10 +11,8 @@ use clap::Args;
 use nudge_planner::{PlannerSettings, Scenario};
 use nudge_predictor::{assets_dir, scenes_dir};
 use nudge_sim::defaults;
-use nudge_sim::{
-    Batch, BatchRequest, Cancel, Keep, Progress, RunOutput, RunRecord, SimConfig, World,
-};
-use nudge_sim::{Summary, collision_table, run_table, step_listing, step_table};
+use nudge_sim::{Batch, BatchRequest, Cancel, Keep, Progress, RunOutput, SimConfig, World};
+use nudge_sim::{Summary, step_listing};
 
 use crate::animate::{AnimationSettings, Reel, animate, find_ffmpeg};
 use crate::provenance::{Inputs, Provenance};
@@ -197,54 +195,6 @@ impl SimulateArgs {
     }
 }
 
-/// Creates the output directory `dir` (before any run, so that a path that cannot hold the
-/// records is refused before the work is done).
-fn output_dir(dir: &Path) -> Result<(), String> {
-    if dir.exists() && !dir.is_dir() {
-        return Err(format!(
-            "--out {}: exists and is not a directory",
-            dir.display()
-        ));
-    }
-    std::fs::create_dir_all(dir).map_err(|e| format!("--out {}: {e}", dir.display()))
-}
-
-/// Writes steps.csv, runs.csv, collisions.csv (the shared columns), records.json (the runs
-/// that ran) and the `extra` files (CommonRoad solutions) into the directory `dir` (made by
-/// [`output_dir`]) as one set with its manifest ([`crate::files::write_set`]: temporary files
-/// renamed into place, never through a symbolic link).
-fn write_outputs(
-    dir: &Path,
-    scenes: &[Scenario],
-    outputs: &[nudge_sim::RunOutput],
-    extra: &[(String, Vec<u8>)],
-) -> Result<(), String> {
-    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
-    for (name, table) in [
-        ("steps.csv", step_table(outputs)),
-        ("runs.csv", run_table(scenes, outputs)),
-        ("collisions.csv", collision_table(scenes, outputs)),
-    ] {
-        let mut bytes = Vec::new();
-        table
-            .write_csv(&mut bytes)
-            .map_err(|e| format!("{}: {e}", dir.join(name).display()))?;
-        files.push((name.to_string(), bytes));
-    }
-    let records: Vec<&RunRecord> = outputs
-        .iter()
-        .filter_map(|o| o.result.as_ref().ok())
-        .collect();
-    let json = serde_json::to_string_pretty(&records).map_err(|e| e.to_string())?;
-    files.push(("records.json".to_string(), json.into_bytes()));
-    files.extend(extra.iter().cloned());
-    let set: Vec<(&str, &[u8])> = files
-        .iter()
-        .map(|(n, b)| (n.as_str(), b.as_slice()))
-        .collect();
-    crate::files::write_set(dir, &set).map_err(|e| e.to_string())
-}
-
 /// How often the progress bar is redrawn.
 const PROGRESS_TICK: Duration = Duration::from_millis(100);
 
@@ -415,7 +365,7 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, Stop> {
     .prepare()
     .map_err(|e| e.to_string())?;
     if let Some(dir) = &a.out {
-        output_dir(dir)?;
+        crate::records::prepare_dir(dir, "--out")?;
     }
     let keep = Keep {
         examples: false,
@@ -463,11 +413,8 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, Stop> {
             .map(|s| s.to_string_lossy().into_owned())
             .collect();
         let provenance = Provenance::new(&inputs, command).map_err(Stop::Output)?;
-        extra.push((
-            crate::provenance::FILE_NAME.to_string(),
-            provenance.to_json().map_err(Stop::Output)?.into_bytes(),
-        ));
-        write_outputs(dir, scenes, &outputs, &extra).map_err(Stop::Output)?;
+        extra.push(provenance.file().map_err(Stop::Output)?);
+        crate::records::write_records(dir, scenes, &outputs, &extra).map_err(Stop::Output)?;
         println!(
             "records written to {} (manifest {})",
             dir.display(),

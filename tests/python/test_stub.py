@@ -137,10 +137,12 @@ def test_defaults_come_from_rust() -> None:
     assert native.DEFAULTS["world_predictor"] == "teacher"
     cfg = nudge.SimConfig.default()
     assert (cfg.world, cfg.max_steps, cfg.abort_after, cfg.abort_hold) == ("teacher", 30, 4, 3)
-    # The wrapper passes every native keyword through.
-    native_kw = {n for n, k, _ in _native_signature(native.simulate) if k == "keyword"} - {"assets"}
+    # The wrapper passes every native keyword through but those it fills itself (the package's
+    # assets, the process's command line for provenance), and adds only the Ray fan-out.
+    native_kw = {n for n, k, _ in _native_signature(native.simulate) if k == "keyword"} - {"assets", "command"}
     wrapper_kw = {p.name for p in sig.parameters.values() if p.kind is inspect.Parameter.KEYWORD_ONLY}
-    assert native_kw == wrapper_kw
+    assert native_kw == wrapper_kw - {"ray", "ray_chunk"}
+    assert {"ray", "ray_chunk"} <= wrapper_kw and {"out", "planner", "progress"} <= native_kw
 
 
 def test_package_reexports_the_module() -> None:

@@ -19,6 +19,8 @@ use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use nudge::provenance::{Inputs, ModelRef, Provenance};
+
 use crate::args::{Int, guard, panic_error};
 use crate::errors::{InputError, NudgeError, sim_err};
 use crate::py_policy::PythonPlanner;
@@ -159,6 +161,15 @@ fn run_interruptibly(
 /// every 50 ms while the count grows and once at the end, from the calling thread; an
 /// exception it raises stops the batch and is raised.
 ///
+/// `out`: a folder to write the record set into, as `nudge simulate --out` does
+/// (`nudge::records::write_records`: `steps.csv`, `runs.csv`, `collisions.csv`,
+/// `records.json` and `provenance.json`, one atomic set with its manifest `outputs.sha256`;
+/// docs/records.md). It is created before any run (a path that cannot be a folder raises
+/// `NudgeError` first); provenance's `command` is `command` (the Python wrapper passes the
+/// process's `sys.executable` and `sys.argv`), its `settings_file` and `config_file` are null
+/// (settings come as objects), a Python predictor is `{"name": "python", "file": null}` and a
+/// Python planner `"planner": "python:<class>"`.
+///
 /// Returns `{"runs": {...}, "steps": {...}, "collisions": {...}}` of numpy columns (plus
 /// `"examples"` when `record`, `"traces"` when `trace`): see the `.pyi` stub for every column.
 #[pyfunction]
@@ -180,6 +191,8 @@ fn run_interruptibly(
     assets = None,
     progress = None,
     planner = None,
+    out = None,
+    command = None,
     **config_overrides
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -201,6 +214,8 @@ pub fn simulate<'py>(
     assets: Option<PathBuf>,
     progress: Option<Bound<'_, PyAny>>,
     planner: Option<Bound<'_, PyAny>>,
+    out: Option<PathBuf>,
+    command: Option<Vec<String>>,
     config_overrides: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guard(|| {
@@ -285,6 +300,9 @@ pub fn simulate<'py>(
                 None => request.prepare(),
             })
             .map_err(sim_err)?;
+        if let Some(dir) = &out {
+            nudge::records::prepare_dir(dir, "out").map_err(NudgeError::new_err)?;
+        }
         let fresh = python
             .as_ref()
             .map(|p| move || Box::new(p.fresh()) as Box<dyn Predictor>);
@@ -306,6 +324,38 @@ pub fn simulate<'py>(
             && let Err(e) = outputs.swap_remove(pos).result
         {
             return Err(sim_err(e));
+        }
+        if let Some(dir) = &out {
+            let inputs = Inputs {
+                settings: (&settings, None),
+                config: (&cfg, None),
+                assets: &assets,
+                // A Python predictor has no file: recorded by name below.
+                predictor: match &predictor {
+                    PredictorArg::Path(p) => p,
+                    PredictorArg::Object(_) => std::path::Path::new("constant_velocity"),
+                },
+                world_predictor: world_predictor.as_deref(),
+                idm: idm.as_deref(),
+                scene_paths: &scene_paths,
+                specs: &batch.specs,
+                seed: (seed, runs),
+                threads: batch.threads(),
+            };
+            let write = || -> Result<(), String> {
+                let mut p = Provenance::new(&inputs, command.clone().unwrap_or_default())?;
+                if let PredictorArg::Object(_) = &predictor {
+                    p.predictor = ModelRef {
+                        name: PYTHON.to_string(),
+                        file: None,
+                    };
+                }
+                p.planner = own_planner
+                    .as_ref()
+                    .map(|pl| format!("{PYTHON}:{}", pl.class()));
+                nudge::records::write_records(dir, &batch.scenes, &outputs, &[p.file()?])
+            };
+            py.detach(write).map_err(NudgeError::new_err)?;
         }
         let out = PyDict::new(py);
         out.set_item("runs", table_dict(py, run_table(&batch.scenes, &outputs))?)?;
