@@ -457,7 +457,12 @@ def _add_closed_loop(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reference", default=None,
                    help="planner the others are compared with (default: the first of --planners)")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene draw, the scene seeds and the teacher subset")
-    p.add_argument("--threads", type=int, default=2, help="runs side by side")
+    p.add_argument("--threads", type=int, default=2, help="runs side by side (with --ray and no address: the local "
+                   "Ray's CPUs)")
+    p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help="compute the runs as Ray tasks, identical run by run: on a local Ray (no ADDRESS) or on the "
+                        "cluster at ADDRESS ('auto', 'ray://head:10001'); docs/ray.md")
+    p.add_argument("--ray-chunk", type=int, default=8, help="(scene, seed) runs per Ray task")
     p.add_argument("--batch", type=int, default=30, help="scenes per cached part of a chunk")
     p.add_argument("--cache", type=Path, default=paths.runs() / "closed_loop", help="cache of the runs")
     p.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples of every interval")
@@ -479,7 +484,8 @@ def _run_closed_loop(a: argparse.Namespace) -> int:
                          worlds=tuple(a.worlds), teacher_n=a.teacher_n, settings=a.settings, config=a.config,
                          compare=tuple(a.compare) if a.compare else None, reference=a.reference, seed=a.seed,
                          threads=a.threads, batch=a.batch, cache=a.cache, bootstrap=a.bootstrap,
-                         progress=not a.no_progress, ablate_reaction=a.ablate_reaction)
+                         progress=not a.no_progress, ablate_reaction=a.ablate_reaction, ray=a.ray,
+                         ray_chunk=a.ray_chunk)
         cfg.validate()
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import nudge
+from nudge.distributed import RayRunError
 
 from nudge_train import paths
 from nudge_train.provenance import scene_list_sha256, write_provenance
@@ -91,6 +92,11 @@ class EvalConfig:
     ablate_reaction: bool = False
     """Every settings arm with ``ablate_reaction`` on (the planner's predictor sees the ego's
     keep-lane path instead of each candidate)."""
+    ray: str | None = None
+    """Compute the parts not in the cache as Ray tasks: ``""`` a local Ray of ``threads`` CPUs
+    (or the one this process has initialised), else the address of a cluster; None: no Ray."""
+    ray_chunk: int = 8
+    """Runs per Ray task."""
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad argument."""
@@ -104,6 +110,8 @@ class EvalConfig:
             raise ValueError("--teacher-n must be >= 1 when the teacher plans (--planners includes teacher)")
         if self.batch < 1 or self.threads < 1:
             raise ValueError("--batch and --threads must be >= 1")
+        if self.ray_chunk < 1:
+            raise ValueError(f"--ray-chunk must be >= 1, got {self.ray_chunk}")
         for w in self.worlds:
             if w not in ("teacher", "idm", "log_replay"):
                 raise ValueError(f"--worlds: unknown world {w!r} (teacher, idm, log_replay)")
@@ -204,10 +212,60 @@ def model_files(planner: str, world: str) -> list[Path]:
     return files
 
 
+def _cached_part(file: Path, key: str, n_runs: int, log) -> dict | None:  # noqa: ANN001
+    """The cached part at ``file`` when it holds the runs of ``key`` with every needed column,
+    else None (saying why when it exists)."""
+    if not file.is_file():
+        return None
+    try:
+        data = json.loads(file.read_text())
+    except json.JSONDecodeError:
+        return None
+    if data.get("key") != key or len(data["runs"]["seed"]) != n_runs:
+        log(f"  {file}: inputs changed, recomputing")
+        return None
+    if any(k not in data.get("steps", {}) for k in STEP_KEEP):
+        log(f"  {file}: written without the step columns {list(STEP_KEEP)}, recomputing")
+        return None
+    if any(k not in data.get("runs", {}) for k in RUN_NEEDED):
+        log(f"  {file}: written without the run columns {list(RUN_NEEDED)}, recomputing")
+        return None
+    return data
+
+
+def _part_data(key: str, inputs: dict, part_inputs: dict, wall_s: float, res: dict) -> dict:
+    """A cache part: the simulation result's columns the summary reads, with its inputs."""
+    return {"key": key, "inputs": inputs, "part": part_inputs, "wall_s": wall_s,
+            "runs": _jsonable(res["runs"]), "collisions": _jsonable(res["collisions"]),
+            "steps": {k: _jsonable({k: res["steps"][k]})[k] for k in STEP_KEEP}}
+
+
+def _write_part(file: Path, data: dict) -> None:
+    file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = file.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data))
+    tmp.replace(file)
+
+
+@dataclass
+class _Part:
+    """One cached part of an arm: its scenes (indices), key, file and inputs."""
+
+    idx: list[int]
+    key: str
+    file: Path
+    inputs: dict
+
+
 def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[list[Chunk], dict]:  # noqa: ANN001 (a print-like callable)
     """Runs (or loads from the cache) every arm; returns the chunks and what was run. Every arm's
     cache folder carries a ``provenance.json`` (``docs/records.md``) of the runs it holds,
-    rewritten when a part of it is computed (``command``: the command line it names)."""
+    rewritten when a part of it is computed (``command``: the command line it names).
+
+    With ``cfg.ray`` set, every part not in the cache is computed at once as Ray tasks of
+    ``cfg.ray_chunk`` runs (``nudge.distributed``) before the arms are merged: the same runs,
+    tables and cache files as one process computes (the parts' ``wall_s`` is then the sum of
+    their tasks' wall times), and each computed arm's provenance names the Ray used."""
     cfg.validate()
     scenes, scene_seeds, subset = choose(cfg)
     if not scenes:
@@ -218,11 +276,11 @@ def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[lis
     scene_sha = [_file_sha(p, memo) for p in scenes]
     native = Path(nudge._native.__file__)
     base = {"schema": CACHE_SCHEMA, "native": _file_sha(native, memo), "seeds": cfg.seeds}
-    chunks: list[Chunk] = []
     todo = [(p, w, a) for a in arms for w in cfg.worlds for p in cfg.planners]
     t_start = time.perf_counter()
-    for ci, (planner, world, (label, settings)) in enumerate(todo):
-        arm = Arm(planner, world, label)
+    # Every arm's parts, and what the cache holds of them.
+    plan = []
+    for planner, world, (label, settings) in todo:
         idx = subset if planner == "teacher" else list(range(len(scenes)))
         config = sim_cfg.replace(world=world)
         inputs = dict(base, planner=planner, world=world, settings=json.loads(settings.to_json()),
@@ -230,44 +288,60 @@ def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[lis
                       models={str(paths.repo_relative(f)): _file_sha(f, memo) for f in model_files(planner, world)})
         chunk_key = _sha(json.dumps(inputs, sort_keys=True).encode())
         folder = Path(cfg.cache) / chunk_key[:20]
-        parts = [idx[i: i + cfg.batch] for i in range(0, len(idx), cfg.batch)]
+        parts = []
+        for pi, i0 in enumerate(range(0, len(idx), cfg.batch)):
+            part = idx[i0: i0 + cfg.batch]
+            part_inputs = {"chunk": chunk_key, "scenes": [scenes[i].name for i in part],
+                           "scene_sha": [scene_sha[i] for i in part], "scene_seeds": [scene_seeds[i] for i in part]}
+            key = _sha(json.dumps(part_inputs, sort_keys=True).encode())
+            parts.append(_Part(part, key, folder / f"part-{pi:04d}.json", part_inputs))
+        plan.append((Arm(planner, world, label), settings, config, inputs, folder, parts))
+    cached = {(ci, pi): _cached_part(p.file, p.key, len(p.idx) * cfg.seeds, log)
+              for ci, (*_, parts) in enumerate(plan) for pi, p in enumerate(parts)}
+    ray_used = None
+    if cfg.ray is not None:
+        from nudge import distributed
+
+        missing = [k for k, v in cached.items() if v is None]
+        if missing:
+            ray_used = distributed.connect(cfg.ray or None, num_cpus=cfg.threads)
+            sweeps = []
+            for ci, pi in missing:
+                _arm, settings, config, _inputs, _folder, parts = plan[ci]
+                part = parts[pi]
+                sweeps.append(distributed.Sweep(
+                    tuple(str(scenes[i]) for i in part.idx), tuple(scene_seeds[i] for i in part.idx), cfg.seeds,
+                    {"predictor": str(_arm.planner), "settings": settings.to_json(), "config": config.to_json(),
+                     "on_error": "skip"},
+                    label=f"{_arm.planner} in {_arm.world} ({_arm.settings}), part {pi + 1}"))
+            if cfg.progress:
+                log(f"ray ({ray_used}): {len(missing)} parts, {sum(len(s.specs()) for s in sweeps)} runs in tasks of "
+                    f"{cfg.ray_chunk}")
+            results, walls = distributed.run_sweeps(sweeps, chunk=cfg.ray_chunk, progress=cfg.progress)
+            for (ci, pi), res, dt in zip(missing, results, walls, strict=True):
+                part = plan[ci][5][pi]
+                data = _part_data(part.key, plan[ci][3], part.inputs, dt, res)
+                _write_part(part.file, data)
+                cached[(ci, pi)] = dict(data, computed=True)
+    chunks: list[Chunk] = []
+    for ci, (arm, settings, config, inputs, folder, parts) in enumerate(plan):
+        planner, world, label = arm.planner, arm.world, arm.settings
+        idx = [i for p in parts for i in p.idx]
         merged = {"runs": {}, "collisions": {}, "steps": {}}
         wall = computed = 0.0
         offset = 0
         for pi, part in enumerate(parts):
-            part_inputs = {"chunk": chunk_key, "scenes": [scenes[i].name for i in part],
-                           "scene_sha": [scene_sha[i] for i in part], "scene_seeds": [scene_seeds[i] for i in part]}
-            key = _sha(json.dumps(part_inputs, sort_keys=True).encode())
-            file = folder / f"part-{pi:04d}.json"
-            data = None
-            if file.is_file():
-                try:
-                    data = json.loads(file.read_text())
-                except json.JSONDecodeError:
-                    data = None
-                if data is not None and (data.get("key") != key or len(data["runs"]["seed"]) != len(part) * cfg.seeds):
-                    log(f"  {file}: inputs changed, recomputing")
-                    data = None
-                elif data is not None and any(k not in data.get("steps", {}) for k in STEP_KEEP):
-                    log(f"  {file}: written without the step columns {list(STEP_KEEP)}, recomputing")
-                    data = None
-                elif data is not None and any(k not in data.get("runs", {}) for k in RUN_NEEDED):
-                    log(f"  {file}: written without the run columns {list(RUN_NEEDED)}, recomputing")
-                    data = None
+            data = cached[(ci, pi)]
             if data is None:
                 t0 = time.perf_counter()
-                res = nudge.simulate([scenes[i] for i in part], planner, scene_seeds=[scene_seeds[i] for i in part],
-                                     runs=cfg.seeds, threads=cfg.threads, settings=settings, config=config,
-                                     on_error="skip")
-                dt = time.perf_counter() - t0
-                data = {"key": key, "inputs": inputs, "part": part_inputs, "wall_s": dt,
-                        "runs": _jsonable(res["runs"]), "collisions": _jsonable(res["collisions"]),
-                        "steps": {k: _jsonable({k: res["steps"][k]})[k] for k in STEP_KEEP}}
-                folder.mkdir(parents=True, exist_ok=True)
-                tmp = file.with_suffix(".tmp")
-                tmp.write_text(json.dumps(data))
-                tmp.replace(file)
-                computed += dt
+                res = nudge.simulate([scenes[i] for i in part.idx], planner,
+                                     scene_seeds=[scene_seeds[i] for i in part.idx], runs=cfg.seeds,
+                                     threads=cfg.threads, settings=settings, config=config, on_error="skip")
+                data = _part_data(part.key, inputs, part.inputs, time.perf_counter() - t0, res)
+                _write_part(part.file, data)
+                computed += data["wall_s"]
+            elif data.pop("computed", False):
+                computed += data["wall_s"]
             wall += data["wall_s"]
             for table in ("runs", "collisions", "steps"):
                 for k, v in data[table].items():
@@ -277,7 +351,7 @@ def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[lis
             offset += len(data["runs"]["seed"])
             if cfg.progress:
                 elapsed = time.perf_counter() - t_start
-                log(f"[{ci + 1}/{len(todo)}] {planner} in {world} ({label}): part {pi + 1}/{len(parts)}, "
+                log(f"[{ci + 1}/{len(plan)}] {planner} in {world} ({label}): part {pi + 1}/{len(parts)}, "
                     f"{offset} runs, {wall:.0f} s of simulation ({elapsed:.0f} s elapsed)")
         if computed > 0 or not (folder / "provenance.json").is_file():
             files = [(scenes[i], scene_sha[i]) for i in idx]
@@ -289,7 +363,9 @@ def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[lis
                            "files": [{"path": paths.repo_relative(p), "sha256": h} for p, h in files]},
                 "seeds": {"scene_seeds": [scene_seeds[i] for i in idx], "runs_per_scene": cfg.seeds,
                           "rule": "run r of a scene draws scene_seed + r"},
-                "threads": cfg.threads})
+                "threads": cfg.threads,
+                "ray": None if ray_used is None else {"address": ray_used, "runs_per_task": cfg.ray_chunk,
+                                                      "task_threads": 1}})
         chunks.append(Chunk(arm, merged["runs"], merged["collisions"], merged["steps"], wall, computed))
     meta = {"scenes": scenes, "scene_seeds": scene_seeds, "subset": subset, "config": sim_cfg,
             "settings_labels": [a[0] for a in arms], "wall_s": time.perf_counter() - t_start}
@@ -689,7 +765,7 @@ def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str,
     try:
         before_data = json.loads(before[0].read_text()) if before is not None else None
         chunks, meta = collect(cfg, log=lambda s: print(s, flush=True), command=command)
-    except (ValueError, FileNotFoundError) as err:
+    except (ValueError, FileNotFoundError, RayRunError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     budget = int(meta["config"].max_steps)
