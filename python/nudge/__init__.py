@@ -296,11 +296,12 @@ def _simulate_on_ray(
         "on_error": on_error,
     }
     sweep = distributed.Sweep(tuple(os.fspath(p) for p in scene_paths), tuple(seeds), runs, kwargs)
+    task_threads = 1 if threads is None else threads
+    chunk = distributed.DEFAULT_CHUNK if chunk is None else chunk
+    distributed.split(0, chunk)  # a bad chunk is refused before Ray starts
+    distributed.check([sweep], task_threads, progress)
     distributed.connect(ray if isinstance(ray, str) else None)
-    merged, _ = distributed.run_sweeps(
-        [sweep], chunk=distributed.DEFAULT_CHUNK if chunk is None else chunk,
-        task_threads=1 if threads is None else threads, progress=progress,
-    )
+    merged, _ = distributed.run_sweeps([sweep], chunk=chunk, task_threads=task_threads, progress=progress)
     return merged[0]
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from nudge._native import InputError, NudgeError
 
-__all__ = ["DEFAULT_CHUNK", "RayRunError", "Sweep", "connect", "run_sweeps", "split"]
+__all__ = ["DEFAULT_CHUNK", "RayConnectError", "RayRunError", "Sweep", "build", "check", "connect", "merge", "run_sweeps", "split"]
 
 DEFAULT_CHUNK = 8
 """Runs per Ray task by default: long enough (seconds) that the task overhead (milliseconds)
@@ -51,6 +51,17 @@ class RayRunError(NudgeError):
         self.cause = cause
         listed = ", ".join(f"{s} seed {d}" for s, d in runs)
         super().__init__(f"Ray task of {sweep} failed on the runs [{listed}]: {cause}")
+
+
+class RayConnectError(NudgeError):
+    """Ray could not be started or connected to. ``address``: the address (None: a local Ray);
+    ``cause``: Ray's message."""
+
+    def __init__(self, address: str | None, cause: str) -> None:
+        self.address = address
+        self.cause = cause
+        where = f"the Ray cluster at {address}" if address else "a local Ray"
+        super().__init__(f"cannot start or reach {where}: {cause}")
 
 
 @dataclass(frozen=True)
@@ -84,14 +95,19 @@ def connect(address: str | None, num_cpus: int | None = None) -> str:
     """Ray for the tasks: one already initialised in this process is used as is; otherwise
     ``address`` (``"auto"``, ``"ray://host:10001"``, ``"host:6379"``) is connected to, or
     without one a local Ray is started with ``num_cpus`` CPUs (default: all cores). Returns
-    what was used (the address, or ``"local"``)."""
+    what was used (the address, or ``"local (<its address>)"``). Raises
+    :class:`RayConnectError` when Ray cannot be started or reached (e.g. a cluster with token
+    authentication and no token here)."""
     import ray
 
     if not ray.is_initialized():
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+        try:
+            if address:
+                ray.init(address=address, log_to_driver=False)
+            else:
+                ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+        except Exception as err:  # noqa: BLE001 (Ray raises ConnectionError, RuntimeError, ValueError...)
+            raise RayConnectError(address, _chain(err)) from err
     if address:
         return address
     ctx = ray.get_runtime_context()
@@ -150,6 +166,17 @@ def merge(sweep: Sweep, chunks: list[range], results: list[dict]) -> dict[str, A
     return out
 
 
+def check(sweeps: Sequence[Sweep], task_threads: int, progress: object) -> None:
+    """Raises InputError for arguments every task would fail on (before Ray is touched)."""
+    if isinstance(task_threads, bool) or not isinstance(task_threads, int) or task_threads < 1:
+        raise InputError(f"ray task threads: expected an int >= 1, got {task_threads!r}")
+    if not (progress is True or progress is False or progress is None or callable(progress)):
+        raise InputError(f"progress: expected True, False or a callable progress(done, total), got {progress!r}")
+    for s in sweeps:
+        if s.kwargs.get("on_error", "raise") not in ("raise", "skip"):
+            raise InputError(f"on_error: expected \"raise\" or \"skip\", got {s.kwargs['on_error']!r}")
+
+
 def run_sweeps(
     sweeps: Sequence[Sweep],
     *,
@@ -164,8 +191,7 @@ def run_sweeps(
     total)`` in tasks. Raises :class:`RayRunError` when a task fails (the others cancelled)."""
     import ray
 
-    if task_threads < 1:
-        raise InputError(f"ray task threads: expected at least 1, got {task_threads}")
+    check(sweeps, task_threads, progress)
     remote = ray.remote(num_cpus=task_threads, max_retries=0)(_run_chunk)
     plan = [(si, split(len(s.specs()), chunk)) for si, s in enumerate(sweeps)]
     pending: dict[Any, tuple[int, int]] = {}
@@ -214,6 +240,17 @@ def _cause(err: BaseException) -> str:
     if isinstance(inner, BaseException):
         return f"{type(inner).__name__}: {inner}"
     return f"{type(err).__name__}: {str(err).strip().splitlines()[-1] if str(err).strip() else ''}"
+
+
+def _chain(err: BaseException) -> str:
+    """The last line of the message of ``err`` and of each exception that caused it."""
+    parts = []
+    e: BaseException | None = err
+    while e is not None and len(parts) < 4:
+        text = str(e).strip()
+        parts.append(f"{type(e).__name__}: {text.splitlines()[-1] if text else ''}")
+        e = e.__cause__
+    return "; caused by ".join(parts)
 
 
 def _progress(progress: bool | Callable[[int, int], object], total: int) -> tuple[Any, Callable | None]:

@@ -73,6 +73,19 @@ def test_simulate_on_ray_equals_one_process(local_ray: str, scenes: list[Path], 
     assert done == [(i, n_tasks) for i in range(1, n_tasks + 1)]
 
 
+def test_collision_rows_keep_their_runs(local_ray: str, scenes: list[Path]) -> None:
+    """Settings loose enough to collide (margins 0, the reaction ablated): the collision rows of
+    runs in different tasks come back under their runs."""
+    loose = nudge.PlannerSettings.default().replace(
+        safety={"ablate_reaction": True, "margin_x": 0.0, "margin_y": 0.0, "ellipse_scale": 1.0})
+    kw = dict(world="idm", max_steps=20, runs=2, seed=0, settings=loose)
+    one = nudge.simulate(scenes, "constant_velocity", **kw)
+    on_ray = nudge.simulate(scenes, "constant_velocity", ray=True, ray_chunk=3, **kw)
+    assert_same_records(one, on_ray)
+    runs = sorted(set(on_ray["collisions"]["run"].tolist()))
+    assert len(runs) >= 3 and len({r // 3 for r in runs}) >= 3, runs  # rows from three tasks or more
+
+
 def test_the_base_seed_rule_and_traces_survive_the_fan_out(local_ray: str, scenes: list[Path]) -> None:
     kw = dict(world="log_replay", max_steps=4, runs=2, seed=40, trace=True)
     one = nudge.simulate(scenes[:2], "constant_velocity", **kw)
@@ -105,6 +118,11 @@ def test_what_ray_cannot_carry_is_refused(scenes: list[Path], tmp_path: Path) ->
             nudge.simulate(scenes[:1], "constant_velocity", ray=True, **kw)
     with pytest.raises(nudge.InputError, match="ray_chunk"):
         nudge.simulate(scenes[:1], "constant_velocity", ray_chunk=2, max_steps=1)
+    for kw, what in ((dict(on_error="ignore"), "on_error"), (dict(progress="yes"), "progress"),
+                     (dict(threads=0), "task threads"), (dict(ray_chunk=0), "at least 1 run per task"),
+                     (dict(ray=1), "ray: expected")):
+        with pytest.raises(nudge.InputError, match=what):
+            nudge.simulate(scenes[:1], "constant_velocity", **{"ray": True, **kw})
 
 
 def test_closed_loop_on_ray_equals_one_process(local_ray: str, repo: Path, tmp_path: Path) -> None:
@@ -146,3 +164,28 @@ def test_closed_loop_on_ray_equals_one_process(local_ray: str, repo: Path, tmp_p
     assert rc == 0
     (prov,) = (tmp_path / "cli").rglob("provenance.json")
     assert json.loads(prov.read_text())["ray"]["runs_per_task"] == 1
+
+
+def test_a_ray_that_cannot_be_reached_is_a_typed_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """What Ray raises when it cannot connect (here a stand-in for a cluster that refuses this
+    process's token) becomes RayConnectError naming the address and the causes."""
+    def refuse(**kw: object) -> None:
+        try:
+            raise RuntimeError("Failed to connect to GCS.\nAuthenticationError: token is missing")
+        except RuntimeError as e:
+            raise ConnectionError(f"Failed to connect to Ray cluster at {kw['address']}") from e
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", refuse)
+    with pytest.raises(distributed.RayConnectError) as e:
+        distributed.connect("head:6379")
+    assert e.value.address == "head:6379" and isinstance(e.value, nudge.NudgeError)
+    assert str(e.value) == ("cannot start or reach the Ray cluster at head:6379: ConnectionError: Failed to connect "
+                            "to Ray cluster at head:6379; caused by RuntimeError: AuthenticationError: token is missing")
+    # The command says so in one line and exits 2, before any run.
+    from nudge_train.cli import main
+
+    rc = main(["closed-loop", "--scenes", str(Path(nudge.scene_paths()[0]).parent), "--n", "1", "--seeds", "1",
+               "--planners", "constant_velocity", "--worlds", "log_replay", "--cache", "/nonexistent/never-written",
+               "--no-progress", "--ray", "head:6379"])
+    assert rc == 2

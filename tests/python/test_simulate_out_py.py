@@ -77,9 +77,11 @@ def test_python_and_cli_write_the_same_record_set(repo: Path, tmp_path: Path) ->
 
     py, cli = (json.loads((d / "provenance.json").read_text()) for d in (py_out, cli_out))
     assert py.keys() == cli.keys()
-    differ = {"command", "cwd", "created_unix_s"}
+    # The binary and the extension each record their own build's commit (the same in CI).
+    differ = {"command", "cwd", "created_unix_s", "git_sha"}
     for k in py.keys() - differ:
         assert py[k] == cli[k], k
+    assert py["git_sha"] == nudge.GIT_SHA
     assert py["command"] == [sys.executable, *sys.argv]
     assert py["cwd"] == os.getcwd()
     assert py["planner"] is None and py["settings_file"] is None and py["config_file"] is None

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import nudge
-from nudge.distributed import RayRunError
+from nudge.distributed import RayConnectError, RayRunError
 
 from nudge_train import paths
 from nudge_train.provenance import scene_list_sha256, write_provenance
@@ -307,13 +307,13 @@ def collect(cfg: EvalConfig, log=print, command: str | None = None) -> tuple[lis
             ray_used = distributed.connect(cfg.ray or None, num_cpus=cfg.threads)
             sweeps = []
             for ci, pi in missing:
-                _arm, settings, config, _inputs, _folder, parts = plan[ci]
+                arm, settings, config, _, _, parts = plan[ci]
                 part = parts[pi]
                 sweeps.append(distributed.Sweep(
                     tuple(str(scenes[i]) for i in part.idx), tuple(scene_seeds[i] for i in part.idx), cfg.seeds,
-                    {"predictor": str(_arm.planner), "settings": settings.to_json(), "config": config.to_json(),
+                    {"predictor": arm.planner, "settings": settings.to_json(), "config": config.to_json(),
                      "on_error": "skip"},
-                    label=f"{_arm.planner} in {_arm.world} ({_arm.settings}), part {pi + 1}"))
+                    label=f"{arm.planner} in {arm.world} ({arm.settings}), part {pi + 1}"))
             if cfg.progress:
                 log(f"ray ({ray_used}): {len(missing)} parts, {sum(len(s.specs()) for s in sweeps)} runs in tasks of "
                     f"{cfg.ray_chunk}")
@@ -765,7 +765,7 @@ def run(cfg: EvalConfig, out: Path | None, json_path: Path | None, command: str,
     try:
         before_data = json.loads(before[0].read_text()) if before is not None else None
         chunks, meta = collect(cfg, log=lambda s: print(s, flush=True), command=command)
-    except (ValueError, FileNotFoundError, RayRunError) as err:
+    except (ValueError, FileNotFoundError, RayConnectError, RayRunError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     budget = int(meta["config"].max_steps)
