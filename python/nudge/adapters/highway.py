@@ -619,11 +619,12 @@ class NudgeHighwayController:
         ego_key = id(ego_v)
         ego = states[ego_key]
         rng = float(self.settings.safety["check_range"])
+        # Nearest first; a tie goes to the vehicle earlier in road.vehicles (ids differ per process).
         near = sorted(
-            (float(np.hypot(*(s[:2] - ego[:2]))), k) for k, s in states.items() if k != ego_key
+            (float(np.hypot(*(s[:2] - ego[:2]))), i, k) for i, (k, s) in enumerate(states.items()) if k != ego_key
         )
-        keys = [k for d, k in near if d <= rng][: self.max_neighbours]
-        others = [(states[k], float(self._keys[k].LENGTH)) for k, s in states.items() if k != ego_key]
+        keys = [k for d, _, k in near if d <= rng][: self.max_neighbours]
+        others = [(states[k], float(self._keys[k].LENGTH)) for k in states if k != ego_key]
         lay = self.layout
         if self.fixed_v_ref is not None:
             v_ref = self.fixed_v_ref
