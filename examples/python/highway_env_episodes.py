@@ -9,7 +9,8 @@ Run from the repository root after ``make develop`` (the venv has highway-env)::
 
 Per arm: episodes, collisions (the ego crashed), lane changes (changes of highway-env's lane
 index, all episodes), mean speed (m/s, over every step), ms per step (planning and highway-env's
-simulation; the planning share beside it), steps, and actions nudge sent outside [-1, 1].
+simulation; the planning share beside it), steps, actions nudge sent outside [-1, 1] and the
+steps at which nudge's ego started with its centre beyond a road edge.
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ def summarise(arm: str, results: list[EpisodeResult], speeds: list[float]) -> di
         "plan_ms": statistics.median(r.plan_ms for r in results) if arm == "nudge" else float("nan"),
         "steps": steps,
         "out_of_range": sum(r.out_of_range for r in results),
+        "off_road": sum(r.off_road for r in results),
         "statuses": sum((Counter(r.statuses) for r in results), Counter()),
     }
 
@@ -120,13 +122,14 @@ def main(argv: list[str] | None = None) -> int:
             speeds.extend([r.mean_speed] * r.steps)
             print(
                 f"{arm:8s} seed {seed:3d}: {r.steps:3d} steps, crashed {r.crashed!s:5s}, "
-                f"lane changes {r.lane_changes}, mean speed {r.mean_speed:5.2f} m/s, {r.ms_per_step:6.1f} ms/step",
+                f"lane changes {r.lane_changes}, mean speed {r.mean_speed:5.2f} m/s, {r.ms_per_step:6.1f} ms/step, "
+                f"off road {r.off_road}",
                 flush=True,
             )
         rows.append(summarise(arm, results, speeds))
         print(f"{arm}: {time.perf_counter() - t0:.1f} s", flush=True)
 
-    head = "| arm | episodes | collisions | lane changes | mean speed (m/s) | ms per step | nudge plan ms (median) | steps | actions outside [-1, 1] |"
+    head = "| arm | episodes | collisions | lane changes | mean speed (m/s) | ms per step | nudge plan ms (median) | steps | actions outside [-1, 1] | steps off the road |"
     lines = [
         f"{args.env}, seeds {seeds[0]}..{seeds[-1]}, {args.duration:g} s episodes, predictor {args.predictor}",
         "",
@@ -135,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for r in rows:
         plan = "" if r["arm"] != "nudge" else f"{r['plan_ms']:.1f}"
-        oor = str(r["out_of_range"]) if r["arm"] == "nudge" else ""
+        oor = f"{r['out_of_range']} | {r['off_road']}" if r["arm"] == "nudge" else " | "
         lines.append(
             f"| {r['arm']} | {r['episodes']} | {r['collisions']} | {r['lane_changes']} | {r['mean_speed']:.2f} | "
             f"{r['ms_per_step']:.1f} | {plan} | {r['steps']} | {oor} |"

@@ -252,6 +252,26 @@ def test_the_lane_rule_leaves_a_slow_lane_for_a_free_faster_one(student: nudge.P
     assert ctrl.target(ego, [(np.array([130.0, -4.0, 0.0, 29.0]), 5.0)], 30.0) == (2, None)  # no advantage
 
 
+def test_the_lane_rule_settles_after_a_change_and_takes_an_ego_off_the_road_as_in_the_edge_lane(
+    student: nudge.Predictor,
+) -> None:
+    env = _env(vehicles_count=1)
+    env.reset(seed=0)
+    ctrl = NudgeHighwayController(env, predictor=student)
+    ctrl.reset()
+    ego = np.array([100.0, -4.0, 0.0, 25.0])
+    assert ctrl.target(ego, [(np.array([130.0, -4.0, 0.0, 15.0]), 5.0)], 30.0) == (1, 2)
+    arrived = np.array([130.0, -7.8, 0.0, 25.0])  # within 0.5 m of lane 1's centre
+    slow = (np.array([160.0, -7.8, 0.0, 15.0]), 5.0)  # lanes 0 and 2 are free and faster
+    for _ in range(ctrl.lane_rule.settle_steps):
+        assert ctrl.target(arrived, [slow], 30.0) == (1, None)
+    assert ctrl.target(arrived, [slow], 30.0) == (0, 1)  # settled: the rule looks again
+    ctrl.reset()
+    beyond = np.array([100.0, -14.3, -0.1, 25.0])  # right edge at -14 m
+    assert ctrl.layout.lane_of(-14.3) is None
+    assert ctrl.target(beyond, [], 30.0) == (0, None)
+
+
 def test_an_action_outside_the_range_is_recorded_and_sent_unclamped(student: nudge.Predictor) -> None:
     env = _env()
     env.reset(seed=0)

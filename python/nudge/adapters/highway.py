@@ -54,7 +54,10 @@ none); the ego moves to an adjacent lane whose speed beats its own lane's by ``a
 when that lane has ``gap_ahead`` m clear in front and ``gap_behind + time_gap * closing speed``
 m clear behind (bumper to bumper), the right one first on a tie. Once chosen, the target holds
 until the ego's centre is within ``arrive_tolerance`` m of its centre line or ``max_change_steps``
-steps have passed; the lane it came from is the planner's retreat (``y_retreat``).
+steps have passed; the lane it came from is the planner's retreat (``y_retreat``); then the ego
+keeps its lane for ``settle_steps`` steps before the rule looks again. An ego whose centre is
+beyond a road edge counts in the lane at that edge (the steps are counted:
+:attr:`EpisodeStats.off_road`).
 """
 
 from __future__ import annotations
@@ -289,6 +292,13 @@ class LaneLayout:
         """(right edge, left edge) y (m)."""
         return float(self.bounds[0]), float(self.bounds[-1])
 
+    def nearest_lane(self, y: float) -> int:
+        """:meth:`lane_of`, or the lane at the nearer edge for a y beyond the road."""
+        lane = self.lane_of(y)
+        if lane is None:
+            return 0 if y < self.bounds[0] else self.n_lanes - 1
+        return lane
+
     def lane_of(self, y: float) -> int | None:
         """The nudge lane holding nudge y (m), None off the road (a point on a line belongs to
         the lane on its left)."""
@@ -385,6 +395,7 @@ class LaneRule:
     time_gap: float = 1.5
     arrive_tolerance: float = 0.5
     max_change_steps: int = 20
+    settle_steps: int = 10
 
     def validate(self) -> None:
         for name in ("look_ahead", "advantage", "gap_ahead", "gap_behind", "time_gap", "arrive_tolerance"):
@@ -393,6 +404,8 @@ class LaneRule:
                 raise HighwayAdapterError(f"LaneRule.{name} = {v!r}: not a finite number >= 0")
         if not isinstance(self.max_change_steps, int) or self.max_change_steps < 1:
             raise HighwayAdapterError(f"LaneRule.max_change_steps = {self.max_change_steps!r}: not an integer >= 1")
+        if not isinstance(self.settle_steps, int) or self.settle_steps < 0:
+            raise HighwayAdapterError(f"LaneRule.settle_steps = {self.settle_steps!r}: not an integer >= 0")
 
 
 # ---- records ----------------------------------------------------------------------------------
@@ -410,6 +423,8 @@ class EpisodeStats:
     """(step, "acceleration" | "steering", normalised value) of every action outside [-1, 1]."""
     padded: int = 0
     """History positions padded at constant velocity (vehicles seen fewer than 8 times)."""
+    off_road: int = 0
+    """Calls at which the ego's centre was beyond a road edge."""
     targets: list[int] = field(default_factory=list)
     """The nudge target lane of each step."""
     actions: list[np.ndarray] = field(default_factory=list)
@@ -432,6 +447,8 @@ class EpisodeResult:
     plan_ms: float
     """Median planning time per step (ms)."""
     out_of_range: int
+    off_road: int
+    """Steps the ego's centre started beyond a road edge (counted by the controller)."""
     statuses: dict[str, int]
 
 
@@ -486,6 +503,7 @@ class NudgeHighwayController:
         self._target: int | None = None
         self._origin: int | None = None
         self._change_steps = 0
+        self._settle = 0
 
     # -- set-up checks
     def _ego_length(self) -> float:
@@ -541,6 +559,7 @@ class NudgeHighwayController:
         self._target = None
         self._origin = None
         self._change_steps = 0
+        self._settle = 0
 
     def states(self) -> dict[int, np.ndarray]:
         """Every vehicle's nudge state [4] (x, y, ψ, v) now, by ``id`` of the highway-env vehicle
@@ -562,9 +581,7 @@ class NudgeHighwayController:
             if not 0 <= self.fixed_target < n:
                 raise HighwayAdapterError(f"target_lane = {self.fixed_target}: highway-env lanes are 0..{n - 1}")
             return n - 1 - self.fixed_target, None
-        cur = lay.lane_of(float(ego[1]))
-        if cur is None:
-            raise HighwayAdapterError(f"ego at nudge y = {ego[1]:.3f} m is off the road {lay.road}")
+        cur = lay.nearest_lane(float(ego[1]))
         r = self.lane_rule
         if self._target is not None:
             self._change_steps += 1
@@ -572,6 +589,10 @@ class NudgeHighwayController:
             if not arrived and self._change_steps < r.max_change_steps:
                 return self._target, self._origin
             self._target, self._origin, self._change_steps = None, None, 0
+            self._settle = r.settle_steps
+        if self._settle > 0:
+            self._settle -= 1
+            return cur, None
         ego_len = float(self.u.vehicle.LENGTH)
 
         def lane_speed(lane: int) -> float:
@@ -631,6 +652,8 @@ class NudgeHighwayController:
         else:
             limits = lay.speed_limits[~np.isnan(lay.speed_limits)]
             v_ref = float(min(limits.min(), self.settings.bounds["v_max"])) if len(limits) else float(self.settings.bounds["v_max"])
+        if lay.lane_of(float(ego[1])) is None:
+            self.stats.off_road += 1
         tgt, retreat = self.target(ego, others, v_ref)
         order = [ego_key, *keys]
         hist = np.stack([self.history.history(k) for k in order])
@@ -711,5 +734,6 @@ def run_episode(env: gym.Env, controller: Any, seed: int, max_steps: int | None 
         ms_per_step=1000.0 * wall / max(steps, 1),
         plan_ms=1000.0 * float(np.median(plan_s)) if plan_s else math.nan,
         out_of_range=len(stats.out_of_range) if stats is not None else 0,
+        off_road=stats.off_road if stats is not None else 0,
         statuses=dict(stats.statuses) if stats is not None else {},
     )
