@@ -1,8 +1,9 @@
 """nudge as the controller of the ego vehicle in highway-env (docs/highway_env.md).
 
 Needs the ``highway`` extra (``pip install "nudge-planner[highway]"``: highway-env, which brings
-gymnasium). Supported: the straight roads of ``highway-v0`` and ``highway-fast-v0``, and
-``merge-v0`` (its lane that begins and ends is passed to nudge with its extents)::
+gymnasium). Driven: the straight roads of ``highway-v0`` and ``highway-fast-v0``. Lanes that
+begin and end (merge-v0's merge lane) are passed to nudge with their extents, but highway-env's
+merge envs cannot take a continuous action (their reward raises on one)::
 
     from nudge.adapters.highway import NudgeHighwayController, make_env
 
@@ -389,13 +390,21 @@ class LaneRule:
     """The target-lane rule (module docstring); distances in m, speeds in m/s."""
 
     look_ahead: float = 80.0
+    """m: the nearest vehicle ahead within this sets a lane's speed; a free lane exists this far."""
     advantage: float = 2.0
+    """m/s: how much faster an adjacent lane must be."""
     gap_ahead: float = 15.0
+    """m: clear bumper-to-bumper gap in front in the adjacent lane."""
     gap_behind: float = 10.0
+    """m: clear gap behind, plus ``time_gap`` times the closing speed of a faster follower."""
     time_gap: float = 1.5
+    """s: see ``gap_behind``."""
     arrive_tolerance: float = 0.5
+    """m: a change is done when the ego's centre is this close to the target's centre line."""
     max_change_steps: int = 20
+    """Steps (0.3 s) after which a change not done is given up."""
     settle_steps: int = 10
+    """Steps the ego keeps its lane after a change before the rule looks again."""
 
     def validate(self) -> None:
         for name in ("look_ahead", "advantage", "gap_ahead", "gap_behind", "time_gap", "arrive_tolerance"):
