@@ -45,6 +45,7 @@ $(STAMP): python/train/pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(RETRY) $(PIP) install $(PIP_BASE) --upgrade pip
 	$(RETRY) $(PIP) install $(PIP_FLAGS) -e "python/train[dev]"
+	$(RETRY) $(PIP) install $(PIP_FLAGS) "highway-env>=1.10"  # the extra "highway" of pyproject.toml (a test keeps them equal)
 	touch $(STAMP)
 
 venv: $(STAMP)
