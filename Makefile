@@ -48,7 +48,13 @@ $(STAMP): python/train/pyproject.toml
 	$(RETRY) $(PIP) install $(PIP_FLAGS) "highway-env>=1.10"  # the extra "highway" of pyproject.toml (a test keeps them equal)
 	touch $(STAMP)
 
-venv: $(STAMP)
+# The `env` extra of pyproject.toml (gymnasium, for nudge.env), read from there.
+ENV_STAMP := $(VENV)/.nudge-env-stamp
+$(ENV_STAMP): $(STAMP) pyproject.toml
+	$(RETRY) $(PIP) install $(PIP_FLAGS) $$($(PY) -c 'import tomllib; print(" ".join(tomllib.load(open("pyproject.toml", "rb"))["project"]["optional-dependencies"]["env"]))')
+	touch $(ENV_STAMP)
+
+venv: $(STAMP) $(ENV_STAMP)
 
 $(DEMO_STAMP): python/train/pyproject.toml
 	test -x $(DEMO_VENV)/bin/python || $(PYTHON) -m venv $(DEMO_VENV)
@@ -71,7 +77,7 @@ venv-demo: $(DEMO_EXT)
 # removed first (it would shadow the same `nudge` package and command).
 # An extension built for one CPython before the abi3 build (`_native.cpython-3XX-*.so`) would
 # shadow the abi3 one (`_native.abi3.so`) on import: it is removed.
-develop: $(STAMP)
+develop: $(STAMP) $(ENV_STAMP)
 	$(PIP) uninstall -y -q nudge 2>/dev/null || true
 	rm -f python/nudge/_native.cpython-*.so
 	VIRTUAL_ENV=$(abspath $(VENV)) $(VENV)/bin/maturin develop --release -q

@@ -271,6 +271,50 @@ class PlanResult(TypedDict, total=False):
     target_lane: int  # plan_scenario only
     y_target: float  # plan_scenario only
 
+class Session:
+    """nudge's closed loop one step at a time (the Rust ``nudge_sim::Session``), the core of
+    ``nudge.env`` (docs/env.md). Built and checked like a ``simulate`` batch over
+    ``scene_paths``; ``reset(scene, seed)`` starts the run ``simulate`` makes of that scene with
+    that seed. Planning and stepping release the GIL."""
+
+    def __init__(
+        self,
+        scene_paths: Sequence[str],
+        predictor: str = ...,
+        *,
+        world_predictor: str | None = None,
+        idm: str | None = None,
+        settings: PlannerSettings | None = None,
+        config: SimConfig | None = None,
+        assets: str | None = None,
+        **config_overrides: int | float | str,
+    ) -> None: ...
+    @property
+    def scene_names(self) -> list[str]: ...
+    @property
+    def lane_counts(self) -> list[int]: ...
+    @property
+    def settings(self) -> PlannerSettings: ...
+    @property
+    def config(self) -> SimConfig: ...
+    @property
+    def predictor(self) -> str: ...
+    def reset(self, scene: int, seed: int) -> dict[str, Any]:
+        """Starts a run; returns its first observation (the dict a Python planner gets)."""
+    def observation(self) -> dict[str, Any]:
+        """The current step's observation."""
+    def target(self) -> tuple[int, float]:
+        """The run's target lane and its centre y (m)."""
+    def nudge_plan(self) -> dict[str, npt.NDArray[np.float64]]:
+        """nudge's plan for the current step, kept pending: ``{"delta": [T], "accel": [T]}``."""
+    def step(
+        self, delta: Sequence[float], accel: Sequence[float]
+    ) -> tuple[dict[str, Any], str | None, dict[str, Any] | None, dict[str, Any] | None]:
+        """Applies the inputs (T each; nudge's pending plan when equal to it, bit for bit);
+        returns the step's ``steps.csv`` row, the end reason or None, and once ended the run's
+        ``runs.csv`` row and its collisions. Out-of-bounds or non-finite inputs raise
+        InputError (never clamped)."""
+
 class Planner:
     """The ADMM MPC planner bound to one predictor (keeps a warm start; see reset)."""
 

@@ -158,7 +158,10 @@ pub fn sim_err(err: SimError) -> PyErr {
             same_class(&predictor_err(source), msg)
         }
         SimError::Planner { source, .. } => same_class(&planner_err(source), msg),
-        SimError::WorldModel { .. } | SimError::Runs { .. } => InputError::new_err(msg),
+        SimError::WorldModel { .. }
+        | SimError::Runs { .. }
+        | SimError::Ended { .. }
+        | SimError::NoPlan { .. } => InputError::new_err(msg),
         SimError::WorldFile(_) => WorldFileError::new_err(msg),
         SimError::Scenario(e) => scenario_err(e),
         SimError::Cancelled { .. } => NudgeError::new_err(msg),

@@ -8,6 +8,7 @@ mod args;
 mod arrays;
 mod cli;
 mod commonroad;
+mod env;
 mod errors;
 mod planner;
 mod predict;
@@ -76,6 +77,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     settings::document_fields(m)?;
     m.add_class::<scenario::PyScenario>()?;
     m.add_class::<planner::PyPlanner>()?;
+    m.add_class::<env::PySession>()?;
     m.add_function(wrap_pyfunction!(sim::simulate, m)?)?;
     m.add_function(wrap_pyfunction!(model_path, m)?)?;
     m.add_function(wrap_pyfunction!(assets_dir, m)?)?;

@@ -160,49 +160,15 @@ impl PyPolicy {
         py: Python<'py>,
         problem: &PlanningProblem<'_>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let array = |values: &[f64], shape: &[usize]| -> PyResult<Bound<'py, PyAny>> {
-            let a = PyArray1::from_slice(py, values).reshape(shape)?.into_any();
-            a.getattr("flags")?.setattr("writeable", false)?;
-            Ok(a)
+        let run = RunInfo {
+            scenario: &self.scenario,
+            seed: self.seed,
+            step: self.step,
+            lane_centres: &self.lane_centres,
+            lane_bounds: &self.lane_bounds,
+            settings: &self.settings,
         };
-        let n = problem.history.n_agents();
-        let e = &problem.ego;
-        let sizes: Vec<f64> = problem.sizes.iter().flatten().copied().collect();
-        let b = &self.settings.bounds;
-        let bounds = PyDict::new(py);
-        bounds.set_item("delta_max", b.delta_max)?;
-        bounds.set_item("a_min", b.a_min)?;
-        bounds.set_item("a_max", b.a_max)?;
-        let d = PyDict::new(py);
-        d.set_item("scenario", &self.scenario)?;
-        d.set_item("seed", self.seed)?;
-        d.set_item("step", self.step)?;
-        d.set_item("dt", self.settings.model.dt)?;
-        d.set_item("horizon", self.settings.model.horizon)?;
-        d.set_item("ego", array(&[e.x, e.y, e.psi, e.v], &[4])?)?;
-        d.set_item(
-            "last_inputs",
-            array(&[problem.last_delta, problem.last_accel], &[2])?,
-        )?;
-        d.set_item(
-            "history",
-            array(problem.history.positions(), &[n, T_OBS, 2])?,
-        )?;
-        d.set_item("sizes", array(&sizes, &[n, 2])?)?;
-        d.set_item(
-            "lane_centres",
-            array(&self.lane_centres, &[self.lane_centres.len()])?,
-        )?;
-        d.set_item(
-            "lane_bounds",
-            array(&self.lane_bounds, &[self.lane_bounds.len()])?,
-        )?;
-        d.set_item("road", array(&problem.road, &[2])?)?;
-        d.set_item("y_target", problem.y_target)?;
-        d.set_item("y_retreat", problem.y_retreat)?;
-        d.set_item("v_ref", problem.v_ref)?;
-        d.set_item("bounds", bounds)?;
-        Ok(d)
+        observation_dict(py, problem, &run)
     }
 
     /// The inputs `name` (`delta` or `accel`) of the plan `got`: T finite floats within
@@ -232,42 +198,8 @@ impl PyPolicy {
                     .and_then(|l| l.extract::<Vec<f64>>())
             })
             .map_err(|_| format!("\"{name}\": expected {t} floats, got {}", type_name(&value)))?;
-        if values.len() != t {
-            return Err(format!(
-                "\"{name}\": expected {t} values (the horizon), got {}",
-                values.len()
-            ));
-        }
-        for (k, &v) in values.iter().enumerate() {
-            if !v.is_finite() {
-                return Err(format!("\"{name}\"[{k}] is not finite ({v})"));
-            }
-            if v < lo || v > hi {
-                return Err(format!(
-                    "\"{name}\"[{k}] = {v} is outside [{lo}, {hi}] (observation[\"bounds\"])"
-                ));
-            }
-        }
+        check_inputs(&values, name, lo, hi, t)?;
         Ok(values)
-    }
-
-    /// The plan's roll-out z_1..z_T from the measured state with `delta`, `accel`.
-    fn rollout(&self, ego: &EgoState, delta: &[f64], accel: &[f64]) -> Vec<[f64; 4]> {
-        let m = &self.settings.model;
-        let model = Bicycle {
-            l_f: m.l_f,
-            l_r: m.l_r,
-            dt: m.dt,
-        };
-        let mut z = State::new(ego.x, ego.y, ego.psi, ego.v);
-        delta
-            .iter()
-            .zip(accel)
-            .map(|(&d, &a)| {
-                z = model.advance(&z, d, a);
-                [z[0], z[1], z[2], z[3]]
-            })
-            .collect()
     }
 }
 
@@ -327,54 +259,8 @@ impl Policy for PyPolicy {
                 .map_err(unusable)?;
             Ok((delta, accel))
         })?;
-        let states = self.rollout(&problem.ego, &delta, &accel);
-        // nudge's safety check on the roll-out under the planning predictor.
-        let constraint = SafetyConstraint::new(problem, &self.settings);
-        let checked = constraint.vehicles().len();
-        let (min_b, calls) = if checked == 0 {
-            (None, 0)
-        } else {
-            let n_others = problem.history.n_agents() - 1;
-            let t = states.len();
-            let candidate: Vec<f64> = states.iter().flat_map(|z| [z[0], z[1]]).collect();
-            let mut prediction = vec![0.0; n_others * t * 2];
-            let mut p = Checked::new(predictor);
-            p.set_scene(problem.history)
-                .and_then(|()| p.predict(&candidate, &mut prediction))
-                .map_err(PlannerError::Predictor)?;
-            (constraint.binding(&states, &prediction).map(|w| w.b), 1)
-        };
-        let lane_violation = problem
-            .lanes
-            .as_ref()
-            .and_then(|l| l.first_violation(&states));
-        let safe =
-            min_b.is_none_or(|b| b >= self.settings.safety.safety_min) && lane_violation.is_none();
         self.step += 1;
-        Ok(Plan {
-            delta,
-            accel,
-            states,
-            admm_states: Vec::new(),
-            cost: f64::NAN,
-            iterations: 0,
-            predictor_calls: calls,
-            refused_candidates: 0,
-            qp_solves: 0,
-            primal_residual: f64::NAN,
-            change_residual: f64::NAN,
-            min_safety: min_b,
-            rollout_min_safety: min_b,
-            checked,
-            lane_violation,
-            timings: nudge_planner::PhaseTimings::default(),
-            status: if safe {
-                PlanStatus::Converged
-            } else {
-                PlanStatus::Unsafe
-            },
-            decided_by: DecidedBy::External,
-        })
+        judged_plan(problem, &self.settings, delta, accel, predictor)
     }
 }
 
@@ -395,5 +281,184 @@ pub fn failure_err(msg: String, source: Box<dyn std::error::Error + Send + Sync>
             err
         }
         None => InputError::new_err(msg),
+    })
+}
+
+/// What an observation dict tells about the run besides the planning problem.
+pub struct RunInfo<'a> {
+    /// The scene's name.
+    pub scenario: &'a str,
+    /// The run's target-lane seed.
+    pub seed: u64,
+    /// The closed-loop step (0-based).
+    pub step: usize,
+    /// Lane centres `[L]` (y, m).
+    pub lane_centres: &'a [f64],
+    /// Lane lines `[L + 1]` (y, m).
+    pub lane_bounds: &'a [f64],
+    /// The planner settings (horizon, dt, bounds).
+    pub settings: &'a PlannerSettings,
+}
+
+/// The observation dict of `problem` for the run `run` (the module documentation lists its
+/// keys; docs/python_planner.md): what a Python planner and the Gymnasium environment see.
+pub fn observation_dict<'py>(
+    py: Python<'py>,
+    problem: &PlanningProblem<'_>,
+    run: &RunInfo<'_>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let array = |values: &[f64], shape: &[usize]| -> PyResult<Bound<'py, PyAny>> {
+        let a = PyArray1::from_slice(py, values).reshape(shape)?.into_any();
+        a.getattr("flags")?.setattr("writeable", false)?;
+        Ok(a)
+    };
+    let n = problem.history.n_agents();
+    let e = &problem.ego;
+    let sizes: Vec<f64> = problem.sizes.iter().flatten().copied().collect();
+    let b = &run.settings.bounds;
+    let bounds = PyDict::new(py);
+    bounds.set_item("delta_max", b.delta_max)?;
+    bounds.set_item("a_min", b.a_min)?;
+    bounds.set_item("a_max", b.a_max)?;
+    let d = PyDict::new(py);
+    d.set_item("scenario", run.scenario)?;
+    d.set_item("seed", run.seed)?;
+    d.set_item("step", run.step)?;
+    d.set_item("dt", run.settings.model.dt)?;
+    d.set_item("horizon", run.settings.model.horizon)?;
+    d.set_item("ego", array(&[e.x, e.y, e.psi, e.v], &[4])?)?;
+    d.set_item(
+        "last_inputs",
+        array(&[problem.last_delta, problem.last_accel], &[2])?,
+    )?;
+    d.set_item(
+        "history",
+        array(problem.history.positions(), &[n, T_OBS, 2])?,
+    )?;
+    d.set_item("sizes", array(&sizes, &[n, 2])?)?;
+    d.set_item(
+        "lane_centres",
+        array(run.lane_centres, &[run.lane_centres.len()])?,
+    )?;
+    d.set_item(
+        "lane_bounds",
+        array(run.lane_bounds, &[run.lane_bounds.len()])?,
+    )?;
+    d.set_item("road", array(&problem.road, &[2])?)?;
+    d.set_item("y_target", problem.y_target)?;
+    d.set_item("y_retreat", problem.y_retreat)?;
+    d.set_item("v_ref", problem.v_ref)?;
+    d.set_item("bounds", bounds)?;
+    Ok(d)
+}
+
+/// Checks the inputs `values` named `name` (`delta` or `accel`): `t` values (the horizon),
+/// each finite and within [`lo`, `hi`]; the message names the first that is not. Nothing is
+/// clamped.
+pub fn check_inputs(values: &[f64], name: &str, lo: f64, hi: f64, t: usize) -> Result<(), String> {
+    if values.len() != t {
+        return Err(format!(
+            "\"{name}\": expected {t} values (the horizon), got {}",
+            values.len()
+        ));
+    }
+    for (k, &v) in values.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(format!("\"{name}\"[{k}] is not finite ({v})"));
+        }
+        if v < lo || v > hi {
+            return Err(format!(
+                "\"{name}\"[{k}] = {v} is outside [{lo}, {hi}] (observation[\"bounds\"])"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The plan's roll-out z_1..z_T from the measured state `ego` with the inputs `delta`,
+/// `accel` under the bicycle model of `settings`.
+fn rollout(
+    settings: &PlannerSettings,
+    ego: &EgoState,
+    delta: &[f64],
+    accel: &[f64],
+) -> Vec<[f64; 4]> {
+    let m = &settings.model;
+    let model = Bicycle {
+        l_f: m.l_f,
+        l_r: m.l_r,
+        dt: m.dt,
+    };
+    let mut z = State::new(ego.x, ego.y, ego.psi, ego.v);
+    delta
+        .iter()
+        .zip(accel)
+        .map(|(&d, &a)| {
+            z = model.advance(&z, d, a);
+            [z[0], z[1], z[2], z[3]]
+        })
+        .collect()
+}
+
+/// The plan of inputs `delta`, `accel` (T each, checked by [`check_inputs`]) made outside
+/// nudge for `problem`: rolled out with nudge's bicycle model and judged by nudge's safety
+/// check under the planning predictor `predictor` (one call): `Converged` when the check
+/// passes, `Unsafe` when it does not. The MPC's own fields are empty (`iterations` 0,
+/// `cost` and the residuals NaN).
+///
+/// # Errors
+/// [`PlannerError::Predictor`] when the prediction fails.
+pub fn judged_plan(
+    problem: &PlanningProblem<'_>,
+    settings: &PlannerSettings,
+    delta: Vec<f64>,
+    accel: Vec<f64>,
+    predictor: &mut dyn Predictor,
+) -> Result<Plan, PlannerError> {
+    let states = rollout(settings, &problem.ego, &delta, &accel);
+    // nudge's safety check on the roll-out under the planning predictor.
+    let constraint = SafetyConstraint::new(problem, settings);
+    let checked = constraint.vehicles().len();
+    let (min_b, calls) = if checked == 0 {
+        (None, 0)
+    } else {
+        let n_others = problem.history.n_agents() - 1;
+        let t = states.len();
+        let candidate: Vec<f64> = states.iter().flat_map(|z| [z[0], z[1]]).collect();
+        let mut prediction = vec![0.0; n_others * t * 2];
+        let mut p = Checked::new(predictor);
+        p.set_scene(problem.history)
+            .and_then(|()| p.predict(&candidate, &mut prediction))
+            .map_err(PlannerError::Predictor)?;
+        (constraint.binding(&states, &prediction).map(|w| w.b), 1)
+    };
+    let lane_violation = problem
+        .lanes
+        .as_ref()
+        .and_then(|l| l.first_violation(&states));
+    let safe = min_b.is_none_or(|b| b >= settings.safety.safety_min) && lane_violation.is_none();
+    Ok(Plan {
+        delta,
+        accel,
+        states,
+        admm_states: Vec::new(),
+        cost: f64::NAN,
+        iterations: 0,
+        predictor_calls: calls,
+        refused_candidates: 0,
+        qp_solves: 0,
+        primal_residual: f64::NAN,
+        change_residual: f64::NAN,
+        min_safety: min_b,
+        rollout_min_safety: min_b,
+        checked,
+        lane_violation,
+        timings: nudge_planner::PhaseTimings::default(),
+        status: if safe {
+            PlanStatus::Converged
+        } else {
+            PlanStatus::Unsafe
+        },
+        decided_by: DecidedBy::External,
     })
 }

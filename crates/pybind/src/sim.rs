@@ -397,7 +397,7 @@ fn traces_list<'py>(
 }
 
 /// A table's columns as a dict of numpy arrays (text columns as lists of str / None).
-fn table_dict(py: Python<'_>, table: Table) -> PyResult<Bound<'_, PyDict>> {
+pub fn table_dict(py: Python<'_>, table: Table) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     for (name, column) in table.into_columns() {
         match column {

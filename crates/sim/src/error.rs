@@ -165,6 +165,24 @@ pub enum SimError {
     /// A scenario of the batch cannot be read.
     #[error(transparent)]
     Scenario(#[from] ScenarioError),
+    /// A step of a [`crate::Session`] was asked of a run that has ended.
+    #[error("scenario {scene}: the run ended after {steps} steps ({reason}); start a new one")]
+    Ended {
+        /// Scenario name.
+        scene: String,
+        /// Steps the run made.
+        steps: usize,
+        /// Why it ended ([`crate::EndReason::as_str`]).
+        reason: &'static str,
+    },
+    /// A [`crate::Session`] was asked to advance with no plan made for the step.
+    #[error("scenario {scene}, step {step}: no plan to apply (plan the step first)")]
+    NoPlan {
+        /// Scenario name.
+        scene: String,
+        /// Closed-loop step (0-based).
+        step: usize,
+    },
     /// The run was cancelled ([`crate::Cancel`]) before this closed-loop step.
     #[error("scenario {scene}: cancelled before step {step}")]
     Cancelled {

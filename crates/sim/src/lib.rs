@@ -13,6 +13,9 @@
 //! * [`run`]: one run ([`simulate`]): plan, apply the first input to the vehicle
 //!   ([`nudge_planner::Bicycle::advance`]), move the others, shift the histories, judge the step,
 //!   repeat;
+//! * [`session`]: the closed loop one step at a time ([`Session`]: plan, advance, finish),
+//!   the one implementation of a run that [`simulate_policy`] and the Gymnasium environment
+//!   both step, and why a run ends ([`EndReason`]);
 //! * [`metrics`]: what a run is judged by (collisions at fault or not, off-road, straddling,
 //!   slow steps in a live lane, time to collision, progress, comfort, the score, the density
 //!   of the target lane), computed from the run's states;
@@ -45,6 +48,7 @@ pub mod policy;
 pub mod records;
 pub mod request;
 pub mod run;
+pub mod session;
 pub mod world;
 
 pub use batch::{
@@ -65,4 +69,5 @@ pub use request::{Batch, BatchRequest};
 pub use run::{
     Cancel, RunControl, simulate, simulate_policy, simulate_with, target_lane, target_reach,
 };
+pub use session::{EndReason, Session};
 pub use world::WorldModel;

@@ -1,31 +1,29 @@
 //! One closed-loop lane change ([`simulate`]): at every step, plan; apply the first input to
 //! the vehicle; move the other vehicles with the world ([`super::world`]); shift the
 //! histories; record the step's safety (the planner's own constraint,
-//! [`SafetyConstraint::executed_min_b`]) and judge it ([`super::metrics`]); stop when the ego
-//! has settled in the target lane.
+//! [`nudge_planner::SafetyConstraint::executed_min_b`]) and judge it ([`super::metrics`]);
+//! stop when the ego has settled in the target lane. The steps themselves are
+//! [`crate::Session`]'s; [`simulate_policy`] runs a session to its end.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
 
 use nudge_predictor::limits::MAX_AGENT_OFFSET;
-use nudge_predictor::{Checked, History, Predictor, T_OBS};
+use nudge_predictor::{Predictor, T_OBS};
 
 use crate::error::SimError;
 use crate::policy::Policy;
+use crate::session::Session;
 use nudge_planner::State;
 use nudge_planner::extents::LaneViolationKind;
-use nudge_planner::lane::{LaneChange, Neighbour};
 use nudge_planner::scenario::Scenario;
 use nudge_planner::settings::PlannerSettings;
-use nudge_planner::{
-    Bicycle, EgoState, Plan, Planner, PlannerError, PlanningProblem, SafetyConstraint,
-};
+use nudge_planner::{Planner, PlannerError};
 
 use super::config::SimConfig;
-use super::metrics::{RunObserver, others_from_history};
-use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
-use super::world::{Mover, WorldModel};
+use super::records::{RunOutcome, RunRecord};
+use super::world::WorldModel;
 
 /// A cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
 /// handler, a time limit): once [`Cancel::cancel`] is called, every run stops before its next
@@ -126,29 +124,10 @@ pub fn target_lane(
 
 /// Whether the ego in `ego` (x, y, ψ, v) waits in a lane of `sc` that really ends ahead of
 /// its centre (not past the end), at most `within` (m) ahead.
-fn waiting(sc: &Scenario, ego: &State, within: f64) -> bool {
+pub(crate) fn waiting(sc: &Scenario, ego: &State, within: f64) -> bool {
     sc.lanes()
         .and_then(|l| l.stop_line(ego[0], ego[1], 0.0))
         .is_some_and(|end| end - ego[0] <= within)
-}
-
-/// The state of one run between steps.
-struct ClosedLoop<'a> {
-    sc: &'a Scenario,
-    settings: &'a PlannerSettings,
-    /// What plans the ego's motion.
-    policy: &'a mut dyn Policy,
-    /// The ego's dynamics (the planner settings' bicycle model).
-    model: Bicycle,
-    /// Observed positions per agent, `[n][T_OBS]` (m).
-    observed: Vec<Vec<[f64; 2]>>,
-    ego: State,
-    v_ref: f64,
-    last_inputs: (f64, f64),
-    lane: LaneChange,
-    observer: RunObserver,
-    /// Keep each step's [`StepTrace`].
-    trace: bool,
 }
 
 /// How one run is run besides its settings: when it stops early and what it records beyond
@@ -159,226 +138,9 @@ pub struct RunControl<'c> {
     /// [`SimError::Cancelled`].
     pub cancel: &'c Cancel,
     /// Keep every step's plan and the planning predictor's predicted reaction to it
-    /// ([`StepRecord::trace`]; one more predictor call per step). Off, the records are those of
+    /// ([`crate::StepRecord::trace`]; one more predictor call per step). Off, the records are those of
     /// an untraced run, bit for bit.
     pub trace: bool,
-}
-
-impl ClosedLoop<'_> {
-    /// The reference speed of the next planning step: the run's starting speed, raised by the
-    /// lane change's flow-speed floor and moved by its gap seeking ([`LaneChange::v_ref`])
-    /// among the vehicles as last observed, at most the planner's `v_max`.
-    fn v_ref(&mut self) -> f64 {
-        let others: Vec<Neighbour> = others_from_history(self.sc, &self.observed)
-            .iter()
-            .map(|o| Neighbour {
-                x: o.bbox.x,
-                y: o.bbox.y,
-                v: o.vx,
-                length: o.bbox.length,
-            })
-            .collect();
-        let horizon_s = self.settings.model.horizon as f64 * self.settings.model.dt;
-        let e = &self.ego;
-        let v = self
-            .lane
-            .v_ref(self.v_ref, [e[0], e[1], e[2], e[3]], &others, horizon_s);
-        v.min(self.settings.bounds.v_max.max(self.v_ref))
-    }
-
-    /// The agents the planner and a teacher world see at this step (scene indices, the ego
-    /// first; see [`view_of`]).
-    fn view(&self) -> Vec<usize> {
-        view_of(&self.observed)
-    }
-
-    /// The observed history of the agents `view` as the predictors take it.
-    fn history(&self, view: &[usize]) -> Result<History, SimError> {
-        let flat: Vec<f64> = view
-            .iter()
-            .flat_map(|&i| self.observed[i].iter().flat_map(|p| [p[0], p[1]]))
-            .collect();
-        History::new(flat, view.len()).map_err(|source| SimError::Predictor {
-            scene: self.sc.name.clone(),
-            source,
-        })
-    }
-
-    /// The trace of a step planned from `history` with the ego at `ego` (the measured state):
-    /// the plan from `ego`, the planning predictor's prediction of the others given the plan
-    /// (given the keep-lane path when the reaction is ablated; checked finite and plausible), the binding vehicle under that prediction, and the
-    /// agents' positions `moved` after the step.
-    #[allow(clippy::too_many_arguments)]
-    fn trace(
-        &self,
-        history: &History,
-        view: &[usize],
-        ego: [f64; 4],
-        plan: &Plan,
-        constraint: &SafetyConstraint,
-        planner_pred: &mut dyn Predictor,
-        moved: &[[f64; 2]],
-    ) -> Result<StepTrace, SimError> {
-        let n_others = view.len() - 1;
-        let t = plan.states.len();
-        let mut prediction = vec![0.0; n_others * t * 2];
-        if n_others > 0 {
-            // With the reaction ablated the planner's safety check saw the keep-lane path.
-            let candidate: Vec<f64> = if self.settings.safety.ablate_reaction {
-                let e = EgoState {
-                    x: ego[0],
-                    y: ego[1],
-                    psi: ego[2],
-                    v: ego[3],
-                };
-                nudge_planner::keep_lane_path(&e, t, self.settings.model.dt)
-            } else {
-                plan.states.iter().flat_map(|z| [z[0], z[1]]).collect()
-            };
-            let mut checked = Checked::new(planner_pred);
-            checked
-                .set_scene(history)
-                .and_then(|()| checked.predict(&candidate, &mut prediction))
-                .map_err(|source| SimError::Predictor {
-                    scene: self.sc.name.clone(),
-                    source,
-                })?;
-        }
-        let in_view: Vec<Vec<[f64; 2]>> = prediction
-            .chunks_exact(t * 2)
-            .map(|a| a.chunks_exact(2).map(|p| [p[0], p[1]]).collect())
-            .collect();
-        // Agents outside the view carry their constant-velocity path (not predicted).
-        let mut predicted: Vec<Vec<[f64; 2]>> = (1..self.sc.n_agents)
-            .map(|i| constant_velocity(&self.observed[i], t))
-            .collect();
-        for (j, path) in view.iter().skip(1).zip(in_view) {
-            predicted[j - 1] = path;
-        }
-        let mut states = vec![ego];
-        states.extend(plan.states.iter().copied());
-        let binding = constraint.binding(&plan.states, &prediction).map(|mut b| {
-            b.agent = view[b.agent];
-            b
-        });
-        Ok(StepTrace {
-            plan: states,
-            predicted,
-            binding,
-            agents: moved.to_vec(),
-        })
-    }
-
-    /// Applies the plan's first input, moves the others, shifts the histories; returns the
-    /// step's record.
-    fn step(
-        &mut self,
-        step: usize,
-        planner_pred: &mut dyn Predictor,
-        mover: &mut Mover<'_>,
-    ) -> Result<StepRecord, SimError> {
-        let sc = self.sc;
-        let view = self.view();
-        let history = self.history(&view)?;
-        let sizes: Vec<[f64; 2]> = view.iter().map(|&i| sc.size[i]).collect();
-        let v_ref = self.v_ref();
-        let problem = PlanningProblem {
-            ego: EgoState {
-                x: self.ego[0],
-                y: self.ego[1],
-                psi: self.ego[2],
-                v: self.ego[3].max(0.0),
-            },
-            last_delta: self.last_inputs.0,
-            last_accel: self.last_inputs.1,
-            history: &history,
-            sizes: &sizes,
-            y_target: self.lane.goal(),
-            v_ref,
-            road: sc.road(),
-            y_retreat: self.lane.retreat(self.ego[1]),
-            lanes: sc.lanes(),
-        };
-        let t0 = Instant::now();
-        let plan: Plan =
-            self.policy
-                .plan(&problem, planner_pred)
-                .map_err(|source: PlannerError| SimError::Planner {
-                    scene: self.sc.name.clone(),
-                    step,
-                    source,
-                })?;
-        let mpc_s = t0.elapsed().as_secs_f64();
-        let status = StepStatus::from(plan.status);
-        let y_goal = problem.y_target;
-        let constraint = SafetyConstraint::new(&problem, self.settings);
-        self.lane.after_plan(status, self.ego[1]);
-        let next = self.model.advance(&self.ego, plan.delta[0], plan.accel[0]);
-        let moved = mover.advance(
-            sc,
-            &history,
-            &view,
-            &self.observed,
-            step,
-            &self.ego,
-            &next,
-            &plan.states,
-        )?;
-        let trace = if self.trace {
-            let e = &problem.ego;
-            let measured = [e.x, e.y, e.psi, e.v];
-            let t = self.trace(
-                &history,
-                &view,
-                measured,
-                &plan,
-                &constraint,
-                planner_pred,
-                &moved,
-            )?;
-            Some(t)
-        } else {
-            None
-        };
-        let moved_view: Vec<[f64; 2]> = view.iter().map(|&i| moved[i]).collect();
-        for (h, p) in self.observed.iter_mut().zip(&moved) {
-            h.remove(0);
-            h.push(*p);
-        }
-        self.ego = next;
-        self.last_inputs = (plan.delta[0], plan.accel[0]);
-        let v_planned = plan.states.last().map_or(next[3], |z| z[3]);
-        let others = others_from_history(sc, &self.observed);
-        let (metrics, touching, nearest) = self.observer.observe(
-            step,
-            [next[0], next[1], next[2], next[3]],
-            plan.accel[0],
-            v_planned,
-            &others,
-        );
-        Ok(StepRecord {
-            step,
-            mpc_s,
-            z_updates_s: plan.timings.z_updates_s,
-            iterations: plan.iterations,
-            predictor_calls: plan.predictor_calls,
-            cost: plan.cost,
-            primal_residual: plan.primal_residual,
-            min_b: constraint.executed_min_b([next[0], next[1], next[2], next[3]], &moved_view),
-            collision: !touching.is_empty(),
-            status,
-            decided_by: plan.decided_by,
-            delta: plan.delta[0],
-            accel: plan.accel[0],
-            ego: [next[0], next[1], next[2], next[3]],
-            nearest,
-            y_goal,
-            v_planned,
-            lane_violation: plan.lane_violation,
-            metrics,
-            trace,
-        })
-    }
 }
 
 /// The agents the planner (and a teacher world) see, given every agent's observed positions
@@ -424,7 +186,7 @@ pub(crate) fn constant_velocity(observed: &[[f64; 2]], t: usize) -> Vec<[f64; 2]
 /// `planner_pred` predicts inside the MPC; `world` moves the other vehicles and must match
 /// `cfg.world`: the teacher of a [`crate::World::Teacher`] world, the driver population of a
 /// [`crate::World::Idm`] world, nothing for [`crate::World::LogReplay`]. Every step is judged
-/// by [`crate::metrics`] (per step in [`StepRecord::metrics`], per run in
+/// by [`crate::metrics`] (per step in [`crate::StepRecord::metrics`], per run in
 /// [`RunRecord::metrics`] and [`RunRecord::collisions`]); a run with a collision is never a
 /// success.
 ///
@@ -434,7 +196,7 @@ pub(crate) fn constant_velocity(observed: &[[f64; 2]], t: usize) -> Vec<[f64; 2]
 /// [`SimError::WorldModel`] when `world` does not match `cfg.world`,
 /// [`SimError::NoAdjacentLane`], [`SimError::Predictor`] (the scene does not fit a predictor),
 /// [`SimError::Planner`] when planning fails (a bad problem or a predictor error; a QP failure
-/// is a [`StepStatus::SolverFailed`] step).
+/// is a [`crate::StepStatus::SolverFailed`] step).
 ///
 /// # Examples
 ///
@@ -474,7 +236,7 @@ pub fn simulate(
 }
 
 /// [`simulate`] under `control`: checking its cancel flag before every closed-loop step and,
-/// when it asks to trace, keeping every step's [`StepTrace`].
+/// when it asks to trace, keeping every step's [`crate::StepTrace`].
 ///
 /// # Errors
 /// As [`simulate`]; [`SimError::Cancelled`] once the cancel flag is set;
@@ -528,109 +290,37 @@ pub fn simulate_policy(
     control: RunControl<'_>,
 ) -> Result<RunRecord, SimError> {
     let cancel = control.cancel;
-    cfg.validate()?;
-    settings.validate()?;
-    policy.reset();
-    let mut fit = vec![(planner_pred.name(), planner_pred.horizon())];
-    if let WorldModel::Teacher(w) = &world {
-        fit.push((w.name(), w.horizon()));
-    }
-    nudge_planner::fit::check_closed_loop(settings, &fit)?;
-    let lane = target_lane(sc, seed, settings, cfg)?;
-    let mut mover = Mover::new(cfg, world, sc, seed, settings.model.horizon)?;
-    let y_target = sc.lane_centres[lane];
-    let p0 = sc.position(0, T_OBS - 1);
-    let mut run = ClosedLoop {
-        sc,
-        settings,
-        policy,
-        model: Bicycle {
-            l_f: settings.model.l_f,
-            l_r: settings.model.l_r,
-            dt: settings.model.dt,
-        },
-        observed: (0..sc.n_agents)
-            .map(|i| (0..T_OBS).map(|t| sc.position(i, t)).collect())
-            .collect(),
-        ego: State::new(p0[0], p0[1], sc.heading[0], sc.speed[0]),
-        v_ref: sc.speed[0],
-        last_inputs: (0.0, 0.0),
-        lane: LaneChange::new(
-            sc.lane_centres[sc.ego_lane],
-            y_target,
-            sc.size[0][1],
-            cfg.settle_y,
-            cfg.abort_after,
-            cfg.abort_hold,
-        )
-        .with_stall_abort(cfg.stall_progress)
-        .with_start_abort(cfg.start_abort_after, p0[1])
-        .with_gap_seeking(cfg.gap_speed, cfg.gap_window, sc.size[0][0])
-        .with_crawl_reference(cfg.crawl_fraction),
-        observer: RunObserver::new(sc, lane, cfg.fault_brake_limit, settings.model.l_r),
-        trace: control.trace,
-    };
-    let mut rec = RunRecord {
-        scenario: sc.name.clone(),
+    let mut world = world;
+    let mut session = Session::new(
+        Cow::Borrowed(sc),
+        Cow::Borrowed(settings),
+        cfg,
         seed,
-        predictor: planner_pred.name().to_string(),
-        world: cfg.world,
-        n_agents: sc.n_agents,
-        target_lane: lane,
-        y_target,
-        success: false,
-        steps_to_target: None,
-        collision: false,
-        collisions: Vec::new(),
-        metrics: super::metrics::RunMetrics::default(),
-        aborts: 0,
-        outcome: RunOutcome::Unfinished,
-        steps: Vec::new(),
-    };
-    let mut lane_out = None;
-    let mut settled = 0;
-    for step in 0..cfg.max_steps {
+        planner_pred,
+        &world,
+        control.trace,
+    )?;
+    policy.reset();
+    while session.ended().is_none() {
         if cancel.is_cancelled() {
             return Err(SimError::Cancelled {
                 scene: sc.name.clone(),
-                step,
+                step: session.step_index(),
             });
         }
-        // An ego turned across the road (only seen with erratic predictors) ends the run as a
-        // failure instead of handing the planner a problem it rejects.
-        if run.ego[2].abs() >= std::f64::consts::FRAC_PI_2 {
-            break;
-        }
-        let record = run.step(step, planner_pred, &mut mover)?;
-        rec.collision |= record.collision;
-        rec.steps.push(record);
-        let ego = run.ego;
-        // A lane that ended (or has not begun) under the ego's centre ends the run as failed.
-        lane_out = sc.lanes().and_then(|l| l.outside(ego[0], ego[1]));
-        if lane_out.is_some() {
-            break;
-        }
-        if (ego[1] - y_target).abs() <= cfg.settle_y && ego[2].abs() <= cfg.settle_psi {
-            settled += 1;
-        } else {
-            settled = 0;
-        }
-        if settled >= cfg.settle_steps {
-            rec.steps_to_target = Some(step + 1);
-            break;
-        }
+        session.step(policy, planner_pred, &mut world)?;
     }
-    let waits = waiting(sc, &run.ego, settings.lane_ends.deadline_distance);
-    finish_record(&mut rec, lane_out, waits);
-    rec.aborts = run.lane.aborts();
-    (rec.collisions, rec.metrics) = run.observer.finish(rec.success);
-    Ok(rec)
+    Ok(session.finish())
 }
 
 /// Success and outcome of a run that has stopped: a run with any collision is never a success;
 /// `lane_out` is the lane violation that ended it, `waits` whether the ego waits at the end of
 /// its lane for a gap.
-fn finish_record(rec: &mut RunRecord, lane_out: Option<(usize, LaneViolationKind)>, waits: bool) {
+pub(crate) fn finish_record(
+    rec: &mut RunRecord,
+    lane_out: Option<(usize, LaneViolationKind)>,
+    waits: bool,
+) {
     if rec.collision {
         rec.steps_to_target = None;
     }

@@ -48,11 +48,11 @@ impl std::fmt::Debug for WorldModel<'_> {
     }
 }
 
-/// What moves the other vehicles during one run.
-pub(crate) enum Mover<'p> {
-    /// The teacher's interactive prediction, with its buffers.
+/// What moves the other vehicles during one run (its per-run state; a teacher world's
+/// predictor is handed to every step).
+pub(crate) enum Mover {
+    /// The teacher's interactive prediction: its buffers.
     Teacher {
-        predictor: &'p mut dyn Predictor,
         candidate: Vec<f64>,
         prediction: Vec<f64>,
     },
@@ -66,17 +66,13 @@ pub(crate) enum Mover<'p> {
     Idm(IdmTraffic),
 }
 
-impl<'p> Mover<'p> {
-    /// The mover of `cfg.world` for the run of scene `sc` with `seed`, checked against the
-    /// model given.
-    pub(crate) fn new(
-        cfg: &SimConfig,
-        model: WorldModel<'p>,
-        sc: &Scenario,
-        seed: u64,
-        horizon: usize,
-    ) -> Result<Self, SimError> {
-        let mismatch = |model: &WorldModel<'_>| SimError::WorldModel {
+/// Checks that `model` is the model of `cfg.world` (a teacher world's a teacher).
+///
+/// # Errors
+/// [`SimError::WorldModel`] naming the world and what was given.
+pub(crate) fn check(cfg: &SimConfig, model: &WorldModel<'_>) -> Result<(), SimError> {
+    if model.world() != cfg.world {
+        return Err(SimError::WorldModel {
             world: cfg.world.as_str(),
             reason: match cfg.world {
                 World::Teacher => format!(
@@ -89,42 +85,56 @@ impl<'p> Mover<'p> {
                     model.describe()
                 ),
             },
-        };
-        if model.world() != cfg.world {
-            return Err(mismatch(&model));
-        }
-        match model {
-            WorldModel::Teacher(predictor) => {
-                if predictor.name() != "teacher" {
-                    return Err(SimError::WorldModel {
-                        world: World::Teacher.as_str(),
-                        reason: format!(
-                            "the world model must be a teacher, got a {}",
-                            predictor.name()
-                        ),
-                    });
-                }
-                Ok(Self::Teacher {
-                    predictor,
-                    candidate: vec![0.0; horizon * 2],
-                    prediction: vec![0.0; (sc.n_agents.max(2) - 1) * horizon * 2],
-                })
-            }
-            WorldModel::LogReplay => Ok(Self::LogReplay {
+        });
+    }
+    if let WorldModel::Teacher(predictor) = model
+        && predictor.name() != "teacher"
+    {
+        return Err(SimError::WorldModel {
+            world: World::Teacher.as_str(),
+            reason: format!(
+                "the world model must be a teacher, got a {}",
+                predictor.name()
+            ),
+        });
+    }
+    Ok(())
+}
+
+impl Mover {
+    /// The mover of `cfg.world` for the run of scene `sc` with `seed`, checked against the
+    /// model given ([`check`]).
+    pub(crate) fn new(
+        cfg: &SimConfig,
+        model: &WorldModel<'_>,
+        sc: &Scenario,
+        seed: u64,
+        horizon: usize,
+    ) -> Result<Self, SimError> {
+        check(cfg, model)?;
+        Ok(match model {
+            WorldModel::Teacher(_) => Self::Teacher {
+                candidate: vec![0.0; horizon * 2],
+                prediction: vec![0.0; (sc.n_agents.max(2) - 1) * horizon * 2],
+            },
+            WorldModel::LogReplay => Self::LogReplay {
                 lateral_decay: cfg.replay_lateral_decay,
-            }),
-            WorldModel::Idm(population) => Ok(Self::Idm(IdmTraffic::new(sc, population, seed))),
-        }
+            },
+            WorldModel::Idm(population) => Self::Idm(IdmTraffic::new(sc, population, seed)),
+        })
     }
 
     /// The others' positions after `step` (index = agent, agent 0 = the ego at `ego_to`): the
-    /// teacher predicts them given the ego's executed position and the rest of its `plan`;
-    /// log replay reads the log (past its end, the last two observations' displacement along
-    /// the road and a decaying share of it across); IDM traffic follows its leaders while the ego moves from `ego_from` to `ego_to`.
+    /// teacher `world` predicts them given the ego's executed position and the rest of its
+    /// `plan`; log replay reads the log (past its end, the last two observations'
+    /// displacement along the road and a decaying share of it across); IDM traffic follows
+    /// its leaders while the ego moves from `ego_from` to `ego_to`. `world` must have passed
+    /// [`check`].
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn advance(
         &mut self,
         sc: &Scenario,
+        world: &mut WorldModel<'_>,
         history: &History,
         view: &[usize],
         observed: &[Vec<[f64; 2]>],
@@ -138,22 +148,19 @@ impl<'p> Mover<'p> {
         moved.push([ego_to[0], ego_to[1]]);
         match self {
             Self::Teacher { .. } if n < 2 => {}
-            // Agents outside the view (farther than the predictors' span, `run::view_of`)
-            // keep their last observed displacement per step.
-            Self::Teacher { .. } if view.len() < n => {
-                let (predicted, _) = self.teacher_view(sc, history, view, ego_to, plan)?;
-                for (i, seen) in observed.iter().enumerate().skip(1) {
-                    moved.push(match view.iter().position(|&v| v == i) {
-                        Some(j) => predicted[j - 1],
-                        None => crate::run::constant_velocity(seen, 1)[0],
-                    });
-                }
-            }
             Self::Teacher {
-                predictor,
                 candidate,
                 prediction,
             } => {
+                let WorldModel::Teacher(predictor) = world else {
+                    return Err(SimError::WorldModel {
+                        world: World::Teacher.as_str(),
+                        reason: format!(
+                            "needs a teacher to move the others, got {}",
+                            world.describe()
+                        ),
+                    });
+                };
                 let horizon = candidate.len() / 2;
                 candidate[0] = ego_to[0];
                 candidate[1] = ego_to[1];
@@ -161,16 +168,43 @@ impl<'p> Mover<'p> {
                     candidate[2 * k] = plan[k][0];
                     candidate[2 * k + 1] = plan[k][1];
                 }
-                predictor
-                    .set_scene(history)
-                    .and_then(|()| predictor.predict(candidate, prediction))
-                    .map_err(|source| SimError::Predictor {
-                        scene: sc.name.clone(),
-                        source,
-                    })?;
-                for i in 1..n {
-                    let b = (i - 1) * horizon * 2;
-                    moved.push([prediction[b], prediction[b + 1]]);
+                if view.len() < n {
+                    // Agents outside the view (farther than the predictors' span,
+                    // `run::view_of`) keep their last observed displacement per step.
+                    let m = view.len() - 1;
+                    let mut predicted = Vec::with_capacity(m);
+                    if m > 0 {
+                        let out = &mut prediction[..m * horizon * 2];
+                        predictor
+                            .set_scene(history)
+                            .and_then(|()| predictor.predict(candidate, out))
+                            .map_err(|source| SimError::Predictor {
+                                scene: sc.name.clone(),
+                                source,
+                            })?;
+                        predicted.extend((0..m).map(|j| {
+                            let b = j * horizon * 2;
+                            [out[b], out[b + 1]]
+                        }));
+                    }
+                    for (i, seen) in observed.iter().enumerate().skip(1) {
+                        moved.push(match view.iter().position(|&v| v == i) {
+                            Some(j) => predicted[j - 1],
+                            None => crate::run::constant_velocity(seen, 1)[0],
+                        });
+                    }
+                } else {
+                    predictor
+                        .set_scene(history)
+                        .and_then(|()| predictor.predict(candidate, prediction))
+                        .map_err(|source| SimError::Predictor {
+                            scene: sc.name.clone(),
+                            source,
+                        })?;
+                    for i in 1..n {
+                        let b = (i - 1) * horizon * 2;
+                        moved.push([prediction[b], prediction[b + 1]]);
+                    }
                 }
             }
             Self::LogReplay { lateral_decay } => {
@@ -181,53 +215,6 @@ impl<'p> Mover<'p> {
             Self::Idm(traffic) => moved.extend(traffic.step(ego_from, ego_to)),
         }
         Ok(moved)
-    }
-
-    /// The teacher's next positions (m) of the agents `view[1..]` (a view smaller than the
-    /// scene; `history` holds the view's agents), given the ego's executed position and
-    /// the rest of its `plan`, and the teacher's horizon.
-    fn teacher_view(
-        &mut self,
-        sc: &Scenario,
-        history: &History,
-        view: &[usize],
-        ego_to: &State,
-        plan: &[[f64; 4]],
-    ) -> Result<(Vec<[f64; 2]>, usize), SimError> {
-        let Self::Teacher {
-            predictor,
-            candidate,
-            prediction,
-        } = self
-        else {
-            return Ok((Vec::new(), 0));
-        };
-        let horizon = candidate.len() / 2;
-        let m = view.len() - 1;
-        if m == 0 {
-            return Ok((Vec::new(), horizon));
-        }
-        candidate[0] = ego_to[0];
-        candidate[1] = ego_to[1];
-        for k in 1..horizon {
-            candidate[2 * k] = plan[k][0];
-            candidate[2 * k + 1] = plan[k][1];
-        }
-        let out = &mut prediction[..m * horizon * 2];
-        predictor
-            .set_scene(history)
-            .and_then(|()| predictor.predict(candidate, out))
-            .map_err(|source| SimError::Predictor {
-                scene: sc.name.clone(),
-                source,
-            })?;
-        let next = (0..m)
-            .map(|j| {
-                let b = j * horizon * 2;
-                [out[b], out[b + 1]]
-            })
-            .collect();
-        Ok((next, horizon))
     }
 }
 
