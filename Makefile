@@ -45,13 +45,14 @@ $(STAMP): python/train/pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(RETRY) $(PIP) install $(PIP_BASE) --upgrade pip
 	$(RETRY) $(PIP) install $(PIP_FLAGS) -e "python/train[dev]"
-	$(RETRY) $(PIP) install $(PIP_FLAGS) "highway-env>=1.10"  # the extra "highway" of pyproject.toml (a test keeps them equal)
 	touch $(STAMP)
 
-# The `env` extra of pyproject.toml (gymnasium, for nudge.env), read from there.
+# The extras of pyproject.toml that the tests use, read from there: `env` (gymnasium, for
+# nudge.env) and `highway` (highway-env, for nudge.adapters.highway).
+DEV_EXTRAS := env highway
 ENV_STAMP := $(VENV)/.nudge-env-stamp
 $(ENV_STAMP): $(STAMP) pyproject.toml
-	$(RETRY) $(PIP) install $(PIP_FLAGS) $$($(PY) -c 'import tomllib; print(" ".join(tomllib.load(open("pyproject.toml", "rb"))["project"]["optional-dependencies"]["env"]))')
+	$(RETRY) $(PIP) install $(PIP_FLAGS) $$($(PY) -c 'import sys, tomllib; x = tomllib.load(open("pyproject.toml", "rb"))["project"]["optional-dependencies"]; print(" ".join(r for e in sys.argv[1:] for r in x[e]))' $(DEV_EXTRAS))
 	touch $(ENV_STAMP)
 
 venv: $(STAMP) $(ENV_STAMP)
