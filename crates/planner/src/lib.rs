@@ -30,7 +30,7 @@ pub use ablation::keep_lane_path;
 pub use admm::{
     BindingVehicle, CheckedVehicle, DecidedBy, EgoState, Family, JointSolution, PairGeometry,
     PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, RANK_ORDER, RankKey,
-    SafetyConstraint, StepStatus,
+    SafetyConstraint, StepStatus, Violation,
 };
 pub use error::{PlannerError, ScenarioError, SettingsError};
 pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};

@@ -453,6 +453,21 @@ pub fn judged_plan(
         rollout_min_safety: min_b,
         checked,
         lane_violation,
+        // Only the safety part is measured for a foreign plan (no corridor or heading bound
+        // of nudge's call applies to it): the rest is NaN, "not measured".
+        violation: nudge_planner::Violation {
+            safety: min_b.map_or(0.0, |b| {
+                if b.is_finite() {
+                    (settings.safety.safety_min - b).max(0.0)
+                } else {
+                    f64::INFINITY
+                }
+            }),
+            heading: f64::NAN,
+            corridor: f64::NAN,
+            road_edge: f64::NAN,
+            lane: f64::NAN,
+        },
         timings: nudge_planner::PhaseTimings::default(),
         status: if safe {
             PlanStatus::Converged

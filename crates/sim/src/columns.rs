@@ -62,8 +62,9 @@ pub const RUN_COLUMNS: [&str; 42] = [
 /// columns are those of [`crate::metrics::StepMetrics`]; `lane_violation` is the plan
 /// step (1..T) of the applied plan's first state in a lane that has not begun or has ended
 /// ([`nudge_planner::Plan::lane_violation`]), −1 when none; `decided_by` is
-/// [`nudge_planner::DecidedBy::label`]: `admm` exactly when the ADMM iterate was applied unchanged.
-pub const STEP_COLUMNS: [&str; 38] = [
+/// [`nudge_planner::DecidedBy::label`]: `admm` exactly when the ADMM iterate was applied unchanged;
+/// `violation_*` are [`nudge_planner::Violation`]'s fields (units of b, rad, m, m, m).
+pub const STEP_COLUMNS: [&str; 43] = [
     "run",
     "step",
     "mpc_s",
@@ -78,6 +79,11 @@ pub const STEP_COLUMNS: [&str; 38] = [
     "collision",
     "status",
     "decided_by",
+    "violation_safety",
+    "violation_heading",
+    "violation_corridor",
+    "violation_edge",
+    "violation_lane",
     "delta",
     "accel",
     "x",
@@ -414,6 +420,11 @@ pub fn step_table(outputs: &[RunOutput]) -> Table {
             "decided_by",
             Column::Text(steps.iter().map(|(_, s)| s.decided_by.label()).collect()),
         ),
+        ("violation_safety", float(&|s| s.violation.safety)),
+        ("violation_heading", float(&|s| s.violation.heading)),
+        ("violation_corridor", float(&|s| s.violation.corridor)),
+        ("violation_edge", float(&|s| s.violation.road_edge)),
+        ("violation_lane", float(&|s| s.violation.lane)),
         ("delta", float(&|s| s.delta)),
         ("accel", float(&|s| s.accel)),
         ("x", float(&|s| s.ego[0])),

@@ -36,6 +36,10 @@ pub struct StepRecord {
     pub status: StepStatus,
     /// What decided the applied plan's inputs ([`nudge_planner::DecidedBy`]).
     pub decided_by: nudge_planner::DecidedBy,
+    /// The applied plan's largest violation of each soft constraint
+    /// ([`nudge_planner::Plan::violation`]).
+    #[serde(default)]
+    pub violation: nudge_planner::Violation,
     /// Applied steering (rad).
     pub delta: f64,
     /// Applied acceleration (m/s²).

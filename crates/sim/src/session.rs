@@ -570,6 +570,7 @@ impl<'a> Session<'a> {
             collision: !touching.is_empty(),
             status,
             decided_by: plan.decided_by,
+            violation: plan.violation,
             delta: plan.delta[0],
             accel: plan.accel[0],
             ego: [next[0], next[1], next[2], next[3]],

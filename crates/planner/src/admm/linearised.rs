@@ -303,6 +303,38 @@ impl LinearisedProblem {
         }
     }
 
+    /// The largest violation of each soft constraint by the states `z` (`[T]`, this frame)
+    /// whose minimum b is `min_b` ([`super::problem::Violation`]).
+    pub(crate) fn violation(
+        &self,
+        safety_min: f64,
+        z: &[State],
+        min_b: Option<f64>,
+    ) -> super::problem::Violation {
+        let mut v = super::problem::Violation {
+            safety: min_b.map_or(0.0, |b| {
+                if b.is_finite() {
+                    (safety_min - b).max(0.0)
+                } else {
+                    f64::INFINITY
+                }
+            }),
+            lane: self.stop_excess(z),
+            ..Default::default()
+        };
+        for (k, zk) in z.iter().enumerate() {
+            let out = |j: usize| (self.lower[k][j] - zk[j]).max(zk[j] - self.upper[k][j]).max(0.0);
+            v.corridor = v.corridor.max(out(1));
+            v.heading = v.heading.max(out(2));
+            v.road_edge = v.road_edge.max(self.edge_excess_at(zk));
+            if let Some(lanes) = &self.lanes {
+                let (x, y) = (zk[0] + self.origin[0], zk[1] + self.origin[1]);
+                v.lane = v.lane.max(lanes.view().excess(x, y));
+            }
+        }
+        v
+    }
+
     /// The first of the states `z` (`[T]`, this frame) whose centre lies in a lane outside
     /// its extent.
     pub(crate) fn lane_violation(&self, z: &[State]) -> Option<crate::LaneViolation> {

@@ -48,7 +48,9 @@ use crate::settings::PlannerSettings;
 
 pub use constraint::{BindingVehicle, CheckedVehicle, PairGeometry, SafetyConstraint};
 pub use decision::{DecidedBy, Family, RANK_ORDER, RankKey};
-pub use problem::{EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus};
+pub use problem::{
+    EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus, Violation,
+};
 pub use reference::JointSolution;
 
 use constraint::{Budget, SafetyEval};
@@ -584,6 +586,7 @@ impl Finished {
             rollout_min_safety: self.rollout_min_b,
             checked: counts.1,
             lane_violation: lp.lane_violation(&self.z),
+            violation: lp.violation(s.safety.safety_min, &self.z, self.min_b),
             timings,
             status: self.status,
             decided_by: self.decided_by,

@@ -418,6 +418,29 @@ pub struct PhaseTimings {
     pub total_s: f64,
 }
 
+/// The applied plan's largest violation of each soft constraint over its states (0 where it
+/// holds): what an exact-penalty optimiser reports beside its status instead of refusing a
+/// plan. Measured on the returned states ([`Plan::states`]) under the planning predictor's
+/// prediction of them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Violation {
+    /// max(0, `safety.safety_min` − min b) over the checked vehicles and steps (units of b:
+    /// the ellipse value; ∞ when the plan got no prediction).
+    pub safety: f64,
+    /// The largest |ψ| beyond the heading bound (`bounds.heading_max`, relaxed from a steeper
+    /// start by `bounds.heading_recovery` per step) (rad).
+    pub heading: f64,
+    /// The largest lateral excess of the centre beyond the corridor (between the start and the
+    /// goal widened by `bounds.overshoot_max`, within the road less the box's half extent and
+    /// `bounds.edge_margin`) (m).
+    pub corridor: f64,
+    /// The largest excess of the box's corners beyond the road's edges (m).
+    pub road_edge: f64,
+    /// The largest excess of the centre outside its lane's extent or of the stopping rule in a
+    /// lane that ends (m; 0 without a lane layout).
+    pub lane: f64,
+}
+
 /// The result of one MPC call.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -462,6 +485,9 @@ pub struct Plan {
     /// problem has no lane layout.
     #[serde(default)]
     pub lane_violation: Option<LaneViolation>,
+    /// The returned plan's largest violation of each soft constraint ([`Violation`]).
+    #[serde(default)]
+    pub violation: Violation,
     /// Phase timings.
     pub timings: PhaseTimings,
     /// How the call ended.

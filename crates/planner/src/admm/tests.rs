@@ -2058,3 +2058,54 @@ fn the_lattice_is_searched_only_from_its_minimum_speed() {
         assert_eq!(best.rollout[5][0] >= limit, searched);
     }
 }
+
+/// The reported violation ([`Plan::violation`]): zero on a free lane change; on a single-lane
+/// road with a car standing 9 m ahead of an ego at 15 m/s (unavoidable), the safety part is
+/// safety_min − min b of the returned states, b recomputed here from the constraint's public
+/// `b` against the standing car at every step.
+#[test]
+fn the_plan_reports_its_largest_violation_per_constraint_type() {
+    let s = PlannerSettings::default();
+    let (h, sizes) = scene(12.0, 0.0, &[]);
+    let p = problem(&h, &sizes, 12.0);
+    let mut cv = ConstantVelocity::new(6).unwrap();
+    let free = Planner::new(s.clone()).unwrap().plan(&p, &mut cv).unwrap();
+    // Zero up to the admissibility tolerance (the heading governor lands on its bound within
+    // rounding).
+    let f = free.violation;
+    for part in [f.safety, f.heading, f.corridor, f.road_edge, f.lane] {
+        assert!((0.0..=1e-9).contains(&part), "{f:?} {:?}", free.status);
+    }
+
+    let (h, sizes) = scene(15.0, 0.0, &[(9.0, 0.0, 0.0)]);
+    let mut p = problem(&h, &sizes, 15.0);
+    p.road = [-1.85, 1.85];
+    p.y_target = 0.0;
+    let mut cv = ConstantVelocity::new(6).unwrap();
+    let plan = Planner::new(s.clone()).unwrap().plan(&p, &mut cv).unwrap();
+    let constraint = SafetyConstraint::new(&p, &s);
+    let v = constraint.vehicles()[0];
+    let car = [9.0, 0.0];
+    let min_b = plan
+        .states
+        .iter()
+        .enumerate()
+        .map(|(k, z)| constraint.b(&v, *z, car, car, k + 1 == plan.states.len()).0)
+        .fold(f64::INFINITY, f64::min);
+    assert!(min_b < s.safety.safety_min, "the conflict was avoidable: {min_b}");
+    assert!(
+        (plan.violation.safety - (s.safety.safety_min - min_b)).abs() < 1e-9,
+        "{} vs {}",
+        plan.violation.safety,
+        s.safety.safety_min - min_b
+    );
+    assert_eq!(plan.status, PlanStatus::Unsafe);
+    for part in [
+        plan.violation.heading,
+        plan.violation.corridor,
+        plan.violation.road_edge,
+        plan.violation.lane,
+    ] {
+        assert!(part.is_finite() && part >= 0.0);
+    }
+}
