@@ -323,7 +323,11 @@ impl LinearisedProblem {
             ..Default::default()
         };
         for (k, zk) in z.iter().enumerate() {
-            let out = |j: usize| (self.lower[k][j] - zk[j]).max(zk[j] - self.upper[k][j]).max(0.0);
+            let out = |j: usize| {
+                (self.lower[k][j] - zk[j])
+                    .max(zk[j] - self.upper[k][j])
+                    .max(0.0)
+            };
             v.corridor = v.corridor.max(out(1));
             v.heading = v.heading.max(out(2));
             v.road_edge = v.road_edge.max(self.edge_excess_at(zk));

@@ -2092,7 +2092,10 @@ fn the_plan_reports_its_largest_violation_per_constraint_type() {
         .enumerate()
         .map(|(k, z)| constraint.b(&v, *z, car, car, k + 1 == plan.states.len()).0)
         .fold(f64::INFINITY, f64::min);
-    assert!(min_b < s.safety.safety_min, "the conflict was avoidable: {min_b}");
+    assert!(
+        min_b < s.safety.safety_min,
+        "the conflict was avoidable: {min_b}"
+    );
     assert!(
         (plan.violation.safety - (s.safety.safety_min - min_b)).abs() < 1e-9,
         "{} vs {}",
