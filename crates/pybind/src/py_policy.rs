@@ -368,6 +368,7 @@ impl Policy for PyPolicy {
                 PlanStatus::Unsafe
             },
             decided_by: DecidedBy::Admm,
+            budget_reached: None,
         })
     }
 }

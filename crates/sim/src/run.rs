@@ -4,8 +4,6 @@
 //! [`SafetyConstraint::executed_min_b`]) and judge it ([`super::metrics`]); stop when the ego
 //! has settled in the target lane.
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use nudge_predictor::limits::MAX_AGENT_OFFSET;
@@ -27,31 +25,12 @@ use super::metrics::{RunObserver, others_from_history};
 use super::records::{RunOutcome, RunRecord, StepRecord, StepStatus, StepTrace};
 use super::world::{Mover, WorldModel};
 
-/// A cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
-/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops before its next
-/// closed-loop step and the runs not started yet do not start, each with
-/// [`SimError::Cancelled`]. Clones share the flag.
-#[derive(Debug, Clone, Default)]
-pub struct Cancel(Arc<AtomicBool>);
-
-impl Cancel {
-    /// A flag not set.
-    #[must_use]
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Sets the flag (from any thread).
-    pub fn cancel(&self) {
-        self.0.store(true, Ordering::Relaxed);
-    }
-
-    /// Whether the flag is set.
-    #[must_use]
-    pub fn is_cancelled(&self) -> bool {
-        self.0.load(Ordering::Relaxed)
-    }
-}
+/// The cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
+/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops with
+/// [`SimError::Cancelled`] — within its current planning step, which the planner ends within
+/// one predictor call ([`nudge_planner::Cancel`]) — and the runs not started yet do not
+/// start. Clones share the flag.
+pub use nudge_planner::Cancel;
 
 /// SplitMix64: a tiny deterministic generator for the target-lane draw.
 fn splitmix(seed: u64) -> u64 {
@@ -300,14 +279,19 @@ impl ClosedLoop<'_> {
             lanes: sc.lanes(),
         };
         let t0 = Instant::now();
-        let plan: Plan =
-            self.policy
-                .plan(&problem, planner_pred)
-                .map_err(|source: PlannerError| SimError::Planner {
+        let plan: Plan = self.policy.plan(&problem, planner_pred).map_err(
+            |source: PlannerError| match source {
+                PlannerError::Cancelled => SimError::Cancelled {
+                    scene: self.sc.name.clone(),
+                    step,
+                },
+                source => SimError::Planner {
                     scene: self.sc.name.clone(),
                     step,
                     source,
-                })?;
+                },
+            },
+        )?;
         let mpc_s = t0.elapsed().as_secs_f64();
         let status = StepStatus::from(plan.status);
         let y_goal = problem.y_target;
@@ -368,6 +352,7 @@ impl ClosedLoop<'_> {
             collision: !touching.is_empty(),
             status,
             decided_by: plan.decided_by,
+            budget_reached: plan.budget_reached,
             delta: plan.delta[0],
             accel: plan.accel[0],
             ego: [next[0], next[1], next[2], next[3]],
@@ -497,6 +482,8 @@ pub fn simulate_with(
             source: other,
         },
     })?;
+    // The flag also ends a planning step in progress, within one predictor call.
+    planner.set_cancel(Some(control.cancel.clone()));
     simulate_policy(
         sc,
         settings,
