@@ -268,7 +268,7 @@ const MAX_MESSAGE: usize = 200;
 
 /// Every way a settings text can be refused gives a message of at most `MAX_MESSAGE`
 /// characters that still names the item: an unknown field of each group (serde listed every
-/// field of the group: 409 characters for `cost`), an unknown group, a wrong type, each
+/// field of the group: up to 263 characters, for `repair`), an unknown group, a wrong type, each
 /// field out of its range or of the wrong type (serde named no field: the field is found and
 /// named), each old key moved or removed.
 #[test]

@@ -318,7 +318,7 @@ mod tests {
         ));
     }
     /// Every way a closed-loop settings text is refused gives a message of at most 200
-    /// characters naming the item: an unknown key (serde listed all the fields: 339
+    /// characters naming the item: an unknown key (serde listed all the fields: 343
     /// characters), an unknown world, a wrong type (named), each field out of its range.
     #[test]
     fn every_message_is_short_and_names_its_item() {
