@@ -604,6 +604,49 @@ fn judge_plan(planner: &Planner, ego: EgoState, plan: &nudge_planner::Plan) -> O
     }
 }
 
+/// Slack over a call's wall-clock budget (s): one predictor call and the QP work of the
+/// execution check after the deadline, on a loaded machine.
+const BUDGET_SLACK_S: f64 = 2.0;
+
+/// The call kept its work budget whatever the settings (issue 49, class 7): at most
+/// `budget.calls` (0: `MAX_CALLS`) predictor calls, at most `budget.seconds` (0:
+/// `MAX_SECONDS`) plus [`BUDGET_SLACK_S`] of wall clock, and a limit recorded only when the
+/// call reached it.
+fn within_budget(
+    settings: &PlannerSettings,
+    plan: &nudge_planner::Plan,
+    took: f64,
+) -> Result<(), String> {
+    let calls = match settings.budget.calls {
+        0 => PlannerSettings::MAX_CALLS,
+        c => c,
+    };
+    let seconds = if settings.budget.seconds > 0.0 {
+        settings.budget.seconds
+    } else {
+        PlannerSettings::MAX_SECONDS
+    };
+    if plan.predictor_calls > calls {
+        return Err(format!(
+            "{} predictor calls, budget {calls}",
+            plan.predictor_calls
+        ));
+    }
+    if took > seconds + BUDGET_SLACK_S {
+        return Err(format!("the call took {took:.2} s, budget {seconds} s"));
+    }
+    // The planner holds back 2 calls for its execution check: it stops at calls − 2.
+    if plan.budget_reached == Some(nudge_planner::BudgetLimit::Calls)
+        && plan.predictor_calls + 2 < calls
+    {
+        return Err(format!(
+            "budget_reached Calls after {} of {calls} calls",
+            plan.predictor_calls
+        ));
+    }
+    Ok(())
+}
+
 fn plan_finite(plan: &nudge_planner::Plan) -> Result<(), String> {
     for (k, ((d, a), s)) in plan
         .delta
@@ -1545,7 +1588,14 @@ fn plan_try(rng: &mut Rng, seeds: &PlanSeeds) -> Outcome {
         },
         _ => &mut foreign,
     };
+    let started = std::time::Instant::now();
     let result = planner.plan(&problem, predictor);
+    let took = started.elapsed().as_secs_f64();
+    if let Ok(plan) = &result
+        && let Err(why) = within_budget(&settings, plan, took)
+    {
+        return Outcome::Invalid(why);
+    }
     if foreign.corrupted {
         // The planner saw a corrupted prediction: a typed error naming it, or an Unsafe plan.
         return match result {

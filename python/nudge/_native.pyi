@@ -266,6 +266,8 @@ class PlanResult(TypedDict, total=False):
     checked: int
     status: Literal["Converged", "MaxIterations", "Refined", "Unsafe", "BudgetExhausted", "Backtracked", "Fallback", "SolverFailed"]
     solver_failure: tuple[str, str] | None  # (qp "delta" | "alpha", Clarabel status) for SolverFailed
+    decided_by: str  # what decided the applied inputs (DecidedBy label)
+    budget_reached: Literal["Calls", "Seconds"] | None  # the budget limit the call reached, if any
     timings: Timings
     lane_violation: LaneViolation | None  # first planned state in a lane outside its extent
     target_lane: int  # plan_scenario only

@@ -282,6 +282,10 @@ pub enum PlannerError {
         /// Clarabel's status.
         status: QpStatus,
     },
+    /// The call was cancelled ([`crate::Cancel`], [`crate::Planner::set_cancel`]) and ended
+    /// within one predictor call, without a plan.
+    #[error("planning cancelled")]
+    Cancelled,
     /// A planner implemented outside nudge (a closed-loop policy such as a Python object)
     /// failed or returned a plan that cannot be used; `source` says what happened.
     #[error("{policy} failed: {source}")]

@@ -15,6 +15,7 @@
 
 mod ablation;
 mod admm;
+mod cancel;
 pub mod describe;
 mod error;
 pub mod extents;
@@ -27,11 +28,13 @@ pub mod scenario;
 pub mod settings;
 
 pub use ablation::keep_lane_path;
+pub use admm::BudgetLimit;
 pub use admm::{
     BindingVehicle, CheckedVehicle, DecidedBy, EgoState, Family, JointSolution, PairGeometry,
     PhaseTimings, Plan, PlanStatus, Planner, PlanningProblem, RANK_ORDER, RankKey,
     SafetyConstraint, StepStatus, Violation,
 };
+pub use cancel::Cancel;
 pub use error::{PlannerError, ScenarioError, SettingsError};
 pub use extents::{LaneViolation, LaneViolationKind, Lanes, StopRule};
 pub use model::{Bicycle, Jac4, Linearisation, State};

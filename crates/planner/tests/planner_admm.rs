@@ -3,6 +3,7 @@
 //! determinism, typed errors on bad input, and property tests.
 #![allow(clippy::unwrap_used)]
 
+use nudge_planner::scenario::{VEHICLE_LENGTH, VEHICLE_WIDTH};
 use nudge_planner::{
     EgoState, Ellipse, OrientedBox, PlanStatus, Planner, PlannerError, PlannerSettings,
     PlanningProblem, motion_heading,
@@ -328,10 +329,10 @@ fn bad_problems_are_typed_errors() {
     ));
 }
 
-/// The ego's safety slices are bounded: at the finest accepted slice length a 32 m ego needs
-/// exactly `MAX_EGO_SEGMENTS` = 64 slices and plans; 32.01 m needs 65 and is refused naming
-/// `sizes` (not cut into an unbounded number of ellipses); with one ellipse for the whole ego
-/// (`ego_segment_length` 0) the same ego plans.
+/// The ego's safety slices are bounded: at the finest accepted slice length a 16 m ego (a
+/// plausible vehicle, `VEHICLE_LENGTH`) needs exactly `MAX_EGO_SEGMENTS` = 64 slices and plans;
+/// 16.01 m needs 65 and is refused naming `sizes` (not cut into an unbounded number of
+/// ellipses); with one ellipse for the whole ego (`ego_segment_length` 0) the same ego plans.
 #[test]
 fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
     let fine = {
@@ -340,6 +341,10 @@ fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
         s
     };
     let at_most = PlannerSettings::MAX_EGO_SEGMENTS as f64 * fine.safety.ego_segment_length;
+    assert!(
+        at_most + 0.01 < VEHICLE_LENGTH[1],
+        "the refused ego must be a plausible vehicle, so that only the slices refuse it"
+    );
     let (h, mut sizes) = scene(12.0, 0.0, &[(40.0, 3.7, 12.0)]);
     let mut cv = ConstantVelocity::default();
     sizes[0][0] = at_most;
@@ -357,7 +362,10 @@ fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
             field: "sizes",
             reason,
         }) => assert!(reason.contains("MAX_EGO_SEGMENTS"), "{reason}"),
-        other => panic!("a {} m ego in 0.5 m slices: {other:?}", sizes[0][0]),
+        other => panic!(
+            "a {} m ego in {} m slices: {other:?}",
+            sizes[0][0], fine.safety.ego_segment_length
+        ),
     }
     let whole = {
         let mut s = fine;
@@ -368,6 +376,61 @@ fn an_ego_needing_too_many_safety_slices_is_a_typed_error() {
         .unwrap()
         .plan(&problem(&h, &sizes, 12.0, 0.0, 3.7), &mut cv)
         .unwrap();
+}
+
+/// A raw problem is checked against the bounds of the scenario files (`VEHICLE_LENGTH`,
+/// `VEHICLE_WIDTH`, one source for both) and the road: a 100 m ego, a 0.2 m wide one, a 40 m
+/// other vehicle and an ego whose centre is 5 m beyond an edge are typed errors naming the
+/// field and the agent or the distance; the bounds themselves and an ego centred
+/// `MAX_OFF_ROAD` beyond either edge plan.
+#[test]
+fn implausible_vehicles_and_an_ego_off_the_road_are_typed_errors() {
+    let (h, sizes) = scene(12.0, 0.0, &[(40.0, 3.7, 12.0)]);
+    let mut cv = ConstantVelocity::default();
+    let mut planner = Planner::new(PlannerSettings::default()).unwrap();
+    let refused =
+        |planner: &mut Planner, p: PlanningProblem<'_>, cv: &mut ConstantVelocity| match planner
+            .plan(&p, cv)
+        {
+            Err(PlannerError::BadProblem { field, reason }) => (field, reason),
+            other => panic!("accepted: {other:?}"),
+        };
+    for (agent, size, what) in [
+        (0, [100.0, 1.9], "agent 0 (the ego) has length 100"),
+        (0, [4.5, 0.2], "agent 0 (the ego) has width 0.2"),
+        (1, [40.0, 2.5], "agent 1 has length 40"),
+        (1, [f64::NAN, 2.5], "agent 1 has length NaN"),
+    ] {
+        let mut bad = sizes.clone();
+        bad[agent] = size;
+        let (field, reason) = refused(&mut planner, problem(&h, &bad, 12.0, 0.0, 3.7), &mut cv);
+        assert_eq!(field, "sizes");
+        assert!(reason.contains(what), "{reason}");
+    }
+    let mut edge = sizes.clone();
+    edge[0] = [VEHICLE_LENGTH[1], VEHICLE_WIDTH[1]];
+    edge[1] = [VEHICLE_LENGTH[0], VEHICLE_WIDTH[0]];
+    planner
+        .plan(&problem(&h, &edge, 12.0, 0.0, 3.7), &mut cv)
+        .unwrap();
+    // The road of `problem` is [-1.85, 9.25] m.
+    let max = PlanningProblem::MAX_OFF_ROAD;
+    for (y, side) in [(-1.85 - 5.0, "right"), (9.25 + 5.0, "left")] {
+        let (h, sizes) = scene(12.0, y, &[(40.0, 3.7, 12.0)]);
+        let (field, reason) = refused(&mut planner, problem(&h, &sizes, 12.0, y, 3.7), &mut cv);
+        assert_eq!(field, "ego.y");
+        assert!(
+            reason.contains(&format!("5.00 m beyond the road's {side} edge")),
+            "{reason}"
+        );
+    }
+    for y in [-1.85 - max, 9.25 + max] {
+        let (h, sizes) = scene(12.0, y, &[(40.0, 3.7, 12.0)]);
+        planner.reset();
+        planner
+            .plan(&problem(&h, &sizes, 12.0, y, 3.7), &mut cv)
+            .unwrap_or_else(|e| panic!("y = {y}: {e}"));
+    }
 }
 
 proptest! {

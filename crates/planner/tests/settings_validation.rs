@@ -261,3 +261,43 @@ fn an_ego_slice_is_off_or_at_least_the_minimum_length() {
             .unwrap_or_else(|e| panic!("{key} = {v} refused: {e}"));
     }
 }
+
+/// Longest settings message accepted (characters): a message names the item in a line a
+/// person reads, not every valid alternative.
+const MAX_MESSAGE: usize = 200;
+
+/// Every way a settings text can be refused gives a message of at most `MAX_MESSAGE`
+/// characters that still names the item: an unknown field of each group (serde listed every
+/// field of the group: up to 263 characters, for `repair`), an unknown group, a wrong type, each
+/// field out of its range or of the wrong type (serde named no field: the field is found and
+/// named), each old key moved or removed.
+#[test]
+fn every_settings_message_is_short_and_names_its_item() {
+    let mut cases: Vec<(String, String)> = Vec::new();
+    for (group, _) in GROUPS {
+        cases.push((
+            format!(r#"{{"{group}": {{"no_such_field": 1}}}}"#),
+            "`no_such_field`".into(),
+        ));
+    }
+    cases.push((r#"{"no_such_group": {}}"#.into(), "`no_such_group`".into()));
+    for (key, _) in defaults() {
+        cases.push((with(&key, json!(1e308)), format!("`{key}`")));
+        cases.push((with(&key, json!("text")), format!("`{key}`")));
+    }
+    for (old, _) in MOVED.iter().chain(REMOVED) {
+        cases.push((format!(r#"{{"{old}": 1}}"#), format!("`{old}`")));
+    }
+    for (text, item) in cases {
+        let e = PlannerSettings::from_json(&text)
+            .err()
+            .unwrap_or_else(|| panic!("{text} accepted"))
+            .to_string();
+        assert!(e.contains(&item), "{text}: {e}");
+        assert!(
+            e.chars().count() <= MAX_MESSAGE,
+            "{text}: {} characters: {e}",
+            e.chars().count()
+        );
+    }
+}

@@ -130,3 +130,68 @@ mod tests {
         parse(r#"{"a": {"a": {"a": 1}}}"#).unwrap();
     }
 }
+
+/// Longest list of expected names [`brief`] keeps (characters).
+const MAX_EXPECTED_LIST: usize = 60;
+
+/// `e`'s message with serde's list of the valid names cut short: ``unknown field `x`,
+/// expected one of `a`, `b`, ...`` lists every field of the struct (hundreds of characters for
+/// a settings group); the unknown name is kept whole, the list only while it is short, else
+/// a pointer to the reference (`reference`, e.g. `docs/reference/settings.md`) replaces it.
+#[must_use]
+pub fn brief(e: &serde_json::Error, reference: &str) -> String {
+    let msg = e.to_string();
+    let Some(at) = msg.find(", expected one of ") else {
+        return msg;
+    };
+    let (head, rest) = msg.split_at(at);
+    // serde_json appends " at line L column C"; keep it.
+    let (list, position) = match rest.rfind(" at line ") {
+        Some(p) => rest.split_at(p),
+        None => (rest, ""),
+    };
+    if list.len() <= MAX_EXPECTED_LIST {
+        return msg;
+    }
+    format!("{head}{position} (valid names: {reference})")
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod brief_tests {
+    use serde::Deserialize;
+
+    /// A struct with many fields: serde's message for an unknown one lists all of them; the
+    /// brief message names the unknown field and its position, and stays short.
+    #[test]
+    fn an_unknown_field_keeps_its_name_and_loses_the_long_list() {
+        #[derive(Debug, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        #[allow(dead_code)]
+        struct Many {
+            alpha_one: Option<f64>,
+            beta_two: Option<f64>,
+            gamma_three: Option<f64>,
+            delta_four: Option<f64>,
+            epsilon_five: Option<f64>,
+            zeta_six: Option<f64>,
+        }
+        let e = serde_json::from_str::<Many>(r#"{"omega": 1}"#).unwrap_err();
+        assert!(e.to_string().len() > 100, "{e}");
+        let b = super::brief(&e, "docs/x.md");
+        assert!(
+            b.starts_with("unknown field `omega` at line 1 column 8"),
+            "{b}"
+        );
+        assert!(b.ends_with("(valid names: docs/x.md)"), "{b}");
+        assert!(b.len() < 80, "{b}");
+        #[derive(Debug, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        #[allow(dead_code)]
+        struct Few {
+            a: Option<f64>,
+        }
+        let e = serde_json::from_str::<Few>(r#"{"b": 1}"#).unwrap_err();
+        assert_eq!(super::brief(&e, "docs/x.md"), e.to_string());
+    }
+}

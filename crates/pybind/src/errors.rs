@@ -144,6 +144,7 @@ pub fn planner_err(err: PlannerError) -> PyErr {
         | PlannerError::BadLane { .. }
         | PlannerError::HorizonMismatch { .. } => InputError::new_err(msg),
         PlannerError::Foreign { source, .. } => crate::py_policy::failure_err(msg, source),
+        PlannerError::Cancelled => NudgeError::new_err(msg),
         _ => SolverError::new_err(msg),
     }
 }

@@ -1,11 +1,12 @@
 //! `nudge._native.Planner`: one ADMM MPC call at a time, on a scenario or on raw arrays.
 
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Mutex, MutexGuard, PoisonError, mpsc};
 use std::thread::ThreadId;
 
 use nudge_planner::scenario::{LaneExtent, MAX_LANES};
 use nudge_planner::{
-    EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner, PlannerSettings, PlanningProblem,
+    BudgetLimit, Cancel, EgoState, LaneViolationKind, Lanes, Plan, PlanStatus, Planner,
+    PlannerSettings, PlanningProblem,
 };
 use nudge_predictor::{History, MAX_AGENTS, T_OBS};
 use nudge_sim::SimConfig;
@@ -13,12 +14,13 @@ use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::args::{Int, guard};
+use crate::args::{Int, guard, panic_error};
 use crate::arrays::{Dim, to_f64};
 use crate::errors::{InputError, NudgeError, ReentrancyError, planner_err, predictor_err, sim_err};
 use crate::py_predictor::PlanningPredictor;
 use crate::scenario::PyScenario;
 use crate::settings::{PySettings, PySimConfig};
+use crate::sim::SIGNAL_POLL;
 
 /// The interaction-aware MPC planner bound to one predictor (built in, or a Python object:
 /// `crate::py_predictor`). Keeps its previous solution as the warm start of the next call
@@ -85,6 +87,10 @@ pub fn plan_to_dict<'py>(py: Python<'py>, plan: &Plan) -> PyResult<Bound<'py, Py
     d.set_item("rollout_min_safety", plan.rollout_min_safety)?;
     d.set_item("status", plan.status.name())?;
     d.set_item("decided_by", plan.decided_by.label())?;
+    d.set_item(
+        "budget_reached",
+        plan.budget_reached.map(BudgetLimit::as_str),
+    )?;
     let violation = plan
         .lane_violation
         .map(|v| -> PyResult<Bound<'py, PyDict>> {
@@ -157,6 +163,12 @@ impl PyPlanner {
 
     /// Plans `problem` with the GIL released; the plan as a dict. `method` names the Python
     /// method in a re-entrancy error.
+    ///
+    /// The call runs on a worker thread while this (the calling) thread polls Python's signal
+    /// handlers every [`SIGNAL_POLL`]: on Ctrl-C the planner's cancel flag is set, the call
+    /// ends within one predictor call ([`nudge_planner::PlannerError::Cancelled`]) and the
+    /// `KeyboardInterrupt` (or whatever the handler raised) is returned; the warm start is
+    /// kept.
     fn run<'py>(
         &self,
         py: Python<'py>,
@@ -164,16 +176,54 @@ impl PyPlanner {
         method: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
         self.refuse_reentry(method)?;
+        let cancel = Cancel::new();
+        let mut interrupt: Option<PyErr> = None;
         let result = py.detach(|| {
-            let mut planner = self.planner.lock().unwrap_or_else(PoisonError::into_inner);
-            *self
-                .planning_on
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner) = Some(std::thread::current().id());
-            let _planning = Planning(&self.planning_on);
-            self.predictor.with(|p| planner.plan(problem, p))
+            std::thread::scope(|scope| {
+                let (tx, rx) = mpsc::channel();
+                let flag = &cancel;
+                let worker = scope.spawn(move || {
+                    let mut planner = self.planner.lock().unwrap_or_else(PoisonError::into_inner);
+                    *self
+                        .planning_on
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner) =
+                        Some(std::thread::current().id());
+                    let _planning = Planning(&self.planning_on);
+                    planner.set_cancel(Some(flag.clone()));
+                    let plan = self.predictor.with(|p| planner.plan(problem, p));
+                    planner.set_cancel(None);
+                    // The receiver outlives the worker: sending cannot fail.
+                    let _ = tx.send(plan);
+                });
+                loop {
+                    match rx.recv_timeout(SIGNAL_POLL) {
+                        Ok(plan) => return Ok(plan),
+                        Err(mpsc::RecvTimeoutError::Timeout) => {
+                            if interrupt.is_none()
+                                && let Err(e) = Python::attach(|py| py.check_signals())
+                            {
+                                cancel.cancel();
+                                interrupt = Some(e);
+                            }
+                        }
+                        // The worker panicked: its payload becomes a NudgeError.
+                        Err(mpsc::RecvTimeoutError::Disconnected) => {
+                            return Err(worker.join().err());
+                        }
+                    }
+                }
+            })
         });
-        let plan = result.map_err(planner_err)?;
+        if let Some(e) = interrupt {
+            return Err(e);
+        }
+        let plan = result
+            .map_err(|payload| match payload {
+                Some(p) => panic_error(p.as_ref()),
+                None => NudgeError::new_err("the planning worker stopped without a result"),
+            })?
+            .map_err(planner_err)?;
         plan_to_dict(py, &plan)
     }
 }

@@ -475,5 +475,6 @@ pub fn judged_plan(
             PlanStatus::Unsafe
         },
         decided_by: DecidedBy::External,
+        budget_reached: None,
     })
 }

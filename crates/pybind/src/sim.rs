@@ -50,7 +50,7 @@ pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 }
 
 /// How often a running batch looks for a pending signal (Ctrl-C).
-const SIGNAL_POLL: Duration = Duration::from_millis(50);
+pub const SIGNAL_POLL: Duration = Duration::from_millis(50);
 
 /// Runs `batch` on a worker thread with the GIL released while this (the calling) thread
 /// polls Python's signal handlers every [`SIGNAL_POLL`]: on Ctrl-C the batch is cancelled

@@ -176,7 +176,27 @@ impl SimConfig {
         if !value.is_object() {
             return Err(bad(value.to_string()));
         }
-        let c: Self = serde_json::from_value(value).map_err(|e| bad(e.to_string()))?;
+        let c: Self = serde_json::from_value(value.clone()).map_err(|e| {
+            let mut err = bad(nudge_predictor::json::brief(
+                &e,
+                "docs/reference/settings.md",
+            ));
+            // serde names no field in a type error: find it by parsing each field alone.
+            let failing = value.as_object().and_then(|o| {
+                o.iter().find_map(|(k, v)| {
+                    let alone = serde_json::json!({ k: v });
+                    serde_json::from_value::<Self>(alone)
+                        .is_err()
+                        .then_some(k.as_str())
+                })
+            });
+            if let (SimConfigError::Invalid { field, .. }, Some(k)) = (&mut err, failing)
+                && let Some(f) = Self::FIELDS.iter().find(|f| f.field == k)
+            {
+                *field = f.field;
+            }
+            err
+        })?;
         c.validate()?;
         Ok(c)
     }
@@ -278,7 +298,7 @@ mod tests {
                 other => panic!("{field} = {v}: expected an error, got {other:?}"),
             }
         }
-        for text in [r#"{"bogus": 1}"#, r#"{"world": "predictor"}"#, "[30]"] {
+        for text in [r#"{"bogus": 1}"#, "[30]"] {
             assert!(matches!(
                 SimConfig::from_json(text),
                 Err(SimConfigError::Invalid {
@@ -287,9 +307,44 @@ mod tests {
                 })
             ));
         }
+        // A value of the wrong type or variant names its field (it named `<json>` before).
+        assert!(matches!(
+            SimConfig::from_json(r#"{"world": "predictor"}"#),
+            Err(SimConfigError::Invalid { field: "world", .. })
+        ));
         assert!(matches!(
             "log-replay".parse::<World>(),
             Err(SimConfigError::Invalid { field: "world", .. })
         ));
+    }
+    /// Every way a closed-loop settings text is refused gives a message of at most 200
+    /// characters naming the item: an unknown key (serde listed all the fields: 343
+    /// characters), an unknown world, a wrong type (named), each field out of its range.
+    #[test]
+    fn every_message_is_short_and_names_its_item() {
+        let mut cases = vec![
+            (
+                r#"{"no_such_key": 1}"#.to_string(),
+                "`no_such_key`".to_string(),
+            ),
+            (r#"{"world": "moon"}"#.to_string(), "`moon`".to_string()),
+        ];
+        let defaults = serde_json::to_value(SimConfig::default()).expect("serialise");
+        for key in defaults.as_object().expect("an object").keys() {
+            cases.push((format!(r#"{{"{key}": -1}}"#), format!("`{key}`")));
+            cases.push((format!(r#"{{"{key}": [1]}}"#), format!("`{key}`")));
+        }
+        for (text, item) in cases {
+            let e = SimConfig::from_json(&text)
+                .err()
+                .unwrap_or_else(|| panic!("{text} accepted"))
+                .to_string();
+            assert!(e.contains(&item), "{text}: {e}");
+            assert!(
+                e.chars().count() <= 200,
+                "{text}: {} characters: {e}",
+                e.chars().count()
+            );
+        }
     }
 }

@@ -183,12 +183,13 @@ pub enum SimError {
         /// Closed-loop step (0-based).
         step: usize,
     },
-    /// The run was cancelled ([`crate::Cancel`]) before this closed-loop step.
-    #[error("scenario {scene}: cancelled before step {step}")]
+    /// The run was cancelled ([`crate::Cancel`]) before or during this closed-loop step (the
+    /// step was not recorded).
+    #[error("scenario {scene}: cancelled at step {step}")]
     Cancelled {
         /// Scenario name.
         scene: String,
-        /// Closed-loop step (0-based) that did not run.
+        /// Closed-loop step (0-based) that did not finish.
         step: usize,
     },
 }

@@ -40,6 +40,11 @@ pub struct StepRecord {
     /// ([`nudge_planner::Plan::violation`]).
     #[serde(default)]
     pub violation: nudge_planner::Violation,
+    /// The limit of the planning call's work budget that was reached, if any
+    /// ([`nudge_planner::Plan::budget_reached`]; `"Seconds"` makes the step depend on the
+    /// machine's speed); `None` (and absent from JSON) when the call ran to its end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub budget_reached: Option<nudge_planner::BudgetLimit>,
     /// Applied steering (rad).
     pub delta: f64,
     /// Applied acceleration (m/s²).

@@ -458,10 +458,11 @@ mod tests {
         }
     }
 
-    /// Cancels its own run during the first planning step.
+    /// Cancels its own run during the first planning step; counts its calls.
     struct CancelDuring {
         inner: nudge_predictor::ConstantVelocity,
         cancel: Cancel,
+        calls: usize,
     }
 
     impl nudge_predictor::Predictor for CancelDuring {
@@ -476,13 +477,15 @@ mod tests {
         }
         fn predict(&mut self, c: &[f64], out: &mut [f64]) -> nudge_predictor::Result<()> {
             self.cancel.cancel();
+            self.calls += 1;
             self.inner.predict(c, out)
         }
     }
 
-    /// A run cancelled while it plans finishes that step and stops before the next one.
+    /// A run cancelled while it plans stops within that step: the planner makes no predictor
+    /// call after the flag is set (issue 49: it used to finish the step, however long).
     #[test]
-    fn a_run_cancelled_while_it_plans_stops_before_its_next_step() {
+    fn a_run_cancelled_while_it_plans_stops_within_that_step() {
         let sc = Scenario::from_file(&scene_paths()[0]).unwrap();
         let config = SimConfig {
             world: World::LogReplay,
@@ -492,6 +495,7 @@ mod tests {
         let mut p = CancelDuring {
             inner: nudge_predictor::ConstantVelocity::new(6).unwrap(),
             cancel: cancel.clone(),
+            calls: 0,
         };
         let control = crate::RunControl {
             cancel: &cancel,
@@ -507,10 +511,12 @@ mod tests {
             control,
         );
         assert!(
-            matches!(r, Err(SimError::Cancelled { step: 1, .. })),
-            "{:?}",
-            r.map(|r| r.steps.len())
+            matches!(r, Err(SimError::Cancelled { step: 0, .. })),
+            "{:?} after {} calls",
+            r.map(|r| r.steps.len()),
+            p.calls
         );
+        assert_eq!(p.calls, 1, "a predictor call after the flag was set");
     }
 
     /// Constant velocity under another name: a predictor implemented outside nudge.

@@ -6,8 +6,6 @@
 //! [`crate::Session`]'s; [`simulate_policy`] runs a session to its end.
 
 use std::borrow::Cow;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use nudge_predictor::limits::MAX_AGENT_OFFSET;
 use nudge_predictor::{Predictor, T_OBS};
@@ -25,31 +23,12 @@ use super::config::SimConfig;
 use super::records::{RunOutcome, RunRecord};
 use super::world::WorldModel;
 
-/// A cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
-/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops before its next
-/// closed-loop step and the runs not started yet do not start, each with
-/// [`SimError::Cancelled`]. Clones share the flag.
-#[derive(Debug, Clone, Default)]
-pub struct Cancel(Arc<AtomicBool>);
-
-impl Cancel {
-    /// A flag not set.
-    #[must_use]
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Sets the flag (from any thread).
-    pub fn cancel(&self) {
-        self.0.store(true, Ordering::Relaxed);
-    }
-
-    /// Whether the flag is set.
-    #[must_use]
-    pub fn is_cancelled(&self) -> bool {
-        self.0.load(Ordering::Relaxed)
-    }
-}
+/// The cancellation flag shared by the runs of a batch and whoever may stop it (a Ctrl-C
+/// handler, a time limit): once [`Cancel::cancel`] is called, every run stops with
+/// [`SimError::Cancelled`] — within its current planning step, which the planner ends within
+/// one predictor call ([`nudge_planner::Cancel`]) — and the runs not started yet do not
+/// start. Clones share the flag.
+pub use nudge_planner::Cancel;
 
 /// SplitMix64: a tiny deterministic generator for the target-lane draw.
 fn splitmix(seed: u64) -> u64 {
@@ -259,6 +238,8 @@ pub fn simulate_with(
             source: other,
         },
     })?;
+    // The flag also ends a planning step in progress, within one predictor call.
+    planner.set_cancel(Some(control.cancel.clone()));
     simulate_policy(
         sc,
         settings,

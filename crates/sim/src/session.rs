@@ -339,13 +339,20 @@ impl<'a> Session<'a> {
         };
         let problem = problem_of(&self.sc, p, &self.ego, self.last_inputs);
         let t0 = Instant::now();
-        let plan = policy
-            .plan(&problem, planner_pred)
-            .map_err(|source: PlannerError| SimError::Planner {
-                scene: self.sc.name.clone(),
-                step,
-                source,
-            })?;
+        let plan =
+            policy
+                .plan(&problem, planner_pred)
+                .map_err(|source: PlannerError| match source {
+                    PlannerError::Cancelled => SimError::Cancelled {
+                        scene: self.sc.name.clone(),
+                        step,
+                    },
+                    source => SimError::Planner {
+                        scene: self.sc.name.clone(),
+                        step,
+                        source,
+                    },
+                })?;
         let mpc_s = t0.elapsed().as_secs_f64();
         Ok(&self.pending.insert((plan, mpc_s)).0)
     }
@@ -570,6 +577,7 @@ impl<'a> Session<'a> {
             collision: !touching.is_empty(),
             status,
             decided_by: plan.decided_by,
+            budget_reached: plan.budget_reached,
             violation: plan.violation,
             delta: plan.delta[0],
             accel: plan.accel[0],

@@ -8,12 +8,13 @@ use std::time::{Duration, Instant};
 
 use nudge_predictor::{Predictor, T_OBS};
 
+use crate::cancel::Cancel;
 use crate::error::PlannerError;
 use crate::model::State;
 use crate::safety::{Ellipse, OrientedBox, box_separation, motion_axis, motion_direction};
 use crate::settings::PlannerSettings;
 
-use super::problem::PlanningProblem;
+use super::problem::{BudgetLimit, PlanningProblem};
 
 /// One vehicle the safety constraint checks.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -558,12 +559,14 @@ struct KeepLane {
     predicted: bool,
 }
 
-/// The work budget of one MPC call: a wall-clock deadline and/or a number of predictor calls
-/// (`budget.seconds`, `budget.calls`, never more than `PlannerSettings::MAX_CALLS` calls). While it lasts every evaluation calls the
-/// predictor; once it is spent an evaluation returns "not evaluated" — unsafe, never safe —
-/// without calling it, so trial points are rejected and the ADMM loop stops. `reserve`
-/// predictor calls (and their estimated time) are kept back during the ADMM loop for the
-/// execution check.
+/// The work budget of one MPC call: a wall-clock deadline (`budget.seconds`, never more
+/// than `PlannerSettings::MAX_SECONDS`), a number of predictor calls (`budget.calls`, never
+/// more than `PlannerSettings::MAX_CALLS`) and an optional cancellation flag
+/// ([`crate::Cancel`]). While it lasts every evaluation calls the predictor; once it is spent
+/// an evaluation returns "not evaluated" — unsafe, never safe — without calling it, so trial
+/// points are rejected and the ADMM loop, the refinement and the lattice search stop.
+/// `reserve` predictor calls (and their estimated time) are kept back during the ADMM loop
+/// for the execution check.
 #[derive(Debug, Clone)]
 pub(crate) struct Budget {
     deadline: Option<Instant>,
@@ -574,6 +577,10 @@ pub(crate) struct Budget {
     predictor_time: Duration,
     /// An evaluation was refused for lack of budget.
     pub exhausted: bool,
+    /// The first limit that was reached, if any.
+    pub reached: Option<BudgetLimit>,
+    /// Set from another thread to end the call ([`crate::PlannerError::Cancelled`]).
+    cancel: Option<Cancel>,
 }
 
 /// Calls the execution check is guaranteed under a budget: the roll-out of the ADMM inputs
@@ -581,11 +588,17 @@ pub(crate) struct Budget {
 pub(crate) const RESERVED_CALLS: usize = 2;
 
 impl Budget {
-    /// The budget of `settings` for a call that started at `start`; none when both are 0.
-    pub(crate) fn new(settings: &PlannerSettings, start: Instant) -> Self {
+    /// The budget of `settings` for a call that started at `start`: `budget.seconds` and
+    /// `budget.calls`, each capped (0 meaning the cap) by `PlannerSettings::MAX_SECONDS` and
+    /// `PlannerSettings::MAX_CALLS`; `cancel` ends the call once set.
+    pub(crate) fn new(settings: &PlannerSettings, start: Instant, cancel: Option<Cancel>) -> Self {
+        let seconds = if settings.budget.seconds > 0.0 {
+            settings.budget.seconds.min(PlannerSettings::MAX_SECONDS)
+        } else {
+            PlannerSettings::MAX_SECONDS
+        };
         Self {
-            deadline: (settings.budget.seconds > 0.0)
-                .then(|| start + Duration::from_secs_f64(settings.budget.seconds)),
+            deadline: Some(start + Duration::from_secs_f64(seconds)),
             max_calls: Some(if settings.budget.calls > 0 {
                 settings.budget.calls
             } else {
@@ -594,6 +607,8 @@ impl Budget {
             reserve: RESERVED_CALLS,
             predictor_time: Duration::ZERO,
             exhausted: false,
+            reached: None,
+            cancel,
         }
     }
 
@@ -605,17 +620,27 @@ impl Budget {
             reserve: 0,
             predictor_time: Duration::ZERO,
             exhausted: false,
+            reached: None,
+            cancel: None,
         }
     }
 
+    /// Whether the cancellation flag is set.
+    pub(crate) fn cancelled(&self) -> bool {
+        self.cancel.as_ref().is_some_and(Cancel::is_cancelled)
+    }
+
     /// Whether one more predictor call (after `calls`) would eat into the reserve: the call
-    /// count, or now plus the time of the call and of the reserve at the mean call time so
-    /// far (plus 0.5 ms for the QPs and bookkeeping between calls) past the deadline.
-    pub(crate) fn spent(&self, calls: usize) -> bool {
-        if self.max_calls.is_some_and(|m| calls + 1 + self.reserve > m) {
+    /// is cancelled, or the call count, or now plus the time of the call and of the reserve at
+    /// the mean call time so far (plus 0.5 ms for the QPs and bookkeeping between calls) past
+    /// the deadline. Records the first limit reached ([`Self::reached`]).
+    pub(crate) fn spent(&mut self, calls: usize) -> bool {
+        if self.cancelled() {
             return true;
         }
-        self.deadline.is_some_and(|d| {
+        let limit = if self.max_calls.is_some_and(|m| calls + 1 + self.reserve > m) {
+            BudgetLimit::Calls
+        } else if self.deadline.is_some_and(|d| {
             let mean = if calls == 0 {
                 Duration::ZERO
             } else {
@@ -623,7 +648,13 @@ impl Budget {
             };
             let reserve = u32::try_from(self.reserve + 1).unwrap_or(u32::MAX);
             Instant::now() + mean * reserve + Duration::from_micros(500) > d
-        })
+        }) {
+            BudgetLimit::Seconds
+        } else {
+            return false;
+        };
+        self.reached.get_or_insert(limit);
+        true
     }
 }
 

@@ -33,6 +33,8 @@ mod z_update;
 #[cfg(test)]
 mod ablation_tests;
 #[cfg(test)]
+mod budget_tests;
+#[cfg(test)]
 mod lead_first_tests;
 #[cfg(test)]
 mod tests;
@@ -41,6 +43,7 @@ use std::time::Instant;
 
 use nudge_predictor::{Checked, ConstantVelocity, Predictor};
 
+use crate::cancel::Cancel;
 use crate::error::PlannerError;
 use crate::model::{Bicycle, State};
 use crate::qp::QpFailure;
@@ -49,7 +52,7 @@ use crate::settings::PlannerSettings;
 pub use constraint::{BindingVehicle, CheckedVehicle, PairGeometry, SafetyConstraint};
 pub use decision::{DecidedBy, Family, RANK_ORDER, RankKey};
 pub use problem::{
-    EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus, Violation,
+    BudgetLimit, EgoState, PhaseTimings, Plan, PlanStatus, PlanningProblem, StepStatus, Violation,
 };
 pub use reference::JointSolution;
 
@@ -123,6 +126,7 @@ pub struct Planner {
     settings: PlannerSettings,
     model: Bicycle,
     warm: Option<WarmStart>,
+    cancel: Option<Cancel>,
 }
 
 /// Why the ADMM loop stopped.
@@ -179,7 +183,16 @@ impl Planner {
             settings,
             model,
             warm: None,
+            cancel: None,
         })
+    }
+
+    /// Lets `cancel` end this planner's calls: once it is set, the call in progress (and any
+    /// later one) evaluates no further candidate and returns [`PlannerError::Cancelled`]
+    /// within one predictor call, keeping the previous warm start. `None` removes it. A flag
+    /// that is never set changes nothing.
+    pub fn set_cancel(&mut self, cancel: Option<Cancel>) {
+        self.cancel = cancel;
     }
 
     /// The settings in use.
@@ -260,6 +273,9 @@ impl Planner {
     ) -> Result<Plan, PlannerError> {
         let start = Instant::now();
         self.check(problem, predictor)?;
+        if self.cancel.as_ref().is_some_and(Cancel::is_cancelled) {
+            return Err(PlannerError::Cancelled);
+        }
         // Every prediction is checked finite and plausible, whoever implemented the predictor.
         let mut checked = Checked::new(predictor);
         let predictor: &mut dyn Predictor = &mut checked;
@@ -278,7 +294,7 @@ impl Planner {
             n_agents,
             s.safety.safety_min,
         );
-        safety.budget = Budget::new(s, start);
+        safety.budget = Budget::new(s, start, self.cancel.clone());
         safety.count_overlap = true;
         safety.ego_last = Some(problem.history.at(0, nudge_predictor::T_OBS - 1));
         if s.safety.ablate_reaction {
@@ -305,8 +321,12 @@ impl Planner {
             nonreactive: nonreactive.as_mut().map(|p| p as &mut dyn Predictor),
         };
         let finished = check_execution(&mut repairer, admm)?;
+        if safety.budget.cancelled() {
+            return Err(PlannerError::Cancelled);
+        }
         let counts = (safety.calls, constraint.vehicles().len(), safety.refused);
         let (mut plan, warm) = finished.into_plan(s, &lp, counts, timings);
+        plan.budget_reached = safety.budget.reached;
         self.warm = Some(warm);
         plan.timings.total_s = start.elapsed().as_secs_f64();
         Ok(plan)
@@ -590,6 +610,7 @@ impl Finished {
             timings,
             status: self.status,
             decided_by: self.decided_by,
+            budget_reached: None,
         };
         let warm = WarmStart {
             delta: self.delta,

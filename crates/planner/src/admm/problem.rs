@@ -100,6 +100,10 @@ impl PlanningProblem<'_> {
     pub const MAX_LAST_DELTA: f64 = 1.5;
     /// Largest |previous acceleration| accepted (m/s²): the widest admissible `a_min`/`a_max`.
     pub const MAX_LAST_ACCEL: f64 = 15.0;
+    /// Farthest the ego's centre may lie beyond an edge of the road (m): half the widest
+    /// plausible vehicle ([`crate::scenario::VEHICLE_WIDTH`]), so an ego refused as off the
+    /// road has its whole box beyond the edge whatever its width.
+    pub const MAX_OFF_ROAD: f64 = crate::scenario::VEHICLE_WIDTH[1] / 2.0;
 
     /// Checks that the problem can be planned: finite numbers; the ego within
     /// ±[`nudge_predictor::limits::MAX_ABS_POSITION`] m, its speed in
@@ -107,8 +111,10 @@ impl PlanningProblem<'_> {
     /// within ±[`Self::MAX_LAST_DELTA`] rad and ±[`Self::MAX_LAST_ACCEL`] m/s²; an ordered road
     /// at most [`Self::MAX_ROAD_WIDTH`] m wide whose edges lie within the same coordinate
     /// range; `y_target` and `y_retreat` (when given) on the road (edges included); `v_ref` in 0..=[`Self::MAX_V_REF`]
-    /// m/s; one positive size per agent; a lane layout (when given) as [`Lanes::check`]
-    /// requires.
+    /// m/s; the ego's centre at most [`Self::MAX_OFF_ROAD`] m beyond an edge of the road; one
+    /// plausible size per agent (length in [`crate::scenario::VEHICLE_LENGTH`], width in
+    /// [`crate::scenario::VEHICLE_WIDTH`], the bounds of the scenario files); a lane layout
+    /// (when given) as [`Lanes::check`] requires.
     ///
     /// # Errors
     /// [`PlannerError::BadProblem`] naming the first offending field,
@@ -232,6 +238,22 @@ impl PlanningProblem<'_> {
                 format!("{y:e} m is off the road [{right}, {left}] m (or not finite)"),
             );
         }
+        let y = self.ego.y;
+        let beyond = (right - y).max(y - left);
+        if beyond > Self::MAX_OFF_ROAD {
+            let side = if y < right { "right" } else { "left" };
+            return bad(
+                "ego.y",
+                format!(
+                    "the ego (agent 0) at y = {} m is {beyond:.2} m beyond the road's {side} edge \
+                     (road [{}, {}] m; at most MAX_OFF_ROAD = {} m)",
+                    show(y),
+                    show(right),
+                    show(left),
+                    Self::MAX_OFF_ROAD
+                ),
+            );
+        }
         if !(0.0..=Self::MAX_V_REF).contains(&self.v_ref) {
             return bad(
                 "v_ref",
@@ -252,9 +274,23 @@ impl PlanningProblem<'_> {
                 format!("{} sizes for {n} agents", self.sizes.len()),
             );
         }
+        use crate::scenario::{VEHICLE_LENGTH, VEHICLE_WIDTH};
         for (i, s) in self.sizes.iter().enumerate() {
-            if !(s[0].is_finite() && s[1].is_finite() && s[0] > 0.0 && s[1] > 0.0) {
-                return bad("sizes", format!("agent {i} has size {s:?}"));
+            let who = if i == 0 {
+                "agent 0 (the ego)".to_string()
+            } else {
+                format!("agent {i}")
+            };
+            for (what, v, [lo, hi]) in [
+                ("length", s[0], VEHICLE_LENGTH),
+                ("width", s[1], VEHICLE_WIDTH),
+            ] {
+                if !(lo..=hi).contains(&v) {
+                    return bad(
+                        "sizes",
+                        format!("{who} has {what} {v} m, outside the plausible {lo}..={hi} m"),
+                    );
+                }
             }
         }
         if let Some(lanes) = &self.lanes {
@@ -282,7 +318,7 @@ pub enum PlanStatus {
     /// No admissible plan was found (refinement, backtracking and fallbacks failed, or the
     /// work budget ran out before one was); the plan is the least-violating one found.
     Unsafe,
-    /// The work budget (`budget_s`, `budget_calls`) ran out during the ADMM loop; the plan is
+    /// The work budget (`budget.seconds`, `budget.calls`) ran out during the ADMM loop; the plan is
     /// the roll-out of the ADMM inputs at that point, or else the shifted previous plan, and it
     /// is admissible (checked with the calls the budget held back).
     BudgetExhausted,
@@ -494,4 +530,32 @@ pub struct Plan {
     pub status: PlanStatus,
     /// What decided the applied inputs.
     pub decided_by: DecidedBy,
+    /// The limit of the call's work budget that was reached, if any ([`BudgetLimit`]): the
+    /// call stopped evaluating candidates there, and its plan is the best found until then
+    /// (status [`PlanStatus::BudgetExhausted`] when it was reached in the ADMM loop and the
+    /// plan is admissible). `None` when the call ran to its end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub budget_reached: Option<BudgetLimit>,
+}
+
+/// Which limit of an MPC call's work budget was reached ([`Plan::budget_reached`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum BudgetLimit {
+    /// The predictor-call budget (`budget.calls`, at most `PlannerSettings::MAX_CALLS`):
+    /// deterministic.
+    Calls,
+    /// The wall-clock budget (`budget.seconds`, at most `PlannerSettings::MAX_SECONDS`): the
+    /// plan depends on the machine's speed.
+    Seconds,
+}
+
+impl BudgetLimit {
+    /// The name as in records (`"Calls"`, `"Seconds"`).
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Calls => "Calls",
+            Self::Seconds => "Seconds",
+        }
+    }
 }

@@ -663,6 +663,7 @@ fn qp_failure_ends_in_a_checked_fallback_plan() {
         model: Planner::new(PlannerSettings::default()).unwrap().model,
         settings: s.clone(),
         warm: None,
+        cancel: None,
     };
     let mut cv = ConstantVelocity::default();
     let plan = planner.plan(&p, &mut cv).unwrap();

@@ -167,8 +167,9 @@ settings_struct! {
 settings_struct! {
     /// The work budget of one MPC call.
     pub struct BudgetSettings("budget.") {
-        /// Wall-clock budget of one MPC call (s; 0: none).
-        seconds: f64 = 0.0, closed(0.0, 3600.0, "s");
+        /// Wall-clock budget of one MPC call (s; 0: the cap `PlannerSettings::MAX_SECONDS`,
+        /// which every call keeps whatever the other settings; timing-dependent once it binds).
+        seconds: f64 = 0.0, closed(0.0, PlannerSettings::MAX_SECONDS, "s");
         /// Predictor-call budget of one MPC call (deterministic; 0: the cap
         /// `PlannerSettings::MAX_CALLS`, which every call keeps whatever the other settings).
         calls: usize = 0, closed(0.0, PlannerSettings::MAX_CALLS as f64, "predictor calls");
@@ -436,12 +437,24 @@ impl PlannerSettings {
     pub const MAX_HORIZON: usize = nudge_predictor::MAX_HORIZON;
     /// Largest `admm.max_iter` accepted.
     pub const MAX_ITER: usize = 10_000;
-    /// Shortest non-zero `safety.ego_segment_length` (m).
-    pub const MIN_EGO_SEGMENT_LENGTH: f64 = 0.5;
+    /// Shortest non-zero `safety.ego_segment_length` (m): short enough that the longest ego
+    /// cut into [`Self::MAX_EGO_SEGMENTS`] slices (16 m) is a plausible vehicle
+    /// ([`crate::scenario::VEHICLE_LENGTH`]), long enough that a 30 m ego needs 120.
+    pub const MIN_EGO_SEGMENT_LENGTH: f64 = 0.25;
     /// Most predictor calls of one MPC call, whatever the settings (`budget.calls` may only
     /// lower it): 4× the most any validation step of the shipped defaults made (1,248), so it
     /// bounds the work of settings that would otherwise call the predictor without end.
     pub const MAX_CALLS: usize = 5_000;
+    /// Longest wall-clock time of one MPC call, whatever the settings (s; `budget.seconds`
+    /// may only lower it): a call ends within it plus at most one predictor call and the QP
+    /// work of its execution check. The slowest validation step of the shipped defaults took
+    /// 5.2 s with the teacher planning (661 predictor calls; 60 of the validation scenes, one
+    /// thread, on a 2-core machine shared with other jobs at load 13; 0.6 s unloaded) and
+    /// 1.3 s with the student (all 713 scenes, 10,566 steps), so at about 6× the slowest it
+    /// never binds on an ordinary step and the records of the shipped defaults stay
+    /// deterministic, while it bounds settings and predictors that would run for minutes
+    /// ([`Self::MAX_CALLS`] calls of a slow Python predictor).
+    pub const MAX_SECONDS: f64 = 30.0;
     /// Most slices an ego may be cut into by `safety.ego_segment_length`.
     pub const MAX_EGO_SEGMENTS: usize = 64;
 
@@ -473,7 +486,7 @@ impl PlannerSettings {
     /// # Errors
     /// [`SettingsError::OutOfRange`] naming the first field out of its range (NaN and
     /// infinity never are in range), [`SettingsError::Invalid`] for `bounds.a_max` ≤
-    /// `bounds.a_min` or a `safety.ego_segment_length` in (0, 0.5).
+    /// `bounds.a_min` or a `safety.ego_segment_length` in (0, 0.25).
     pub fn validate(&self) -> Result<(), SettingsError> {
         let specs: Vec<FieldSpec> = Self::fields().copied().collect();
         if let Some((range, value)) = first_out_of_range(&specs, |f| self.numeric(f)) {
@@ -495,7 +508,7 @@ impl PlannerSettings {
             return Err(SettingsError::Invalid {
                 field: "safety.ego_segment_length",
                 value: format!("{seg}"),
-                reason: "must be 0 (off) or at least MIN_EGO_SEGMENT_LENGTH = 0.5 m",
+                reason: "must be 0 (off) or at least MIN_EGO_SEGMENT_LENGTH = 0.25 m",
             });
         }
         Ok(())
@@ -507,12 +520,12 @@ impl PlannerSettings {
     /// # Errors
     /// [`SettingsError::Invalid`] naming `<json>` when the text is not JSON or not an object,
     /// naming a key of the flat settings of earlier versions with where it moved or why it was
-    /// removed, naming a repeated key, or when a field is unknown or of the wrong type;
-    /// otherwise as [`Self::validate`].
+    /// removed, naming a repeated key, or when a field is unknown, naming the field (dotted)
+    /// when it is of the wrong type; otherwise as [`Self::validate`].
     pub fn from_json(text: &str) -> Result<Self, SettingsError> {
         let not_json = |e: serde_json::Error| SettingsError::Invalid {
             field: "<json>",
-            value: e.to_string(),
+            value: nudge_predictor::json::brief(&e, "docs/reference/settings.md"),
             reason: "not valid planner settings JSON",
         };
         // A repeated key is an error naming it (serde_json would keep the last one).
@@ -527,9 +540,33 @@ impl PlannerSettings {
         for key in object.keys() {
             check_key(key)?;
         }
-        let s: Self = serde_json::from_value(value).map_err(not_json)?;
+        let s: Self = serde_json::from_value(value.clone()).map_err(|e| {
+            // serde names no field in a type error: find it by parsing each field alone.
+            let mut err = not_json(e);
+            if let SettingsError::Invalid { field, .. } = &mut err
+                && let Some(f) = Self::failing_field(object)
+            {
+                *field = f;
+            }
+            err
+        })?;
         s.validate()?;
         Ok(s)
+    }
+
+    /// The dotted name of the first field of `object` (a JSON object of groups) that does not
+    /// deserialise on its own; `None` when none fails alone (an unknown field or group).
+    fn failing_field(object: &serde_json::Map<String, serde_json::Value>) -> Option<&'static str> {
+        for (group, fields) in object {
+            for (key, v) in fields.as_object()? {
+                let alone = serde_json::json!({ group: { key: v } });
+                if serde_json::from_value::<Self>(alone).is_err() {
+                    let dotted = format!("{group}.{key}");
+                    return Self::fields().find(|f| f.field == dotted).map(|f| f.field);
+                }
+            }
+        }
+        None
     }
 
     /// Reads and parses a settings file (at most [`MAX_SETTINGS_BYTES`]).
