@@ -15,7 +15,7 @@ DEMO_EXT := $(DEMO_VENV)/.nudge-ext-stamp
 DATA ?= ../shared/data/ngsim
 CARGO ?= cargo
 
-.PHONY: help venv venv-demo develop build wheel wheel-smoke wheel-smoke-versions test test-rust test-commonroad commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
+.PHONY: help venv venv-demo develop build wheel wheel-smoke wheel-smoke-versions test test-rust test-commonroad test-fuzz commonroad test-examples test-python lint fmt reference-docs fuzz fuzz-rust fuzz-python bench bench-planner bench-latency bench-table bench-python-predictor demo data teacher distill student distill-react student-react reaction paper paper-quick interaction interaction-merge goldens ci clean
 
 help:
 	@echo "make demo     set up and run the main job on the shipped defaults"
@@ -120,7 +120,14 @@ wheel-smoke-versions:
 	done
 
 # ---- tests ----------------------------------------------------------------------------------
-test: venv test-rust test-examples test-python test-commonroad wheel-smoke
+test: venv test-rust test-examples test-python test-commonroad wheel-smoke test-fuzz
+
+# A few minutes of the mutation fuzzer in CI: every target for CI_FUZZ_SECONDS from the
+# checked-in seeds (the shipped weights, scenes, world and CommonRoad files), seed fixed (the
+# tries run in the same order on every machine; how many fit depends on its speed).
+CI_FUZZ_SECONDS ?= 20
+test-fuzz:
+	$(CARGO) run --release --quiet -p nudge-fuzz -- --seconds $(CI_FUZZ_SECONDS) --seed 7
 
 test-rust:
 	$(CARGO) test --workspace --release
