@@ -22,6 +22,8 @@
 
 mod error;
 pub mod frame;
+pub mod frenet;
+pub mod goal;
 pub mod lanes;
 pub mod scene;
 pub mod solution;
@@ -29,6 +31,7 @@ pub mod xml;
 
 pub use error::{CommonRoadError, XmlBudget};
 pub use frame::RoadFrame;
+pub use goal::{GoalPolicy, GoalShape, GoalState, Interval, RoadGoal};
 pub use lanes::LaneMap;
 pub use scene::{CommonRoadScene, Ego};
 pub use solution::{Solution, VEHICLE};

@@ -7,16 +7,21 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use nudge_planner::Scenario;
+use nudge_planner::scenario::ROAD_TOLERANCE;
 use nudge_predictor::{DT, MAX_AGENTS, T_OBS};
 use safetensors::{Dtype, tensor::TensorView};
 
 use super::error::CommonRoadError;
 use super::frame::RoadFrame;
-use super::lanes::{LaneMap, RoadLanelet, sorted_by_x};
+use super::lanes::{LaneMap, RoadLanelet, on_carriageway, sorted_by_x};
 use super::xml::{RawScenario, RawState};
 
 /// Most logged future steps (0.3 s each) a scenario keeps.
 pub const MAX_FUTURE: usize = 30;
+/// Most future steps (0.3 s each) a planning problem's scenario keeps: its goal's time
+/// window may end later than [`MAX_FUTURE`] steps after its start, and the closed loop runs
+/// until it ends (the others as logged).
+pub const MAX_PLAN_FUTURE: usize = 100;
 /// Fewest logged future steps of the ego (the scenario format's minimum).
 pub const MIN_FUTURE: usize = 6;
 /// Neighbours are the vehicles within this distance (m) of the ego at the last observed step.
@@ -25,6 +30,11 @@ pub const NEIGHBOUR_RANGE: f64 = 60.0;
 pub const STRAIGHT_TOL: f64 = 0.6;
 /// ... over the ego's x ± this (m).
 pub const STRAIGHT_HALF_RANGE: f64 = 100.0;
+/// Largest |curvature · offset| of a point in the curvilinear frame (the projection onto the
+/// reference path stops being unique at 1), as the data pipeline's `max_offset_curvature`.
+pub const MAX_OFFSET_CURVATURE: f64 = 0.5;
+/// How the refusal of lanes that are not straight near the ego begins (its reason).
+pub const ROAD_SHAPE: &str = "road shape: ";
 /// The `split` metadata of a scenario built from a CommonRoad file.
 pub const SPLIT: &str = "commonroad";
 
@@ -119,6 +129,99 @@ impl CommonRoadScene {
     /// As [`LaneMap::build`].
     pub fn from_raw(raw: RawScenario) -> Result<Self, CommonRoadError> {
         let frame = RoadFrame::fit(&raw.lanelets);
+        Self::in_frame(raw, frame)
+    }
+
+    /// The same scene in the curvilinear (Frenet) road frame ([`RoadFrame::curvilinear`]):
+    /// x = arc length along a reference path fitted to the lanelet bounds, y = the signed
+    /// offset from it, so that lanes that curve are lines y = const.
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Unsupported`] naming what the frame cannot represent: a reference
+    /// path turning by more than [`super::frenet::MAX_TURN_RAD`], a lanelet point or vehicle
+    /// state whose foot lies beyond the path or whose offset is not small against the path's
+    /// radius of curvature (|κ d| > [`MAX_OFFSET_CURVATURE`]); as [`LaneMap::build`].
+    pub fn curvilinear(&self) -> Result<Self, CommonRoadError> {
+        let unsupported = |reason: String| CommonRoadError::Unsupported {
+            path: self.raw.path.clone(),
+            reason: format!("curvilinear road frame: {reason}"),
+        };
+        let frame = RoadFrame::curvilinear(&self.raw.lanelets).map_err(unsupported)?;
+        let points = self
+            .raw
+            .lanelets
+            .iter()
+            .flat_map(|ll| ll.left.iter().chain(&ll.right).copied())
+            .chain(
+                self.raw
+                    .obstacles
+                    .iter()
+                    .flat_map(|o| o.states.iter().map(|st| [st.x, st.y])),
+            )
+            .chain(
+                self.raw
+                    .planning_problems
+                    .iter()
+                    .map(|pp| [pp.initial.x, pp.initial.y]),
+            );
+        for p in points {
+            match frame.project(p) {
+                None => {
+                    return Err(unsupported(format!(
+                        "point ({:.2}, {:.2}) m lies beyond the ends of the reference path or its \
+                         projection does not converge",
+                        p[0], p[1]
+                    )));
+                }
+                Some((r, kd)) if kd > MAX_OFFSET_CURVATURE => {
+                    return Err(unsupported(format!(
+                        "point ({:.2}, {:.2}) m is {:.1} m off the reference path, {kd:.2} of its \
+                         radius of curvature (at most {MAX_OFFSET_CURVATURE}): its projection is \
+                         not unique",
+                        p[0], p[1], r[1]
+                    )));
+                }
+                Some(_) => {}
+            }
+        }
+        Self::in_frame(self.raw.clone(), frame)
+    }
+
+    /// The scene of `ego` made ready to plan: read from `path`, t0 (`t0_s`, or
+    /// [`CommonRoadScene::default_t0`]) and the scenario with its file bytes
+    /// ([`CommonRoadScene::scenario_in_range`], neighbours within `range_m` m). In the
+    /// straightened road frame when the lanes near the ego are straight there (every shipped
+    /// scene), else in the curvilinear frame ([`CommonRoadScene::curvilinear`]); the scene
+    /// returned is the one the scenario was built in (the solution writer maps back through
+    /// its frame).
+    ///
+    /// # Errors
+    /// As [`CommonRoadScene::read`], [`CommonRoadScene::default_t0`] and
+    /// [`CommonRoadScene::scenario_in_range`] (in the curvilinear frame when the straightened
+    /// one is refused for its road shape), [`CommonRoadScene::curvilinear`].
+    pub fn prepare(
+        path: impl AsRef<Path>,
+        ego: Ego,
+        t0_s: Option<f64>,
+        range_m: f64,
+    ) -> Result<(Self, f64, Scenario, Vec<u8>), CommonRoadError> {
+        let scene = Self::read(path)?;
+        let t0 = match t0_s {
+            Some(t) => t,
+            None => scene.default_t0(ego)?,
+        };
+        match scene.scenario_in_range(ego, t0, range_m) {
+            Ok((sc, bytes)) => Ok((scene, t0, sc, bytes)),
+            Err(CommonRoadError::Unsupported { reason, .. }) if reason.starts_with(ROAD_SHAPE) => {
+                let curved = scene.curvilinear()?;
+                let (sc, bytes) = curved.scenario_in_range(ego, t0, range_m)?;
+                Ok((curved, t0, sc, bytes))
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn in_frame(raw: RawScenario, frame: RoadFrame) -> Result<Self, CommonRoadError> {
         let road = |b: &[[f64; 2]]| sorted_by_x(b.iter().map(|&p| frame.to_road(p)).collect());
         let lanelets: Vec<RoadLanelet> = raw
             .lanelets
@@ -130,7 +233,11 @@ impl CommonRoadScene {
                 right: road(&ll.right),
             })
             .collect();
-        let lanes = LaneMap::build(&lanelets, &raw.path)?;
+        let lanes = if frame.is_curvilinear() {
+            LaneMap::build(&on_carriageway(&lanelets), &raw.path)?
+        } else {
+            LaneMap::build(&lanelets, &raw.path)?
+        };
         let mut tracks: Vec<Track> = raw
             .obstacles
             .iter()
@@ -283,7 +390,8 @@ impl CommonRoadScene {
                 format!("no full {T_OBS}-step history ending at t0 {t0_s} s"),
             )
         })?;
-        let fut: Vec<i64> = (1..=MAX_FUTURE as i64)
+        let max_future = if plan { MAX_PLAN_FUTURE } else { MAX_FUTURE };
+        let fut: Vec<i64> = (1..=max_future as i64)
             .map(|k| step + stride * k)
             .take_while(|&s| s <= last)
             .collect();
@@ -306,10 +414,15 @@ impl CommonRoadScene {
             return Err(CommonRoadError::Unsupported {
                 path: self.raw.path.clone(),
                 reason: format!(
-                    "road shape: the lanes near {ego} (road x {:.1} m) deviate {dev:.2} m from \
-                     straight lines over ±{STRAIGHT_HALF_RANGE} m (nudge plans on straight \
-                     lanes: at most {STRAIGHT_TOL} m)",
-                    ego_xy[0]
+                    "{ROAD_SHAPE}the lanes near {ego} (road x {:.1} m) deviate {dev:.2} m from \
+                     straight lines over ±{STRAIGHT_HALF_RANGE} m in the {} road frame (nudge \
+                     plans on lanes y = const: at most {STRAIGHT_TOL} m)",
+                    ego_xy[0],
+                    if self.frame.is_curvilinear() {
+                        "curvilinear"
+                    } else {
+                        "straightened"
+                    }
                 ),
             });
         }
@@ -332,7 +445,9 @@ impl CommonRoadScene {
     }
 
     /// The other vehicles with full histories within `range_m` (m) of the ego at t0,
-    /// nearest first (ties by id), at most `MAX_AGENTS − 1`.
+    /// nearest first (ties by id), at most `MAX_AGENTS − 1`; in the curvilinear frame only
+    /// those whose history stays within the scenario's road tolerance of the lanes at the
+    /// ego's x (not on a ramp before it joins).
     fn neighbours(
         &self,
         ego: Ego,
@@ -351,6 +466,13 @@ impl CommonRoadScene {
                 (d <= range_m).then_some((d, t, h))
             })
             .collect();
+        if self.frame.is_curvilinear() {
+            // Vehicles off the carriageway at the ego's x (on a ramp before it joins) are not
+            // part of the scene's road.
+            let b = self.lanes.bounds_at(ego_xy[0]);
+            let (lo, hi) = (b[0] - ROAD_TOLERANCE, b[b.len() - 1] + ROAD_TOLERANCE);
+            cand.retain(|(_, _, h)| h.iter().all(|s| (lo..=hi).contains(&s.pos[1])));
+        }
         cand.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
         cand.into_iter()
             .take(MAX_AGENTS - 1)
