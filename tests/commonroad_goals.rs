@@ -267,3 +267,33 @@ fn curved_problem_is_prepared_in_the_curvilinear_frame() {
     assert!((last[0] - start[0]).hypot(last[1] - start[1]) < 1e-9);
     assert!(scene.road_goal(33, t0, last).is_ok());
 }
+
+/// USA_US101-18_1, problem 373: the goal lies in the lane an on-ramp adds 18 m ahead of the
+/// ego. In the curvilinear frame the scenario carries every lane with its extent
+/// ("nudge.scenario/2"): that lane begins inside the scene, ahead of the ego, and the goal's y
+/// lies in it.
+#[test]
+fn a_lane_that_joins_ahead_is_in_the_scenario_with_its_extent() {
+    let path = shared("USA_US101-18_1_T-1.xml.gz");
+    let ego = Ego::PlanningProblem(373);
+    let (scene, t0, sc, _) = CommonRoadScene::prepare(&path, ego, None, NEIGHBOUR_RANGE).unwrap();
+    assert!(scene.frame.is_curvilinear());
+    assert_eq!(sc.metadata["schema"], nudge::planner::SCHEMA_EXTENTS);
+    let ext = sc.lane_extents.as_ref().unwrap();
+    let x0 = sc.position(0, 7)[0];
+    let goal = scene.road_goal(373, t0, sc.position(0, 7)).unwrap();
+    let lane = sc
+        .lane_bounds
+        .windows(2)
+        .position(|w| w[0] <= goal.y && goal.y <= w[1])
+        .unwrap();
+    assert!(
+        ext[lane].begins && ext[lane].begin > x0 + 10.0,
+        "{:?} ego x {x0}",
+        ext[lane]
+    );
+    assert!(ext[sc.ego_lane].begin <= x0 && x0 <= ext[sc.ego_lane].end);
+    // Without its extents (the lanes at the ego's x only) the goal lane is not on the road.
+    let here = scene.lanes.bounds_at(x0);
+    assert!(goal.y < here[0], "goal y {} lanes {here:?}", goal.y);
+}

@@ -296,6 +296,14 @@ impl RoadFrame {
         })
     }
 
+    /// The curvilinear frame's reference-path curvature (1/m, positive turning left) at road
+    /// x `s` (m); `None` for the straightened frame.
+    #[must_use]
+    pub fn curvature_at(&self, s: f64) -> Option<f64> {
+        let path = self.path.as_ref()?;
+        Some(path.curvature(path.u_of_s(s)))
+    }
+
     /// Whether this is the curvilinear frame ([`RoadFrame::curvilinear`]).
     #[must_use]
     pub fn is_curvilinear(&self) -> bool {

@@ -229,6 +229,10 @@ pub struct RoadGoal {
     pub velocity: Option<Interval>,
 }
 
+/// The last seconds before the middle of a goal's time window over which [`GoalPolicy`]
+/// keeps its reference speed inside the goal's velocity interval (s).
+pub const ARRIVAL_S: f64 = 2.0;
+
 /// Most distance (m/s) inside the ends of a goal's velocity interval that [`GoalPolicy`]'s
 /// reference speed keeps (the planner tracks its reference with a lag).
 pub const VELOCITY_MARGIN: f64 = 1.0;
@@ -418,8 +422,9 @@ impl GoalPolicy {
     /// `v` (m/s): the speed that brings it at the middle of the goal's time window to where
     /// its present speed would, moved inside the goal's x range (at most [`GOAL_MARGIN`] or a
     /// quarter of the range inside its ends); its present speed once the middle is less than
-    /// one step away or the ego is past that point; within the goal's velocity interval (at
-    /// most [`VELOCITY_MARGIN`] or a quarter of it inside its ends) and [0, `v_max`].
+    /// one step away or the ego is past that point; within [0, `v_max`], and within the goal's
+    /// velocity interval (at most [`VELOCITY_MARGIN`] or a quarter of it inside its ends) over
+    /// the last [`ARRIVAL_S`] (throughout for a goal without a position).
     #[must_use]
     pub fn v_ref(&self, t_s: f64, x: f64, v: f64) -> f64 {
         let g = &self.goal;
@@ -434,10 +439,17 @@ impl GoalPolicy {
         } else {
             v
         };
-        let (lo, hi) = g.velocity.map_or((0.0, self.v_max), |iv| {
-            let m = (0.25 * (iv.hi - iv.lo)).min(VELOCITY_MARGIN);
-            ((iv.lo + m).max(0.0), (iv.hi - m).min(self.v_max))
-        });
+        // The velocity interval binds over the last ARRIVAL_S before the window's middle (or
+        // throughout for a goal anywhere): before, the ego may have to go slower or faster
+        // than it allows to arrive in time.
+        let binds = left <= ARRIVAL_S || !g.x[0].is_finite() || !g.x[1].is_finite();
+        let (lo, hi) = g
+            .velocity
+            .filter(|_| binds)
+            .map_or((0.0, self.v_max), |iv| {
+                let m = (0.25 * (iv.hi - iv.lo)).min(VELOCITY_MARGIN);
+                ((iv.lo + m).max(0.0), (iv.hi - m).min(self.v_max))
+            });
         if lo <= hi {
             want.clamp(lo, hi)
         } else {

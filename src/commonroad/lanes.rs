@@ -257,7 +257,116 @@ pub fn on_carriageway(lanelets: &[RoadLanelet]) -> Vec<RoadLanelet> {
     out
 }
 
+/// Lanes whose centres differ by less than this (m) in neighbouring pieces are one lane
+/// ([`LaneMap::lanes_with_extents`]).
+pub const SAME_LANE: f64 = 1.0;
+/// A lane that begins (ends) more than this (m) after the start (before the end) of the lane
+/// map begins (ends) inside the scene, as the pipeline's `edge_margin_m`.
+pub const EDGE_MARGIN: f64 = 5.0;
+
+/// One lane over the pieces ([`LaneMap::lanes_with_extents`]): right and left bound (m, at
+/// the first piece it appears in) and where along x it begins and ends (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneSpan {
+    /// Right bound y (m).
+    pub right: f64,
+    /// Left bound y (m).
+    pub left: f64,
+    /// First x (m) of the pieces it runs through.
+    pub begin: f64,
+    /// Last x (m).
+    pub end: f64,
+    /// It begins inside the lane map (not at its start).
+    pub begins: bool,
+    /// It ends inside the lane map (not at its end).
+    pub ends: bool,
+}
+
 impl LaneMap {
+    /// Every lane that runs through the piece at road x `x` or joins the road later or ends
+    /// earlier (curvilinear frame, where lanes are lines y = const): the lanes of the piece at
+    /// `x`, followed forward and backward through neighbouring pieces (a lane of the next
+    /// piece whose centre is within [`SAME_LANE`] of one is that lane; one that is not and
+    /// does not overlap the others is a lane that begins there), sorted right to left, each
+    /// with its extent.
+    #[must_use]
+    pub fn lanes_with_extents(&self, x: f64) -> Vec<LaneSpan> {
+        let n = self.pieces.len();
+        let dist = |p: &(f64, f64, Vec<f64>)| (x - p.0).max(0.0) + (p.1 - x).min(0.0).abs();
+        let k0 = (0..n)
+            .min_by(|&a, &b| dist(&self.pieces[a]).total_cmp(&dist(&self.pieces[b])))
+            .unwrap_or(0);
+        let spans = |b: &[f64]| -> Vec<(f64, f64)> { b.windows(2).map(|w| (w[0], w[1])).collect() };
+        let (x0, x1, b0) = &self.pieces[k0];
+        let mut lanes: Vec<LaneSpan> = spans(b0)
+            .into_iter()
+            .map(|(r, l)| LaneSpan {
+                right: r,
+                left: l,
+                begin: *x0,
+                end: *x1,
+                begins: false,
+                ends: false,
+            })
+            .collect();
+        let join = |lanes: &mut Vec<LaneSpan>, piece: &(f64, f64, Vec<f64>), forward: bool| {
+            let mut seen = vec![false; lanes.len()];
+            for (r, l) in spans(&piece.2) {
+                let c = 0.5 * (r + l);
+                let hit = lanes
+                    .iter()
+                    .position(|ln| (0.5 * (ln.right + ln.left) - c).abs() < SAME_LANE);
+                match hit {
+                    Some(i) => {
+                        let ln = &mut lanes[i];
+                        let touches = if forward {
+                            (piece.0 - ln.end).abs() < PIECE_GAP
+                        } else {
+                            (ln.begin - piece.1).abs() < PIECE_GAP
+                        };
+                        if touches {
+                            if forward {
+                                ln.end = piece.1;
+                            } else {
+                                ln.begin = piece.0;
+                            }
+                            seen[i] = true;
+                        }
+                    }
+                    None => {
+                        let overlaps = lanes
+                            .iter()
+                            .any(|ln| r < ln.left - MERGE_OVERLAP && l > ln.right + MERGE_OVERLAP);
+                        if !overlaps {
+                            lanes.push(LaneSpan {
+                                right: r,
+                                left: l,
+                                begin: piece.0,
+                                end: piece.1,
+                                begins: false,
+                                ends: false,
+                            });
+                            seen.push(true);
+                        }
+                    }
+                }
+            }
+        };
+        for piece in &self.pieces[k0 + 1..] {
+            join(&mut lanes, piece, true);
+        }
+        for piece in self.pieces[..k0].iter().rev() {
+            join(&mut lanes, piece, false);
+        }
+        let (lo, hi) = (self.pieces[0].0, self.pieces[n - 1].1);
+        for ln in &mut lanes {
+            ln.begins = ln.begin > lo + EDGE_MARGIN;
+            ln.ends = ln.end < hi - EDGE_MARGIN;
+        }
+        lanes.sort_by(|a, b| (a.right + a.left).total_cmp(&(b.right + b.left)));
+        lanes
+    }
+
     /// Builds the lane map of `lanelets` (road frame) of the file `path`.
     ///
     /// # Errors

@@ -5,9 +5,12 @@
 //!
 //! The road frame is the data pipeline's (`nudge_train.data.commonroad`): the scene rotated so
 //! that traffic runs along +x and straightened along a polynomial fitted to the lanelet bounds
-//! ([`frame`]); lanes are lines y = const ([`lanes`]). Scenes whose lanes near the ego are not
-//! straight within [`scene::STRAIGHT_TOL`] are refused with
-//! [`CommonRoadError::Unsupported`] naming the file and the deviation.
+//! ([`frame`]); lanes are lines y = const ([`lanes`]). Where the lanes near the ego are not
+//! straight within [`scene::STRAIGHT_TOL`] there, the scene is planned in the curvilinear
+//! (Frenet) frame along a spline reference path instead ([`frenet`],
+//! [`CommonRoadScene::prepare`]); what that frame cannot represent either is refused with
+//! [`CommonRoadError::Unsupported`] naming the file and the reason. A planning problem's goal
+//! ([`goal`]) sets the run's target lane, its timing and where its solution ends.
 //!
 //! ```no_run
 //! use nudge::commonroad::{CommonRoadScene, Ego};

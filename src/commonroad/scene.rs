@@ -339,12 +339,15 @@ impl CommonRoadScene {
     /// clock), as the data pipeline builds one: the ego's 8 states at t0 − 2.1 s ..= t0 every
     /// 0.3 s, the vehicles within [`NEIGHBOUR_RANGE`] of it at t0 with full histories (nearest
     /// first, ties by id, at most 46), their logged futures (up to [`MAX_FUTURE`] steps, the
-    /// ego's at least [`MIN_FUTURE`]) and the lanes at the ego's x.
+    /// ego's at least [`MIN_FUTURE`]) and the lanes at the ego's x. In the curvilinear frame
+    /// ([`CommonRoadScene::curvilinear`]) the lanes are every lane of the road with its extent
+    /// ("nudge.scenario/2") and vehicles off the carriageway are left out.
     ///
     /// For a planning problem, whose ego is not logged, every history step before a vehicle's
     /// first logged state is extrapolated back from it at constant speed and heading (the
     /// scene has no earlier data: CommonRoad tracks start at the scene's first step); the ego
-    /// has no logged future.
+    /// has no logged future, and the others' logged futures run up to [`MAX_PLAN_FUTURE`]
+    /// steps (a goal's window may end later than [`MAX_FUTURE`]).
     ///
     /// # Errors
     /// [`CommonRoadError::Ego`] (unknown id, t0 not on a logged step, no full history, too
@@ -494,7 +497,15 @@ impl CommonRoadScene {
             self.raw.version
         );
         [
-            ("schema", nudge_planner::SCHEMA.to_string()),
+            (
+                "schema",
+                if self.frame.is_curvilinear() {
+                    nudge_planner::SCHEMA_EXTENTS
+                } else {
+                    nudge_planner::SCHEMA
+                }
+                .to_string(),
+            ),
             ("source", source),
             ("scene", self.raw.benchmark_id.clone()),
             ("split", SPLIT.to_string()),
@@ -525,7 +536,21 @@ impl CommonRoadScene {
             }
         }
         let ego_xy = agents[0].1[T_OBS - 1].pos;
-        let bounds = self.lanes.bounds_at(ego_xy[0]).to_vec();
+        let spans = self
+            .frame
+            .is_curvilinear()
+            .then(|| self.lanes.lanes_with_extents(ego_xy[0]));
+        let bounds = match &spans {
+            // Lanes y = const: every lane the road has ahead and behind, each with its
+            // extent; neighbours share the midpoint of their bounds.
+            Some(sp) => {
+                let mut b = vec![sp[0].right];
+                b.extend(sp.windows(2).map(|w| 0.5 * (w[0].left + w[1].right)));
+                b.push(sp[sp.len() - 1].left);
+                b
+            }
+            None => self.lanes.bounds_at(ego_xy[0]).to_vec(),
+        };
         let centres: Vec<f64> = bounds.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
         let lane = bounds
             .partition_point(|&b| b <= ego_xy[1])
@@ -537,7 +562,7 @@ impl CommonRoadScene {
                 .map(|(_, h)| g(&h[T_OBS - 1]))
                 .collect::<Vec<_>>()
         };
-        vec![
+        let mut out = vec![
             Tensor::f64s("history", vec![n, T_OBS, 2], &history),
             Tensor::f64s("heading", vec![n], &now(|s| s.heading)),
             Tensor::f64s("speed", vec![n], &now(|s| s.speed)),
@@ -556,7 +581,22 @@ impl CommonRoadScene {
                 vec![n],
                 &agents.iter().map(|(t, _)| t.id).collect::<Vec<_>>(),
             ),
-        ]
+        ];
+        if let Some(sp) = spans {
+            let ext: Vec<f64> = sp.iter().flat_map(|l| [l.begin, l.end]).collect();
+            let real: Vec<u8> = sp
+                .iter()
+                .flat_map(|l| [u8::from(l.begins), u8::from(l.ends)])
+                .collect();
+            out.push(Tensor::f64s("lane_extent", vec![sp.len(), 2], &ext));
+            out.push(Tensor::bytes(
+                "lane_extent_real",
+                Dtype::U8,
+                vec![sp.len(), 2],
+                real,
+            ));
+        }
+        out
     }
 }
 

@@ -431,11 +431,33 @@ fn reference(bike: Bicycle, z: [f64; 4]) -> [f64; 2] {
 fn ks_state(scene: &CommonRoadScene, bike: Bicycle, z: [f64; 4], delta: f64, step: i64) -> KsState {
     let reference = reference(bike, z);
     let wheelbase = VEHICLE.a + VEHICLE.b;
+    let v_rear = z[3] * bike.beta(delta).cos();
+    let (steering, velocity) = match scene.frame.curvature_at(reference[0]) {
+        // The curvilinear frame: the road frame's straight lines are the reference path's
+        // offsets, so the file's rear axle moves at the road speed scaled by (1 − κ d) along
+        // the path and turns at the road yaw rate plus κ times its progress along it.
+        Some(kappa) => {
+            let (sn, cs) = z[2].sin_cos();
+            let along = 1.0 - kappa * reference[1];
+            let v = v_rear * (along * cs).hypot(sn);
+            let yaw_rate = z[3] * bike.beta(delta).sin() / bike.l_r + kappa * v_rear * cs;
+            let steering = if v > 1e-9 {
+                (wheelbase * yaw_rate / v).atan()
+            } else {
+                (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan()
+            };
+            (steering, v)
+        }
+        None => (
+            (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan(),
+            v_rear,
+        ),
+    };
     KsState {
         step,
         pos: scene.frame.to_file(reference),
-        steering: (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan(),
-        velocity: z[3] * bike.beta(delta).cos(),
+        steering,
+        velocity,
         orientation: scene.frame.heading_to_file(reference, z[2]),
     }
 }

@@ -177,3 +177,18 @@ def test_plan_refuses_a_goal_beyond_the_map(curved: tuple) -> None:
     problem.goal.state_list[0].position = Rectangle(2.4, 1.85, center=np.array([5000.0, -4000.0]))
     with pytest.raises(CommandError, match=rf"planning problem {CURVED_PROBLEM}: goal: .*beyond the map"):
         plan(scenario, problem, nudge=NUDGE)
+
+
+def test_long_curved_run_is_ks_feasible(tmp_path: Path) -> None:
+    """USA_US101-22_1, problem 686: 16 s along a curving reference path. The KS states are
+    written with the file frame's speed and yaw rate (the path's curvature included), so every
+    transition passes the official feasibility check (with the road frame's steering and speed
+    the transition at time step 142 did not) and the goal is reached."""
+    source = paths.ngsim() / "us101" / "commonroad_us101_T-1/USA_US101-22_1_T-1.xml.gz"
+    sol = _simulate(NUDGE, ["--planning-problem", "686"], source, tmp_path)
+    side = json.loads(sol.with_suffix(".json").read_text())
+    assert side["n_states"] > 150
+    checks = official_checks(source, sol)
+    for step in ("solution_feasible", "obstacle_collision", "starts_at_correct_state", "goal_reached"):
+        (verdict,) = [v for k, v in checks.items() if f"({step})" in k]
+        assert verdict == "passed", f"{step}: {verdict}"

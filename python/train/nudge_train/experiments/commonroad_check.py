@@ -318,10 +318,10 @@ def end_to_end(nudge: Path, out: Path) -> str:
         "| check | result |", "|---|---|",
     ]
     lines += [f"| {k} | {v} |" for k, v in official_checks(source, sol).items()]
-    lines += ["", "nudge plans a lane change to a lane drawn from the seed, not to the problem's goal region (a",
-              "2.2 m x 1.7 m box at time steps 62-72), so `goal_reached` is not expected to pass; the road",
-              "boundary check needs the non-free `triangle` package, which the `commonroad` extra does not",
-              "install.", ""]
+    lines += ["", f"nudge aims at the problem's goal region (lane {side.get('goal_lane')} of the road frame; the goal is",
+              "a 2.2 m x 1.7 m box at time steps 62-72 with velocity and orientation intervals) and the solution",
+              f"ends at its first state inside it (time step {side.get('goal_time_step')}); the road boundary check needs the non-free",
+              "`triangle` package, which the `commonroad` extra does not install.", ""]
     return "\n".join(lines)
 
 
