@@ -30,6 +30,16 @@ pub const MARGIN_M: f64 = 60.0;
 pub const SAMPLE_M: f64 = 0.25;
 /// Largest heading change (rad) of the path over the scene.
 pub const MAX_TURN_RAD: f64 = 1.0;
+/// Most lanelet bounds the path is fitted to: 400, 11 times the most of a US-101 file (36).
+/// The fit solves a dense system with one unknown per bound, once per rejection round, so its
+/// work grows with the cube of their number.
+pub const MAX_FIT_BOUNDS: usize = 400;
+/// Most spline intervals (knots every [`KNOT_M`]): 400, a scene 10 km long (a US-101 file
+/// spans 0.6 km).
+pub const MAX_INTERVALS: usize = 400;
+/// Most rejection rounds of the fit (one bound left out per round; a US-101 file has at most
+/// 36 bounds, so the rounds end before this).
+pub const MAX_FIT_ROUNDS: usize = 64;
 
 /// The uniform cubic B-spline basis on the interval `j` at local parameter `u` ∈ [0, 1]:
 /// values (`nu` = 0), first or second derivatives in u (`nu` = 1, 2) of the 4 coefficients
@@ -105,7 +115,8 @@ impl Reference {
     /// Fits the path to the bounds `rot` (already rotated by `theta`, each ≥ 2 points).
     ///
     /// # Errors
-    /// A reason when the path turns by more than [`MAX_TURN_RAD`].
+    /// A reason when there are more than [`MAX_FIT_BOUNDS`] bounds, they span more than
+    /// [`MAX_INTERVALS`] knot intervals, or the path turns by more than [`MAX_TURN_RAD`].
     pub fn fit(theta: f64, rot: &[Vec<[f64; 2]>]) -> Result<Self, String> {
         let (lo, hi) = rot
             .iter()
@@ -114,14 +125,29 @@ impl Reference {
                 (a.0.min(p[0]), a.1.max(p[0]))
             });
         let (lo, hi) = (lo - MARGIN_M, hi + MARGIN_M);
+        if rot.len() > MAX_FIT_BOUNDS {
+            return Err(format!(
+                "{} lanelet bounds (the reference path is fitted to at most {MAX_FIT_BOUNDS})",
+                rot.len()
+            ));
+        }
+        let span = (hi - lo) / KNOT_M;
+        #[allow(clippy::cast_precision_loss)]
+        if !(span.is_finite() && span <= MAX_INTERVALS as f64) {
+            return Err(format!(
+                "the lanelets span {:.0} m (the reference path covers at most {:.0} m)",
+                hi - lo,
+                MAX_INTERVALS as f64 * KNOT_M
+            ));
+        }
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
-        let n_int = (((hi - lo) / KNOT_M).ceil() as usize).max(1);
+        let n_int = (span.ceil() as usize).max(1);
         #[allow(clippy::cast_precision_loss)]
         let h = (hi - lo) / n_int as f64;
         let n_c = n_int + 3;
         let mut keep: Vec<usize> = (0..rot.len()).collect();
         let mut coef = vec![0.0; n_c];
-        for _ in 0..rot.len() {
+        for _ in 0..rot.len().min(MAX_FIT_ROUNDS) {
             let cols = n_c + keep.len();
             // Normal equations of the stacked least-squares system.
             let mut ata = DMatrix::<f64>::zeros(cols, cols);
@@ -351,5 +377,21 @@ mod tests {
             }
         }
         assert!((path.curvature(0.0) - 1.0 / r0).abs() < 2e-4);
+    }
+
+    /// Too many bounds or too long a span are refused at once, before any fit.
+    #[test]
+    fn oversized_inputs_are_refused_before_the_fit() {
+        let line = |y: f64| vec![[0.0, y], [100.0, y]];
+        let many: Vec<Vec<[f64; 2]>> = (0..=MAX_FIT_BOUNDS)
+            .map(|k| line(f64::from(u32::try_from(k).unwrap())))
+            .collect();
+        let t = std::time::Instant::now();
+        let err = Reference::fit(0.0, &many).unwrap_err();
+        assert!(err.contains("401 lanelet bounds"), "{err}");
+        let long = vec![vec![[0.0, 0.0], [2e4, 0.0]], vec![[0.0, 3.6], [2e4, 3.6]]];
+        let err = Reference::fit(0.0, &long).unwrap_err();
+        assert!(err.contains("span"), "{err}");
+        assert!(t.elapsed().as_secs_f64() < 0.5);
     }
 }
