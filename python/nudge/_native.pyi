@@ -400,9 +400,10 @@ def commonroad_solution(
     ego of ``commonroad_scenario`` with the same arguments. Returns benchmark_id,
     planning_problem, n_states."""
 
-def commonroad_tracks(path: _Path) -> dict[str, Any]:
+def commonroad_tracks(path: _Path, *, curvilinear: bool = False) -> dict[str, Any]:
     """The CommonRoad file ``path`` in the road frame: vehicle, step (int64 [N]), x, y (m),
-    heading (rad), speed (m/s) (float64 [N]) and pieces: [(x0 m, x1 m, lane bounds [L + 1] m)]."""
+    heading (rad), speed (m/s) (float64 [N]) and pieces: [(x0 m, x1 m, lane bounds [L + 1] m)].
+    With ``curvilinear``, in the curvilinear (Frenet) frame used on curved roads."""
 
 class _Trace(TypedDict):
     """One traced run (S steps, n agents, horizon T, L lanes; road frame, m, rad, m/s, s)."""

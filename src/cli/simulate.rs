@@ -201,11 +201,16 @@ const PROGRESS_TICK: Duration = Duration::from_millis(100);
 /// Runs `batch`, drawing a progress bar with the runs done and the time left on stderr while
 /// it runs when `show` (the caller checks that stderr is a terminal); the outputs are those of
 /// [`Batch::run`] either way.
-fn run_with_progress(batch: &Batch, keep: Keep, show: bool) -> Vec<RunOutput> {
+fn run_with_progress(
+    batch: &Batch,
+    keep: Keep,
+    show: bool,
+    policy: Option<&nudge_sim::PolicyFactory<'_>>,
+) -> Vec<RunOutput> {
     let cancel = Cancel::new();
     let progress = Progress::new();
     if !show {
-        return batch.run_counted(keep, &cancel, None, None, &progress);
+        return batch.run_counted(keep, &cancel, None, policy, &progress);
     }
     let total = batch.specs.len() as u64;
     let bar = indicatif::ProgressBar::with_draw_target(
@@ -233,7 +238,7 @@ fn run_with_progress(batch: &Batch, keep: Keep, show: bool) -> Vec<RunOutput> {
             }
         });
         let _finish = Finish(&finished);
-        batch.run_counted(keep, &cancel, None, None, &progress)
+        batch.run_counted(keep, &cancel, None, policy, &progress)
     });
     bar.finish_and_clear();
     outputs
@@ -336,12 +341,15 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, Stop> {
         ));
     }
     let settings = a.planner_settings()?;
-    let config = a.sim_config()?;
+    let mut config = a.sim_config()?;
     let assets = a
         .assets
         .clone()
         .unwrap_or_else(|| assets_dir(shipped_assets));
     let commonroad = a.commonroad.prepare(a.out.as_deref())?;
+    if let Some(c) = &commonroad {
+        config = c.goal_config(&config)?;
+    }
     let scene_paths = match &commonroad {
         Some(c) => vec![c.scenario_path.clone()],
         None => {
@@ -372,7 +380,13 @@ pub fn run(a: &SimulateArgs, shipped_assets: &Path) -> Result<usize, Stop> {
         traces: a.animate,
     };
     let show = !a.no_progress && std::io::stderr().is_terminal();
-    let outputs = run_with_progress(&batch, keep, show);
+    // A planning problem's goal: every run driven to it (CommonRoad, crate::commonroad::goal).
+    let goal = commonroad.as_ref().and_then(|c| c.goal.map(|g| (c, g)));
+    let factory = goal.map(|(c, g)| {
+        let s = &settings;
+        move |_: &Scenario, _: u64| c.goal_policy(g, s)
+    });
+    let outputs = run_with_progress(&batch, keep, show, factory.as_ref().map(|f| f as _));
     let scenes = &batch.scenes;
     let failed: Vec<String> = outputs
         .iter()

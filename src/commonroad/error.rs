@@ -69,6 +69,17 @@ pub enum CommonRoadError {
         /// Why (unknown id, no history, too short a logged future, ...).
         reason: String,
     },
+    /// A planning problem's goal cannot be planned to, or the closed loop did not reach it.
+    #[error("{path}: planning problem {problem}: goal: {reason}")]
+    Goal {
+        /// The file.
+        path: PathBuf,
+        /// The planning problem's id.
+        problem: i64,
+        /// Why (a goal beyond the map, behind the ego, between lanes, a time window that has
+        /// passed; or, after the run, how close the ego came).
+        reason: String,
+    },
     /// The scenario built from the file does not validate as a nudge scenario.
     #[error("{path}: the scenario built from it is not valid: {source}")]
     Scenario {

@@ -23,6 +23,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use super::frenet::Reference;
 use super::xml::RawLanelet;
 
 /// Bounds spanning more than this (m, rotated x) refine the rotation.
@@ -222,6 +223,9 @@ pub struct RoadFrame {
     grid_x: Vec<f64>,
     /// ... and the arc length at each (m; 0 at rotated x = 0).
     grid_arc: Vec<f64>,
+    /// The curvilinear frame's reference path ([`RoadFrame::curvilinear`]); `None` for the
+    /// straightened frame.
+    path: Option<Reference>,
 }
 
 impl RoadFrame {
@@ -263,7 +267,57 @@ impl RoadFrame {
             deriv,
             grid_x,
             grid_arc,
+            path: None,
         }
+    }
+
+    /// The curvilinear (Frenet) frame of the lanelets ([`super::frenet`]): road x = arc
+    /// length s along a P-spline reference path fitted to every bound, road y = the signed
+    /// offset d of the exact foot point (positive left). For scenes whose lanes are not
+    /// straight lines in the straightened frame ([`RoadFrame::fit`]). `coef` is empty.
+    ///
+    /// # Errors
+    /// A reason when the reference path turns by more than [`super::frenet::MAX_TURN_RAD`].
+    pub fn curvilinear(lanelets: &[RawLanelet]) -> Result<Self, String> {
+        let theta = direction(lanelets);
+        let rot: Vec<Vec<[f64; 2]>> = lanelets
+            .iter()
+            .flat_map(|ll| [&ll.left, &ll.right])
+            .map(|b| b.iter().map(|&p| rotate(p, theta)).collect())
+            .collect();
+        let path = Reference::fit(theta, &rot)?;
+        Ok(Self {
+            theta,
+            coef: Vec::new(),
+            deriv: Vec::new(),
+            grid_x: Vec::new(),
+            grid_arc: Vec::new(),
+            path: Some(path),
+        })
+    }
+
+    /// The curvilinear frame's reference-path curvature (1/m, positive turning left) at road
+    /// x `s` (m); `None` for the straightened frame.
+    #[must_use]
+    pub fn curvature_at(&self, s: f64) -> Option<f64> {
+        let path = self.path.as_ref()?;
+        Some(path.curvature(path.u_of_s(s)))
+    }
+
+    /// Whether this is the curvilinear frame ([`RoadFrame::curvilinear`]).
+    #[must_use]
+    pub fn is_curvilinear(&self) -> bool {
+        self.path.is_some()
+    }
+
+    /// The curvilinear frame's (s, d) of file point `p` and |curvature · d| at its foot (the
+    /// projection is unique while this is below 1); `None` for the straightened frame or a
+    /// point whose foot lies beyond the reference path.
+    #[must_use]
+    pub fn project(&self, p: [f64; 2]) -> Option<([f64; 2], f64)> {
+        let path = self.path.as_ref()?;
+        let (r, u) = path.project(p)?;
+        Some((r, (path.curvature(u) * r[1]).abs()))
     }
 
     /// The road direction (rad) at rotated-frame x (m).
@@ -283,12 +337,20 @@ impl RoadFrame {
     /// A point of the file's frame (m) → road frame (x along travel, y left) (m).
     #[must_use]
     pub fn to_road(&self, p: [f64; 2]) -> [f64; 2] {
+        if let Some(path) = &self.path {
+            return path.project(p).map_or([f64::NAN; 2], |(r, _)| r);
+        }
         self.rotated_to_road(rotate(p, self.theta))
     }
 
     /// An orientation (rad) at file point `p` → heading relative to the road, in [−π, π).
     #[must_use]
     pub fn heading_to_road(&self, p: [f64; 2], orientation: f64) -> f64 {
+        if let Some(path) = &self.path {
+            return path.project(p).map_or(f64::NAN, |(_, u)| {
+                wrap_angle(orientation - path.tangent_angle(u))
+            });
+        }
         let q = rotate(p, self.theta);
         wrap_angle(orientation - self.theta - self.tangent_angle(q[0]))
     }
@@ -299,6 +361,9 @@ impl RoadFrame {
     /// [`RoadFrame::try_to_file`] where the point may lie outside.
     #[must_use]
     pub fn to_file(&self, r: [f64; 2]) -> [f64; 2] {
+        if let Some(path) = &self.path {
+            return path.to_file(r).unwrap_or([f64::NAN; 2]);
+        }
         let q = self.road_to_rotated(r);
         rotate(q, -self.theta)
     }
@@ -306,6 +371,9 @@ impl RoadFrame {
     /// The road x range (m) the frame is defined over: the arc length at the ends of its table.
     #[must_use]
     pub fn road_range(&self) -> (f64, f64) {
+        if let Some(path) = &self.path {
+            return path.s_range();
+        }
         (self.grid_arc[0], self.grid_arc[ARC_GRID - 1])
     }
 
@@ -314,6 +382,9 @@ impl RoadFrame {
     /// bring back to within 1 µm under the forward map.
     #[must_use]
     pub fn try_to_file(&self, r: [f64; 2]) -> Option<[f64; 2]> {
+        if let Some(path) = &self.path {
+            return path.to_file(r);
+        }
         let (lo, hi) = self.road_range();
         if !(r[0].is_finite() && r[1].is_finite() && (lo..=hi).contains(&r[0])) {
             return None;
@@ -352,6 +423,9 @@ impl RoadFrame {
     /// [−π, π) (the inverse of [`RoadFrame::heading_to_road`]).
     #[must_use]
     pub fn heading_to_file(&self, r: [f64; 2], heading: f64) -> f64 {
+        if let Some(path) = &self.path {
+            return wrap_angle(heading + path.tangent_angle(path.u_of_s(r[0])));
+        }
         let q = self.road_to_rotated(r);
         wrap_angle(heading + self.theta + self.tangent_angle(q[0]))
     }

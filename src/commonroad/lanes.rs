@@ -16,6 +16,14 @@ pub const MERGE_OVERLAP: f64 = 0.5;
 pub const SAME_BOUNDS: f64 = 0.2;
 /// ... when they are at most this far apart (m).
 pub const PIECE_GAP: f64 = 1.5;
+/// A lanelet narrower than this (m) is not on the carriageway there (it has not begun or has
+/// ended: a ramp's taper), as the data pipeline's `min_lane_width_m`.
+pub const MIN_LANE_WIDTH: f64 = 2.0;
+/// Neighbouring lanelets farther apart than this (m) are separated (a gore): the side with
+/// fewer lanelets has left the carriageway there, as the pipeline's `gore_gap_m`.
+pub const GORE_GAP: f64 = 0.5;
+/// Spacing (m) of the samples at which [`on_carriageway`] decides.
+pub const LANE_STEP: f64 = 1.0;
 /// Points per piece at which the bounds are sampled.
 const PIECE_SAMPLES: usize = 9;
 
@@ -138,7 +146,227 @@ fn merge_pieces(pieces: Vec<(f64, f64, Vec<f64>)>) -> Vec<(f64, f64, Vec<f64>)> 
     out
 }
 
+/// The parts of `lanelets` (road frame) that lie on the carriageway, as the data pipeline's
+/// curvilinear lane map decides (`nudge_train.data.frenet.lane_extents`, per lanelet): on a
+/// grid of [`LANE_STEP`], a lanelet is on the road where it is at least [`MIN_LANE_WIDTH`]
+/// wide and, among the lanelets there sorted by their centre, not on the smaller side of a
+/// gap wider than [`GORE_GAP`]; each lanelet is cut to its longest run on the road (bounds
+/// resampled on the grid) and dropped when it has none. In the curvilinear frame the lanes
+/// are then lines y = const where they are on the road, whereas a ramp's taper or a gore
+/// bends away.
+#[must_use]
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_precision_loss
+)]
+pub fn on_carriageway(lanelets: &[RoadLanelet]) -> Vec<RoadLanelet> {
+    if lanelets.is_empty() {
+        return Vec::new();
+    }
+    let ext: Vec<(f64, f64)> = lanelets
+        .iter()
+        .map(|ll| {
+            (
+                ll.left[0][0].max(ll.right[0][0]),
+                ll.left[ll.left.len() - 1][0].min(ll.right[ll.right.len() - 1][0]),
+            )
+        })
+        .collect();
+    let lo = lanelets
+        .iter()
+        .map(|ll| ll.left[0][0].min(ll.right[0][0]))
+        .fold(f64::INFINITY, f64::min)
+        .floor();
+    let hi = lanelets
+        .iter()
+        .map(|ll| ll.left[ll.left.len() - 1][0].max(ll.right[ll.right.len() - 1][0]))
+        .fold(f64::NEG_INFINITY, f64::max)
+        .ceil();
+    let n_grid = ((hi - lo) / LANE_STEP).floor() as usize + 1;
+    let grid: Vec<f64> = (0..n_grid).map(|j| lo + j as f64 * LANE_STEP).collect();
+    let n = lanelets.len();
+    let mut on = vec![vec![false; n_grid]; n];
+    let mut dl = vec![vec![f64::NAN; n_grid]; n];
+    let mut dr = vec![vec![f64::NAN; n_grid]; n];
+    for (k, ll) in lanelets.iter().enumerate() {
+        for (j, &x) in grid.iter().enumerate() {
+            if x >= ext[k].0 && x <= ext[k].1 {
+                dl[k][j] = y_at(&ll.left, x);
+                dr[k][j] = y_at(&ll.right, x);
+                on[k][j] = dl[k][j] - dr[k][j] >= MIN_LANE_WIDTH;
+            }
+        }
+    }
+    for j in 0..n_grid {
+        let mut present: Vec<usize> = (0..n).filter(|&k| on[k][j]).collect();
+        if present.len() < 2 {
+            continue;
+        }
+        present.sort_by(|&a, &b| (dl[a][j] + dr[a][j]).total_cmp(&(dl[b][j] + dr[b][j])));
+        let mut groups: Vec<Vec<usize>> = vec![vec![present[0]]];
+        for w in present.windows(2) {
+            if dr[w[1]][j] - dl[w[0]][j] > GORE_GAP {
+                groups.push(vec![w[1]]);
+            } else if let Some(g) = groups.last_mut() {
+                g.push(w[1]);
+            }
+        }
+        if groups.len() > 1 {
+            let main = (0..groups.len())
+                .max_by(|&a, &b| groups[a].len().cmp(&groups[b].len()).then(b.cmp(&a)))
+                .unwrap_or(0);
+            for (g, members) in groups.iter().enumerate() {
+                if g != main {
+                    members.iter().for_each(|&k| on[k][j] = false);
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for (k, ll) in lanelets.iter().enumerate() {
+        // The longest run of consecutive samples on the road.
+        let (mut best, mut start) = ((0, 0), None);
+        for (j, here) in on[k].iter().copied().chain([false]).enumerate() {
+            match (here, start) {
+                (true, None) => start = Some(j),
+                (false, Some(s0)) => {
+                    if j - s0 > best.1 - best.0 {
+                        best = (s0, j);
+                    }
+                    start = None;
+                }
+                _ => {}
+            }
+        }
+        if best.1 - best.0 < 2 {
+            continue;
+        }
+        let cut = |d: &[f64]| {
+            (best.0..best.1)
+                .map(|j| [grid[j], d[j]])
+                .collect::<Vec<_>>()
+        };
+        out.push(RoadLanelet {
+            id: ll.id.clone(),
+            line: ll.line,
+            left: cut(&dl[k]),
+            right: cut(&dr[k]),
+        });
+    }
+    out
+}
+
+/// Lanes whose centres differ by less than this (m) in neighbouring pieces are one lane
+/// ([`LaneMap::lanes_with_extents`]).
+pub const SAME_LANE: f64 = 1.0;
+/// A lane that begins (ends) more than this (m) after the start (before the end) of the lane
+/// map begins (ends) inside the scene, as the pipeline's `edge_margin_m`.
+pub const EDGE_MARGIN: f64 = 5.0;
+
+/// One lane over the pieces ([`LaneMap::lanes_with_extents`]): right and left bound (m, at
+/// the first piece it appears in) and where along x it begins and ends (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneSpan {
+    /// Right bound y (m).
+    pub right: f64,
+    /// Left bound y (m).
+    pub left: f64,
+    /// First x (m) of the pieces it runs through.
+    pub begin: f64,
+    /// Last x (m).
+    pub end: f64,
+    /// It begins inside the lane map (not at its start).
+    pub begins: bool,
+    /// It ends inside the lane map (not at its end).
+    pub ends: bool,
+}
+
 impl LaneMap {
+    /// Every lane that runs through the piece at road x `x` or joins the road later or ends
+    /// earlier (curvilinear frame, where lanes are lines y = const): the lanes of the piece at
+    /// `x`, followed forward and backward through neighbouring pieces (a lane of the next
+    /// piece whose centre is within [`SAME_LANE`] of one is that lane; one that is not and
+    /// does not overlap the others is a lane that begins there), sorted right to left, each
+    /// with its extent.
+    #[must_use]
+    pub fn lanes_with_extents(&self, x: f64) -> Vec<LaneSpan> {
+        let n = self.pieces.len();
+        let dist = |p: &(f64, f64, Vec<f64>)| (x - p.0).max(0.0) + (p.1 - x).min(0.0).abs();
+        let k0 = (0..n)
+            .min_by(|&a, &b| dist(&self.pieces[a]).total_cmp(&dist(&self.pieces[b])))
+            .unwrap_or(0);
+        let spans = |b: &[f64]| -> Vec<(f64, f64)> { b.windows(2).map(|w| (w[0], w[1])).collect() };
+        let (x0, x1, b0) = &self.pieces[k0];
+        let mut lanes: Vec<LaneSpan> = spans(b0)
+            .into_iter()
+            .map(|(r, l)| LaneSpan {
+                right: r,
+                left: l,
+                begin: *x0,
+                end: *x1,
+                begins: false,
+                ends: false,
+            })
+            .collect();
+        let join = |lanes: &mut Vec<LaneSpan>, piece: &(f64, f64, Vec<f64>), forward: bool| {
+            let mut seen = vec![false; lanes.len()];
+            for (r, l) in spans(&piece.2) {
+                let c = 0.5 * (r + l);
+                let hit = lanes
+                    .iter()
+                    .position(|ln| (0.5 * (ln.right + ln.left) - c).abs() < SAME_LANE);
+                match hit {
+                    Some(i) => {
+                        let ln = &mut lanes[i];
+                        let touches = if forward {
+                            (piece.0 - ln.end).abs() < PIECE_GAP
+                        } else {
+                            (ln.begin - piece.1).abs() < PIECE_GAP
+                        };
+                        if touches {
+                            if forward {
+                                ln.end = piece.1;
+                            } else {
+                                ln.begin = piece.0;
+                            }
+                            seen[i] = true;
+                        }
+                    }
+                    None => {
+                        let overlaps = lanes
+                            .iter()
+                            .any(|ln| r < ln.left - MERGE_OVERLAP && l > ln.right + MERGE_OVERLAP);
+                        if !overlaps {
+                            lanes.push(LaneSpan {
+                                right: r,
+                                left: l,
+                                begin: piece.0,
+                                end: piece.1,
+                                begins: false,
+                                ends: false,
+                            });
+                            seen.push(true);
+                        }
+                    }
+                }
+            }
+        };
+        for piece in &self.pieces[k0 + 1..] {
+            join(&mut lanes, piece, true);
+        }
+        for piece in self.pieces[..k0].iter().rev() {
+            join(&mut lanes, piece, false);
+        }
+        let (lo, hi) = (self.pieces[0].0, self.pieces[n - 1].1);
+        for ln in &mut lanes {
+            ln.begins = ln.begin > lo + EDGE_MARGIN;
+            ln.ends = ln.end < hi - EDGE_MARGIN;
+        }
+        lanes.sort_by(|a, b| (a.right + a.left).total_cmp(&(b.right + b.left)));
+        lanes
+    }
+
     /// Builds the lane map of `lanelets` (road frame) of the file `path`.
     ///
     /// # Errors

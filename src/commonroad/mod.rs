@@ -5,9 +5,12 @@
 //!
 //! The road frame is the data pipeline's (`nudge_train.data.commonroad`): the scene rotated so
 //! that traffic runs along +x and straightened along a polynomial fitted to the lanelet bounds
-//! ([`frame`]); lanes are lines y = const ([`lanes`]). Scenes whose lanes near the ego are not
-//! straight within [`scene::STRAIGHT_TOL`] are refused with
-//! [`CommonRoadError::Unsupported`] naming the file and the deviation.
+//! ([`frame`]); lanes are lines y = const ([`lanes`]). Where the lanes near the ego are not
+//! straight within [`scene::STRAIGHT_TOL`] there, the scene is planned in the curvilinear
+//! (Frenet) frame along a spline reference path instead ([`frenet`],
+//! [`CommonRoadScene::prepare`]); what that frame cannot represent either is refused with
+//! [`CommonRoadError::Unsupported`] naming the file and the reason. A planning problem's goal
+//! ([`goal`]) sets the run's target lane, its timing and where its solution ends.
 //!
 //! ```no_run
 //! use nudge::commonroad::{CommonRoadScene, Ego};
@@ -22,6 +25,8 @@
 
 mod error;
 pub mod frame;
+pub mod frenet;
+pub mod goal;
 pub mod lanes;
 pub mod scene;
 pub mod solution;
@@ -29,6 +34,7 @@ pub mod xml;
 
 pub use error::{CommonRoadError, XmlBudget};
 pub use frame::RoadFrame;
+pub use goal::{GoalPolicy, GoalShape, GoalState, Interval, RoadGoal};
 pub use lanes::LaneMap;
 pub use scene::{CommonRoadScene, Ego};
 pub use solution::{Solution, VEHICLE};

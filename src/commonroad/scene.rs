@@ -7,16 +7,21 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use nudge_planner::Scenario;
+use nudge_planner::scenario::ROAD_TOLERANCE;
 use nudge_predictor::{DT, MAX_AGENTS, T_OBS};
 use safetensors::{Dtype, tensor::TensorView};
 
 use super::error::CommonRoadError;
 use super::frame::RoadFrame;
-use super::lanes::{LaneMap, RoadLanelet, sorted_by_x};
+use super::lanes::{LaneMap, RoadLanelet, on_carriageway, sorted_by_x};
 use super::xml::{RawScenario, RawState};
 
 /// Most logged future steps (0.3 s each) a scenario keeps.
 pub const MAX_FUTURE: usize = 30;
+/// Most future steps (0.3 s each) a planning problem's scenario keeps: its goal's time
+/// window may end later than [`MAX_FUTURE`] steps after its start, and the closed loop runs
+/// until it ends (the others as logged).
+pub const MAX_PLAN_FUTURE: usize = 100;
 /// Fewest logged future steps of the ego (the scenario format's minimum).
 pub const MIN_FUTURE: usize = 6;
 /// Neighbours are the vehicles within this distance (m) of the ego at the last observed step.
@@ -25,6 +30,11 @@ pub const NEIGHBOUR_RANGE: f64 = 60.0;
 pub const STRAIGHT_TOL: f64 = 0.6;
 /// ... over the ego's x ± this (m).
 pub const STRAIGHT_HALF_RANGE: f64 = 100.0;
+/// Largest |curvature · offset| of a point in the curvilinear frame (the projection onto the
+/// reference path stops being unique at 1), as the data pipeline's `max_offset_curvature`.
+pub const MAX_OFFSET_CURVATURE: f64 = 0.5;
+/// How the refusal of lanes that are not straight near the ego begins (its reason).
+pub const ROAD_SHAPE: &str = "road shape: ";
 /// The `split` metadata of a scenario built from a CommonRoad file.
 pub const SPLIT: &str = "commonroad";
 
@@ -119,6 +129,99 @@ impl CommonRoadScene {
     /// As [`LaneMap::build`].
     pub fn from_raw(raw: RawScenario) -> Result<Self, CommonRoadError> {
         let frame = RoadFrame::fit(&raw.lanelets);
+        Self::in_frame(raw, frame)
+    }
+
+    /// The same scene in the curvilinear (Frenet) road frame ([`RoadFrame::curvilinear`]):
+    /// x = arc length along a reference path fitted to the lanelet bounds, y = the signed
+    /// offset from it, so that lanes that curve are lines y = const.
+    ///
+    /// # Errors
+    /// [`CommonRoadError::Unsupported`] naming what the frame cannot represent: a reference
+    /// path turning by more than [`super::frenet::MAX_TURN_RAD`], a lanelet point or vehicle
+    /// state whose foot lies beyond the path or whose offset is not small against the path's
+    /// radius of curvature (|κ d| > [`MAX_OFFSET_CURVATURE`]); as [`LaneMap::build`].
+    pub fn curvilinear(&self) -> Result<Self, CommonRoadError> {
+        let unsupported = |reason: String| CommonRoadError::Unsupported {
+            path: self.raw.path.clone(),
+            reason: format!("curvilinear road frame: {reason}"),
+        };
+        let frame = RoadFrame::curvilinear(&self.raw.lanelets).map_err(unsupported)?;
+        let points = self
+            .raw
+            .lanelets
+            .iter()
+            .flat_map(|ll| ll.left.iter().chain(&ll.right).copied())
+            .chain(
+                self.raw
+                    .obstacles
+                    .iter()
+                    .flat_map(|o| o.states.iter().map(|st| [st.x, st.y])),
+            )
+            .chain(
+                self.raw
+                    .planning_problems
+                    .iter()
+                    .map(|pp| [pp.initial.x, pp.initial.y]),
+            );
+        for p in points {
+            match frame.project(p) {
+                None => {
+                    return Err(unsupported(format!(
+                        "point ({:.2}, {:.2}) m lies beyond the ends of the reference path or its \
+                         projection does not converge",
+                        p[0], p[1]
+                    )));
+                }
+                Some((r, kd)) if kd > MAX_OFFSET_CURVATURE => {
+                    return Err(unsupported(format!(
+                        "point ({:.2}, {:.2}) m is {:.1} m off the reference path, {kd:.2} of its \
+                         radius of curvature (at most {MAX_OFFSET_CURVATURE}): its projection is \
+                         not unique",
+                        p[0], p[1], r[1]
+                    )));
+                }
+                Some(_) => {}
+            }
+        }
+        Self::in_frame(self.raw.clone(), frame)
+    }
+
+    /// The scene of `ego` made ready to plan: read from `path`, t0 (`t0_s`, or
+    /// [`CommonRoadScene::default_t0`]) and the scenario with its file bytes
+    /// ([`CommonRoadScene::scenario_in_range`], neighbours within `range_m` m). In the
+    /// straightened road frame when the lanes near the ego are straight there (every shipped
+    /// scene), else in the curvilinear frame ([`CommonRoadScene::curvilinear`]); the scene
+    /// returned is the one the scenario was built in (the solution writer maps back through
+    /// its frame).
+    ///
+    /// # Errors
+    /// As [`CommonRoadScene::read`], [`CommonRoadScene::default_t0`] and
+    /// [`CommonRoadScene::scenario_in_range`] (in the curvilinear frame when the straightened
+    /// one is refused for its road shape), [`CommonRoadScene::curvilinear`].
+    pub fn prepare(
+        path: impl AsRef<Path>,
+        ego: Ego,
+        t0_s: Option<f64>,
+        range_m: f64,
+    ) -> Result<(Self, f64, Scenario, Vec<u8>), CommonRoadError> {
+        let scene = Self::read(path)?;
+        let t0 = match t0_s {
+            Some(t) => t,
+            None => scene.default_t0(ego)?,
+        };
+        match scene.scenario_in_range(ego, t0, range_m) {
+            Ok((sc, bytes)) => Ok((scene, t0, sc, bytes)),
+            Err(CommonRoadError::Unsupported { reason, .. }) if reason.starts_with(ROAD_SHAPE) => {
+                let curved = scene.curvilinear()?;
+                let (sc, bytes) = curved.scenario_in_range(ego, t0, range_m)?;
+                Ok((curved, t0, sc, bytes))
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn in_frame(raw: RawScenario, frame: RoadFrame) -> Result<Self, CommonRoadError> {
         let road = |b: &[[f64; 2]]| sorted_by_x(b.iter().map(|&p| frame.to_road(p)).collect());
         let lanelets: Vec<RoadLanelet> = raw
             .lanelets
@@ -130,7 +233,11 @@ impl CommonRoadScene {
                 right: road(&ll.right),
             })
             .collect();
-        let lanes = LaneMap::build(&lanelets, &raw.path)?;
+        let lanes = if frame.is_curvilinear() {
+            LaneMap::build(&on_carriageway(&lanelets), &raw.path)?
+        } else {
+            LaneMap::build(&lanelets, &raw.path)?
+        };
         let mut tracks: Vec<Track> = raw
             .obstacles
             .iter()
@@ -232,12 +339,15 @@ impl CommonRoadScene {
     /// clock), as the data pipeline builds one: the ego's 8 states at t0 − 2.1 s ..= t0 every
     /// 0.3 s, the vehicles within [`NEIGHBOUR_RANGE`] of it at t0 with full histories (nearest
     /// first, ties by id, at most 46), their logged futures (up to [`MAX_FUTURE`] steps, the
-    /// ego's at least [`MIN_FUTURE`]) and the lanes at the ego's x.
+    /// ego's at least [`MIN_FUTURE`]) and the lanes at the ego's x. In the curvilinear frame
+    /// ([`CommonRoadScene::curvilinear`]) the lanes are every lane of the road with its extent
+    /// ("nudge.scenario/2") and vehicles off the carriageway are left out.
     ///
     /// For a planning problem, whose ego is not logged, every history step before a vehicle's
     /// first logged state is extrapolated back from it at constant speed and heading (the
     /// scene has no earlier data: CommonRoad tracks start at the scene's first step); the ego
-    /// has no logged future.
+    /// has no logged future, and the others' logged futures run up to [`MAX_PLAN_FUTURE`]
+    /// steps (a goal's window may end later than [`MAX_FUTURE`]).
     ///
     /// # Errors
     /// [`CommonRoadError::Ego`] (unknown id, t0 not on a logged step, no full history, too
@@ -283,7 +393,8 @@ impl CommonRoadScene {
                 format!("no full {T_OBS}-step history ending at t0 {t0_s} s"),
             )
         })?;
-        let fut: Vec<i64> = (1..=MAX_FUTURE as i64)
+        let max_future = if plan { MAX_PLAN_FUTURE } else { MAX_FUTURE };
+        let fut: Vec<i64> = (1..=max_future as i64)
             .map(|k| step + stride * k)
             .take_while(|&s| s <= last)
             .collect();
@@ -306,10 +417,15 @@ impl CommonRoadScene {
             return Err(CommonRoadError::Unsupported {
                 path: self.raw.path.clone(),
                 reason: format!(
-                    "road shape: the lanes near {ego} (road x {:.1} m) deviate {dev:.2} m from \
-                     straight lines over ±{STRAIGHT_HALF_RANGE} m (nudge plans on straight \
-                     lanes: at most {STRAIGHT_TOL} m)",
-                    ego_xy[0]
+                    "{ROAD_SHAPE}the lanes near {ego} (road x {:.1} m) deviate {dev:.2} m from \
+                     straight lines over ±{STRAIGHT_HALF_RANGE} m in the {} road frame (nudge \
+                     plans on lanes y = const: at most {STRAIGHT_TOL} m)",
+                    ego_xy[0],
+                    if self.frame.is_curvilinear() {
+                        "curvilinear"
+                    } else {
+                        "straightened"
+                    }
                 ),
             });
         }
@@ -332,7 +448,9 @@ impl CommonRoadScene {
     }
 
     /// The other vehicles with full histories within `range_m` (m) of the ego at t0,
-    /// nearest first (ties by id), at most `MAX_AGENTS − 1`.
+    /// nearest first (ties by id), at most `MAX_AGENTS − 1`; in the curvilinear frame only
+    /// those whose history stays within the scenario's road tolerance of the lanes at the
+    /// ego's x (not on a ramp before it joins).
     fn neighbours(
         &self,
         ego: Ego,
@@ -351,6 +469,13 @@ impl CommonRoadScene {
                 (d <= range_m).then_some((d, t, h))
             })
             .collect();
+        if self.frame.is_curvilinear() {
+            // Vehicles off the carriageway at the ego's x (on a ramp before it joins) are not
+            // part of the scene's road.
+            let b = self.lanes.bounds_at(ego_xy[0]);
+            let (lo, hi) = (b[0] - ROAD_TOLERANCE, b[b.len() - 1] + ROAD_TOLERANCE);
+            cand.retain(|(_, _, h)| h.iter().all(|s| (lo..=hi).contains(&s.pos[1])));
+        }
         cand.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
         cand.into_iter()
             .take(MAX_AGENTS - 1)
@@ -372,7 +497,15 @@ impl CommonRoadScene {
             self.raw.version
         );
         [
-            ("schema", nudge_planner::SCHEMA.to_string()),
+            (
+                "schema",
+                if self.frame.is_curvilinear() {
+                    nudge_planner::SCHEMA_EXTENTS
+                } else {
+                    nudge_planner::SCHEMA
+                }
+                .to_string(),
+            ),
             ("source", source),
             ("scene", self.raw.benchmark_id.clone()),
             ("split", SPLIT.to_string()),
@@ -403,7 +536,21 @@ impl CommonRoadScene {
             }
         }
         let ego_xy = agents[0].1[T_OBS - 1].pos;
-        let bounds = self.lanes.bounds_at(ego_xy[0]).to_vec();
+        let spans = self
+            .frame
+            .is_curvilinear()
+            .then(|| self.lanes.lanes_with_extents(ego_xy[0]));
+        let bounds = match &spans {
+            // Lanes y = const: every lane the road has ahead and behind, each with its
+            // extent; neighbours share the midpoint of their bounds.
+            Some(sp) => {
+                let mut b = vec![sp[0].right];
+                b.extend(sp.windows(2).map(|w| 0.5 * (w[0].left + w[1].right)));
+                b.push(sp[sp.len() - 1].left);
+                b
+            }
+            None => self.lanes.bounds_at(ego_xy[0]).to_vec(),
+        };
         let centres: Vec<f64> = bounds.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
         let lane = bounds
             .partition_point(|&b| b <= ego_xy[1])
@@ -415,7 +562,7 @@ impl CommonRoadScene {
                 .map(|(_, h)| g(&h[T_OBS - 1]))
                 .collect::<Vec<_>>()
         };
-        vec![
+        let mut out = vec![
             Tensor::f64s("history", vec![n, T_OBS, 2], &history),
             Tensor::f64s("heading", vec![n], &now(|s| s.heading)),
             Tensor::f64s("speed", vec![n], &now(|s| s.speed)),
@@ -434,7 +581,22 @@ impl CommonRoadScene {
                 vec![n],
                 &agents.iter().map(|(t, _)| t.id).collect::<Vec<_>>(),
             ),
-        ]
+        ];
+        if let Some(sp) = spans {
+            let ext: Vec<f64> = sp.iter().flat_map(|l| [l.begin, l.end]).collect();
+            let real: Vec<u8> = sp
+                .iter()
+                .flat_map(|l| [u8::from(l.begins), u8::from(l.ends)])
+                .collect();
+            out.push(Tensor::f64s("lane_extent", vec![sp.len(), 2], &ext));
+            out.push(Tensor::bytes(
+                "lane_extent_real",
+                Dtype::U8,
+                vec![sp.len(), 2],
+                real,
+            ));
+        }
+        out
     }
 }
 

@@ -26,6 +26,7 @@ use nudge_predictor::T_OBS;
 use nudge_sim::RunRecord;
 
 use super::error::CommonRoadError;
+use super::goal::GoalState;
 use super::scene::{CommonRoadScene, Ego};
 
 /// A CommonRoad vehicle type's parameters (m).
@@ -167,6 +168,52 @@ impl Solution {
         (inputs, executed): (&[[f64; 2]], Option<&[[f64; 2]]>),
         (l_f, l_r): (f64, f64),
     ) -> Result<Self, CommonRoadError> {
+        Self::build(
+            scene,
+            (ego, t0_s),
+            scenario,
+            (inputs, executed),
+            (l_f, l_r),
+            None,
+        )
+        .map(|(sol, _)| sol)
+    }
+
+    /// [`Solution::of_run`] for a planning problem's `goals` (none: as `of_run`): the
+    /// solution ends at its first state that reaches one of them ([`Solution::goal_index`]),
+    /// so states past it need not lie in the road frame's range; with it, whether the goal was
+    /// reached (the index of that state) or why not.
+    ///
+    /// # Errors
+    /// As [`Solution::of_run`], for the states up to the goal.
+    pub fn of_run_to_goal(
+        scene: &CommonRoadScene,
+        (ego, t0_s): (Ego, f64),
+        scenario: &Scenario,
+        record: &RunRecord,
+        axles: (f64, f64),
+        goals: Option<&[GoalState]>,
+    ) -> Result<(Self, Option<Result<usize, String>>), CommonRoadError> {
+        let inputs: Vec<[f64; 2]> = record.steps.iter().map(|s| [s.delta, s.accel]).collect();
+        let executed: Vec<[f64; 2]> = record.steps.iter().map(|s| [s.ego[0], s.ego[1]]).collect();
+        Self::build(
+            scene,
+            (ego, t0_s),
+            scenario,
+            (&inputs, Some(&executed)),
+            axles,
+            goals,
+        )
+    }
+
+    fn build(
+        scene: &CommonRoadScene,
+        (ego, t0_s): (Ego, f64),
+        scenario: &Scenario,
+        (inputs, executed): (&[[f64; 2]], Option<&[[f64; 2]]>),
+        (l_f, l_r): (f64, f64),
+        goals: Option<&[GoalState]>,
+    ) -> Result<(Self, Option<Result<usize, String>>), CommonRoadError> {
         let err = |reason: String| CommonRoadError::Solution {
             path: scene.raw.path.clone(),
             reason,
@@ -202,8 +249,18 @@ impl Solution {
         }
         road.push((z, inputs[inputs.len() - 1][0]));
         let (lo, hi) = scene.frame.road_range();
-        for (&(z, _), step) in road.iter().zip(step0..) {
+        let mut reached = None;
+        for (k, (&(z, delta), step)) in road.iter().zip(step0..).enumerate() {
             let r = reference(bike, z);
+            if let (Some(g), Some(_)) = (goals, scene.frame.try_to_file(r)) {
+                let st = ks_state(scene, bike, z, delta, step);
+                if g.iter()
+                    .any(|g| g.reached_by(st.step, st.pos, st.velocity, st.orientation))
+                {
+                    reached = Some(k);
+                    break;
+                }
+            }
             if scene.frame.try_to_file(r).is_none() {
                 return Err(err(format!(
                     "the ego at time step {step} is at road x = {:.1} m, y = {:.1} m, outside the \
@@ -212,6 +269,9 @@ impl Solution {
                     r[0], r[1]
                 )));
             }
+        }
+        if let Some(k) = reached {
+            road.truncate(k + 1);
         }
         let states: Vec<KsState> = road
             .iter()
@@ -226,7 +286,7 @@ impl Solution {
             return Err(err(format!("non-finite state at time step {}", bad.step)));
         }
         let (Ego::Obstacle(id) | Ego::PlanningProblem(id)) = ego;
-        Ok(Self {
+        let sol = Self {
             benchmark_id: format!(
                 "KS{}:{COST_FUNCTION}:{}:{}",
                 VEHICLE.id, scene.raw.benchmark_id, scene.raw.version
@@ -234,7 +294,87 @@ impl Solution {
             planning_problem: id,
             states,
             max_dev_m: max_dev,
-        })
+        };
+        let goal = goals.map(|g| sol.goal_index(g));
+        Ok((sol, goal))
+    }
+
+    /// The index of the first state that reaches one of `goals` (as CommonRoad's checker
+    /// decides, [`GoalState::reached_by`]).
+    ///
+    /// # Errors
+    /// Why no state reaches them: for the goal state whose time window the trajectory
+    /// covers, the state of that window nearest its position, how far it is and which of the
+    /// goal's conditions it misses; or that the trajectory ends before the window.
+    pub fn goal_index(&self, goals: &[GoalState]) -> Result<usize, String> {
+        if let Some(i) = self.states.iter().position(|k| {
+            goals
+                .iter()
+                .any(|g| g.reached_by(k.step, k.pos, k.velocity, k.orientation))
+        }) {
+            return Ok(i);
+        }
+        let mut why = Vec::new();
+        for (n, g) in goals.iter().enumerate() {
+            #[allow(clippy::cast_precision_loss)]
+            let inside: Vec<&KsState> = self
+                .states
+                .iter()
+                .filter(|k| g.time.contains(k.step as f64))
+                .collect();
+            let Some(last) = self.states.last() else {
+                return Err("no states".into());
+            };
+            if inside.is_empty() {
+                why.push(format!(
+                    "goal state {}: the trajectory (time steps {}..{}) does not reach its time \
+                     steps {}..{}",
+                    n + 1,
+                    self.states[0].step,
+                    last.step,
+                    g.time.lo,
+                    g.time.hi
+                ));
+                continue;
+            }
+            let centre = g.shapes.first().map(|s| s.outline()[0]);
+            let dist =
+                |k: &KsState| centre.map_or(0.0, |c| (k.pos[0] - c[0]).hypot(k.pos[1] - c[1]));
+            let near = inside
+                .iter()
+                .min_by(|a, b| dist(a).total_cmp(&dist(b)))
+                .copied()
+                .unwrap_or(inside[0]);
+            let mut miss = Vec::new();
+            if !(g.shapes.is_empty() || g.shapes.iter().any(|s| s.contains(near.pos))) {
+                miss.push(format!(
+                    "position {:.2} m from the goal's centre",
+                    dist(near)
+                ));
+            }
+            if let Some(v) = g.velocity.filter(|v| !v.contains(near.velocity)) {
+                miss.push(format!(
+                    "velocity {:.2} m/s outside {:.2}..{:.2}",
+                    near.velocity, v.lo, v.hi
+                ));
+            }
+            if let Some(o) = g
+                .orientation
+                .filter(|o| !o.contains_angle(near.orientation))
+            {
+                miss.push(format!(
+                    "orientation {:.3} rad outside {:.3}..{:.3}",
+                    near.orientation, o.lo, o.hi
+                ));
+            }
+            why.push(format!(
+                "goal state {}: nearest state of its time window (time step {}) misses: {}",
+                n + 1,
+                near.step,
+                miss.join(", ")
+            ));
+        }
+        Err(why.join("; "))
     }
 
     /// The solution as CommonRoad solution XML.
@@ -291,11 +431,33 @@ fn reference(bike: Bicycle, z: [f64; 4]) -> [f64; 2] {
 fn ks_state(scene: &CommonRoadScene, bike: Bicycle, z: [f64; 4], delta: f64, step: i64) -> KsState {
     let reference = reference(bike, z);
     let wheelbase = VEHICLE.a + VEHICLE.b;
+    let v_rear = z[3] * bike.beta(delta).cos();
+    let (steering, velocity) = match scene.frame.curvature_at(reference[0]) {
+        // The curvilinear frame: the road frame's straight lines are the reference path's
+        // offsets, so the file's rear axle moves at the road speed scaled by (1 − κ d) along
+        // the path and turns at the road yaw rate plus κ times its progress along it.
+        Some(kappa) => {
+            let (sn, cs) = z[2].sin_cos();
+            let along = 1.0 - kappa * reference[1];
+            let v = v_rear * (along * cs).hypot(sn);
+            let yaw_rate = z[3] * bike.beta(delta).sin() / bike.l_r + kappa * v_rear * cs;
+            let steering = if v > 1e-9 {
+                (wheelbase * yaw_rate / v).atan()
+            } else {
+                (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan()
+            };
+            (steering, v)
+        }
+        None => (
+            (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan(),
+            v_rear,
+        ),
+    };
     KsState {
         step,
         pos: scene.frame.to_file(reference),
-        steering: (wheelbase * delta.tan() / (bike.l_f + bike.l_r)).atan(),
-        velocity: z[3] * bike.beta(delta).cos(),
+        steering,
+        velocity,
         orientation: scene.frame.heading_to_file(reference, z[2]),
     }
 }

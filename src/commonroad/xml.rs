@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use quick_xml::events::{BytesRef, BytesStart, Event};
 
 use super::error::{CommonRoadError, XmlBudget};
+use super::goal::{GoalShape, GoalState, Interval};
 
 /// Largest CommonRoad file read (bytes, after decompression): 32 MiB, 12 times the largest
 /// US-101 scene (2.6 MB). The gzip stream is inflated through a bounded reader, so a small
@@ -116,7 +117,7 @@ pub struct RawObstacle {
     pub states: Vec<RawState>,
 }
 
-/// One planning problem: id and initial state.
+/// One planning problem: id, initial state and goal states.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RawPlanningProblem {
     /// The planning problem's `id`.
@@ -125,6 +126,8 @@ pub struct RawPlanningProblem {
     pub line: usize,
     /// Its initial state.
     pub initial: RawState,
+    /// Its goal states (`<goalState>`, in file order; reaching any one reaches the goal).
+    pub goals: Vec<GoalState>,
 }
 
 /// What nudge reads of one CommonRoad scenario file.
@@ -529,17 +532,161 @@ impl Fields<'_> {
         })
     }
 
-    fn planning_problem(&self, pp: &Node) -> Result<RawPlanningProblem, CommonRoadError> {
+    fn planning_problem(
+        &self,
+        pp: &Node,
+        lanelets: &[RawLanelet],
+    ) -> Result<RawPlanningProblem, CommonRoadError> {
         let tok = pp.attr("id").unwrap_or("").trim();
         let id = self.integer(tok, pp.line, "planningProblem id", Range::closed(0.0, 1e9))?;
         let who = format!("planning problem {id}");
         let init = pp
             .child("initialState")
             .ok_or_else(|| self.err(pp.line, &format!("{who} initialState"), "missing".into()))?;
+        let goals = pp
+            .children("goalState")
+            .enumerate()
+            .map(|(k, g)| self.goal(g, &format!("{who} goal state {}", k + 1), lanelets))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(RawPlanningProblem {
             id,
             line: pp.line,
             initial: self.state(init, &who)?,
+            goals,
+        })
+    }
+
+    /// An interval element (`<intervalStart>`/`<intervalEnd>`, or `<exact>`) in `range`.
+    fn interval(&self, node: &Node, what: &str, range: Range) -> Result<Interval, CommonRoadError> {
+        if node.child("exact").is_some() {
+            let v = self.num(node, "exact", what, range)?;
+            return Ok(Interval { lo: v, hi: v });
+        }
+        let lo = self.num(
+            node,
+            "intervalStart",
+            &format!("{what} intervalStart"),
+            range,
+        )?;
+        let hi = self.num(node, "intervalEnd", &format!("{what} intervalEnd"), range)?;
+        if hi < lo {
+            return Err(self.err(
+                node.line,
+                what,
+                format!("intervalEnd {hi} < intervalStart {lo}"),
+            ));
+        }
+        Ok(Interval { lo, hi })
+    }
+
+    fn center(&self, shape: &Node, what: &str) -> Result<[f64; 2], CommonRoadError> {
+        Ok([
+            self.num(shape, "center/x", &format!("{what} center x"), COORD)?,
+            self.num(shape, "center/y", &format!("{what} center y"), COORD)?,
+        ])
+    }
+
+    /// The shapes (and lanelets) of a goal's `<position>`.
+    fn goal_shapes(
+        &self,
+        pos: &Node,
+        who: &str,
+        lanelets: &[RawLanelet],
+    ) -> Result<Vec<GoalShape>, CommonRoadError> {
+        let mut shapes = Vec::new();
+        for node in &pos.children {
+            let what = format!("{who} position {}", node.name);
+            let shape = match node.name.as_str() {
+                "rectangle" => GoalShape::Rectangle {
+                    length: self.num(node, "length", &format!("{what} length"), SIZE)?,
+                    width: self.num(node, "width", &format!("{what} width"), SIZE)?,
+                    orientation: match node.child("orientation") {
+                        Some(_) => self.num(
+                            node,
+                            "orientation",
+                            &format!("{what} orientation"),
+                            ORIENTATION,
+                        )?,
+                        None => 0.0,
+                    },
+                    center: self.center(node, &what)?,
+                },
+                "circle" => GoalShape::Circle {
+                    radius: self.num(node, "radius", &format!("{what} radius"), SIZE)?,
+                    center: self.center(node, &what)?,
+                },
+                "polygon" => {
+                    let pts = node
+                        .children("point")
+                        .map(|p| {
+                            Ok([
+                                self.num(p, "x", &format!("{what} x"), COORD)?,
+                                self.num(p, "y", &format!("{what} y"), COORD)?,
+                            ])
+                        })
+                        .collect::<Result<Vec<_>, CommonRoadError>>()?;
+                    if pts.len() < 3 {
+                        return Err(self.err(node.line, &what, "fewer than 3 points".into()));
+                    }
+                    GoalShape::Polygon(pts)
+                }
+                "lanelet" => {
+                    let r = node.attr("ref").unwrap_or("").trim();
+                    GoalShape::lanelet(r, lanelets).ok_or_else(|| {
+                        self.err(node.line, &what, format!("no lanelet with id {r:?}"))
+                    })?
+                }
+                "point" => {
+                    let p = [
+                        self.num(node, "x", &format!("{what} x"), COORD)?,
+                        self.num(node, "y", &format!("{what} y"), COORD)?,
+                    ];
+                    GoalShape::Circle {
+                        radius: 0.0,
+                        center: p,
+                    }
+                }
+                other => {
+                    return Err(CommonRoadError::Unsupported {
+                        path: self.path.to_path_buf(),
+                        reason: format!("line {}: {who}: goal position shape <{other}>", node.line),
+                    });
+                }
+            };
+            shapes.push(shape);
+        }
+        Ok(shapes)
+    }
+
+    /// One `<goalState>` of `who`.
+    fn goal(
+        &self,
+        g: &Node,
+        who: &str,
+        lanelets: &[RawLanelet],
+    ) -> Result<GoalState, CommonRoadError> {
+        let time = g
+            .child("time")
+            .ok_or_else(|| self.err(g.line, &format!("{who} time"), "missing <time>".into()))?;
+        let time = self.interval(time, &format!("{who} time"), TIME_STEP)?;
+        let shapes = match g.child("position") {
+            Some(p) => self.goal_shapes(p, who, lanelets)?,
+            None => Vec::new(),
+        };
+        let velocity = g
+            .child("velocity")
+            .map(|v| self.interval(v, &format!("{who} velocity"), VELOCITY))
+            .transpose()?;
+        let orientation = g
+            .child("orientation")
+            .map(|o| self.interval(o, &format!("{who} orientation"), ORIENTATION))
+            .transpose()?;
+        Ok(GoalState {
+            line: g.line,
+            time,
+            shapes,
+            velocity,
+            orientation,
         })
     }
 }
@@ -595,7 +742,7 @@ impl RawScenario {
         let obstacles = Self::obstacles(&f, &root, &version)?;
         let planning_problems = root
             .children("planningProblem")
-            .map(|pp| f.planning_problem(pp))
+            .map(|pp| f.planning_problem(pp, &lanelets))
             .collect::<Result<Vec<_>, _>>()?;
         let stem = path.file_name().map_or_else(String::new, |s| {
             s.to_string_lossy()

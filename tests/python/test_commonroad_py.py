@@ -52,6 +52,26 @@ def test_road_frame_equals_the_pipelines(path: Path) -> None:
         np.testing.assert_allclose(b, wb, rtol=0, atol=1e-3)
 
 
+CURVED_FIXTURE = REPO / "python/train/tests/fixtures/commonroad/USA_US101-26_1_T-1_cut.xml.gz"
+
+
+@pytest.mark.parametrize("path", [CURVED_FIXTURE, *SHARED], ids=lambda p: p.name)
+def test_curvilinear_frame_equals_the_pipelines(path: Path) -> None:
+    """The curvilinear frame nudge plans in on curved roads equals the pipeline's ``frenet`` frame
+    (``nudge_train.data.frenet``, the independent truth) on every state, to 1 mm / 1 mrad."""
+    from nudge_train.data.commonroad import read_commonroad
+
+    want = read_commonroad(path, frame="frenet")
+    got = commonroad_tracks(path, curvilinear=True)
+    steps = np.rint(want.t / want.dt).astype(np.int64)
+    np.testing.assert_array_equal(got["vehicle"], want.vehicle)
+    np.testing.assert_array_equal(got["step"], steps)
+    np.testing.assert_allclose(got["x"], want.x, rtol=0, atol=1e-3)
+    np.testing.assert_allclose(got["y"], want.y, rtol=0, atol=1e-3)
+    dh = (got["heading"] - want.heading + math.pi) % (2 * math.pi) - math.pi
+    assert np.max(np.abs(dh)) < 1e-3
+
+
 def test_scenario_from_commonroad_equals_the_shipped_one() -> None:
     shipped = nudge.Scenario.load(REPO / "assets/scenes/us101-11_1-t02.1-ego132.safetensors")
     src = NGSIM / "us101/commonroad_us101_T-1/USA_US101-11_1_T-1.xml.gz"

@@ -38,12 +38,8 @@ fn build(
     t0: Option<f64>,
     range: Option<f64>,
 ) -> Result<(CommonRoadScene, f64, nudge::planner::Scenario), CommonRoadError> {
-    let scene = CommonRoadScene::read(path)?;
-    let t0 = match t0 {
-        Some(t) => t,
-        None => scene.default_t0(ego)?,
-    };
-    let (sc, _) = scene.scenario_in_range(ego, t0, range.unwrap_or(NEIGHBOUR_RANGE))?;
+    let (scene, t0, sc, _) =
+        CommonRoadScene::prepare(path, ego, t0, range.unwrap_or(NEIGHBOUR_RANGE))?;
     Ok((scene, t0, sc))
 }
 
@@ -128,12 +124,22 @@ pub fn commonroad_solution<'py>(
 
 /// The CommonRoad file `path` in the road frame: per state `vehicle`, `step` (I64), `x`, `y`
 /// (m), `heading` (rad), `speed` (m/s) arrays `[N]`, and `pieces`, a list of (x0 m, x1 m,
-/// ascending lane boundaries `[L + 1]` m).
+/// ascending lane boundaries `[L + 1]` m). With `curvilinear`, in the curvilinear (Frenet)
+/// frame the planner uses on curved roads (x = arc length along the reference path, y = the
+/// signed offset from it) instead of the straightened one.
 #[pyfunction]
-pub fn commonroad_tracks(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyDict>> {
+#[pyo3(signature = (path, *, curvilinear=false))]
+pub fn commonroad_tracks(
+    py: Python<'_>,
+    path: PathBuf,
+    curvilinear: bool,
+) -> PyResult<Bound<'_, PyDict>> {
     guard(|| {
         let scene = py
-            .detach(|| CommonRoadScene::read(&path))
+            .detach(|| {
+                let s = CommonRoadScene::read(&path)?;
+                if curvilinear { s.curvilinear() } else { Ok(s) }
+            })
             .map_err(|e| cr_err(&e))?;
         let states = || {
             scene

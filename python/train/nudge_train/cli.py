@@ -904,11 +904,17 @@ def _add_commonroad(sub: argparse._SubParsersAction) -> None:
                    help="the nudge command (default: the checkout's target/release/nudge, else `nudge` on PATH)")
     p.add_argument("--out", type=Path, default=Path("runs/commonroad"), help="runs and solutions")
     p.add_argument("--markdown", type=Path, default=None, help="write the table here")
+    p.add_argument("--problems-only", action="store_true",
+                   help="only plan and check every planning problem of the 62 US-101 files (print the section)")
 
 
 def _commonroad(args: argparse.Namespace) -> int:
-    from nudge_train.experiments.commonroad_check import run
+    from nudge_train.experiments.commonroad_check import all_problems, problems_markdown, run
 
+    if args.problems_only:
+        print(problems_markdown(all_problems(args.nudge, args.out / "problems"),
+                                "nudge-train commonroad --problems-only"))
+        return 0
     print(run(args.nudge, args.out, args.markdown))
     return 0
 
