@@ -299,7 +299,11 @@ def test_gil_is_released_outside_the_python_predictor(scenario: nudge.Scenario) 
     GIL is held only inside its calls."""
     pl = nudge.Planner(None, predictor=ConstantVelocity())
     during, n_plans = spin_ticks_while_planning(pl, scenario)
-    assert during > 50 * n_plans, (during, n_plans)
+    # A plan holding the GIL throughout would let the spinner run only at the switch between
+    # two plans (a few ticks each). Since `Planner.plan` runs on a worker thread (the caller
+    # waits for it and for Ctrl-C) the spinner shares the GIL with two threads: 44-90 ticks per
+    # plan measured on a 2-core machine, so the bound is 25.
+    assert during > 25 * n_plans, (during, n_plans)
 
 
 def _first_implausible(history: np.ndarray, pred: np.ndarray) -> tuple[int, int] | None:

@@ -258,6 +258,53 @@ DEGENERATE: dict[str, list[Call]] = {
         lambda c: c["planner"].plan_scenario(c["sc"], seed=2**64 - 1),
     ],
 }
+
+
+def _session(c: dict[str, Any]) -> Any:
+    """A closed-loop session (nudge.env's loop) over the first shipped scene, constant velocity."""
+    return _native.Session([c["scene"]], "constant_velocity", assets=c["assets"])
+
+
+def _started(c: dict[str, Any]) -> Any:
+    s = _session(c)
+    s.reset(0, 0)
+    return s
+
+
+# The closed-loop session: no scene, an unknown predictor, methods before a run starts, indices
+# and seeds out of range, inputs of the wrong length, out of bounds or non-finite, steps after
+# the run ended.
+DEGENERATE.update({
+    "Session.__new__": [
+        lambda c: _native.Session([]),
+        lambda c: _native.Session([""]),
+        lambda c: _native.Session([c["scene"]], "no_such_model", assets=c["assets"]),
+        lambda c: _native.Session([c["scene"]], "constant_velocity", assets=c["assets"], max_steps=0),
+    ],
+    "Session.scene_names": [lambda c: _session(c).scene_names],
+    "Session.lane_counts": [lambda c: _session(c).lane_counts],
+    "Session.settings": [lambda c: _session(c).settings],
+    "Session.config": [lambda c: _session(c).config],
+    "Session.predictor": [lambda c: _session(c).predictor],
+    "Session.reset": [
+        lambda c: _session(c).reset(1, 0),
+        lambda c: _session(c).reset(-1, 0),
+        lambda c: _session(c).reset(0, -1),
+        lambda c: _session(c).reset(0, 2**64),
+    ],
+    "Session.observation": [lambda c: _session(c).observation(), lambda c: _started(c).observation()],
+    "Session.target": [lambda c: _session(c).target(), lambda c: _started(c).target()],
+    "Session.nudge_plan": [lambda c: _session(c).nudge_plan(), lambda c: _started(c).nudge_plan()],
+    "Session.step": [
+        lambda c: _session(c).step([0.0] * 6, [0.0] * 6),
+        lambda c: _started(c).step([], []),
+        lambda c: _started(c).step([0.0] * 5, [0.0] * 6),
+        lambda c: _started(c).step([float("nan")] * 6, [0.0] * 6),
+        lambda c: _started(c).step([0.0] * 6, [1e300] * 6),
+        lambda c: [_s.step([0.0] * 6, [0.0] * 6) for _s in [_started(c)] for _ in range(200)],
+    ],
+})
+
 # Getters of Scenario: on a scene reduced to the ego alone.
 for _name in ("agent_ids", "ego_lane", "future", "future_valid", "heading", "history", "lane_bounds",
               "lane_centres", "lane_extent_real", "lane_extents", "metadata", "n_agents", "name", "path", "road",

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from nudge_train.errors import NudgeTrainError
-from nudge_train.experiments.commonroad_check import CHECK_WORLD, CommandError, _assets_args, find_nudge
+from nudge_train.nudge_command import CHECK_WORLD, CommandError, _assets_args, find_nudge
 
 __all__ = ["GoalNotReached", "plan"]
 
@@ -50,7 +50,7 @@ def plan(scenario: Any, planning_problem: Any, *, nudge: Path | None = None, see
     """Plans ``planning_problem`` in ``scenario`` (commonroad-io objects) with nudge's planner and
     returns the executed trajectory as a ``commonroad.common.solution.Solution``.
 
-    ``nudge``: the ``nudge`` command (default :func:`~nudge_train.experiments.commonroad_check.find_nudge`);
+    ``nudge``: the ``nudge`` command (default :func:`~nudge_train.nudge_command.find_nudge`);
     ``seed``: the run's seed; ``world``: how the other vehicles move (``log_replay``, the default:
     as the scenario's recorded obstacles, which the checker judges against); ``neighbour_range``
     (m): the radius within which vehicles enter the scene (default: the command's, 60 m);

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import gzip
 import json
-import shutil
 import struct
 import subprocess
 import tempfile
@@ -34,42 +33,8 @@ import numpy as np
 
 from nudge_train import paths
 from nudge_train.errors import NudgeTrainError
+from nudge_train.nudge_command import CHECK_WORLD, CommandError, _assets_args, find_nudge
 
-
-class CommandError(NudgeTrainError, RuntimeError):
-    """The ``nudge`` command failed or cannot be found: ``command`` (the argument list) and
-    the reason (its exit status and the last lines of its stderr)."""
-
-    def __init__(self, command: list[str], reason: str) -> None:
-        self.command = command
-        super().__init__(f"{' '.join(command[:2])} ...: {reason}")
-
-
-def find_nudge(given: Path | None = None) -> Path:
-    """The ``nudge`` command: ``given``, else ``<repo>/target/release/nudge`` when built, else
-    ``nudge`` on ``PATH`` (the command of the installed wheel). Raises :class:`CommandError`
-    naming what was tried."""
-    if given is not None:
-        if not Path(given).is_file():
-            raise CommandError([str(given)], "not found (build it: make build)")
-        return Path(given).absolute()
-    built = paths.repo() / "target" / "release" / "nudge"
-    if built.is_file():
-        return built
-    found = shutil.which("nudge")
-    if found is None:
-        raise CommandError(["nudge"], f"not found: neither {built} (make build) nor `nudge` on PATH (pip install "
-                                      "the nudge-planner wheel)")
-    return Path(found)
-
-
-def _assets_args() -> list[str]:
-    """``--assets DIR`` with the checkout's assets as an absolute path when they are there (so
-    the command resolves its models wherever it runs), else nothing (the command's own)."""
-    assets = paths.assets()
-    if (assets / "models").is_dir():
-        return ["--assets", str(assets.absolute())]
-    return []
 
 @dataclass(frozen=True)
 class SceneRun:
@@ -128,7 +93,6 @@ def run_nudge(nudge: Path, run: SceneRun, out: Path) -> Path:
                              f"{run.range_m:g}"], run.source, out)
 
 
-CHECK_WORLD = "log_replay"
 """The closed-loop world of every checked solution: the checker judges a solution against the
 scenario's recorded obstacles, so the others must move as recorded while nudge plans (in the
 ``teacher`` or ``idm`` world they react to the ego and a collision-free run there can collide
