@@ -21,13 +21,12 @@ Example (in the environment of the ``commonroad`` extra, ``make test-commonroad`
 from __future__ import annotations
 
 import json
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from nudge_train.errors import NudgeTrainError
-from nudge_train.nudge_command import CHECK_WORLD, CommandError, _assets_args, find_nudge
+from nudge_train.nudge_command import CHECK_WORLD, CommandError, _assets_args, find_nudge, run_solution
 
 __all__ = ["GoalNotReached", "plan"]
 
@@ -82,18 +81,9 @@ def plan(scenario: Any, planning_problem: Any, *, nudge: Path | None = None, see
                    "--out", str(out), "--threads", "1", "--no-progress", *_assets_args()]
         if neighbour_range is not None:
             command += ["--neighbour-range", f"{neighbour_range:g}"]
-        try:
-            done = subprocess.run(command, capture_output=True, text=True, check=False)
-        except OSError as exc:
-            raise CommandError(command, f"cannot run: {exc}") from None
-        if done.returncode != 0:
-            tail = " | ".join(done.stderr.strip().splitlines()[-3:]) or "no message"
-            raise CommandError(command, f"exit status {done.returncode}: {tail}")
-        sols = sorted(out.glob("solution_*.xml"))
-        if len(sols) != 1:
-            raise CommandError(command, f"expected one solution file in {out}, found {len(sols)}")
-        side = json.loads(sols[0].with_suffix(".json").read_text())
-        solution = CommonRoadSolutionReader.open(str(sols[0]))
+        solution_file = run_solution(command, out)
+        side = json.loads(solution_file.with_suffix(".json").read_text())
+        solution = CommonRoadSolutionReader.open(str(solution_file))
     if require_goal and not side.get("goal_reached"):
         raise GoalNotReached(int(planning_problem.planning_problem_id), str(side.get("goal_missed")), solution)
     return solution

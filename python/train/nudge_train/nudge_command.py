@@ -5,12 +5,13 @@ and the checker experiment)."""
 from __future__ import annotations
 
 import shutil
+import subprocess
 from pathlib import Path
 
 from nudge_train import paths
 from nudge_train.errors import NudgeTrainError
 
-__all__ = ["CHECK_WORLD", "CommandError", "find_nudge"]
+__all__ = ["CHECK_WORLD", "CommandError", "find_nudge", "run_solution"]
 
 # The world of CommonRoad runs: the scenario's obstacles follow their recorded trajectories.
 CHECK_WORLD = "log_replay"
@@ -50,3 +51,21 @@ def _assets_args() -> list[str]:
     if (assets / "models").is_dir():
         return ["--assets", str(assets.absolute())]
     return []
+
+
+def run_solution(command: list[str], out: Path) -> Path:
+    """Runs ``command`` (a ``nudge simulate --commonroad ...`` writing into ``out``) and returns
+    the one solution file it wrote. Raises :class:`CommandError` naming the command when it
+    cannot run, fails (its exit status and the last lines of its stderr) or writes no single
+    solution."""
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, check=False)
+    except OSError as exc:
+        raise CommandError(command, f"cannot run: {exc}") from None
+    if done.returncode != 0:
+        tail = " | ".join(done.stderr.strip().splitlines()[-3:]) or "no message"
+        raise CommandError(command, f"exit status {done.returncode}: {tail}")
+    sols = sorted(out.glob("solution_*.xml"))
+    if len(sols) != 1:
+        raise CommandError(command, f"expected one solution file in {out}, found {len(sols)}")
+    return sols[0]

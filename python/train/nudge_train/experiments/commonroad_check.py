@@ -24,7 +24,6 @@ from __future__ import annotations
 import gzip
 import json
 import struct
-import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +32,7 @@ import numpy as np
 
 from nudge_train import paths
 from nudge_train.errors import NudgeTrainError
-from nudge_train.nudge_command import CHECK_WORLD, CommandError, _assets_args, find_nudge
+from nudge_train.nudge_command import CHECK_WORLD, CommandError, _assets_args, find_nudge, run_solution
 
 
 @dataclass(frozen=True)
@@ -109,17 +108,7 @@ def _simulate(nudge: Path, ego_args: list[str], source: Path, out: Path) -> Path
     under the checkout's assets, whatever the working directory); its solution. Raises
     :class:`CommandError` with the command's stderr when it fails."""
     command = [str(nudge), *_simulate_args(source, ego_args, out), *_assets_args()]
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, check=False)
-    except OSError as exc:
-        raise CommandError(command, f"cannot run: {exc}") from None
-    if done.returncode != 0:
-        tail = " | ".join(done.stderr.strip().splitlines()[-3:]) or "no message"
-        raise CommandError(command, f"exit status {done.returncode}: {tail}")
-    sols = sorted(out.glob("solution_*.xml"))
-    if len(sols) != 1:
-        raise RuntimeError(f"{out}: expected one solution file, found {len(sols)}")
-    return sols[0]
+    return run_solution(command, out)
 
 
 @dataclass
