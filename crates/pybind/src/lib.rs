@@ -10,6 +10,7 @@ mod cli;
 mod commonroad;
 mod env;
 mod errors;
+mod interrupt;
 mod planner;
 mod predict;
 mod py_policy;

@@ -1,6 +1,6 @@
 //! `nudge._native.Planner`: one ADMM MPC call at a time, on a scenario or on raw arrays.
 
-use std::sync::{Mutex, MutexGuard, PoisonError, mpsc};
+use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::thread::ThreadId;
 
 use nudge_planner::scenario::{LaneExtent, MAX_LANES};
@@ -14,13 +14,13 @@ use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::args::{Int, guard, panic_error};
+use crate::args::{Int, guard};
 use crate::arrays::{Dim, to_f64};
 use crate::errors::{InputError, NudgeError, ReentrancyError, planner_err, predictor_err, sim_err};
+use crate::interrupt::interruptibly;
 use crate::py_predictor::PlanningPredictor;
 use crate::scenario::PyScenario;
 use crate::settings::{PySettings, PySimConfig};
-use crate::sim::SIGNAL_POLL;
 
 /// The interaction-aware MPC planner bound to one predictor (built in, or a Python object:
 /// `crate::py_predictor`). Keeps its previous solution as the warm start of the next call
@@ -165,7 +165,7 @@ impl PyPlanner {
     /// method in a re-entrancy error.
     ///
     /// The call runs on a worker thread while this (the calling) thread polls Python's signal
-    /// handlers every [`SIGNAL_POLL`]: on Ctrl-C the planner's cancel flag is set, the call
+    /// handlers every [`crate::interrupt::SIGNAL_POLL`] ([`interruptibly`]): on Ctrl-C the planner's cancel flag is set, the call
     /// ends within one predictor call ([`nudge_planner::PlannerError::Cancelled`]) and the
     /// `KeyboardInterrupt` (or whatever the handler raised) is returned; the warm start is
     /// kept.
@@ -177,53 +177,25 @@ impl PyPlanner {
     ) -> PyResult<Bound<'py, PyDict>> {
         self.refuse_reentry(method)?;
         let cancel = Cancel::new();
-        let mut interrupt: Option<PyErr> = None;
-        let result = py.detach(|| {
-            std::thread::scope(|scope| {
-                let (tx, rx) = mpsc::channel();
-                let flag = &cancel;
-                let worker = scope.spawn(move || {
-                    let mut planner = self.planner.lock().unwrap_or_else(PoisonError::into_inner);
-                    *self
-                        .planning_on
-                        .lock()
-                        .unwrap_or_else(PoisonError::into_inner) =
-                        Some(std::thread::current().id());
-                    let _planning = Planning(&self.planning_on);
-                    planner.set_cancel(Some(flag.clone()));
-                    let plan = self.predictor.with(|p| planner.plan(problem, p));
-                    planner.set_cancel(None);
-                    // The receiver outlives the worker: sending cannot fail.
-                    let _ = tx.send(plan);
-                });
-                loop {
-                    match rx.recv_timeout(SIGNAL_POLL) {
-                        Ok(plan) => return Ok(plan),
-                        Err(mpsc::RecvTimeoutError::Timeout) => {
-                            if interrupt.is_none()
-                                && let Err(e) = Python::attach(|py| py.check_signals())
-                            {
-                                cancel.cancel();
-                                interrupt = Some(e);
-                            }
-                        }
-                        // The worker panicked: its payload becomes a NudgeError.
-                        Err(mpsc::RecvTimeoutError::Disconnected) => {
-                            return Err(worker.join().err());
-                        }
-                    }
-                }
-            })
-        });
-        if let Some(e) = interrupt {
-            return Err(e);
-        }
-        let plan = result
-            .map_err(|payload| match payload {
-                Some(p) => panic_error(p.as_ref()),
-                None => NudgeError::new_err("the planning worker stopped without a result"),
-            })?
-            .map_err(planner_err)?;
+        let plan = interruptibly(
+            py,
+            &cancel,
+            "planning",
+            || {
+                let mut planner = self.planner.lock().unwrap_or_else(PoisonError::into_inner);
+                *self
+                    .planning_on
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner) = Some(std::thread::current().id());
+                let _planning = Planning(&self.planning_on);
+                planner.set_cancel(Some(cancel.clone()));
+                let plan = self.predictor.with(|p| planner.plan(problem, p));
+                planner.set_cancel(None);
+                plan
+            },
+            |_| Ok(()),
+        )?
+        .map_err(planner_err)?;
         plan_to_dict(py, &plan)
     }
 }

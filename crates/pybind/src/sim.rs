@@ -6,8 +6,6 @@
 #![allow(clippy::result_large_err)]
 
 use std::path::PathBuf;
-use std::sync::mpsc;
-use std::time::Duration;
 
 use nudge_planner::PlannerSettings;
 use nudge_predictor::{Predictor, Records, T_OBS, default_assets_dir};
@@ -21,8 +19,9 @@ use pyo3::types::PyDict;
 
 use nudge::provenance::{Inputs, ModelRef, Provenance};
 
-use crate::args::{Int, guard, panic_error};
+use crate::args::{Int, guard};
 use crate::errors::{InputError, NudgeError, sim_err};
+use crate::interrupt::interruptibly;
 use crate::py_policy::PythonPlanner;
 use crate::py_predictor::{LABEL, NAME as PYTHON, PredictorArg};
 use crate::settings::{PySettings, PySimConfig, with_overrides};
@@ -49,11 +48,8 @@ pub fn defaults_dict(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     Ok(d)
 }
 
-/// How often a running batch looks for a pending signal (Ctrl-C).
-pub const SIGNAL_POLL: Duration = Duration::from_millis(50);
-
 /// Runs `batch` on a worker thread with the GIL released while this (the calling) thread
-/// polls Python's signal handlers every [`SIGNAL_POLL`]: on Ctrl-C the batch is cancelled
+/// polls Python's signal handlers every [`crate::interrupt::SIGNAL_POLL`] ([`interruptibly`]): on Ctrl-C the batch is cancelled
 /// (every run stops before its next closed-loop step) and the `KeyboardInterrupt` is
 /// returned. `planning` builds each run's planning predictor when the batch was prepared for
 /// one from Python ([`BatchRequest::prepare_foreign`]). `progress`, a Python callable, is
@@ -81,50 +77,13 @@ fn run_interruptibly(
             _ => Ok(()),
         }
     };
-    let mut interrupt: Option<PyErr> = None;
-    let finished = py.detach(|| {
-        std::thread::scope(|scope| {
-            let (tx, rx) = mpsc::channel();
-            let stop = &cancel;
-            let counted = &count;
-            let worker = scope.spawn(move || {
-                // The receiver outlives the worker: sending cannot fail.
-                let _ = tx.send(batch.run_counted(keep, stop, planning, policy, counted));
-            });
-            loop {
-                match rx.recv_timeout(SIGNAL_POLL) {
-                    Ok(outputs) => {
-                        if interrupt.is_none()
-                            && let Err(e) = report(count.done())
-                        {
-                            interrupt = Some(e);
-                        }
-                        return Ok(outputs);
-                    }
-                    Err(mpsc::RecvTimeoutError::Timeout) => {
-                        if interrupt.is_none()
-                            && let Err(e) = Python::attach(|py| py.check_signals())
-                                .and_then(|()| report(count.done()))
-                        {
-                            cancel.cancel();
-                            interrupt = Some(e);
-                        }
-                    }
-                    Err(mpsc::RecvTimeoutError::Disconnected) => {
-                        // The worker panicked: its payload becomes a NudgeError.
-                        return Err(worker.join().err());
-                    }
-                }
-            }
-        })
-    });
-    if let Some(e) = interrupt {
-        return Err(e);
-    }
-    finished.map_err(|payload| match payload {
-        Some(p) => panic_error(p.as_ref()),
-        None => NudgeError::new_err("the simulation worker stopped without a result"),
-    })
+    interruptibly(
+        py,
+        &cancel,
+        "simulation",
+        || batch.run_counted(keep, &cancel, planning, policy, &count),
+        |_| report(count.done()),
+    )
 }
 
 /// Closed-loop simulation of every scenario in `scene_paths` (in the given order), `runs`
