@@ -35,13 +35,17 @@ sys.exit(1)
 """
 
 
-def test_simulate_answers_ctrl_c_within_a_second() -> None:
-    proc = subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+def interrupt(args: list[str], wait: float) -> tuple[str, float, str, str, int]:
+    """Runs ``python -c *args``, sends SIGINT ``wait`` s after it prints ``started`` (while it
+    still runs); its first line after the signal, how long that line took (s), the rest of its
+    output, its stderr and its exit status."""
+    proc = subprocess.Popen([sys.executable, "-c", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     assert proc.stdout is not None
     try:
         assert proc.stdout.readline().strip() == "started"
-        time.sleep(1.0)  # the batch is running
+        time.sleep(wait)
+        assert proc.poll() is None, proc.communicate()
         sent = time.monotonic()
         proc.send_signal(signal.SIGINT)
         line = proc.stdout.readline().strip()
@@ -52,9 +56,14 @@ def test_simulate_answers_ctrl_c_within_a_second() -> None:
             proc.kill()
             proc.wait()
     assert line.startswith("interrupted"), f"no KeyboardInterrupt: {line!r} {err}"
+    return line, answered, rest, err, proc.returncode
+
+
+def test_simulate_answers_ctrl_c_within_a_second() -> None:
+    _, answered, rest, err, status = interrupt([SCRIPT], 1.0)  # the batch is running
     assert answered < 1.5, f"KeyboardInterrupt came {answered:.2f} s after SIGINT"
     assert "after 1" in rest, rest + err
-    assert proc.returncode == 0, err
+    assert status == 0, err
 
 
 # One planning step that runs for a long time: settings at the ends of their ranges (ADMM that
@@ -112,26 +121,10 @@ def test_ctrl_c_ends_a_long_planning_step(what: str, predictor: str) -> None:
     """SIGINT during one long MPC call (``Planner.plan_scenario``, or a step of
     ``nudge.simulate``) raises KeyboardInterrupt within about a second, with a Python and a
     built-in predictor, and the interpreter plans again afterwards."""
-    proc = subprocess.Popen([sys.executable, "-c", STEP_SCRIPT, what, predictor], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
-    try:
-        assert proc.stdout.readline().strip() == "started"
-        # Inside the first planning step: the teacher's lasts about a second (the work cap), the
-        # slow Python predictor's up to 30 s (the wall-clock cap).
-        time.sleep(0.3 if predictor == "teacher" else 1.5)
-        assert proc.poll() is None, proc.communicate()
-        sent = time.monotonic()
-        proc.send_signal(signal.SIGINT)
-        line = proc.stdout.readline().strip()
-        answered = time.monotonic() - sent
-        rest, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert line.startswith("interrupted"), f"no KeyboardInterrupt: {line!r} {err}"
+    # Inside the first planning step: the teacher's lasts about a second (the work cap), the
+    # slow Python predictor's up to 30 s (the wall-clock cap).
+    _, answered, rest, err, status = interrupt([STEP_SCRIPT, what, predictor], 0.3 if predictor == "teacher" else 1.5)
     # Well before the step would have ended by itself (at least ~0.9 s later for the teacher).
     assert answered < 0.5, f"KeyboardInterrupt came {answered:.2f} s after SIGINT"
     assert "after " in rest, rest + err
-    assert proc.returncode == 0, err
+    assert status == 0, err
