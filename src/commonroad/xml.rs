@@ -447,7 +447,18 @@ impl Fields<'_> {
     ) -> Result<Vec<[f64; 2]>, CommonRoadError> {
         let what = format!("lanelet {id} {side}");
         let bound = bound.ok_or_else(|| self.err(ll.line, &what, "missing bound".into()))?;
-        let pts = bound
+        self.point_list(bound, &what, 2)
+    }
+
+    /// The `point` children (x, y) of `node` (m), at least `min` of them; `what` names them in
+    /// errors.
+    fn point_list(
+        &self,
+        node: &Node,
+        what: &str,
+        min: usize,
+    ) -> Result<Vec<[f64; 2]>, CommonRoadError> {
+        let pts = node
             .children("point")
             .map(|p| {
                 Ok([
@@ -456,8 +467,8 @@ impl Fields<'_> {
                 ])
             })
             .collect::<Result<Vec<_>, CommonRoadError>>()?;
-        if pts.len() < 2 {
-            return Err(self.err(bound.line, &what, "fewer than 2 points".into()));
+        if pts.len() < min {
+            return Err(self.err(node.line, what, format!("fewer than {min} points")));
         }
         Ok(pts)
     }
@@ -615,21 +626,7 @@ impl Fields<'_> {
                     radius: self.num(node, "radius", &format!("{what} radius"), SIZE)?,
                     center: self.center(node, &what)?,
                 },
-                "polygon" => {
-                    let pts = node
-                        .children("point")
-                        .map(|p| {
-                            Ok([
-                                self.num(p, "x", &format!("{what} x"), COORD)?,
-                                self.num(p, "y", &format!("{what} y"), COORD)?,
-                            ])
-                        })
-                        .collect::<Result<Vec<_>, CommonRoadError>>()?;
-                    if pts.len() < 3 {
-                        return Err(self.err(node.line, &what, "fewer than 3 points".into()));
-                    }
-                    GoalShape::Polygon(pts)
-                }
+                "polygon" => GoalShape::Polygon(self.point_list(node, &what, 3)?),
                 "lanelet" => {
                     let r = node.attr("ref").unwrap_or("").trim();
                     GoalShape::lanelet(r, lanelets).ok_or_else(|| {
