@@ -523,6 +523,81 @@ def _run_slow_plans(a: argparse.Namespace) -> int:
         return 2
 
 
+# ---- settings chosen across scene groups ------------------------------------------------------
+def _add_group_cv(sub: argparse._SubParsersAction) -> None:
+    p = _command(sub, "group-cv",
+                 "planner-settings arms on a per-group sample of the training and validation scenes, every world, "
+                 "paired with the base arm; chosen by the worst scene group, with leave-one-group-out (resumes "
+                 "from verified records)",
+                 _run_group_cv)
+    p.add_argument("--arm", action="append", default=[], metavar="NAME=SETTINGS.json",
+                   help="an arm: a name and a (partial) planner settings JSON; repeatable")
+    p.add_argument("--base", default="defaults", metavar="NAME[=SETTINGS.json]",
+                   help="the base arm every arm is paired with (default: the shipped defaults)")
+    p.add_argument("--scenes", type=Path, default=None,
+                   help="folder of scenario files (default: a sample of --per-group scenes of every group of the "
+                        "train and val splits, written to OUT/scenes)")
+    p.add_argument("--per-group", type=int, default=20, help="scenes per group of the sample")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sample")
+    p.add_argument("--runs", type=int, default=3, help="target-lane seeds per scene")
+    p.add_argument("--predictor", default="student", help="the planning predictor")
+    p.add_argument("--nudge", type=Path, default=None, help="the nudge command (default: target/release/nudge)")
+    p.add_argument("--out", type=Path, default=paths.runs() / "group_cv", help="folder of the arms' records")
+    p.add_argument("--report", type=Path, default=None, help="write the report here (default OUT/report.md)")
+
+
+def _parse_arm(text: str) -> tuple[str, dict]:
+    from nudge_train.experiments.group_cv import GroupCvError
+
+    name, sep, file = text.partition("=")
+    if not name or not name.replace("_", "").replace("-", "").isalnum():
+        raise GroupCvError(f"arm {text!r}: the name must be letters, digits, - or _")
+    if not sep:
+        return name, {}
+    from nudge_train.jsonio import load_json
+
+    settings = load_json(Path(file))
+    if not isinstance(settings, dict):
+        raise GroupCvError(f"arm {name}: {file} is not a JSON object")
+    return name, settings
+
+
+def _run_group_cv(a: argparse.Namespace) -> int:
+    import shlex
+
+    from nudge_train.experiments import group_cv as cv
+    from nudge_train.nudge_command import CommandError, find_nudge
+
+    command = "nudge-train group-cv " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
+    try:
+        groups = cv.SceneGroups.from_manifest(paths.processed() / "manifest.json")
+        base_name, base_settings = _parse_arm(a.base)
+        arms = [cv.Arm(base_name, base_settings)] + [cv.Arm(*_parse_arm(x)) for x in a.arm]
+        if len({x.name for x in arms}) != len(arms):
+            raise cv.GroupCvError("two arms share a name")
+        scenes = a.scenes
+        if scenes is None:
+            scenes = a.out / "scenes"
+            counts = cv.sample_scenes([paths.scenes("train"), paths.scenes("val")], groups, a.per_group, a.seed,
+                                      scenes)
+            print(f"sample: {sum(counts.values())} scenes in {len(counts)} groups -> {scenes}")
+        nudge = find_nudge(a.nudge)
+        for arm in arms:
+            cv.run_arm(nudge, arm, scenes.absolute(), a.runs, a.predictor, a.out.absolute())
+        results = {arm.name: {w: cv.load_arm_world(a.out / arm.name / f"{a.predictor}-{w}", groups)
+                              for w in cv.WORLDS} for arm in arms}
+    except (cv.GroupCvError, CommandError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    text = cv.report(results, base_name, command)
+    out = a.report or a.out / "report.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    choice, _ = cv.select(results, base_name)
+    print(f"wrote {out}; chosen: {choice}")
+    return 0
+
+
 # ---- the paper ---------------------------------------------------------------------------------
 def _add_paper(sub: argparse._SubParsersAction) -> None:
     from nudge_train.experiments.paper import STAGES, PaperConfig
@@ -835,6 +910,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_distill(sub)
     _add_closed_loop(sub)
     _add_slow_plans(sub)
+    _add_group_cv(sub)
     _add_paper(sub)
     _add_interaction(sub)
     _add_bench(sub)
