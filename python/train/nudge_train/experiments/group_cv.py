@@ -6,7 +6,9 @@ sample of the training and validation scenes, every world, paired with a base ar
 seed and target lane), and decides by groups:
 
 * per arm, world and group: the paired difference of success (arm − base) with a normal 95 %
-  interval, at-fault runs, the share of steps whose plan the ADMM decided, step time;
+  interval over the runs (the seeds of one scene are treated as independent, which they are not
+  quite, so the interval is somewhat narrow; :mod:`.stats` has the scene-clustered bootstrap),
+  at-fault runs, the share of steps whose plan the ADMM decided, step time;
 * **the rule**: an arm is eligible when it adds no at-fault run in any world; its score is its
   WORST group's paired success difference (the mean over worlds); the eligible arm with the best
   score is chosen, the base (score 0) when none scores above 0;
